@@ -1,0 +1,274 @@
+//! The pyramid file format, version 1 (see `FORMAT.md` for the byte-level description).
+//!
+//! ```text
+//! header (64 B) · metadata (bincode 2) · level table (40 B per level)
+//!   · per level a dense index in Morton order (32 B per Morton code)
+//!   · tile records, level by level (finest first), each level contiguous in Morton order
+//! ```
+//! Because every level's records are contiguous and in Morton order, a Morton range
+//! of one level is one byte range of the file (DESIGN §3).
+
+use crate::metadata::Metadata;
+use xxhash_rust::xxh3::Xxh3;
+
+pub const MAGIC: [u8; 8] = *b"TESSPYR\0";
+pub const VERSION: u32 = 1;
+pub const HEADER_LEN: usize = 64;
+pub const LEVEL_ENTRY_LEN: usize = 40;
+pub const INDEX_ENTRY_LEN: usize = 32;
+
+/// Checksum of a tile record (and of the header region): XXH3-64.
+pub fn checksum(bytes: &[u8]) -> u64 {
+    xxhash_rust::xxh3::xxh3_64(bytes)
+}
+
+fn bincode_config() -> impl bincode::config::Config {
+    bincode::config::standard()
+        .with_little_endian()
+        .with_variable_int_encoding()
+}
+
+/// Metadata as stored in the header.
+pub fn encode_metadata(meta: &Metadata) -> Vec<u8> {
+    bincode::serde::encode_to_vec(meta, bincode_config())
+        .expect("metadata always serializes: it has no maps or unsized types")
+}
+
+pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, String> {
+    let (meta, used): (Metadata, usize) =
+        bincode::serde::decode_from_slice(bytes, bincode_config()).map_err(|e| e.to_string())?;
+    if used != bytes.len() {
+        return Err(format!(
+            "metadata has {} trailing bytes",
+            bytes.len() - used
+        ));
+    }
+    Ok(meta)
+}
+
+/// The dataset's content hash: metadata (with an empty hash) and every record checksum
+/// in file order.
+pub fn content_hash<'a>(meta: &Metadata, record_checksums: impl Iterator<Item = &'a u64>) -> String {
+    let mut unhashed = meta.clone();
+    unhashed.content_hash.clear();
+    let mut h = Xxh3::new();
+    h.update(&encode_metadata(&unhashed));
+    for c in record_checksums {
+        h.update(&c.to_le_bytes());
+    }
+    format!("{:016x}", h.digest())
+}
+
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
+}
+
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+
+/// The fixed 64-byte header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FileHeader {
+    pub version: u32,
+    pub flags: u32,
+    pub meta_offset: u64,
+    pub meta_len: u64,
+    pub level_table_offset: u64,
+    pub level_count: u32,
+    pub index_entry_len: u32,
+    pub records_offset: u64,
+    /// XXH3-64 of header bytes `0..56` followed by the file from `meta_offset` to `records_offset`.
+    pub checksum: u64,
+}
+
+impl FileHeader {
+    pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
+        let mut b = [0u8; HEADER_LEN];
+        b[0..8].copy_from_slice(&MAGIC);
+        b[8..12].copy_from_slice(&self.version.to_le_bytes());
+        b[12..16].copy_from_slice(&self.flags.to_le_bytes());
+        b[16..24].copy_from_slice(&self.meta_offset.to_le_bytes());
+        b[24..32].copy_from_slice(&self.meta_len.to_le_bytes());
+        b[32..40].copy_from_slice(&self.level_table_offset.to_le_bytes());
+        b[40..44].copy_from_slice(&self.level_count.to_le_bytes());
+        b[44..48].copy_from_slice(&self.index_entry_len.to_le_bytes());
+        b[48..56].copy_from_slice(&self.records_offset.to_le_bytes());
+        b[56..64].copy_from_slice(&self.checksum.to_le_bytes());
+        b
+    }
+
+    /// Parses the fixed header; checks magic and version (not yet the checksum).
+    pub fn parse(b: &[u8]) -> Result<Self, String> {
+        if b.len() < HEADER_LEN {
+            return Err(format!(
+                "file is {} bytes, shorter than the {HEADER_LEN}-byte header",
+                b.len()
+            ));
+        }
+        if b[0..8] != MAGIC {
+            return Err("not a Tessera pyramid (bad magic)".into());
+        }
+        let version = u32_at(b, 8);
+        if version != VERSION {
+            return Err(format!(
+                "format version {version} is not supported (this build reads version {VERSION})"
+            ));
+        }
+        Ok(Self {
+            version,
+            flags: u32_at(b, 12),
+            meta_offset: u64_at(b, 16),
+            meta_len: u64_at(b, 24),
+            level_table_offset: u64_at(b, 32),
+            level_count: u32_at(b, 40),
+            index_entry_len: u32_at(b, 44),
+            records_offset: u64_at(b, 48),
+            checksum: u64_at(b, 56),
+        })
+    }
+
+    /// The checksum over this header (bytes 0..56) and the region after it.
+    pub fn compute_checksum(&self, region: &[u8]) -> u64 {
+        let mut h = Xxh3::new();
+        h.update(&self.to_bytes()[..56]);
+        h.update(region);
+        h.digest()
+    }
+}
+
+/// Where one level's index and records are.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LevelEntry {
+    pub level: u8,
+    pub tiles_per_side: u32,
+    pub index_offset: u64,
+    pub index_entries: u64,
+    pub records_offset: u64,
+    pub records_len: u64,
+}
+
+impl LevelEntry {
+    pub fn to_bytes(&self) -> [u8; LEVEL_ENTRY_LEN] {
+        let mut b = [0u8; LEVEL_ENTRY_LEN];
+        b[0] = self.level;
+        b[4..8].copy_from_slice(&self.tiles_per_side.to_le_bytes());
+        b[8..16].copy_from_slice(&self.index_offset.to_le_bytes());
+        b[16..24].copy_from_slice(&self.index_entries.to_le_bytes());
+        b[24..32].copy_from_slice(&self.records_offset.to_le_bytes());
+        b[32..40].copy_from_slice(&self.records_len.to_le_bytes());
+        b
+    }
+
+    pub fn parse(b: &[u8]) -> Self {
+        Self {
+            level: b[0],
+            tiles_per_side: u32_at(b, 4),
+            index_offset: u64_at(b, 8),
+            index_entries: u64_at(b, 16),
+            records_offset: u64_at(b, 24),
+            records_len: u64_at(b, 32),
+        }
+    }
+}
+
+/// One index slot: where a tile's record is, its checksum and its summary.
+/// `length == 0` means the tile is absent (wholly outside the DEM).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct IndexEntry {
+    /// Absolute file offset of the record.
+    pub offset: u64,
+    pub length: u32,
+    /// Quantized min/max height of the tile's samples.
+    pub min: u16,
+    pub max: u16,
+    /// XXH3-64 of the record bytes.
+    pub checksum: u64,
+    /// Largest error of the tile drawn at its own full resolution, in metres.
+    pub full_res_error: f32,
+    pub flags: u32,
+}
+
+impl IndexEntry {
+    pub const fn is_present(&self) -> bool {
+        self.length > 0
+    }
+
+    pub const fn end(&self) -> u64 {
+        self.offset + self.length as u64
+    }
+
+    pub fn to_bytes(&self) -> [u8; INDEX_ENTRY_LEN] {
+        let mut b = [0u8; INDEX_ENTRY_LEN];
+        b[0..8].copy_from_slice(&self.offset.to_le_bytes());
+        b[8..12].copy_from_slice(&self.length.to_le_bytes());
+        b[12..14].copy_from_slice(&self.min.to_le_bytes());
+        b[14..16].copy_from_slice(&self.max.to_le_bytes());
+        b[16..24].copy_from_slice(&self.checksum.to_le_bytes());
+        b[24..28].copy_from_slice(&self.full_res_error.to_le_bytes());
+        b[28..32].copy_from_slice(&self.flags.to_le_bytes());
+        b
+    }
+
+    pub fn parse(b: &[u8]) -> Self {
+        Self {
+            offset: u64_at(b, 0),
+            length: u32_at(b, 8),
+            min: u16::from_le_bytes([b[12], b[13]]),
+            max: u16::from_le_bytes([b[14], b[15]]),
+            checksum: u64_at(b, 16),
+            full_res_error: f32::from_le_bytes([b[24], b[25], b[26], b[27]]),
+            flags: u32_at(b, 28),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fixed_records_round_trip() {
+        let h = FileHeader {
+            version: VERSION,
+            flags: 0,
+            meta_offset: 64,
+            meta_len: 300,
+            level_table_offset: 364,
+            level_count: 3,
+            index_entry_len: INDEX_ENTRY_LEN as u32,
+            records_offset: 9999,
+            checksum: 0xdead_beef,
+        };
+        assert_eq!(FileHeader::parse(&h.to_bytes()).unwrap(), h);
+        let l = LevelEntry {
+            level: 2,
+            tiles_per_side: 4,
+            index_offset: 1,
+            index_entries: 16,
+            records_offset: 77,
+            records_len: 12345,
+        };
+        assert_eq!(LevelEntry::parse(&l.to_bytes()), l);
+        let e = IndexEntry {
+            offset: 5,
+            length: 6,
+            min: 7,
+            max: 8,
+            checksum: 9,
+            full_res_error: 1.5,
+            flags: 0,
+        };
+        assert_eq!(IndexEntry::parse(&e.to_bytes()), e);
+    }
+
+    #[test]
+    fn bad_headers_say_why() {
+        assert!(FileHeader::parse(b"short").unwrap_err().contains("shorter"));
+        let mut b = [0u8; 64];
+        assert!(FileHeader::parse(&b).unwrap_err().contains("bad magic"));
+        b[0..8].copy_from_slice(&MAGIC);
+        b[8] = 9;
+        assert!(FileHeader::parse(&b).unwrap_err().contains("version 9"));
+    }
+}

@@ -1,0 +1,26 @@
+//! The contract between the Tessera server and client.
+//!
+//! Everything both sides must agree on lives here and nowhere else (DESIGN §1):
+//! tile ids and Morton codes ([`tile`], [`morton`]), the pyramid file format
+//! ([`format`], written down in `FORMAT.md`), dataset metadata ([`metadata`]),
+//! the tile-record codec ([`codec`]), error tables ([`error_table`]), the surface
+//! a tile is triangulated into ([`triangulation`]) and a reader that works over
+//! any source of byte ranges ([`reader`]).
+
+pub mod codec;
+pub mod error_table;
+pub mod format;
+pub mod metadata;
+pub mod morton;
+pub mod reader;
+pub mod tile;
+pub mod triangulation;
+
+#[cfg(feature = "testdata")]
+pub mod testdata;
+
+pub use error_table::ErrorTable;
+pub use metadata::{GeoRef, Metadata, Quantization, RasterType};
+pub use morton::{Morton, MortonRange};
+pub use reader::{ByteSource, FileSource, Pyramid};
+pub use tile::{Level, TileGeometry, TileId};

@@ -1,0 +1,314 @@
+//! Reading a pyramid over any source of byte ranges: a local file now, object
+//! storage or HTTP Range requests later (DESIGN §3–4).
+
+use crate::codec::{self, CodecError, TileRecord};
+use crate::error_table::ErrorTable;
+use crate::format::{
+    self, FileHeader, HEADER_LEN, INDEX_ENTRY_LEN, IndexEntry, LEVEL_ENTRY_LEN, LevelEntry,
+};
+use crate::metadata::Metadata;
+use crate::morton::MortonRange;
+use crate::tile::{GeometryError, Level, TileGeometry, TileId};
+use std::io;
+use std::path::Path;
+
+/// Anything that can answer "give me bytes `offset..offset+buf.len()`".
+pub trait ByteSource: Send + Sync {
+    /// Total length in bytes.
+    fn len(&self) -> io::Result<u64>;
+    /// Fills `buf` from `offset`; an error if the source is shorter.
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> io::Result<()>;
+
+    /// Reads `len` bytes at `offset` into a new buffer.
+    fn read_vec(&self, offset: u64, len: usize) -> io::Result<Vec<u8>> {
+        let mut v = vec![0; len];
+        self.read_at(offset, &mut v)?;
+        Ok(v)
+    }
+}
+
+/// A local file read with positional reads (`pread`), shareable across threads.
+#[derive(Debug)]
+pub struct FileSource {
+    file: std::fs::File,
+}
+
+impl FileSource {
+    pub fn open(path: &Path) -> io::Result<Self> {
+        Ok(Self {
+            file: std::fs::File::open(path)?,
+        })
+    }
+}
+
+impl ByteSource for FileSource {
+    fn len(&self) -> io::Result<u64> {
+        Ok(self.file.metadata()?.len())
+    }
+
+    #[cfg(unix)]
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> io::Result<()> {
+        std::os::unix::fs::FileExt::read_exact_at(&self.file, buf, offset)
+    }
+
+    #[cfg(windows)]
+    fn read_at(&self, mut offset: u64, mut buf: &mut [u8]) -> io::Result<()> {
+        use std::os::windows::fs::FileExt;
+        while !buf.is_empty() {
+            match self.file.seek_read(buf, offset)? {
+                0 => return Err(io::ErrorKind::UnexpectedEof.into()),
+                n => {
+                    buf = &mut buf[n..];
+                    offset += n as u64;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl ByteSource for Vec<u8> {
+    fn len(&self) -> io::Result<u64> {
+        Ok(self.as_slice().len() as u64)
+    }
+
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> io::Result<()> {
+        let start = usize::try_from(offset).map_err(|_| io::ErrorKind::UnexpectedEof)?;
+        let src = self
+            .get(start..start + buf.len())
+            .ok_or(io::ErrorKind::UnexpectedEof)?;
+        buf.copy_from_slice(src);
+        Ok(())
+    }
+}
+
+/// Why a pyramid could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error("I/O error: {0}")]
+    Io(#[from] io::Error),
+    #[error("{0}")]
+    Header(String),
+    #[error("header checksum mismatch: the header, metadata or index is damaged")]
+    HeaderChecksum,
+    #[error("metadata does not decode: {0}")]
+    Metadata(String),
+    #[error("bad geometry: {0}")]
+    Geometry(#[from] GeometryError),
+    #[error("bad structure: {0}")]
+    Structure(String),
+    #[error("{tile}: checksum mismatch (record is corrupt)")]
+    RecordChecksum { tile: TileId },
+    #[error("{tile}: {source}")]
+    Codec { tile: TileId, source: CodecError },
+}
+
+/// An open pyramid: metadata and every level's index in memory, records on demand.
+#[derive(Debug)]
+pub struct Pyramid<S> {
+    source: S,
+    header: FileHeader,
+    meta: Metadata,
+    geometry: TileGeometry,
+    levels: Vec<LevelEntry>,
+    index: Vec<Vec<IndexEntry>>,
+}
+
+impl Pyramid<FileSource> {
+    /// Opens a local pyramid file.
+    pub fn open_file(path: &Path) -> Result<Self, ReadError> {
+        Self::open(FileSource::open(path)?)
+    }
+}
+
+impl<S: ByteSource> Pyramid<S> {
+    /// Reads and checks the header, metadata, level table and indices.
+    ///
+    /// Checks the header checksum and that the indices describe a well-formed file:
+    /// every present tile is one the geometry says exists, and each level's records are
+    /// contiguous in Morton order inside that level's record range.
+    pub fn open(source: S) -> Result<Self, ReadError> {
+        let file_len = source.len()?;
+        let head = source.read_vec(0, HEADER_LEN.min(file_len as usize))?;
+        let header = FileHeader::parse(&head).map_err(ReadError::Header)?;
+        if header.records_offset > file_len || header.meta_offset != HEADER_LEN as u64 {
+            return Err(ReadError::Structure(format!(
+                "header points outside the file ({file_len} bytes)"
+            )));
+        }
+        let region = source.read_vec(
+            header.meta_offset,
+            (header.records_offset - header.meta_offset) as usize,
+        )?;
+        if header.compute_checksum(&region) != header.checksum {
+            return Err(ReadError::HeaderChecksum);
+        }
+        let at = |off: u64| (off - header.meta_offset) as usize;
+        let meta_end = header.meta_offset + header.meta_len;
+        let meta = format::decode_metadata(&region[..at(meta_end)]).map_err(ReadError::Metadata)?;
+        let geometry = TileGeometry::new(meta.width, meta.height, meta.tile_size)?;
+        if header.level_count != u32::from(geometry.level_count())
+            || meta.levels != geometry.level_count()
+            || header.index_entry_len != INDEX_ENTRY_LEN as u32
+        {
+            return Err(ReadError::Structure(format!(
+                "{} levels in the header, {} in the metadata, {} from the geometry",
+                header.level_count,
+                meta.levels,
+                geometry.level_count()
+            )));
+        }
+        let mut levels = Vec::new();
+        let mut index = Vec::new();
+        for level in geometry.levels() {
+            let off = header.level_table_offset + u64::from(level.get()) * LEVEL_ENTRY_LEN as u64;
+            let entry = LevelEntry::parse(
+                region
+                    .get(at(off)..at(off) + LEVEL_ENTRY_LEN)
+                    .ok_or_else(|| ReadError::Structure("level table is truncated".into()))?,
+            );
+            let slots = level.tile_slots();
+            if entry.level != level.get()
+                || entry.tiles_per_side != level.tiles_per_side()
+                || entry.index_entries != slots
+                || entry.records_offset < header.records_offset
+                || entry.records_offset + entry.records_len > file_len
+            {
+                return Err(ReadError::Structure(format!(
+                    "level table entry for level {level} is inconsistent"
+                )));
+            }
+            let start = at(entry.index_offset);
+            let bytes = region
+                .get(start..start + slots as usize * INDEX_ENTRY_LEN)
+                .ok_or_else(|| ReadError::Structure(format!("index of level {level} is truncated")))?;
+            let entries: Vec<IndexEntry> =
+                bytes.chunks_exact(INDEX_ENTRY_LEN).map(IndexEntry::parse).collect();
+            check_level_index(&geometry, level, &entry, &entries)?;
+            levels.push(entry);
+            index.push(entries);
+        }
+        Ok(Self {
+            source,
+            header,
+            meta,
+            geometry,
+            levels,
+            index,
+        })
+    }
+
+    pub fn metadata(&self) -> &Metadata {
+        &self.meta
+    }
+
+    pub fn geometry(&self) -> &TileGeometry {
+        &self.geometry
+    }
+
+    pub fn header(&self) -> &FileHeader {
+        &self.header
+    }
+
+    pub fn source(&self) -> &S {
+        &self.source
+    }
+
+    pub fn level_entry(&self, level: Level) -> Option<&LevelEntry> {
+        self.levels.get(usize::from(level.get()))
+    }
+
+    /// The dense index of a level, by Morton code.
+    pub fn index(&self, level: Level) -> Option<&[IndexEntry]> {
+        self.index.get(usize::from(level.get())).map(Vec::as_slice)
+    }
+
+    /// The index entry of a present tile.
+    pub fn entry(&self, tile: TileId) -> Option<&IndexEntry> {
+        self.index(tile.level())?
+            .get(tile.morton().get() as usize)
+            .filter(|e| e.is_present())
+    }
+
+    /// The byte range `(offset, len)` holding every present record of a Morton range,
+    /// or `None` when no tile of the range is present.
+    pub fn byte_range(&self, level: Level, range: MortonRange) -> Option<(u64, u64)> {
+        let idx = self.index(level)?;
+        let lo = usize::try_from(range.start().get()).ok()?;
+        let hi = usize::try_from(range.end().get()).ok()?.min(idx.len().checked_sub(1)?);
+        let slice = idx.get(lo..=hi)?;
+        let first = slice.iter().find(|e| e.is_present())?;
+        let last = slice.iter().rev().find(|e| e.is_present())?;
+        Some((first.offset, last.end() - first.offset))
+    }
+
+    /// The stored bytes of a tile's record, checked against its checksum.
+    /// `Ok(None)` for a tile that is absent.
+    pub fn read_record(&self, tile: TileId) -> Result<Option<Vec<u8>>, ReadError> {
+        let Some(e) = self.entry(tile) else {
+            return Ok(None);
+        };
+        let bytes = self.source.read_vec(e.offset, e.length as usize)?;
+        if format::checksum(&bytes) != e.checksum {
+            return Err(ReadError::RecordChecksum { tile });
+        }
+        Ok(Some(bytes))
+    }
+
+    /// A tile's error table and heights, checked and decoded.
+    pub fn read_tile(&self, tile: TileId) -> Result<Option<TileRecord>, ReadError> {
+        let Some(bytes) = self.read_record(tile)? else {
+            return Ok(None);
+        };
+        codec::decode_record(&bytes, self.geometry.tile_log2())
+            .map(Some)
+            .map_err(|source| ReadError::Codec { tile, source })
+    }
+
+    /// Only a tile's error table (from the checked record).
+    pub fn read_error_table(&self, tile: TileId) -> Result<Option<ErrorTable>, ReadError> {
+        let Some(bytes) = self.read_record(tile)? else {
+            return Ok(None);
+        };
+        codec::decode_error_table(&bytes, self.geometry.tile_log2())
+            .map(Some)
+            .map_err(|source| ReadError::Codec { tile, source })
+    }
+}
+
+/// Presence must match the geometry, and records must be contiguous in Morton order.
+fn check_level_index(
+    geometry: &TileGeometry,
+    level: Level,
+    entry: &LevelEntry,
+    entries: &[IndexEntry],
+) -> Result<(), ReadError> {
+    let mut next = entry.records_offset;
+    for (m, e) in entries.iter().enumerate() {
+        let tile = TileId::from_morton(level, crate::Morton::from_raw(m as u64))
+            .ok_or_else(|| ReadError::Structure(format!("index slot {m} of level {level}")))?;
+        if e.is_present() != geometry.is_present(tile) {
+            return Err(ReadError::Structure(format!(
+                "{tile} is {} in the index but {} by the geometry",
+                if e.is_present() { "present" } else { "absent" },
+                if geometry.is_present(tile) { "present" } else { "absent" },
+            )));
+        }
+        if e.is_present() {
+            if e.offset != next {
+                return Err(ReadError::Structure(format!(
+                    "{tile}: record at offset {} but the previous one ends at {next}",
+                    e.offset
+                )));
+            }
+            next = e.end();
+        }
+    }
+    if next != entry.records_offset + entry.records_len {
+        return Err(ReadError::Structure(format!(
+            "level {level} records end at {next}, the level table says {}",
+            entry.records_offset + entry.records_len
+        )));
+    }
+    Ok(())
+}
