@@ -1,1 +1,173 @@
-fn main() {}
+//! `tessera-server`: build, verify and describe Tessera tile pyramids.
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use tessera_server::build::{BuildOptions, build};
+use tessera_server::{info, verify};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "tessera-server",
+    version,
+    about = "Build, check and serve Tessera tile pyramids of large elevation models",
+    long_about = "Build, check and serve Tessera tile pyramids of large elevation models.\n\n\
+        A pyramid is one .tess file: every level of detail of a DEM, cut into tiles stored in \
+        Z-order (Morton order) with per-tile error tables, so a client can fetch exactly the \
+        detail its view needs with a few byte-range requests."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Build a pyramid from a DEM (out of core: memory stays under --memory).
+    ///
+    /// INPUT is a GeoTIFF (int16/uint16/float32; striped or tiled; none/deflate/LZW),
+    /// a 16-bit grayscale PNG, an SRTM .hgt file, or synthetic:SIZE[:SEED] for a
+    /// deterministic fractal terrain of SIZE×SIZE samples.
+    Build {
+        /// The DEM to read, or synthetic:SIZE[:SEED].
+        input: String,
+        /// The pyramid file to write (e.g. dem.tess). Written to a temporary file beside
+        /// it and renamed into place only when complete and verified.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Tile size in cells: a power of two from 64 to 4096 (tiles have one more sample).
+        #[arg(long, default_value_t = 512)]
+        tile_size: u32,
+        /// Multiply input samples by this to get metres (e.g. 0.1 for decimetres).
+        #[arg(long, default_value_t = 1.0)]
+        scale: f64,
+        /// Add this after scaling to get metres (e.g. -10000 for the moon mosaics).
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        offset: f64,
+        /// Input value that means "no data", overriding the file's own (e.g. GDAL_NODATA).
+        #[arg(long, allow_negative_numbers = true)]
+        nodata: Option<f64>,
+        /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
+        #[arg(long, default_value = "512MiB", value_parser = parse_bytes)]
+        memory: u64,
+        /// No progress bars.
+        #[arg(short, long)]
+        quiet: bool,
+    },
+    /// Check a pyramid's structure and every tile's checksum; exit 1 naming each bad tile.
+    Verify {
+        /// The .tess file to check.
+        file: PathBuf,
+    },
+    /// Print a pyramid's metadata and per-level statistics.
+    Info {
+        /// The .tess file to describe.
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Parses sizes like `512MiB`, `2GiB`, `300MB`, `1000`.
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let n: f64 = num.parse().map_err(|_| format!("{s:?} is not a size like 512MiB"))?;
+    let mult: f64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1.0,
+        "k" | "kb" => 1e3,
+        "kib" => 1024.0,
+        "m" | "mb" => 1e6,
+        "mib" => 1024.0 * 1024.0,
+        "g" | "gb" => 1e9,
+        "gib" => 1024.0 * 1024.0 * 1024.0,
+        u => return Err(format!("unknown size unit {u:?} (use B, KiB, MiB, GiB, KB, MB, GB)")),
+    };
+    let v = n * mult;
+    if v < f64::from(64u32 << 20) {
+        return Err(format!("{s} is below the 64 MiB minimum memory budget"));
+    }
+    Ok(v as u64)
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Build {
+            input,
+            output,
+            tile_size,
+            scale,
+            offset,
+            nodata,
+            memory,
+            quiet,
+        } => {
+            let opts = BuildOptions {
+                tile_size,
+                scale,
+                offset,
+                memory_budget: memory,
+                nodata,
+                progress: !quiet,
+            };
+            let r = build(&input, &output, &opts)?;
+            let m = &r.metadata;
+            println!(
+                "built {}: {}×{} samples, {} levels, {} tiles, {:.1} MB ({:.3} bytes/sample) in {:.2} s ({:.1} M samples/s)",
+                output.display(),
+                m.width,
+                m.height,
+                m.levels,
+                r.tiles,
+                r.file_bytes as f64 / 1e6,
+                r.file_bytes as f64 / r.samples as f64,
+                r.seconds,
+                r.samples as f64 / r.seconds / 1e6
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Verify { file } => {
+            let r = verify::verify(&file).with_context(|| file.display().to_string())?;
+            for (tile, problem) in &r.bad {
+                println!("bad {tile}: {problem}");
+            }
+            if r.bad.is_empty() {
+                println!("ok {}: {} tiles, {} record bytes, every checksum matches", file.display(), r.tiles, r.bytes);
+                Ok(ExitCode::SUCCESS)
+            } else {
+                eprintln!("error: {}: {} of {} tiles are bad", file.display(), r.bad.len(), r.tiles);
+                Ok(ExitCode::FAILURE)
+            }
+        }
+        Command::Info { file, json } => {
+            let i = info::info(&file).with_context(|| file.display().to_string())?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&i)?);
+            } else {
+                print!("{}", info::render(&i));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}

@@ -131,21 +131,26 @@ impl<S: ByteSource> Pyramid<S> {
         let file_len = source.len()?;
         let head = source.read_vec(0, HEADER_LEN.min(file_len as usize))?;
         let header = FileHeader::parse(&head).map_err(ReadError::Header)?;
-        if header.records_offset > file_len || header.meta_offset != HEADER_LEN as u64 {
+        if header.records_offset > file_len || header.records_offset < HEADER_LEN as u64 {
             return Err(ReadError::Structure(format!(
                 "header points outside the file ({file_len} bytes)"
             )));
         }
         let region = source.read_vec(
-            header.meta_offset,
-            (header.records_offset - header.meta_offset) as usize,
+            HEADER_LEN as u64,
+            (header.records_offset - HEADER_LEN as u64) as usize,
         )?;
         if header.compute_checksum(&region) != header.checksum {
             return Err(ReadError::HeaderChecksum);
         }
-        let at = |off: u64| (off - header.meta_offset) as usize;
-        let meta_end = header.meta_offset + header.meta_len;
-        let meta = format::decode_metadata(&region[..at(meta_end)]).map_err(ReadError::Metadata)?;
+        // Offsets are absolute; `slice` maps them into the header region.
+        let slice = |off: u64, len: u64, what: &str| -> Result<&[u8], ReadError> {
+            off.checked_sub(HEADER_LEN as u64)
+                .and_then(|s| region.get(s as usize..(s + len) as usize))
+                .ok_or_else(|| ReadError::Structure(format!("{what} lies outside the header region")))
+        };
+        let meta = format::decode_metadata(slice(header.meta_offset, header.meta_len, "metadata")?)
+            .map_err(ReadError::Metadata)?;
         let geometry = TileGeometry::new(meta.width, meta.height, meta.tile_size)?;
         if header.level_count != u32::from(geometry.level_count())
             || meta.levels != geometry.level_count()
@@ -162,11 +167,7 @@ impl<S: ByteSource> Pyramid<S> {
         let mut index = Vec::new();
         for level in geometry.levels() {
             let off = header.level_table_offset + u64::from(level.get()) * LEVEL_ENTRY_LEN as u64;
-            let entry = LevelEntry::parse(
-                region
-                    .get(at(off)..at(off) + LEVEL_ENTRY_LEN)
-                    .ok_or_else(|| ReadError::Structure("level table is truncated".into()))?,
-            );
+            let entry = LevelEntry::parse(slice(off, LEVEL_ENTRY_LEN as u64, "level table")?);
             let slots = level.tile_slots();
             if entry.level != level.get()
                 || entry.tiles_per_side != level.tiles_per_side()
@@ -178,10 +179,11 @@ impl<S: ByteSource> Pyramid<S> {
                     "level table entry for level {level} is inconsistent"
                 )));
             }
-            let start = at(entry.index_offset);
-            let bytes = region
-                .get(start..start + slots as usize * INDEX_ENTRY_LEN)
-                .ok_or_else(|| ReadError::Structure(format!("index of level {level} is truncated")))?;
+            let bytes = slice(
+                entry.index_offset,
+                slots * INDEX_ENTRY_LEN as u64,
+                &format!("index of level {level}"),
+            )?;
             let entries: Vec<IndexEntry> =
                 bytes.chunks_exact(INDEX_ENTRY_LEN).map(IndexEntry::parse).collect();
             check_level_index(&geometry, level, &entry, &entries)?;

@@ -1,0 +1,475 @@
+//! Building a pyramid from a DEM, out of core (DESIGN §3).
+//!
+//! 1. File inputs are spooled row by row into a temporary raw file ([`spool`]);
+//!    the synthetic terrain is generated on demand instead.
+//! 2. Finest tiles are cut in Morton order, in parallel batches; each one measures
+//!    its mesh errors for every spacing ([`mesh_error`]) and is encoded.
+//! 3. A post-order walk of the Morton quadtree assembles each coarse tile as soon
+//!    as its four children exist: heights by decimation (sample `(i, j)` of level
+//!    `L` is sample `(2i, 2j)` of level `L+1`), errors by pooling the children's
+//!    exact block maxima.
+//! 4. [`writer`] lays the records out level by level in Morton order, verifies
+//!    the file and renames it into place.
+//!
+//! Memory stays bounded by the batch of finest tiles in flight and one pending
+//! quadruple of tiles per level, whatever the DEM's size.
+
+pub mod mesh_error;
+pub mod raster;
+pub mod spool;
+pub mod writer;
+
+use crate::ingest::{self, Input};
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use mesh_error::{BlockErrors, CornerGrid};
+use raster::Raster;
+use rayon::prelude::*;
+use std::path::Path;
+use std::time::Instant;
+use tessera_shared::error_table::round_up_f32;
+use tessera_shared::tile::BLOCKS;
+use tessera_shared::{
+    ErrorTable, Level, Metadata, Morton, Quantization, TileGeometry, TileId, codec,
+};
+
+/// What `tessera-server build` was asked to do.
+#[derive(Clone, Debug)]
+pub struct BuildOptions {
+    /// Tile size in cells (a power of two, 64..=4096).
+    pub tile_size: u32,
+    /// `metres = offset + scale · raw` for the input's samples.
+    pub scale: f64,
+    pub offset: f64,
+    /// Bound on the memory the build uses, in bytes.
+    pub memory_budget: u64,
+    /// Overrides the input's own no-data value.
+    pub nodata: Option<f64>,
+    /// Show progress bars (on a terminal).
+    pub progress: bool,
+}
+
+impl Default for BuildOptions {
+    fn default() -> Self {
+        Self {
+            tile_size: 512,
+            scale: 1.0,
+            offset: 0.0,
+            memory_budget: 512 << 20,
+            nodata: None,
+            progress: false,
+        }
+    }
+}
+
+/// What a build produced.
+#[derive(Clone, Debug)]
+pub struct BuildReport {
+    pub metadata: Metadata,
+    pub samples: u64,
+    pub tiles: u64,
+    pub file_bytes: u64,
+    pub seconds: f64,
+}
+
+/// A tile with what its parent needs: heights, exact block errors for every spacing,
+/// and block min/max (empty blocks are `min = u16::MAX, max = 0`).
+struct Node {
+    heights: Vec<u16>,
+    errors: BlockErrors,
+    min: [u16; 64],
+    max: [u16; 64],
+}
+
+/// An encoded record and its index summary.
+struct Encoded {
+    record: Vec<u8>,
+    min: u16,
+    max: u16,
+    full_res_error: f32,
+}
+
+fn bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
+    if !enabled {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(len);
+    b.set_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} {per_sec} eta {eta}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    b.set_message(what.to_string());
+    b
+}
+
+/// Builds `output` from `input` (a file path or `synthetic:SIZE[:SEED]`).
+pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<BuildReport> {
+    let started = Instant::now();
+    anyhow::ensure!(
+        opts.scale.is_finite() && opts.scale > 0.0 && opts.offset.is_finite(),
+        "--scale must be a positive number and --offset a finite number"
+    );
+    let source = ingest::open(input)?;
+    let (width, height) = match &source {
+        Input::Rows(r) => (r.info().width, r.info().height),
+        Input::Synthetic(s) => (s.width(), s.height()),
+    };
+    let geometry = TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
+    let (description, georef) = match &source {
+        Input::Rows(r) => (r.info().description.clone(), r.info().georef.clone()),
+        Input::Synthetic(s) => (s.description(), None),
+    };
+    let mut meta = Metadata {
+        width,
+        height,
+        tile_size: opts.tile_size,
+        levels: geometry.level_count(),
+        quantization: Quantization {
+            offset: 0.0,
+            scale: 1.0,
+            max_error: 0.0,
+        },
+        min_height: 0.0,
+        max_height: 0.0,
+        nodata_count: 0,
+        nodata_fill: "nearest valid sample".into(),
+        georef,
+        source: format!("{description} ({})", file_name(input)),
+        generator: format!("tessera-server {}", env!("CARGO_PKG_VERSION")),
+        content_hash: String::new(),
+    };
+    let writer = writer::PyramidWriter::create(output, geometry, meta_reserve(&meta))
+        .with_context(|| output.display().to_string())?;
+    let dir = output.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    match source {
+        Input::Rows(mut rows) => {
+            let spool_bar = bar(opts.progress, u64::from(height), "reading");
+            let budget = usize::try_from(opts.memory_budget / 4).unwrap_or(usize::MAX);
+            let spooled = spool::SpooledRaster::spool(rows.as_mut(), dir, opts.nodata, budget, |r| {
+                spool_bar.set_position(u64::from(r));
+            })
+            .with_context(|| input.to_string())?;
+            spool_bar.finish_and_clear();
+            meta.quantization = spooled.quantizer.to_metres(
+                opts.scale,
+                opts.offset,
+                spooled.sample_type.is_integer(),
+            );
+            meta.nodata_count = spooled.nodata_count;
+            build_tiles(&spooled, geometry, &mut meta, writer, opts, started)
+        }
+        Input::Synthetic(synth) => {
+            meta.quantization = Quantization {
+                offset: ingest::synthetic::OFFSET,
+                scale: ingest::synthetic::SCALE,
+                max_error: 0.0,
+            };
+            meta.nodata_fill = "none (synthetic)".into();
+            build_tiles(&synth, geometry, &mut meta, writer, opts, started)
+        }
+    }
+}
+
+fn file_name(input: &str) -> String {
+    Path::new(input)
+        .file_name()
+        .map_or_else(|| input.to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Room for the metadata once its numbers are final (they are all fixed-size or small).
+fn meta_reserve(meta: &Metadata) -> u64 {
+    let mut m = meta.clone();
+    m.nodata_count = u64::MAX;
+    m.content_hash = "0".repeat(16);
+    tessera_shared::format::encode_metadata(&m).len() as u64 + 64
+}
+
+fn build_tiles(
+    raster: &dyn Raster,
+    geometry: TileGeometry,
+    meta: &mut Metadata,
+    mut writer: writer::PyramidWriter,
+    opts: &BuildOptions,
+    started: Instant,
+) -> anyhow::Result<BuildReport> {
+    let finest = geometry.finest();
+    let t = geometry.tile_log2();
+    // Spacings 0 ..= t + L_max: from the data itself to the root's single cell.
+    let spacings = t + u32::from(finest.get()) + 1;
+    let corners = corner_grid(raster, &geometry)?;
+    let total_tiles: u64 = geometry.levels().map(|l| geometry.present_tiles(l).count() as u64).sum();
+    let tiles_bar = bar(opts.progress, total_tiles, "tiling");
+    // Finest tiles in flight: a quarter of the budget, counting heights, record and errors.
+    let tile_bytes = geometry.tile_samples().pow(2) as u64 * 4 + spacings as u64 * 512;
+    let batch = (opts.memory_budget / 4 / tile_bytes / 3).clamp(2, 64) as usize;
+    let slots = finest.tile_slots();
+    let quant = meta.quantization;
+    let mut agg = Aggregator {
+        geometry,
+        quant,
+        spacings,
+        pending: (0..=finest.get()).map(|_| [None, None, None, None]).collect(),
+        min_q: u16::MAX,
+        max_q: 0,
+        bar: &tiles_bar,
+    };
+    std::thread::scope(|scope| -> anyhow::Result<()> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<anyhow::Result<Vec<Option<(Node, Encoded)>>>>(1);
+        let corners = &corners;
+        let producer = scope.spawn(move || {
+            let mut start = 0u64;
+            while start < slots {
+                let end = (start + batch as u64).min(slots);
+                let result: anyhow::Result<Vec<_>> = (start..end)
+                    .into_par_iter()
+                    .map(|m| {
+                        let tile = TileId::from_morton(finest, Morton::from_raw(m)).expect("m < 4^L");
+                        if !geometry.is_present(tile) {
+                            return Ok(None);
+                        }
+                        let node = finest_node(raster, &geometry, tile, corners, spacings)?;
+                        let enc = encode(&node, &geometry, finest, &quant);
+                        Ok(Some((node, enc)))
+                    })
+                    .collect();
+                let failed = result.is_err();
+                if tx.send(result).is_err() || failed {
+                    return;
+                }
+                start = end;
+            }
+        });
+        let mut m = 0u64;
+        for batch in rx {
+            for item in batch? {
+                agg.push(&mut writer, finest, Morton::from_raw(m), item)?;
+                m += 1;
+            }
+        }
+        producer.join().expect("tile producer panicked");
+        anyhow::ensure!(m == slots, "tile production stopped early");
+        Ok(())
+    })?;
+    tiles_bar.finish_and_clear();
+    meta.min_height = quant.height(agg.min_q);
+    meta.max_height = quant.height(agg.max_q);
+    let verify_bar = bar(opts.progress, total_tiles, "verifying");
+    let output_meta = meta.clone();
+    let target = writer.target().to_path_buf();
+    writer.finish(meta.clone(), |n| verify_bar.inc(n))?;
+    verify_bar.finish_and_clear();
+    let file_bytes = std::fs::metadata(&target).map(|m| m.len()).unwrap_or(0);
+    let final_meta = tessera_shared::Pyramid::open_file(&target)
+        .map(|p| p.metadata().clone())
+        .unwrap_or(output_meta);
+    Ok(BuildReport {
+        metadata: final_meta,
+        samples: u64::from(geometry.width()) * u64::from(geometry.height()),
+        tiles: total_tiles,
+        file_bytes,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// Corner heights every `T` samples over the padded grid, clamped to the DEM's edge.
+fn corner_grid(raster: &dyn Raster, g: &TileGeometry) -> anyhow::Result<CornerGrid> {
+    let n = g.finest().tiles_per_side() as usize + 1;
+    let t = u64::from(g.tile_size());
+    let mut values = vec![0u16; n * n];
+    for j in 0..n {
+        for i in 0..n {
+            let x = (i as u64 * t).min(u64::from(g.width() - 1)) as u32;
+            let y = (j as u64 * t).min(u64::from(g.height() - 1)) as u32;
+            raster.read_window(x, y, 1, 1, &mut values[j * n + i..=j * n + i])?;
+        }
+    }
+    Ok(CornerGrid { side: n, values })
+}
+
+/// Reads a finest tile (clamping the padding to the DEM's edge) and measures it.
+fn finest_node(
+    raster: &dyn Raster,
+    g: &TileGeometry,
+    tile: TileId,
+    corners: &CornerGrid,
+    spacings: u32,
+) -> anyhow::Result<Node> {
+    let side = g.tile_samples();
+    let (gx0, gy0) = g.origin(tile);
+    let (x0, y0) = (gx0 as u32, gy0 as u32);
+    let w = (side as u32).min(g.width() - x0);
+    let h = (side as u32).min(g.height() - y0);
+    let mut window = vec![0u16; (w * h) as usize];
+    raster.read_window(x0, y0, w, h, &mut window)?;
+    let mut heights = vec![0u16; side * side];
+    for r in 0..side {
+        let src = r.min(h as usize - 1) * w as usize;
+        let dst = &mut heights[r * side..(r + 1) * side];
+        dst[..w as usize].copy_from_slice(&window[src..src + w as usize]);
+        let edge = dst[w as usize - 1];
+        dst[w as usize..].fill(edge);
+    }
+    let errors = mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, corners, spacings);
+    let (min, max) = block_ranges(&heights, side);
+    Ok(Node {
+        heights,
+        errors,
+        min,
+        max,
+    })
+}
+
+/// Min/max over each block's closed sample range.
+fn block_ranges(heights: &[u16], side: usize) -> ([u16; 64], [u16; 64]) {
+    let b = (side - 1) / BLOCKS as usize;
+    let (mut min, mut max) = ([u16::MAX; 64], [0u16; 64]);
+    for by in 0..BLOCKS as usize {
+        for bx in 0..BLOCKS as usize {
+            let i = by * BLOCKS as usize + bx;
+            for v in by * b..=(by + 1) * b {
+                for &q in &heights[v * side + bx * b..=v * side + (bx + 1) * b] {
+                    min[i] = min[i].min(q);
+                    max[i] = max[i].max(q);
+                }
+            }
+        }
+    }
+    (min, max)
+}
+
+/// Errors in quantization steps → metres, rounded up so the bound stays conservative.
+fn to_metres(steps: f64, q: &Quantization) -> f32 {
+    if steps == 0.0 {
+        0.0
+    } else {
+        round_up_f32((steps * q.scale).next_up())
+    }
+}
+
+fn encode(node: &Node, g: &TileGeometry, level: Level, q: &Quantization) -> Encoded {
+    let t = g.tile_log2();
+    let mut table = ErrorTable::empty(t);
+    let below = u32::from(g.finest().get() - level.get());
+    for n in 0..=t {
+        let k = t - n + below;
+        for by in 0..BLOCKS {
+            for bx in 0..BLOCKS {
+                table.set_error(n, bx, by, to_metres(node.errors.get(k, bx, by), q));
+            }
+        }
+    }
+    for by in 0..BLOCKS {
+        for bx in 0..BLOCKS {
+            let i = (by * BLOCKS + bx) as usize;
+            table.set_block_range(bx, by, node.min[i], node.max[i]);
+        }
+    }
+    let (min, max) = table.tile_range();
+    Encoded {
+        record: codec::encode_record(&table, &node.heights),
+        min,
+        max,
+        full_res_error: table.full_resolution_error(),
+    }
+}
+
+/// Post-order assembly of coarse tiles as their children arrive in Morton order.
+struct Aggregator<'a> {
+    geometry: TileGeometry,
+    quant: Quantization,
+    spacings: u32,
+    /// Per level, the up-to-four siblings waiting for their parent.
+    pending: Vec<[Option<Node>; 4]>,
+    min_q: u16,
+    max_q: u16,
+    bar: &'a ProgressBar,
+}
+
+impl Aggregator<'_> {
+    fn push(
+        &mut self,
+        writer: &mut writer::PyramidWriter,
+        level: Level,
+        m: Morton,
+        item: Option<(Node, Encoded)>,
+    ) -> anyhow::Result<()> {
+        let node = match item {
+            Some((node, enc)) => {
+                writer.push(level, m, &enc.record, enc.min, enc.max, enc.full_res_error)?;
+                if level == self.geometry.finest() {
+                    self.min_q = self.min_q.min(enc.min);
+                    self.max_q = self.max_q.max(enc.max);
+                }
+                self.bar.inc(1);
+                Some(node)
+            }
+            None => None,
+        };
+        let Some(parent_level) = level.coarser() else {
+            return Ok(());
+        };
+        let slot = &mut self.pending[usize::from(level.get())];
+        slot[usize::from(m.quadrant())] = node;
+        if m.quadrant() == 3 {
+            let children = std::mem::take(slot);
+            let parent = self.assemble(children).map(|node| {
+                let enc = encode(&node, &self.geometry, parent_level, &self.quant);
+                (node, enc)
+            });
+            self.push(writer, parent_level, m.parent(), parent)?;
+        }
+        Ok(())
+    }
+
+    /// A parent from its children; `None` when the parent is absent (its first child is).
+    fn assemble(&self, children: [Option<Node>; 4]) -> Option<Node> {
+        children[0].as_ref()?;
+        let side = self.geometry.tile_samples();
+        let half = side / 2;
+        let mut heights = vec![0u16; side * side];
+        let mut errors = BlockErrors::zeros(self.spacings as usize);
+        let (mut min, mut max) = ([u16::MAX; 64], [0u16; 64]);
+        for (q, child) in children.iter().enumerate() {
+            let Some(c) = child else { continue };
+            let (qx, qy) = (q & 1, q >> 1);
+            for j in 0..=half {
+                let dst = (qy * half + j) * side + qx * half;
+                let src = 2 * j * side;
+                for i in 0..=half {
+                    heights[dst + i] = c.heights[src + 2 * i];
+                }
+            }
+            errors.pool_child(&c.errors, qx as u32, qy as u32);
+            for cby in 0..BLOCKS as usize {
+                for cbx in 0..BLOCKS as usize {
+                    let pi = (qy * 4 + cby / 2) * BLOCKS as usize + qx * 4 + cbx / 2;
+                    let ci = cby * BLOCKS as usize + cbx;
+                    min[pi] = min[pi].min(c.min[ci]);
+                    max[pi] = max[pi].max(c.max[ci]);
+                }
+            }
+        }
+        // Absent children lie wholly beyond the DEM's east or south edge, where the
+        // padded grid repeats the edge: copy the last present column / row.
+        if children[1].is_none() {
+            for r in 0..side {
+                let edge = heights[r * side + half];
+                heights[r * side + half + 1..(r + 1) * side].fill(edge);
+            }
+        }
+        if children[2].is_none() {
+            let (top, rest) = heights.split_at_mut((half + 1) * side);
+            let edge = &top[half * side..];
+            for row in rest.chunks_exact_mut(side) {
+                row.copy_from_slice(edge);
+            }
+        }
+        Some(Node {
+            heights,
+            errors,
+            min,
+            max,
+        })
+    }
+}

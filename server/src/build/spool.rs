@@ -1,0 +1,273 @@
+//! Spooling a row-streamed input into a temporary file of raw `f32` samples, so the
+//! tile builder can read any window while memory stays bounded (DESIGN §3).
+//!
+//! While spooling, no-data samples are counted and filled (DESIGN §3: never
+//! ±32768 spikes): each takes the value of its nearest valid sample, found by a
+//! two-pass chamfer distance transform over the band of rows in memory plus the
+//! already-filled row above it. Rows that precede the first valid sample copy the
+//! first filled row (their nearest valid samples lie straight below).
+
+use super::raster::Raster;
+use crate::ingest::{RowSource, SampleType};
+use anyhow::{Context, bail};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::os::unix::fs::FileExt;
+use std::path::Path;
+use tessera_shared::Quantization;
+
+/// Raw value → quantized `u16`: `q = round((raw − raw_offset) / raw_step)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RawQuantizer {
+    pub raw_offset: f64,
+    pub raw_step: f64,
+}
+
+impl RawQuantizer {
+    pub fn quantize(&self, raw: f32) -> u16 {
+        ((f64::from(raw) - self.raw_offset) / self.raw_step)
+            .round()
+            .clamp(0.0, 65535.0) as u16
+    }
+
+    /// The dataset quantization after the user's `metres = offset + scale · raw`.
+    pub fn to_metres(&self, scale: f64, offset: f64, exact: bool) -> Quantization {
+        Quantization {
+            offset: offset + scale * self.raw_offset,
+            scale: scale * self.raw_step,
+            max_error: if exact {
+                0.0
+            } else {
+                (scale * self.raw_step).abs() / 2.0
+            },
+        }
+    }
+}
+
+/// A spooled input: random access to quantized samples.
+#[derive(Debug)]
+pub struct SpooledRaster {
+    file: File,
+    width: u32,
+    height: u32,
+    pub quantizer: RawQuantizer,
+    pub nodata_count: u64,
+    pub sample_type: SampleType,
+}
+
+/// Chamfer weights (3 for edge neighbours, 4 for diagonals) approximate Euclidean distance.
+const EDGE: u32 = 3;
+const DIAG: u32 = 4;
+
+/// Fills the void samples of `rows` (a `w`-wide band) from their nearest valid sample.
+/// Returns `false` when the band has no valid sample at all.
+fn fill_band(rows: &mut [f32], w: usize, valid: &[bool]) -> bool {
+    if valid.iter().all(|v| *v) {
+        return true;
+    }
+    if !valid.iter().any(|v| *v) {
+        return false;
+    }
+    let h = rows.len() / w;
+    let mut dist: Vec<u32> = valid.iter().map(|&v| if v { 0 } else { u32::MAX }).collect();
+    let relax = |dist: &mut [u32], rows: &mut [f32], i: usize, j: usize, wgt: u32| {
+        let d = dist[j].saturating_add(wgt);
+        if d < dist[i] {
+            dist[i] = d;
+            rows[i] = rows[j];
+        }
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if x > 0 {
+                relax(&mut dist, rows, i, i - 1, EDGE);
+            }
+            if y > 0 {
+                relax(&mut dist, rows, i, i - w, EDGE);
+                if x > 0 {
+                    relax(&mut dist, rows, i, i - w - 1, DIAG);
+                }
+                if x + 1 < w {
+                    relax(&mut dist, rows, i, i - w + 1, DIAG);
+                }
+            }
+        }
+    }
+    for y in (0..h).rev() {
+        for x in (0..w).rev() {
+            let i = y * w + x;
+            if x + 1 < w {
+                relax(&mut dist, rows, i, i + 1, EDGE);
+            }
+            if y + 1 < h {
+                relax(&mut dist, rows, i, i + w, EDGE);
+                if x + 1 < w {
+                    relax(&mut dist, rows, i, i + w + 1, DIAG);
+                }
+                if x > 0 {
+                    relax(&mut dist, rows, i, i + w - 1, DIAG);
+                }
+            }
+        }
+    }
+    true
+}
+
+impl SpooledRaster {
+    /// Reads every row of `src` into an unnamed temporary file in `dir`.
+    /// `nodata` overrides the source's own no-data value; `band_bytes` bounds the
+    /// memory used for one band of rows.
+    pub fn spool(
+        src: &mut dyn RowSource,
+        dir: &Path,
+        nodata: Option<f64>,
+        band_bytes: usize,
+        mut progress: impl FnMut(u32),
+    ) -> anyhow::Result<Self> {
+        let info = src.info().clone();
+        let w = info.width as usize;
+        let nodata = nodata.or(info.nodata).map(|v| v as f32);
+        let file = tempfile::tempfile_in(dir)
+            .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
+        let mut out = BufWriter::with_capacity(1 << 20, file);
+        // Per sample: the value, its validity flag, and a distance while filling.
+        let band_rows = (band_bytes / (w * 9)).clamp(1, info.height as usize);
+        let mut band = vec![0f32; (band_rows + 1) * w];
+        let mut valid = vec![false; (band_rows + 1) * w];
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        let mut nodata_count = 0u64;
+        let mut have_prev = false;
+        let mut leading_void_rows = 0u32;
+        let mut row = 0u32;
+        while row < info.height {
+            let n = band_rows.min((info.height - row) as usize);
+            // Slot 0 holds the previous (already filled) row as context for the fill.
+            let (ctx, rows) = if have_prev {
+                (1, &mut band[..(n + 1) * w])
+            } else {
+                (0, &mut band[..n * w])
+            };
+            src.read_rows(&mut rows[ctx * w..])?;
+            let valid = &mut valid[..rows.len()];
+            valid[..ctx * w].fill(true);
+            for (v, ok) in rows[ctx * w..].iter().zip(valid[ctx * w..].iter_mut()) {
+                *ok = !v.is_nan() && Some(*v) != nodata;
+                if *ok {
+                    lo = lo.min(*v);
+                    hi = hi.max(*v);
+                } else {
+                    nodata_count += 1;
+                }
+            }
+            if fill_band(rows, w, valid) {
+                let body = &rows[ctx * w..];
+                for v in body {
+                    out.write_all(&v.to_le_bytes())?;
+                }
+                if !have_prev && leading_void_rows > 0 {
+                    // Rows above the first valid sample copy the first filled row.
+                    out.flush()?;
+                    let first: Vec<u8> = body[..w].iter().flat_map(|v| v.to_le_bytes()).collect();
+                    for r in 0..leading_void_rows {
+                        out.get_ref().write_all_at(&first, u64::from(r) * 4 * w as u64)?;
+                    }
+                }
+                let last = rows.len() - w;
+                rows.copy_within(last.., 0);
+                have_prev = true;
+            } else {
+                for _ in 0..n * w {
+                    out.write_all(&f32::NAN.to_le_bytes())?;
+                }
+                leading_void_rows += n as u32;
+            }
+            row += n as u32;
+            progress(row);
+        }
+        if !have_prev {
+            bail!("input has no valid samples: every sample is no-data");
+        }
+        let file = out.into_inner().map_err(|e| e.into_error())?;
+        let quantizer = if info.sample_type.is_integer() {
+            RawQuantizer {
+                raw_offset: if info.sample_type == SampleType::Int16 { -32768.0 } else { 0.0 },
+                raw_step: 1.0,
+            }
+        } else {
+            let step = if hi > lo { (f64::from(hi) - f64::from(lo)) / 65535.0 } else { 1.0 };
+            RawQuantizer {
+                raw_offset: f64::from(lo),
+                raw_step: step,
+            }
+        };
+        Ok(Self {
+            file,
+            width: info.width,
+            height: info.height,
+            quantizer,
+            nodata_count,
+            sample_type: info.sample_type,
+        })
+    }
+}
+
+impl Raster for SpooledRaster {
+    fn width(&self) -> u32 {
+        self.width
+    }
+
+    fn height(&self) -> u32 {
+        self.height
+    }
+
+    fn read_window(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [u16]) -> anyhow::Result<()> {
+        let mut raw = vec![0u8; 4 * w as usize];
+        for r in 0..h {
+            let off = (u64::from(y0 + r) * u64::from(self.width) + u64::from(x0)) * 4;
+            self.file
+                .read_exact_at(&mut raw, off)
+                .context("reading the spooled input")?;
+            let dst = &mut out[(r * w) as usize..((r + 1) * w) as usize];
+            for (d, c) in dst.iter_mut().zip(raw.chunks_exact(4)) {
+                *d = self.quantizer.quantize(f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn voids_take_their_nearest_valid_value() {
+        // 5 × 3 band; the void at (1, 1) is next to 10 and far from 99.
+        let w = 5;
+        let mut rows = vec![
+            10.0, 10.0, 50.0, 99.0, 99.0, //
+            10.0, f32::NAN, f32::NAN, f32::NAN, 99.0, //
+            10.0, 10.0, 50.0, 99.0, 99.0,
+        ];
+        let valid: Vec<bool> = rows.iter().map(|v: &f32| !v.is_nan()).collect();
+        assert!(fill_band(&mut rows, w, &valid));
+        assert_eq!(rows[6], 10.0);
+        assert_eq!(rows[7], 50.0);
+        assert_eq!(rows[8], 99.0);
+        let mut void = vec![f32::NAN; 4];
+        assert!(!fill_band(&mut void, 2, &[false; 4]));
+    }
+
+    #[test]
+    fn float_quantization_error_is_half_a_step() {
+        let q = RawQuantizer {
+            raw_offset: 500.0,
+            raw_step: 0.1,
+        };
+        let m = q.to_metres(2.0, -1.0, false);
+        assert!((m.offset - 999.0).abs() < 1e-9 && (m.scale - 0.2).abs() < 1e-12);
+        assert!((m.max_error - 0.1).abs() < 1e-12);
+        assert_eq!(q.quantize(500.26), 3);
+    }
+}

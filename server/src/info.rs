@@ -1,0 +1,123 @@
+//! `tessera-server info`: metadata and per-level statistics.
+
+use serde::Serialize;
+use std::path::Path;
+use tessera_shared::reader::ReadError;
+use tessera_shared::{Metadata, Pyramid};
+
+#[derive(Debug, Serialize)]
+pub struct LevelStats {
+    pub level: u8,
+    pub tiles_per_side: u32,
+    pub tiles: u64,
+    pub bytes: u64,
+    /// Stored bytes per tile sample (raw 16-bit is 2).
+    pub bytes_per_sample: f64,
+    pub min_height: f64,
+    pub max_height: f64,
+    /// Largest error of any tile of this level drawn at its full resolution, in metres.
+    pub max_full_res_error: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct Info {
+    pub file: String,
+    pub file_bytes: u64,
+    /// Whole file size per DEM sample.
+    pub bytes_per_sample: f64,
+    pub format_version: u32,
+    pub crs: Option<String>,
+    /// `[west, south, east, north]` of the pixel areas, when georeferenced.
+    pub extent: Option<[f64; 4]>,
+    pub metadata: Metadata,
+    pub levels: Vec<LevelStats>,
+}
+
+pub fn info(path: &Path) -> Result<Info, ReadError> {
+    let p = Pyramid::open_file(path)?;
+    let m = p.metadata().clone();
+    let g = *p.geometry();
+    let q = m.quantization;
+    let samples_per_tile = (g.tile_samples() * g.tile_samples()) as f64;
+    let levels = g
+        .levels()
+        .map(|l| {
+            let present: Vec<_> = p.index(l).unwrap_or(&[]).iter().filter(|e| e.is_present()).collect();
+            let bytes: u64 = present.iter().map(|e| u64::from(e.length)).sum();
+            let tiles = present.len() as u64;
+            LevelStats {
+                level: l.get(),
+                tiles_per_side: l.tiles_per_side(),
+                tiles,
+                bytes,
+                bytes_per_sample: bytes as f64 / (tiles as f64 * samples_per_tile).max(1.0),
+                min_height: q.height(present.iter().map(|e| e.min).min().unwrap_or(0)),
+                max_height: q.height(present.iter().map(|e| e.max).max().unwrap_or(0)),
+                max_full_res_error: present
+                    .iter()
+                    .map(|e| f64::from(e.full_res_error))
+                    .fold(0.0, f64::max),
+            }
+        })
+        .collect();
+    let file_bytes = std::fs::metadata(path)?.len();
+    Ok(Info {
+        file: path.display().to_string(),
+        file_bytes,
+        bytes_per_sample: file_bytes as f64 / (f64::from(m.width) * f64::from(m.height)),
+        format_version: p.header().version,
+        crs: m.georef.as_ref().and_then(tessera_shared::GeoRef::crs),
+        extent: m.georef.as_ref().map(|g| g.extent(m.width, m.height)),
+        metadata: m,
+        levels,
+    })
+}
+
+/// The human-readable report.
+pub fn render(i: &Info) -> String {
+    use std::fmt::Write;
+    let m = &i.metadata;
+    let q = &m.quantization;
+    let mut s = String::new();
+    let _ = writeln!(s, "file        {} ({:.1} MB, format v{})", i.file, i.file_bytes as f64 / 1e6, i.format_version);
+    let _ = writeln!(s, "source      {}", m.source);
+    let _ = writeln!(
+        s,
+        "size        {} × {} samples, tiles of {} cells, {} levels",
+        m.width, m.height, m.tile_size, m.levels
+    );
+    let _ = writeln!(
+        s,
+        "heights     {:.2} .. {:.2} m (h = {} + {}·q, quantization error ≤ {} m)",
+        m.min_height, m.max_height, q.offset, q.scale, q.max_error
+    );
+    let _ = writeln!(s, "no-data     {} samples filled ({})", m.nodata_count, m.nodata_fill);
+    match (&i.crs, &i.extent, &m.georef) {
+        (crs, Some(e), Some(g)) => {
+            let _ = writeln!(
+                s,
+                "georef      {} {:?}, extent west {} south {} east {} north {}",
+                crs.as_deref().unwrap_or("unknown CRS"),
+                g.raster_type,
+                e[0],
+                e[1],
+                e[2],
+                e[3]
+            );
+        }
+        _ => {
+            let _ = writeln!(s, "georef      none");
+        }
+    }
+    let _ = writeln!(s, "content     {}", m.content_hash);
+    let _ = writeln!(s, "size/sample {:.3} bytes (raw 16-bit: 2)", i.bytes_per_sample);
+    let _ = writeln!(s, "level  tiles       bytes  bytes/sample   min (m)   max (m)  full-res error (m)");
+    for l in &i.levels {
+        let _ = writeln!(
+            s,
+            "{:>5} {:>6} {:>11} {:>13.3} {:>9.1} {:>9.1} {:>19.3}",
+            l.level, l.tiles, l.bytes, l.bytes_per_sample, l.min_height, l.max_height, l.max_full_res_error
+        );
+    }
+    s
+}

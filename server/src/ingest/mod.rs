@@ -1,0 +1,109 @@
+//! DEM inputs. Every file format is read as a stream of rows, top to bottom, so
+//! a DEM never has to fit in memory (DESIGN §2); the synthetic terrain is instead
+//! generated on demand for any window.
+
+pub mod geotiff;
+pub mod hgt;
+pub mod png16;
+pub mod synthetic;
+
+use anyhow::{Context, bail};
+use std::path::{Path, PathBuf};
+use tessera_shared::GeoRef;
+
+/// The sample type of an input raster.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleType {
+    Int16,
+    UInt16,
+    Float32,
+}
+
+impl SampleType {
+    /// Integer samples are stored exactly (quantization error 0).
+    pub const fn is_integer(self) -> bool {
+        matches!(self, Self::Int16 | Self::UInt16)
+    }
+
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Int16 => "int16",
+            Self::UInt16 => "uint16",
+            Self::Float32 => "float32",
+        }
+    }
+}
+
+/// What a row source knows about its raster before reading any sample.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SourceInfo {
+    pub width: u32,
+    pub height: u32,
+    pub sample_type: SampleType,
+    /// The raw value that marks a missing sample, if the format declares one.
+    /// (NaN samples are always treated as missing.)
+    pub nodata: Option<f64>,
+    pub georef: Option<GeoRef>,
+    /// A short description for the metadata, e.g. "GeoTIFF int16, LZW, tiled 256×256".
+    pub description: String,
+}
+
+/// A raster read as rows, top (north) to bottom.
+pub trait RowSource: Send + std::fmt::Debug {
+    fn info(&self) -> &SourceInfo;
+
+    /// Fills `out` with the next `out.len() / width` rows as raw sample values
+    /// (before any `--scale`/`--offset`). `out.len()` is a whole number of rows.
+    /// Errors describe the problem (e.g. "truncated TIFF: strip 7 ends past the end
+    /// of the file"); the caller adds the file name.
+    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()>;
+}
+
+/// A parsed `INPUT` argument.
+#[derive(Debug)]
+pub enum Input {
+    Rows(Box<dyn RowSource>),
+    Synthetic(synthetic::Synthetic),
+}
+
+/// Opens an input by name: `synthetic:SIZE[:SEED]`, or a file whose format is found
+/// from its content (TIFF and PNG signatures) or, for SRTM, its `.hgt` name.
+pub fn open(input: &str) -> anyhow::Result<Input> {
+    if let Some(spec) = input.strip_prefix("synthetic:") {
+        return Ok(Input::Synthetic(synthetic::Synthetic::parse(spec).with_context(
+            || format!("{input}: bad synthetic terrain spec (want synthetic:SIZE[:SEED])"),
+        )?));
+    }
+    let path = PathBuf::from(input);
+    open_file(&path).with_context(|| path.display().to_string())
+}
+
+fn open_file(path: &Path) -> anyhow::Result<Input> {
+    let meta = std::fs::metadata(path).context("cannot read input")?;
+    if !meta.is_file() {
+        bail!("input is not a regular file");
+    }
+    if meta.len() == 0 {
+        bail!("input file is empty");
+    }
+    let mut magic = [0u8; 8];
+    let n = std::io::Read::read(&mut std::fs::File::open(path)?, &mut magic)?;
+    let magic = &magic[..n];
+    let is_hgt = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("hgt"));
+    let source: Box<dyn RowSource> = if magic.starts_with(b"II*\0") || magic.starts_with(b"MM\0*")
+        || magic.starts_with(b"II+\0") || magic.starts_with(b"MM\0+")
+    {
+        Box::new(geotiff::GeoTiff::open(path)?)
+    } else if magic.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Box::new(png16::Png16::open(path)?)
+    } else if is_hgt {
+        Box::new(hgt::Hgt::open(path)?)
+    } else {
+        bail!(
+            "unrecognised input format (expected a GeoTIFF, a 16-bit grayscale PNG, an SRTM .hgt file or synthetic:SIZE)"
+        );
+    };
+    Ok(Input::Rows(source))
+}

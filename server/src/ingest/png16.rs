@@ -1,0 +1,130 @@
+//! 16-bit grayscale PNG heightmaps, decoded row by row (never whole in memory).
+//!
+//! PNG has no georeferencing or no-data convention; vertical units come from the
+//! `--scale`/`--offset` flags (e.g. `--offset -10000` for the moon mosaics).
+
+use super::{RowSource, SampleType, SourceInfo};
+use anyhow::{Context, bail};
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+pub struct Png16 {
+    info: SourceInfo,
+    reader: png::Reader<BufReader<File>>,
+    rows_read: u32,
+}
+
+impl std::fmt::Debug for Png16 {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Png16")
+            .field("info", &self.info)
+            .field("rows_read", &self.rows_read)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Png16 {
+    pub fn open(path: &Path) -> anyhow::Result<Self> {
+        let file = BufReader::new(File::open(path).context("cannot open")?);
+        let mut decoder = png::Decoder::new(file);
+        // Keep samples as stored: no expansion, no stripping to 8 bits.
+        decoder.set_transformations(png::Transformations::IDENTITY);
+        let reader = decoder
+            .read_info()
+            .map_err(|e| anyhow::anyhow!("not a readable PNG: {e}"))?;
+        let i = reader.info();
+        let (width, height) = (i.width, i.height);
+        if i.color_type != png::ColorType::Grayscale || i.bit_depth != png::BitDepth::Sixteen {
+            bail!(
+                "PNG is {}-bit {:?}, not a 16-bit grayscale height map",
+                i.bit_depth as u8,
+                i.color_type
+            );
+        }
+        if i.interlaced {
+            bail!("interlaced (Adam7) PNGs are not supported; re-save it without interlacing");
+        }
+        Ok(Self {
+            info: SourceInfo {
+                width,
+                height,
+                sample_type: SampleType::UInt16,
+                nodata: None,
+                georef: None,
+                description: format!("16-bit grayscale PNG {width}×{height}"),
+            },
+            reader,
+            rows_read: 0,
+        })
+    }
+}
+
+impl RowSource for Png16 {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
+        let w = self.info.width as usize;
+        for row in out.chunks_exact_mut(w) {
+            let r = self.rows_read;
+            let data = self
+                .reader
+                .next_row()
+                .map_err(|e| anyhow::anyhow!("corrupt or truncated PNG at row {r}: {e}"))?
+                .with_context(|| format!("PNG ends after {r} rows, expected {}", self.info.height))?;
+            for (o, c) in row.iter_mut().zip(data.data().chunks_exact(2)) {
+                *o = f32::from(u16::from_be_bytes([c[0], c[1]]));
+            }
+            self.rows_read += 1;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::testdata;
+
+    #[test]
+    fn reads_real_16_bit_pngs_with_their_stated_range() {
+        for name in ["jacksboro_fault_dem.png", "topobathy.png", "sthelens_10m.png"] {
+            let Some(path) = testdata::dem_or_skip(name) else {
+                continue;
+            };
+            let f = testdata::facts(name);
+            let mut src = Png16::open(&path).unwrap();
+            assert_eq!((src.info().width, src.info().height), (f.width, f.height), "{name}");
+            let w = f.width as usize;
+            let (mut lo, mut hi) = (f32::MAX, f32::MIN);
+            // Odd chunk sizes: rows must come out in order whatever the request size.
+            let mut left = f.height as usize;
+            while left > 0 {
+                let n = left.min(7);
+                let mut buf = vec![0.0; n * w];
+                src.read_rows(&mut buf).unwrap();
+                for v in buf {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+                left -= n;
+            }
+            let to_m = |v: f32| f64::from(v) * f.scale + f.offset;
+            assert!((to_m(lo) - f.min).abs() < 1e-6, "{name} min {}", to_m(lo));
+            assert!((to_m(hi) - f.max).abs() < 1e-6, "{name} max {}", to_m(hi));
+            let mut extra = vec![0.0; w];
+            assert!(src.read_rows(&mut extra).is_err(), "{name}: read past the end");
+        }
+    }
+
+    #[test]
+    fn rejects_an_8_bit_rgba_png() {
+        let Some(path) = testdata::dem_or_skip("fuji.png") else {
+            return;
+        };
+        let err = Png16::open(&path).unwrap_err().to_string();
+        assert!(err.contains("not a 16-bit grayscale"), "{err}");
+    }
+}
