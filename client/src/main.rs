@@ -8,7 +8,11 @@ use std::path::PathBuf;
 use tessera_shared::Pyramid;
 
 #[derive(Debug, Parser)]
-#[command(name = "tessera", version, about = "Tessera client: fly through DEM pyramids streamed from a Tessera server")]
+#[command(
+    name = "tessera",
+    version,
+    about = "Tessera client: fly through DEM pyramids streamed from a Tessera server"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -42,7 +42,12 @@ pub fn info(path: &Path) -> Result<Info, ReadError> {
     let levels = g
         .levels()
         .map(|l| {
-            let present: Vec<_> = p.index(l).unwrap_or(&[]).iter().filter(|e| e.is_present()).collect();
+            let present: Vec<_> = p
+                .index(l)
+                .unwrap_or(&[])
+                .iter()
+                .filter(|e| e.is_present())
+                .collect();
             let bytes: u64 = present.iter().map(|e| u64::from(e.length)).sum();
             let tiles = present.len() as u64;
             LevelStats {
@@ -79,7 +84,13 @@ pub fn render(i: &Info) -> String {
     let m = &i.metadata;
     let q = &m.quantization;
     let mut s = String::new();
-    let _ = writeln!(s, "file        {} ({:.1} MB, format v{})", i.file, i.file_bytes as f64 / 1e6, i.format_version);
+    let _ = writeln!(
+        s,
+        "file        {} ({:.1} MB, format v{})",
+        i.file,
+        i.file_bytes as f64 / 1e6,
+        i.format_version
+    );
     let _ = writeln!(s, "source      {}", m.source);
     let _ = writeln!(
         s,
@@ -91,7 +102,11 @@ pub fn render(i: &Info) -> String {
         "heights     {:.2} .. {:.2} m (h = {} + {}·q, quantization error ≤ {} m)",
         m.min_height, m.max_height, q.offset, q.scale, q.max_error
     );
-    let _ = writeln!(s, "no-data     {} samples filled ({})", m.nodata_count, m.nodata_fill);
+    let _ = writeln!(
+        s,
+        "no-data     {} samples filled ({})",
+        m.nodata_count, m.nodata_fill
+    );
     match (&i.crs, &i.extent, &m.georef) {
         (crs, Some(e), Some(g)) => {
             let _ = writeln!(
@@ -110,13 +125,26 @@ pub fn render(i: &Info) -> String {
         }
     }
     let _ = writeln!(s, "content     {}", m.content_hash);
-    let _ = writeln!(s, "size/sample {:.3} bytes (raw 16-bit: 2)", i.bytes_per_sample);
-    let _ = writeln!(s, "level  tiles       bytes  bytes/sample   min (m)   max (m)  full-res error (m)");
+    let _ = writeln!(
+        s,
+        "size/sample {:.3} bytes (raw 16-bit: 2)",
+        i.bytes_per_sample
+    );
+    let _ = writeln!(
+        s,
+        "level  tiles       bytes  bytes/sample   min (m)   max (m)  full-res error (m)"
+    );
     for l in &i.levels {
         let _ = writeln!(
             s,
             "{:>5} {:>6} {:>11} {:>13.3} {:>9.1} {:>9.1} {:>19.3}",
-            l.level, l.tiles, l.bytes, l.bytes_per_sample, l.min_height, l.max_height, l.max_full_res_error
+            l.level,
+            l.tiles,
+            l.bytes,
+            l.bytes_per_sample,
+            l.min_height,
+            l.max_height,
+            l.max_full_res_error
         );
     }
     s

@@ -73,9 +73,13 @@ enum Command {
 /// Parses sizes like `512MiB`, `2GiB`, `300MB`, `1000`.
 fn parse_bytes(s: &str) -> Result<u64, String> {
     let t = s.trim();
-    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
     let (num, unit) = t.split_at(split);
-    let n: f64 = num.parse().map_err(|_| format!("{s:?} is not a size like 512MiB"))?;
+    let n: f64 = num
+        .parse()
+        .map_err(|_| format!("{s:?} is not a size like 512MiB"))?;
     let mult: f64 = match unit.trim().to_ascii_lowercase().as_str() {
         "" | "b" => 1.0,
         "k" | "kb" => 1e3,
@@ -84,7 +88,11 @@ fn parse_bytes(s: &str) -> Result<u64, String> {
         "mib" => 1024.0 * 1024.0,
         "g" | "gb" => 1e9,
         "gib" => 1024.0 * 1024.0 * 1024.0,
-        u => return Err(format!("unknown size unit {u:?} (use B, KiB, MiB, GiB, KB, MB, GB)")),
+        u => {
+            return Err(format!(
+                "unknown size unit {u:?} (use B, KiB, MiB, GiB, KB, MB, GB)"
+            ));
+        }
     };
     let v = n * mult;
     if v < f64::from(64u32 << 20) {
@@ -153,10 +161,20 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 println!("bad {tile}: {problem}");
             }
             if r.bad.is_empty() {
-                println!("ok {}: {} tiles, {} record bytes, every checksum matches", file.display(), r.tiles, r.bytes);
+                println!(
+                    "ok {}: {} tiles, {} record bytes, every checksum matches",
+                    file.display(),
+                    r.tiles,
+                    r.bytes
+                );
                 Ok(ExitCode::SUCCESS)
             } else {
-                eprintln!("error: {}: {} of {} tiles are bad", file.display(), r.bad.len(), r.tiles);
+                eprintln!(
+                    "error: {}: {} of {} tiles are bad",
+                    file.display(),
+                    r.bad.len(),
+                    r.tiles
+                );
                 Ok(ExitCode::FAILURE)
             }
         }

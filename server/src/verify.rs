@@ -20,7 +20,10 @@ pub struct VerifyReport {
 pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
     let p = Pyramid::open_file(path)?;
     let g = *p.geometry();
-    let tiles: Vec<TileId> = g.levels().flat_map(|l| g.present_tiles(l).collect::<Vec<_>>()).collect();
+    let tiles: Vec<TileId> = g
+        .levels()
+        .flat_map(|l| g.present_tiles(l).collect::<Vec<_>>())
+        .collect();
     let results: Vec<(TileId, u64, Option<String>)> = tiles
         .par_iter()
         .map(|&tile| match p.read_record(tile) {

@@ -167,7 +167,11 @@ mod tests {
                     .collect();
                 let bytes = encode_heights(&tile, side);
                 compressed += bytes.len();
-                assert_eq!(decode_heights(&bytes, side).unwrap(), tile, "{name} at ({x0},{y0})");
+                assert_eq!(
+                    decode_heights(&bytes, side).unwrap(),
+                    tile,
+                    "{name} at ({x0},{y0})"
+                );
                 checked += 1;
             }
         }
@@ -192,7 +196,10 @@ mod tests {
         let back = decode_record(&rec, 6).unwrap();
         assert_eq!(back.errors, t);
         assert_eq!(back.heights, heights);
-        assert!(matches!(decode_record(&rec[..100], 6), Err(CodecError::Truncated { .. })));
+        assert!(matches!(
+            decode_record(&rec[..100], 6),
+            Err(CodecError::Truncated { .. })
+        ));
         let cut = &rec[..rec.len() - 3];
         assert!(decode_record(cut, 6).is_err());
     }

@@ -143,7 +143,7 @@ mod tests {
 
     #[test]
     fn round_up_never_goes_below() {
-        for v in [0.1f64, 1.0 / 3.0, 12345.678_901, 1e-9, 0.0] {
+        for v in [0.1f64, 1.0 / 3.0, 12_345.678_901, 1e-9, 0.0] {
             let f = round_up_f32(v);
             assert!(f64::from(f) >= v);
             assert!(f64::from(f.next_down()) < v || v == 0.0);

@@ -48,7 +48,10 @@ pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, String> {
 
 /// The dataset's content hash: metadata (with an empty hash) and every record checksum
 /// in file order.
-pub fn content_hash<'a>(meta: &Metadata, record_checksums: impl Iterator<Item = &'a u64>) -> String {
+pub fn content_hash<'a>(
+    meta: &Metadata,
+    record_checksums: impl Iterator<Item = &'a u64>,
+) -> String {
     let mut unhashed = meta.clone();
     unhashed.content_hash.clear();
     let mut h = Xxh3::new();

@@ -15,7 +15,7 @@ use std::path::Path;
 /// Anything that can answer "give me bytes `offset..offset+buf.len()`".
 pub trait ByteSource: Send + Sync {
     /// Total length in bytes.
-    fn len(&self) -> io::Result<u64>;
+    fn size(&self) -> io::Result<u64>;
     /// Fills `buf` from `offset`; an error if the source is shorter.
     fn read_at(&self, offset: u64, buf: &mut [u8]) -> io::Result<()>;
 
@@ -42,7 +42,7 @@ impl FileSource {
 }
 
 impl ByteSource for FileSource {
-    fn len(&self) -> io::Result<u64> {
+    fn size(&self) -> io::Result<u64> {
         Ok(self.file.metadata()?.len())
     }
 
@@ -68,7 +68,7 @@ impl ByteSource for FileSource {
 }
 
 impl ByteSource for Vec<u8> {
-    fn len(&self) -> io::Result<u64> {
+    fn size(&self) -> io::Result<u64> {
         Ok(self.as_slice().len() as u64)
     }
 
@@ -128,7 +128,7 @@ impl<S: ByteSource> Pyramid<S> {
     /// every present tile is one the geometry says exists, and each level's records are
     /// contiguous in Morton order inside that level's record range.
     pub fn open(source: S) -> Result<Self, ReadError> {
-        let file_len = source.len()?;
+        let file_len = source.size()?;
         let head = source.read_vec(0, HEADER_LEN.min(file_len as usize))?;
         let header = FileHeader::parse(&head).map_err(ReadError::Header)?;
         if header.records_offset > file_len || header.records_offset < HEADER_LEN as u64 {
@@ -147,7 +147,9 @@ impl<S: ByteSource> Pyramid<S> {
         let slice = |off: u64, len: u64, what: &str| -> Result<&[u8], ReadError> {
             off.checked_sub(HEADER_LEN as u64)
                 .and_then(|s| region.get(s as usize..(s + len) as usize))
-                .ok_or_else(|| ReadError::Structure(format!("{what} lies outside the header region")))
+                .ok_or_else(|| {
+                    ReadError::Structure(format!("{what} lies outside the header region"))
+                })
         };
         let meta = format::decode_metadata(slice(header.meta_offset, header.meta_len, "metadata")?)
             .map_err(ReadError::Metadata)?;
@@ -184,8 +186,10 @@ impl<S: ByteSource> Pyramid<S> {
                 slots * INDEX_ENTRY_LEN as u64,
                 &format!("index of level {level}"),
             )?;
-            let entries: Vec<IndexEntry> =
-                bytes.chunks_exact(INDEX_ENTRY_LEN).map(IndexEntry::parse).collect();
+            let entries: Vec<IndexEntry> = bytes
+                .chunks_exact(INDEX_ENTRY_LEN)
+                .map(IndexEntry::parse)
+                .collect();
             check_level_index(&geometry, level, &entry, &entries)?;
             levels.push(entry);
             index.push(entries);
@@ -237,7 +241,9 @@ impl<S: ByteSource> Pyramid<S> {
     pub fn byte_range(&self, level: Level, range: MortonRange) -> Option<(u64, u64)> {
         let idx = self.index(level)?;
         let lo = usize::try_from(range.start().get()).ok()?;
-        let hi = usize::try_from(range.end().get()).ok()?.min(idx.len().checked_sub(1)?);
+        let hi = usize::try_from(range.end().get())
+            .ok()?
+            .min(idx.len().checked_sub(1)?);
         let slice = idx.get(lo..=hi)?;
         let first = slice.iter().find(|e| e.is_present())?;
         let last = slice.iter().rev().find(|e| e.is_present())?;
@@ -293,7 +299,11 @@ fn check_level_index(
             return Err(ReadError::Structure(format!(
                 "{tile} is {} in the index but {} by the geometry",
                 if e.is_present() { "present" } else { "absent" },
-                if geometry.is_present(tile) { "present" } else { "absent" },
+                if geometry.is_present(tile) {
+                    "present"
+                } else {
+                    "absent"
+                },
             )));
         }
         if e.is_present() {

@@ -258,15 +258,27 @@ mod tests {
         // 513 samples = exactly one tile; 514 need two.
         assert_eq!(TileGeometry::new(513, 513, 512).unwrap().finest().get(), 0);
         assert_eq!(TileGeometry::new(514, 100, 512).unwrap().finest().get(), 1);
-        assert_eq!(TileGeometry::new(65537, 65537, 512).unwrap().finest().get(), 7);
+        assert_eq!(
+            TileGeometry::new(65537, 65537, 512).unwrap().finest().get(),
+            7
+        );
         assert_eq!(TileGeometry::new(1201, 1201, 64).unwrap().finest().get(), 5);
     }
 
     #[test]
     fn bad_geometries_are_rejected() {
-        assert_eq!(TileGeometry::new(100, 100, 500), Err(GeometryError::TileSize(500)));
-        assert_eq!(TileGeometry::new(100, 100, 32), Err(GeometryError::TileSize(32)));
-        assert_eq!(TileGeometry::new(1, 100, 64), Err(GeometryError::TooSmall(1, 100)));
+        assert_eq!(
+            TileGeometry::new(100, 100, 500),
+            Err(GeometryError::TileSize(500))
+        );
+        assert_eq!(
+            TileGeometry::new(100, 100, 32),
+            Err(GeometryError::TileSize(32))
+        );
+        assert_eq!(
+            TileGeometry::new(1, 100, 64),
+            Err(GeometryError::TooSmall(1, 100))
+        );
     }
 
     #[test]

@@ -95,15 +95,26 @@ pub fn finest_tile_errors(
                 // One coarse cell holds the whole tile; its corners come from the grid.
                 let cells = (s / t) as u64;
                 let (ci, cj) = (gx0 / s as u64 * cells, gy0 / s as u64 * cells);
-                let c = |i: u64, j: u64| f64::from(corners.values[j as usize * corners.side + i as usize]);
-                let cell = [c(ci, cj), c(ci + cells, cj), c(ci, cj + cells), c(ci + cells, cj + cells)];
+                let c = |i: u64, j: u64| {
+                    f64::from(corners.values[j as usize * corners.side + i as usize])
+                };
+                let cell = [
+                    c(ci, cj),
+                    c(ci + cells, cj),
+                    c(ci, cj + cells),
+                    c(ci + cells, cj + cells),
+                ];
                 let a0 = (gx0 % s as u64) as f64;
                 let b = (gy0 % s as u64 + v as u64) as f64;
                 cell_row_errors(&cell, sf, b, a0, v, 0, side, heights, side, &mut row);
             }
             // Reduce the row into blocks; border samples count in both blocks.
             let by_hi = (v / block).min(BLOCKS as usize - 1);
-            let by_lo = if v > 0 && v % block == 0 { v / block - 1 } else { by_hi };
+            let by_lo = if v > 0 && v % block == 0 {
+                v / block - 1
+            } else {
+                by_hi
+            };
             for bx in 0..BLOCKS as usize {
                 let m = row[bx * block..=(bx + 1) * block]
                     .iter()
@@ -208,7 +219,11 @@ mod tests {
                             m = m.max(e);
                         }
                     }
-                    assert_eq!(fast.get(k, bx as u32, by as u32), m, "k {k} block ({bx},{by})");
+                    assert_eq!(
+                        fast.get(k, bx as u32, by as u32),
+                        m,
+                        "k {k} block ({bx},{by})"
+                    );
                 }
             }
         }

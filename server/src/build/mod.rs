@@ -115,7 +115,8 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
         Input::Rows(r) => (r.info().width, r.info().height),
         Input::Synthetic(s) => (s.width(), s.height()),
     };
-    let geometry = TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
+    let geometry =
+        TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
     let (description, georef) = match &source {
         Input::Rows(r) => (r.info().description.clone(), r.info().georef.clone()),
         Input::Synthetic(s) => (s.description(), None),
@@ -141,15 +142,19 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
     };
     let writer = writer::PyramidWriter::create(output, geometry, meta_reserve(&meta))
         .with_context(|| output.display().to_string())?;
-    let dir = output.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let dir = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     match source {
         Input::Rows(mut rows) => {
             let spool_bar = bar(opts.progress, u64::from(height), "reading");
             let budget = usize::try_from(opts.memory_budget / 4).unwrap_or(usize::MAX);
-            let spooled = spool::SpooledRaster::spool(rows.as_mut(), dir, opts.nodata, budget, |r| {
-                spool_bar.set_position(u64::from(r));
-            })
-            .with_context(|| input.to_string())?;
+            let spooled =
+                spool::SpooledRaster::spool(rows.as_mut(), dir, opts.nodata, budget, |r| {
+                    spool_bar.set_position(u64::from(r));
+                })
+                .with_context(|| input.to_string())?;
             spool_bar.finish_and_clear();
             meta.quantization = spooled.quantizer.to_metres(
                 opts.scale,
@@ -198,7 +203,10 @@ fn build_tiles(
     // Spacings 0 ..= t + L_max: from the data itself to the root's single cell.
     let spacings = t + u32::from(finest.get()) + 1;
     let corners = corner_grid(raster, &geometry)?;
-    let total_tiles: u64 = geometry.levels().map(|l| geometry.present_tiles(l).count() as u64).sum();
+    let total_tiles: u64 = geometry
+        .levels()
+        .map(|l| geometry.present_tiles(l).count() as u64)
+        .sum();
     let tiles_bar = bar(opts.progress, total_tiles, "tiling");
     // Finest tiles in flight: a quarter of the budget, counting heights, record and errors.
     let tile_bytes = geometry.tile_samples().pow(2) as u64 * 4 + spacings as u64 * 512;
@@ -209,13 +217,16 @@ fn build_tiles(
         geometry,
         quant,
         spacings,
-        pending: (0..=finest.get()).map(|_| [None, None, None, None]).collect(),
+        pending: (0..=finest.get())
+            .map(|_| [None, None, None, None])
+            .collect(),
         min_q: u16::MAX,
         max_q: 0,
         bar: &tiles_bar,
     };
     std::thread::scope(|scope| -> anyhow::Result<()> {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<anyhow::Result<Vec<Option<(Node, Encoded)>>>>(1);
+        let (tx, rx) =
+            std::sync::mpsc::sync_channel::<anyhow::Result<Vec<Option<(Node, Encoded)>>>>(1);
         let corners = &corners;
         let producer = scope.spawn(move || {
             let mut start = 0u64;
@@ -224,7 +235,8 @@ fn build_tiles(
                 let result: anyhow::Result<Vec<_>> = (start..end)
                     .into_par_iter()
                     .map(|m| {
-                        let tile = TileId::from_morton(finest, Morton::from_raw(m)).expect("m < 4^L");
+                        let tile =
+                            TileId::from_morton(finest, Morton::from_raw(m)).expect("m < 4^L");
                         if !geometry.is_present(tile) {
                             return Ok(None);
                         }
@@ -255,16 +267,10 @@ fn build_tiles(
     meta.min_height = quant.height(agg.min_q);
     meta.max_height = quant.height(agg.max_q);
     let verify_bar = bar(opts.progress, total_tiles, "verifying");
-    let output_meta = meta.clone();
-    let target = writer.target().to_path_buf();
-    writer.finish(meta.clone(), |n| verify_bar.inc(n))?;
+    let (metadata, file_bytes) = writer.finish(meta.clone(), |n| verify_bar.inc(n))?;
     verify_bar.finish_and_clear();
-    let file_bytes = std::fs::metadata(&target).map(|m| m.len()).unwrap_or(0);
-    let final_meta = tessera_shared::Pyramid::open_file(&target)
-        .map(|p| p.metadata().clone())
-        .unwrap_or(output_meta);
     Ok(BuildReport {
-        metadata: final_meta,
+        metadata,
         samples: u64::from(geometry.width()) * u64::from(geometry.height()),
         tiles: total_tiles,
         file_bytes,
@@ -310,7 +316,8 @@ fn finest_node(
         let edge = dst[w as usize - 1];
         dst[w as usize..].fill(edge);
     }
-    let errors = mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, corners, spacings);
+    let errors =
+        mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, corners, spacings);
     let (min, max) = block_ranges(&heights, side);
     Ok(Node {
         heights,
@@ -413,7 +420,7 @@ impl Aggregator<'_> {
         slot[usize::from(m.quadrant())] = node;
         if m.quadrant() == 3 {
             let children = std::mem::take(slot);
-            let parent = self.assemble(children).map(|node| {
+            let parent = self.assemble(&children).map(|node| {
                 let enc = encode(&node, &self.geometry, parent_level, &self.quant);
                 (node, enc)
             });
@@ -423,7 +430,7 @@ impl Aggregator<'_> {
     }
 
     /// A parent from its children; `None` when the parent is absent (its first child is).
-    fn assemble(&self, children: [Option<Node>; 4]) -> Option<Node> {
+    fn assemble(&self, children: &[Option<Node>; 4]) -> Option<Node> {
         children[0].as_ref()?;
         let side = self.geometry.tile_samples();
         let half = side / 2;

@@ -8,6 +8,5 @@ pub trait Raster: Sync {
     fn height(&self) -> u32;
     /// Reads the `w × h` window at `(x0, y0)` (wholly inside the DEM) into `out`,
     /// row-major, as quantized heights.
-    fn read_window(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [u16])
-    -> anyhow::Result<()>;
+    fn read_window(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [u16]) -> anyhow::Result<()>;
 }

@@ -69,7 +69,10 @@ fn fill_band(rows: &mut [f32], w: usize, valid: &[bool]) -> bool {
         return false;
     }
     let h = rows.len() / w;
-    let mut dist: Vec<u32> = valid.iter().map(|&v| if v { 0 } else { u32::MAX }).collect();
+    let mut dist: Vec<u32> = valid
+        .iter()
+        .map(|&v| if v { 0 } else { u32::MAX })
+        .collect();
     let relax = |dist: &mut [u32], rows: &mut [f32], i: usize, j: usize, wgt: u32| {
         let d = dist[j].saturating_add(wgt);
         if d < dist[i] {
@@ -170,7 +173,8 @@ impl SpooledRaster {
                     out.flush()?;
                     let first: Vec<u8> = body[..w].iter().flat_map(|v| v.to_le_bytes()).collect();
                     for r in 0..leading_void_rows {
-                        out.get_ref().write_all_at(&first, u64::from(r) * 4 * w as u64)?;
+                        out.get_ref()
+                            .write_all_at(&first, u64::from(r) * 4 * w as u64)?;
                     }
                 }
                 let last = rows.len() - w;
@@ -188,14 +192,24 @@ impl SpooledRaster {
         if !have_prev {
             bail!("input has no valid samples: every sample is no-data");
         }
-        let file = out.into_inner().map_err(|e| e.into_error())?;
+        let file = out
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)?;
         let quantizer = if info.sample_type.is_integer() {
             RawQuantizer {
-                raw_offset: if info.sample_type == SampleType::Int16 { -32768.0 } else { 0.0 },
+                raw_offset: if info.sample_type == SampleType::Int16 {
+                    -32768.0
+                } else {
+                    0.0
+                },
                 raw_step: 1.0,
             }
         } else {
-            let step = if hi > lo { (f64::from(hi) - f64::from(lo)) / 65535.0 } else { 1.0 };
+            let step = if hi > lo {
+                (f64::from(hi) - f64::from(lo)) / 65535.0
+            } else {
+                1.0
+            };
             RawQuantizer {
                 raw_offset: f64::from(lo),
                 raw_step: step,
@@ -230,7 +244,9 @@ impl Raster for SpooledRaster {
                 .context("reading the spooled input")?;
             let dst = &mut out[(r * w) as usize..((r + 1) * w) as usize];
             for (d, c) in dst.iter_mut().zip(raw.chunks_exact(4)) {
-                *d = self.quantizer.quantize(f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+                *d = self
+                    .quantizer
+                    .quantize(f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
             }
         }
         Ok(())
@@ -246,9 +262,21 @@ mod tests {
         // 5 × 3 band; the void at (1, 1) is next to 10 and far from 99.
         let w = 5;
         let mut rows = vec![
-            10.0, 10.0, 50.0, 99.0, 99.0, //
-            10.0, f32::NAN, f32::NAN, f32::NAN, 99.0, //
-            10.0, 10.0, 50.0, 99.0, 99.0,
+            10.0,
+            10.0,
+            50.0,
+            99.0,
+            99.0, //
+            10.0,
+            f32::NAN,
+            f32::NAN,
+            f32::NAN,
+            99.0, //
+            10.0,
+            10.0,
+            50.0,
+            99.0,
+            99.0,
         ];
         let valid: Vec<bool> = rows.iter().map(|v: &f32| !v.is_nan()).collect();
         assert!(fill_band(&mut rows, w, &valid));

@@ -47,13 +47,20 @@ impl std::fmt::Debug for PyramidWriter {
 
 /// Index bytes for all levels.
 fn index_len(geometry: &TileGeometry) -> u64 {
-    geometry.levels().map(|l| l.tile_slots() * INDEX_ENTRY_LEN as u64).sum()
+    geometry
+        .levels()
+        .map(|l| l.tile_slots() * INDEX_ENTRY_LEN as u64)
+        .sum()
 }
 
 impl PyramidWriter {
     /// Creates the temporary file in the output's directory. `meta_reserve` bounds the
     /// encoded metadata (known up to a few numbers when the build starts).
-    pub fn create(target: &Path, geometry: TileGeometry, meta_reserve: u64) -> anyhow::Result<Self> {
+    pub fn create(
+        target: &Path,
+        geometry: TileGeometry,
+        meta_reserve: u64,
+    ) -> anyhow::Result<Self> {
         let dir = match target.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
@@ -69,7 +76,9 @@ impl PyramidWriter {
         let partial = tempfile::Builder::new()
             .prefix(&format!(".{name}.partial-"))
             .tempfile_in(&dir)
-            .with_context(|| format!("cannot create a file in output directory {}", dir.display()))?;
+            .with_context(|| {
+                format!("cannot create a file in output directory {}", dir.display())
+            })?;
         let header_region = HEADER_LEN as u64
             + u64::from(geometry.level_count()) * LEVEL_ENTRY_LEN as u64
             + index_len(&geometry)
@@ -132,8 +141,13 @@ impl PyramidWriter {
     }
 
     /// Appends the coarse levels, writes the header, metadata and index, syncs,
-    /// checks every record and renames the file into place.
-    pub fn finish(self, mut meta: Metadata, mut progress: impl FnMut(u64)) -> anyhow::Result<()> {
+    /// checks every record and renames the file into place. Returns the final metadata
+    /// (with its content hash) and the file's size.
+    pub fn finish(
+        self,
+        mut meta: Metadata,
+        mut progress: impl FnMut(u64),
+    ) -> anyhow::Result<(Metadata, u64)> {
         let Self {
             geometry,
             target,
@@ -147,7 +161,11 @@ impl PyramidWriter {
         let mut lens = Vec::new();
         let mut indices = Vec::new();
         for sink in levels {
-            files.push(sink.out.into_inner().map_err(|e| e.into_error())?);
+            files.push(
+                sink.out
+                    .into_inner()
+                    .map_err(std::io::IntoInnerError::into_error)?,
+            );
             lens.push(sink.len);
             indices.push(sink.index);
         }
@@ -179,12 +197,16 @@ impl PyramidWriter {
         meta.content_hash = format::content_hash(&meta, checksums.iter());
         let meta_bytes = format::encode_metadata(&meta);
         if meta_bytes.len() as u64 > meta_reserve {
-            bail!("metadata ({} bytes) outgrew its reserved space", meta_bytes.len());
+            bail!(
+                "metadata ({} bytes) outgrew its reserved space",
+                meta_bytes.len()
+            );
         }
         // Header region: header · level table · indices · metadata · zero padding.
         let level_table_offset = HEADER_LEN as u64;
         let mut region = Vec::with_capacity((records_offset - HEADER_LEN as u64) as usize);
-        let mut index_at = level_table_offset + u64::from(geometry.level_count()) * LEVEL_ENTRY_LEN as u64;
+        let mut index_at =
+            level_table_offset + u64::from(geometry.level_count()) * LEVEL_ENTRY_LEN as u64;
         for (l, level) in geometry.levels().enumerate() {
             let entry = LevelEntry {
                 level: level.get(),
@@ -222,7 +244,8 @@ impl PyramidWriter {
         out.write_all(&region)?;
         out.sync_all()?;
         // Verify what is on disk before it becomes visible at the output path.
-        let pyramid = Pyramid::open_file(partial.path()).context("re-reading the written pyramid")?;
+        let pyramid =
+            Pyramid::open_file(partial.path()).context("re-reading the written pyramid")?;
         for level in geometry.levels() {
             for tile in geometry.present_tiles(level) {
                 pyramid
@@ -231,10 +254,15 @@ impl PyramidWriter {
                 progress(1);
             }
         }
+        // Temporary files are private (0600); a finished pyramid is an ordinary file.
+        std::fs::set_permissions(
+            partial.path(),
+            std::os::unix::fs::PermissionsExt::from_mode(0o644),
+        )?;
         partial
             .persist(&target)
             .map_err(|e| e.error)
             .with_context(|| format!("cannot move the finished pyramid to {}", target.display()))?;
-        Ok(())
+        Ok((meta, at))
     }
 }

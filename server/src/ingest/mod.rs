@@ -70,9 +70,11 @@ pub enum Input {
 /// from its content (TIFF and PNG signatures) or, for SRTM, its `.hgt` name.
 pub fn open(input: &str) -> anyhow::Result<Input> {
     if let Some(spec) = input.strip_prefix("synthetic:") {
-        return Ok(Input::Synthetic(synthetic::Synthetic::parse(spec).with_context(
-            || format!("{input}: bad synthetic terrain spec (want synthetic:SIZE[:SEED])"),
-        )?));
+        return Ok(Input::Synthetic(
+            synthetic::Synthetic::parse(spec).with_context(|| {
+                format!("{input}: bad synthetic terrain spec (want synthetic:SIZE[:SEED])")
+            })?,
+        ));
     }
     let path = PathBuf::from(input);
     open_file(&path).with_context(|| path.display().to_string())
@@ -92,8 +94,10 @@ fn open_file(path: &Path) -> anyhow::Result<Input> {
     let is_hgt = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("hgt"));
-    let source: Box<dyn RowSource> = if magic.starts_with(b"II*\0") || magic.starts_with(b"MM\0*")
-        || magic.starts_with(b"II+\0") || magic.starts_with(b"MM\0+")
+    let source: Box<dyn RowSource> = if magic.starts_with(b"II*\0")
+        || magic.starts_with(b"MM\0*")
+        || magic.starts_with(b"II+\0")
+        || magic.starts_with(b"MM\0+")
     {
         Box::new(geotiff::GeoTiff::open(path)?)
     } else if magic.starts_with(b"\x89PNG\r\n\x1a\n") {

@@ -73,7 +73,9 @@ impl RowSource for Png16 {
                 .reader
                 .next_row()
                 .map_err(|e| anyhow::anyhow!("corrupt or truncated PNG at row {r}: {e}"))?
-                .with_context(|| format!("PNG ends after {r} rows, expected {}", self.info.height))?;
+                .with_context(|| {
+                    format!("PNG ends after {r} rows, expected {}", self.info.height)
+                })?;
             for (o, c) in row.iter_mut().zip(data.data().chunks_exact(2)) {
                 *o = f32::from(u16::from_be_bytes([c[0], c[1]]));
             }
@@ -90,13 +92,21 @@ mod tests {
 
     #[test]
     fn reads_real_16_bit_pngs_with_their_stated_range() {
-        for name in ["jacksboro_fault_dem.png", "topobathy.png", "sthelens_10m.png"] {
+        for name in [
+            "jacksboro_fault_dem.png",
+            "topobathy.png",
+            "sthelens_10m.png",
+        ] {
             let Some(path) = testdata::dem_or_skip(name) else {
                 continue;
             };
             let f = testdata::facts(name);
             let mut src = Png16::open(&path).unwrap();
-            assert_eq!((src.info().width, src.info().height), (f.width, f.height), "{name}");
+            assert_eq!(
+                (src.info().width, src.info().height),
+                (f.width, f.height),
+                "{name}"
+            );
             let w = f.width as usize;
             let (mut lo, mut hi) = (f32::MAX, f32::MIN);
             // Odd chunk sizes: rows must come out in order whatever the request size.
@@ -115,7 +125,10 @@ mod tests {
             assert!((to_m(lo) - f.min).abs() < 1e-6, "{name} min {}", to_m(lo));
             assert!((to_m(hi) - f.max).abs() < 1e-6, "{name} max {}", to_m(hi));
             let mut extra = vec![0.0; w];
-            assert!(src.read_rows(&mut extra).is_err(), "{name}: read past the end");
+            assert!(
+                src.read_rows(&mut extra).is_err(),
+                "{name}: read past the end"
+            );
         }
     }
 

@@ -71,7 +71,10 @@ impl Synthetic {
         let side = blocks as usize + 1;
         let mut coarse = vec![0f32; side * side];
         let top = padded - 1;
-        for (i, (x, y)) in [(0, 0), (top, 0), (0, top), (top, top)].into_iter().enumerate() {
+        for (i, (x, y)) in [(0, 0), (top, 0), (0, top), (top, top)]
+            .into_iter()
+            .enumerate()
+        {
             let (cx, cy) = ((x / BLOCK) as usize, (y / BLOCK) as usize);
             // Corners: half the amplitude so the terrain sits mostly inside the range.
             coarse[cy * side + cx] = 0.5 * AMPLITUDE * noise(x, y, seed ^ i as u64);
@@ -141,7 +144,9 @@ impl Synthetic {
     }
 
     fn quantize(h: f32) -> u16 {
-        ((f64::from(h) - OFFSET) / SCALE).round().clamp(0.0, 65535.0) as u16
+        ((f64::from(h) - OFFSET) / SCALE)
+            .round()
+            .clamp(0.0, 65535.0) as u16
     }
 
     /// Heights of block `(bx, by)`: `(BLOCK + 1)²` samples.
@@ -168,8 +173,10 @@ impl Raster for Synthetic {
 
     fn read_window(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [u16]) -> anyhow::Result<()> {
         debug_assert!(x0 + w <= self.padded && y0 + h <= self.padded);
-        if w == 1 && h == 1 && x0 % BLOCK == 0 && y0 % BLOCK == 0 {
-            out[0] = Self::quantize(self.coarse[(y0 / BLOCK) as usize * self.side + (x0 / BLOCK) as usize]);
+        if w == 1 && h == 1 && x0.is_multiple_of(BLOCK) && y0.is_multiple_of(BLOCK) {
+            out[0] = Self::quantize(
+                self.coarse[(y0 / BLOCK) as usize * self.side + (x0 / BLOCK) as usize],
+            );
             return Ok(());
         }
         let n = BLOCK as usize + 1;
@@ -186,7 +193,8 @@ impl Raster for Synthetic {
                     let src = (y - gy0) as usize * n;
                     let dst = (y - y0) as usize * w as usize;
                     for x in xs.clone() {
-                        out[dst + (x - x0) as usize] = Self::quantize(buf[src + (x - gx0) as usize]);
+                        out[dst + (x - x0) as usize] =
+                            Self::quantize(buf[src + (x - gx0) as usize]);
                     }
                 }
             }
