@@ -1,8 +1,9 @@
 //! The Tessera server: builds tile pyramids from DEMs ([`build`], reading inputs
-//! through [`ingest`]), checks them ([`verify`]) and describes them ([`info`]).
+//! through [`ingest`]), checks them ([`verify`]), describes them ([`info`]) and draws them ([`preview`]).
 //! HTTP serving arrives in the next issue.
 
 pub mod build;
 pub mod info;
 pub mod ingest;
+pub mod preview;
 pub mod verify;

@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use tessera_server::build::{BuildOptions, build};
-use tessera_server::{info, verify};
+use tessera_server::{info, preview, verify};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -59,6 +59,20 @@ enum Command {
     Verify {
         /// The .tess file to check.
         file: PathBuf,
+    },
+    /// Draw one level of a pyramid as a shaded-relief PNG (hypsometric tint × hillshade).
+    Preview {
+        /// The .tess file to draw.
+        file: PathBuf,
+        /// The PNG to write.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Level to draw (default: the finest that fits in --max-size pixels).
+        #[arg(long)]
+        level: Option<u8>,
+        /// Largest image side when choosing the level automatically.
+        #[arg(long, default_value_t = 2048)]
+        max_size: u32,
     },
     /// Print a pyramid's metadata and per-level statistics.
     Info {
@@ -177,6 +191,17 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 );
                 Ok(ExitCode::FAILURE)
             }
+        }
+        Command::Preview {
+            file,
+            output,
+            level,
+            max_size,
+        } => {
+            let (level, w, h) = preview::preview(&file, &output, level, max_size)
+                .with_context(|| file.display().to_string())?;
+            println!("wrote {}: level {level}, {w}×{h} pixels", output.display());
+            Ok(ExitCode::SUCCESS)
         }
         Command::Info { file, json } => {
             let i = info::info(&file).with_context(|| file.display().to_string())?;

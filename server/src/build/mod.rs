@@ -156,6 +156,7 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
                 })
                 .with_context(|| input.to_string())?;
             spool_bar.finish_and_clear();
+            tracing::debug!(seconds = started.elapsed().as_secs_f64(), "input spooled");
             meta.quantization = spooled.quantizer.to_metres(
                 opts.scale,
                 opts.offset,
@@ -264,11 +265,16 @@ fn build_tiles(
         Ok(())
     })?;
     tiles_bar.finish_and_clear();
+    tracing::debug!(seconds = started.elapsed().as_secs_f64(), "tiles built");
     meta.min_height = quant.height(agg.min_q);
     meta.max_height = quant.height(agg.max_q);
     let verify_bar = bar(opts.progress, total_tiles, "verifying");
     let (metadata, file_bytes) = writer.finish(meta.clone(), |n| verify_bar.inc(n))?;
     verify_bar.finish_and_clear();
+    tracing::debug!(
+        seconds = started.elapsed().as_secs_f64(),
+        "written and verified"
+    );
     Ok(BuildReport {
         metadata,
         samples: u64::from(geometry.width()) * u64::from(geometry.height()),
