@@ -38,7 +38,7 @@ for spec in "${inputs[@]}"; do
     echo "$wall" >> "$work/wall"
     echo "$user $sys" | awk '{print $1+$2}' >> "$work/cpu"
     echo "$rss" | awk '{printf "%.0f\n", $1/1024}' >> "$work/rss"
-    samples=$("$bin" info "$work/out.tess" --json | awk -F'[:,]' '/"width"/{w=$2} /"height"/{h=$2} END{print w*h}')
+    samples=$("$bin" info "$work/out.tess" --json | awk -F'[:,]' '/"width"/{w=$2} /"height"/{h=$2} END{printf "%.0f", w*h}')
     echo "$samples $wall" | awk '{printf "%.1f\n", $1/$2/1e6}' >> "$work/rate"
   done
   bps=$("$bin" info "$work/out.tess" --json | awk -F'[:,]' '/"bytes_per_sample"/{print $2; exit}' | awk '{printf "%.3f", $1}')

@@ -291,6 +291,18 @@ fn killed_build_leaves_no_output() {
         return;
     }
     assert!(!out.exists(), "a killed build left {}", out.display());
+    // The next build of the same output removes the dead build's partial file and
+    // leaves no partial of its own.
+    let o = build(Path::new("synthetic:300"), &out, &["--tile-size", "64"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.exists());
+    let partials: Vec<_> = std::fs::read_dir(&d)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().contains(".partial-"))
+        .map(|e| e.file_name())
+        .collect();
+    assert!(partials.is_empty(), "partial files remain: {partials:?}");
 }
 
 #[test]

@@ -45,6 +45,43 @@ impl std::fmt::Debug for PyramidWriter {
     }
 }
 
+/// Partial files are named `.NAME.partial-PID-XXXXXX` so a later build can tell
+/// whose they are.
+fn partial_prefix(name: &str, pid: u32) -> String {
+    format!(".{name}.partial-{pid}-")
+}
+
+/// Removes partial files of `name` left by builds that were killed (their process no
+/// longer exists). Only where `/proc` tells which processes are alive.
+fn remove_stale_partials(dir: &Path, name: &str) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let prefix = format!(".{name}.partial-");
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let file_name = entry.file_name();
+        let Some(rest) = file_name.to_str().and_then(|n| n.strip_prefix(&prefix)) else {
+            continue;
+        };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if !Path::new(&format!("/proc/{pid}")).exists() {
+            match std::fs::remove_file(entry.path()) {
+                Ok(()) => {
+                    tracing::info!(file = %entry.path().display(), "removed a partial file left by an interrupted build");
+                }
+                Err(e) => {
+                    tracing::warn!(file = %entry.path().display(), error = %e, "cannot remove a stale partial file");
+                }
+            }
+        }
+    }
+}
+
 /// Index bytes for all levels.
 fn index_len(geometry: &TileGeometry) -> u64 {
     geometry
@@ -73,8 +110,9 @@ impl PyramidWriter {
         if !dir.is_dir() {
             bail!("output directory {} does not exist", dir.display());
         }
+        remove_stale_partials(&dir, &name);
         let partial = tempfile::Builder::new()
-            .prefix(&format!(".{name}.partial-"))
+            .prefix(&partial_prefix(&name, std::process::id()))
             .tempfile_in(&dir)
             .with_context(|| {
                 format!("cannot create a file in output directory {}", dir.display())
