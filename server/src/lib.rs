@@ -6,4 +6,5 @@ pub mod build;
 pub mod info;
 pub mod ingest;
 pub mod preview;
+pub mod serve;
 pub mod verify;

@@ -55,6 +55,12 @@ enum Command {
         #[arg(short, long)]
         quiet: bool,
     },
+    /// Serve pyramids over HTTP (API.md): Morton-range tile streams, single tiles, the raw
+    /// file with HTTP Range, PNG height tiles, TileJSON, /healthz and /metrics.
+    ///
+    /// Settings come from flags, then TESSERA_* environment variables, then --config FILE
+    /// (TOML), then defaults. Stops on SIGINT/SIGTERM after in-flight requests finish.
+    Serve(tessera_server::serve::config::ServeArgs),
     /// Check a pyramid's structure and every tile's checksum; exit 1 naming each bad tile.
     Verify {
         /// The .tess file to check.
@@ -167,6 +173,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 r.seconds,
                 r.samples as f64 / r.seconds / 1e6
             );
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Serve(args) => {
+            let settings = tessera_server::serve::config::Settings::resolve(&args)?;
+            let rt = tokio::runtime::Builder::new_multi_thread()
+                .enable_all()
+                .build()
+                .context("cannot start the async runtime")?;
+            rt.block_on(tessera_server::serve::run(settings))?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Verify { file } => {

@@ -15,6 +15,7 @@ pub mod morton;
 pub mod reader;
 pub mod tile;
 pub mod triangulation;
+pub mod wire;
 
 #[cfg(feature = "testdata")]
 pub mod testdata;

@@ -1,0 +1,68 @@
+//! Standard HTTP caching: strong ETags from the dataset's content hash (and what
+//! the request asked for), `304 Not Modified`, and `Cache-Control` that lets CDNs
+//! keep immutable data (DESIGN §4).
+
+use axum::http::{HeaderMap, HeaderValue, header};
+
+/// A strong ETag for `content_hash` and a request-specific `variant`.
+pub fn etag(content_hash: &str, variant: &str) -> String {
+    if variant.is_empty() {
+        return format!("\"{content_hash}\"");
+    }
+    let v = xxhash_rust::xxh3::xxh3_64(variant.as_bytes());
+    format!("\"{content_hash}-{v:016x}\"")
+}
+
+/// Whether `If-None-Match` matches `etag` (strong comparison; `*` matches anything).
+pub fn not_modified(req: &HeaderMap, etag: &str) -> bool {
+    req.get_all(header::IF_NONE_MATCH).iter().any(|v| {
+        v.to_str().is_ok_and(|s| {
+            s.split(',')
+                .map(str::trim)
+                .any(|t| t == "*" || t == etag || t.strip_prefix("W/") == Some(etag))
+        })
+    })
+}
+
+/// `Cache-Control` for a response: immutable for a year when the URL pins the
+/// content (`?v=<content hash>` matches), otherwise `max_age` seconds with revalidation
+/// by ETag.
+pub fn cache_control(pinned: bool, max_age: u64) -> HeaderValue {
+    let v = if pinned {
+        "public, max-age=31536000, immutable".to_string()
+    } else {
+        format!("public, max-age={max_age}")
+    };
+    HeaderValue::from_str(&v).expect("ASCII")
+}
+
+/// Sets `ETag` and `Cache-Control` on a response's headers.
+pub fn set_headers(h: &mut HeaderMap, etag: &str, pinned: bool, max_age: u64) {
+    h.insert(
+        header::ETAG,
+        HeaderValue::from_str(etag).expect("ETags are ASCII"),
+    );
+    h.insert(header::CACHE_CONTROL, cache_control(pinned, max_age));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn if_none_match_compares_strongly() {
+        let e = etag("abc", "level 3 0-15");
+        assert_ne!(e, etag("abc", "level 3 0-16"));
+        let mut h = HeaderMap::new();
+        assert!(!not_modified(&h, &e));
+        h.insert(
+            header::IF_NONE_MATCH,
+            HeaderValue::from_str(&format!("\"zzz\", {e}")).unwrap(),
+        );
+        assert!(not_modified(&h, &e));
+        h.insert(header::IF_NONE_MATCH, HeaderValue::from_static("\"other\""));
+        assert!(!not_modified(&h, &e));
+        h.insert(header::IF_NONE_MATCH, HeaderValue::from_static("*"));
+        assert!(not_modified(&h, &e));
+    }
+}

@@ -1,0 +1,197 @@
+//! `tessera-server serve`: pyramids over HTTP (DESIGN §4, API.md).
+
+pub mod cache;
+pub mod config;
+pub mod dataset;
+pub mod error;
+pub mod metrics;
+pub mod ranges;
+pub mod routes;
+pub mod storage;
+
+use axum::Router;
+use axum::extract::{MatchedPath, Request, State};
+use axum::http::{StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use config::Settings;
+use dataset::Registry;
+use error::ApiError;
+use metrics::Metrics;
+use ranges::RangeLimits;
+use std::sync::Arc;
+use std::time::Instant;
+use tower::ServiceBuilder;
+use tower_http::catch_panic::CatchPanicLayer;
+use tower_http::timeout::TimeoutLayer;
+
+/// What every handler shares.
+#[derive(Debug)]
+pub struct AppState {
+    pub registry: Registry,
+    pub metrics: Metrics,
+    pub limits: RangeLimits,
+    pub cache_max_age: u64,
+    pub max_query_bytes: usize,
+}
+
+/// Tiles a response carried, for the request log and metrics (a response extension).
+#[derive(Clone, Copy, Debug)]
+pub struct TilesServed(pub u64);
+
+/// The whole API as a router.
+pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
+    let api = Router::new()
+        .route("/healthz", get(routes::health::healthz))
+        .route("/metrics", get(routes::health::metrics))
+        .route("/v1/datasets", get(routes::datasets::list))
+        .route("/v1/datasets/{name}", get(routes::datasets::get_one))
+        .route(
+            "/v1/datasets/{name}/tilejson.json",
+            get(routes::web_tiles::tilejson),
+        )
+        .route("/v1/datasets/{name}/pyramid", get(routes::pyramid::raw))
+        .route(
+            "/v1/datasets/{name}/levels/{level}/tiles",
+            get(routes::tiles::ranges),
+        )
+        .route(
+            "/v1/datasets/{name}/levels/{level}/errors",
+            get(routes::tiles::errors),
+        )
+        .route(
+            "/v1/datasets/{name}/tiles/{level}/{x}/{y}",
+            get(routes::tiles::single),
+        )
+        .route(
+            "/v1/datasets/{name}/{z}/{x}/{y}",
+            get(routes::web_tiles::png),
+        )
+        .fallback(|| async { ApiError::not_found("no such endpoint; see API.md") })
+        .with_state(state.clone());
+    api.layer(
+        ServiceBuilder::new()
+            .layer(CatchPanicLayer::custom(|_| {
+                ApiError::internal("internal error").into_response()
+            }))
+            .layer(middleware::from_fn_with_state(state, observe))
+            .layer(TimeoutLayer::with_status_code(
+                StatusCode::REQUEST_TIMEOUT,
+                settings.timeout,
+            ))
+            .layer(tower::limit::ConcurrencyLimitLayer::new(
+                settings.concurrency,
+            )),
+    )
+}
+
+/// Rejects over-long query strings, then logs one line per request and records metrics.
+async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
+    let started = Instant::now();
+    let method = req.method().clone();
+    let uri = req.uri().clone();
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
+    let query_len = uri.query().map_or(0, str::len);
+    let response = if query_len > state.max_query_bytes {
+        ApiError::new(
+            StatusCode::URI_TOO_LONG,
+            format!(
+                "query string of {query_len} bytes exceeds the {}-byte limit",
+                state.max_query_bytes
+            ),
+        )
+        .into_response()
+    } else {
+        next.run(req).await
+    };
+    let status = response.status();
+    // Bodies of known size (all of ours) say so in their size hint, even when hyper
+    // has not yet written the Content-Length header.
+    let bytes = response
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
+        .or_else(|| axum::body::HttpBody::size_hint(response.body()).exact())
+        .unwrap_or(0);
+    let tiles = response
+        .extensions()
+        .get::<TilesServed>()
+        .map_or(0, |t| t.0);
+    let elapsed = started.elapsed();
+    let m = &state.metrics;
+    m.requests
+        .with_label_values(&[route.as_str(), status.as_str()])
+        .inc();
+    m.latency
+        .with_label_values(&[route.as_str()])
+        .observe(elapsed.as_secs_f64());
+    m.bytes.inc_by(bytes);
+    m.tiles.inc_by(tiles);
+    tracing::info!(
+        %method,
+        uri = %uri,
+        status = status.as_u16(),
+        bytes,
+        tiles,
+        ms = elapsed.as_secs_f64() * 1e3,
+        "request"
+    );
+    response
+}
+
+/// Resolves once SIGINT or SIGTERM arrives.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {},
+        () = term => {},
+    }
+    tracing::info!("shutting down: finishing in-flight requests");
+}
+
+/// Loads the datasets and serves until SIGINT/SIGTERM, letting in-flight responses finish.
+pub async fn run(settings: Settings) -> anyhow::Result<()> {
+    let registry = Registry::load(&settings.datasets)?;
+    let listener = tokio::net::TcpListener::bind(settings.listen)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", settings.listen))?;
+    let addr = listener.local_addr()?;
+    for (name, ds) in &registry.datasets {
+        let m = ds.pyramid.metadata();
+        tracing::info!(dataset = %name, file = %ds.path.display(), width = m.width, height = m.height, levels = m.levels, "serving");
+    }
+    let state = Arc::new(AppState {
+        registry,
+        metrics: Metrics::new(),
+        limits: RangeLimits {
+            max_ranges: settings.max_ranges,
+            max_tiles: settings.max_tiles,
+        },
+        cache_max_age: settings.cache_max_age,
+        max_query_bytes: settings.max_query_bytes,
+    });
+    // Tools and tests read this line to find an ephemeral port.
+    println!("listening on http://{addr}");
+    tracing::info!(%addr, "listening");
+    axum::serve(listener, app(state, &settings))
+        .with_graceful_shutdown(shutdown_signal())
+        .await?;
+    Ok(())
+}

@@ -1,0 +1,431 @@
+//! The tile stream (`application/vnd.tessera.tiles`): what the range endpoint
+//! sends and what clients decode (DESIGN §4).
+//!
+//! A stream is a sequence of frames, the last of which is the one trailer frame.
+//! Every frame is a fixed 32-byte little-endian header followed by a payload:
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u32 | payload length |
+//! | 4 | u8 | kind: 0 tile, 1 error, 2 trailer, 3 error table |
+//! | 5 | u8 | level |
+//! | 6 | u16 | zero |
+//! | 8 | u64 | Morton code (tile, error); number of tile frames (trailer) |
+//! | 16 | u64 | XXH3-64 of the payload (tile, error table); the record's checksum (error); number of error frames (trailer) |
+//! | 24 | u16 | min quantized height (tile, error table) |
+//! | 26 | u16 | max quantized height (tile, error table) |
+//! | 28 | u32 | zero |
+//!
+//! Payloads: a tile frame carries the stored record unchanged (FORMAT.md); an
+//! error-table frame only the record's leading error table (the `/errors`
+//! endpoint's cheap planning data); an error frame a UTF-8 message (a record whose checksum failed on the server); the
+//! trailer `n` pairs of u64 `(start, end)`: the inclusive Morton sub-ranges of the
+//! request that hold no tile because they lie outside the DEM.
+
+use crate::format;
+use crate::morton::{Morton, MortonRange};
+use crate::tile::Level;
+
+/// The media type of a tile stream.
+pub const CONTENT_TYPE: &str = "application/vnd.tessera.tiles";
+pub const FRAME_HEADER_LEN: usize = 32;
+/// Largest payload a decoder accepts (a 4096-cell tile is ~33 MiB raw).
+pub const MAX_PAYLOAD: usize = 64 << 20;
+
+const KIND_TILE: u8 = 0;
+const KIND_ERROR: u8 = 1;
+const KIND_TRAILER: u8 = 2;
+const KIND_ERROR_TABLE: u8 = 3;
+
+/// One decoded frame.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Frame {
+    /// A tile's stored record, checksum already verified by the decoder.
+    Tile {
+        level: Level,
+        morton: Morton,
+        checksum: u64,
+        min: u16,
+        max: u16,
+        record: Vec<u8>,
+    },
+    /// A tile's error table and min/max only (FORMAT.md "Tile record", first part).
+    ErrorTable {
+        level: Level,
+        morton: Morton,
+        min: u16,
+        max: u16,
+        table: Vec<u8>,
+    },
+    /// The server found this tile's record corrupt and did not send it.
+    Error {
+        level: Level,
+        morton: Morton,
+        message: String,
+    },
+    /// End of stream: counts and the requested sub-ranges that lie outside the DEM.
+    Trailer {
+        tiles: u64,
+        errors: u64,
+        outside: Vec<MortonRange>,
+    },
+}
+
+/// The 32-byte header of a tile frame; the payload is the record itself, which the
+/// server sends straight from storage.
+pub fn tile_header(
+    level: Level,
+    morton: Morton,
+    checksum: u64,
+    min: u16,
+    max: u16,
+    len: u32,
+) -> [u8; FRAME_HEADER_LEN] {
+    header(
+        len,
+        KIND_TILE,
+        level.get(),
+        morton.get(),
+        checksum,
+        min,
+        max,
+    )
+}
+
+/// A complete error-table frame.
+pub fn error_table_frame(
+    level: Level,
+    morton: Morton,
+    min: u16,
+    max: u16,
+    table: &[u8],
+) -> Vec<u8> {
+    let mut v = header(
+        table.len() as u32,
+        KIND_ERROR_TABLE,
+        level.get(),
+        morton.get(),
+        format::checksum(table),
+        min,
+        max,
+    )
+    .to_vec();
+    v.extend_from_slice(table);
+    v
+}
+
+/// A complete error frame.
+pub fn error_frame(level: Level, morton: Morton, checksum: u64, message: &str) -> Vec<u8> {
+    let mut v = header(
+        message.len() as u32,
+        KIND_ERROR,
+        level.get(),
+        morton.get(),
+        checksum,
+        0,
+        0,
+    )
+    .to_vec();
+    v.extend_from_slice(message.as_bytes());
+    v
+}
+
+/// A complete trailer frame.
+pub fn trailer_frame(level: Level, tiles: u64, errors: u64, outside: &[MortonRange]) -> Vec<u8> {
+    let len = (outside.len() * 16) as u32;
+    let mut v = header(len, KIND_TRAILER, level.get(), tiles, errors, 0, 0).to_vec();
+    for r in outside {
+        v.extend_from_slice(&r.start().get().to_le_bytes());
+        v.extend_from_slice(&r.end().get().to_le_bytes());
+    }
+    v
+}
+
+fn header(
+    len: u32,
+    kind: u8,
+    level: u8,
+    a: u64,
+    b: u64,
+    min: u16,
+    max: u16,
+) -> [u8; FRAME_HEADER_LEN] {
+    let mut h = [0u8; FRAME_HEADER_LEN];
+    h[0..4].copy_from_slice(&len.to_le_bytes());
+    h[4] = kind;
+    h[5] = level;
+    h[8..16].copy_from_slice(&a.to_le_bytes());
+    h[16..24].copy_from_slice(&b.to_le_bytes());
+    h[24..26].copy_from_slice(&min.to_le_bytes());
+    h[26..28].copy_from_slice(&max.to_le_bytes());
+    h
+}
+
+/// Why a stream was rejected.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum WireError {
+    #[error("frame {index}: unknown frame kind {kind}")]
+    Kind { index: usize, kind: u8 },
+    #[error("frame {index}: payload of {len} bytes exceeds the {MAX_PAYLOAD}-byte limit")]
+    TooLong { index: usize, len: usize },
+    #[error("frame {index}: level {level} is not a valid level")]
+    Level { index: usize, level: u8 },
+    #[error("frame {index}: tile {morton} of level {level} fails its checksum")]
+    Checksum {
+        index: usize,
+        level: u8,
+        morton: u64,
+    },
+    #[error("frame {index}: malformed {what}")]
+    Malformed { index: usize, what: &'static str },
+    #[error("stream continues after its trailer")]
+    AfterTrailer,
+    #[error("stream is truncated: {0}")]
+    Truncated(String),
+}
+
+/// Incremental decoder: feed bytes as they arrive, take frames as they complete.
+#[derive(Debug, Default)]
+pub struct FrameDecoder {
+    buf: Vec<u8>,
+    frames: usize,
+    done: bool,
+}
+
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+
+impl FrameDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Appends received bytes.
+    pub fn push(&mut self, bytes: &[u8]) {
+        self.buf.extend_from_slice(bytes);
+    }
+
+    /// Whether the trailer has been decoded.
+    pub fn is_done(&self) -> bool {
+        self.done
+    }
+
+    /// The next complete frame, `Ok(None)` if more bytes are needed.
+    pub fn next_frame(&mut self) -> Result<Option<Frame>, WireError> {
+        if self.buf.len() < FRAME_HEADER_LEN {
+            if self.done && !self.buf.is_empty() {
+                return Err(WireError::AfterTrailer);
+            }
+            return Ok(None);
+        }
+        if self.done {
+            return Err(WireError::AfterTrailer);
+        }
+        let index = self.frames;
+        let h = &self.buf[..FRAME_HEADER_LEN];
+        let len = u32::from_le_bytes([h[0], h[1], h[2], h[3]]) as usize;
+        if len > MAX_PAYLOAD {
+            return Err(WireError::TooLong { index, len });
+        }
+        if self.buf.len() < FRAME_HEADER_LEN + len {
+            return Ok(None);
+        }
+        let (kind, level_raw) = (h[4], h[5]);
+        let level = Level::new(level_raw).ok_or(WireError::Level {
+            index,
+            level: level_raw,
+        })?;
+        let (a, b) = (u64_at(h, 8), u64_at(h, 16));
+        let (min, max) = (
+            u16::from_le_bytes([h[24], h[25]]),
+            u16::from_le_bytes([h[26], h[27]]),
+        );
+        let payload: Vec<u8> = self.buf[FRAME_HEADER_LEN..FRAME_HEADER_LEN + len].to_vec();
+        self.buf.drain(..FRAME_HEADER_LEN + len);
+        self.frames += 1;
+        let frame = match kind {
+            KIND_TILE => {
+                if format::checksum(&payload) != b {
+                    return Err(WireError::Checksum {
+                        index,
+                        level: level_raw,
+                        morton: a,
+                    });
+                }
+                Frame::Tile {
+                    level,
+                    morton: Morton::from_raw(a),
+                    checksum: b,
+                    min,
+                    max,
+                    record: payload,
+                }
+            }
+            KIND_ERROR_TABLE => {
+                if format::checksum(&payload) != b {
+                    return Err(WireError::Checksum {
+                        index,
+                        level: level_raw,
+                        morton: a,
+                    });
+                }
+                Frame::ErrorTable {
+                    level,
+                    morton: Morton::from_raw(a),
+                    min,
+                    max,
+                    table: payload,
+                }
+            }
+            KIND_ERROR => Frame::Error {
+                level,
+                morton: Morton::from_raw(a),
+                message: String::from_utf8(payload).map_err(|_| WireError::Malformed {
+                    index,
+                    what: "error message",
+                })?,
+            },
+            KIND_TRAILER => {
+                if !len.is_multiple_of(16) {
+                    return Err(WireError::Malformed {
+                        index,
+                        what: "trailer",
+                    });
+                }
+                let outside = payload
+                    .chunks_exact(16)
+                    .map(|c| {
+                        MortonRange::new(
+                            Morton::from_raw(u64_at(c, 0)),
+                            Morton::from_raw(u64_at(c, 8)),
+                        )
+                    })
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(|_| WireError::Malformed {
+                        index,
+                        what: "trailer range",
+                    })?;
+                self.done = true;
+                Frame::Trailer {
+                    tiles: a,
+                    errors: b,
+                    outside,
+                }
+            }
+            kind => return Err(WireError::Kind { index, kind }),
+        };
+        Ok(Some(frame))
+    }
+
+    /// Checks that the stream ended cleanly: a trailer, and nothing left over.
+    pub fn finish(&self) -> Result<(), WireError> {
+        if !self.buf.is_empty() {
+            return Err(WireError::Truncated(format!(
+                "{} bytes of an incomplete frame",
+                self.buf.len()
+            )));
+        }
+        if !self.done {
+            return Err(WireError::Truncated("no trailer frame".into()));
+        }
+        Ok(())
+    }
+}
+
+/// Decodes a whole stream held in memory.
+pub fn decode_all(bytes: &[u8]) -> Result<Vec<Frame>, WireError> {
+    let mut d = FrameDecoder::new();
+    d.push(bytes);
+    let mut out = Vec::new();
+    while let Some(f) = d.next_frame()? {
+        out.push(f);
+    }
+    d.finish()?;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stream() -> (Vec<u8>, Vec<u8>) {
+        let level = Level::new(3).unwrap();
+        let record = b"pretend this is a tile record".to_vec();
+        let mut s = tile_header(
+            level,
+            Morton::from_raw(9),
+            format::checksum(&record),
+            10,
+            20,
+            record.len() as u32,
+        )
+        .to_vec();
+        s.extend_from_slice(&record);
+        s.extend(error_frame(
+            level,
+            Morton::from_raw(10),
+            77,
+            "checksum mismatch",
+        ));
+        let outside = [MortonRange::new(Morton::from_raw(40), Morton::from_raw(63)).unwrap()];
+        s.extend(trailer_frame(level, 1, 1, &outside));
+        (s, record)
+    }
+
+    #[test]
+    fn frames_round_trip_in_any_chunking() {
+        let (s, record) = stream();
+        for chunk in [1, 7, 32, 1000] {
+            let mut d = FrameDecoder::new();
+            let mut frames = Vec::new();
+            for c in s.chunks(chunk) {
+                d.push(c);
+                while let Some(f) = d.next_frame().unwrap() {
+                    frames.push(f);
+                }
+            }
+            d.finish().unwrap();
+            assert_eq!(frames.len(), 4);
+            assert!(
+                matches!(&frames[0], Frame::Tile { morton, record: r, min: 10, max: 20, .. } if morton.get() == 9 && *r == record)
+            );
+            assert!(
+                matches!(&frames[1], Frame::Error { message, .. } if message == "checksum mismatch")
+            );
+            assert!(
+                matches!(&frames[2], Frame::Trailer { tiles: 1, errors: 1, outside } if outside[0].to_string() == "40-63")
+            );
+        }
+    }
+
+    #[test]
+    fn damaged_streams_are_rejected() {
+        let (s, _) = stream();
+        // Truncated anywhere before the end.
+        for cut in [5, 31, 40, s.len() - 1] {
+            let err = decode_all(&s[..cut]).unwrap_err();
+            assert!(matches!(err, WireError::Truncated(_)), "cut {cut}: {err}");
+        }
+        // A flipped payload byte fails the tile's checksum.
+        let mut bad = s.clone();
+        bad[FRAME_HEADER_LEN + 3] ^= 1;
+        assert!(matches!(
+            decode_all(&bad),
+            Err(WireError::Checksum { morton: 9, .. })
+        ));
+        // Unknown kinds, absurd lengths and bytes after the trailer.
+        let mut bad = s.clone();
+        bad[4] = 9;
+        assert!(matches!(
+            decode_all(&bad),
+            Err(WireError::Kind { kind: 9, .. })
+        ));
+        let mut bad = s.clone();
+        bad[0..4].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(decode_all(&bad), Err(WireError::TooLong { .. })));
+        let mut bad = s.clone();
+        bad.extend_from_slice(&[0u8; 40]);
+        assert!(matches!(decode_all(&bad), Err(WireError::AfterTrailer)));
+    }
+}
