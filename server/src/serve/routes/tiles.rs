@@ -64,17 +64,17 @@ fn not_modified(etag: &str, pinned: bool, max_age: u64) -> Response {
 }
 
 fn stream(
-    state: Arc<AppState>,
-    name: String,
-    level_raw: String,
-    query: HashMap<String, String>,
-    headers: HeaderMap,
+    state: &AppState,
+    name: &str,
+    level_raw: &str,
+    query: &HashMap<String, String>,
+    headers: &HeaderMap,
     payload: Payload,
 ) -> ApiResult<Response> {
-    let ds = dataset(&state, &name)?;
-    let level: Level = level(ds, &level_raw)?;
+    let ds = dataset(state, name)?;
+    let level: Level = level(ds, level_raw)?;
     let ranges = parse_ranges(query.get("ranges").map(String::as_str), level, state.limits)?;
-    let pin = pinned(ds, &query);
+    let pin = pinned(ds, query);
     let canonical: Vec<String> = ranges.iter().map(ToString::to_string).collect();
     let kind = if payload == Payload::Records {
         "tiles"
@@ -85,7 +85,7 @@ fn stream(
         ds.content_hash(),
         &format!("{kind} {level} {}", canonical.join(",")),
     );
-    if cache::not_modified(&headers, &etag) {
+    if cache::not_modified(headers, &etag) {
         return Ok(not_modified(&etag, pin, state.cache_max_age));
     }
     let table_len = ErrorTable::byte_len(ds.pyramid.geometry().tile_log2());
@@ -162,7 +162,7 @@ pub async fn ranges(
     Query(query): Query<HashMap<String, String>>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    stream(state, name, level, query, headers, Payload::Records)
+    stream(&state, &name, &level, &query, &headers, Payload::Records)
 }
 
 /// `GET /v1/datasets/{name}/levels/{level}/errors?ranges=…`
@@ -172,7 +172,14 @@ pub async fn errors(
     Query(query): Query<HashMap<String, String>>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    stream(state, name, level, query, headers, Payload::ErrorTables)
+    stream(
+        &state,
+        &name,
+        &level,
+        &query,
+        &headers,
+        Payload::ErrorTables,
+    )
 }
 
 /// `GET /v1/datasets/{name}/tiles/{level}/{x}/{y}`: one stored record.
