@@ -5,7 +5,8 @@
 //! random corners, then every 64×64 block is refined from its own four corners.
 //! A new point is the mean of the two ends of its edge (or the four corners of
 //! its cell) plus noise hashed from its position and the seed, with amplitude
-//! `A · (s / S)^H`. Every value depends only on its position and the seed, so any
+//! `A · (s / S)^H`, scaled by the local height (the mean of the parents) so that
+//! lowlands stay smooth and highlands turn rugged, as eroded terrain does. Every value depends only on its position and the seed, so any
 //! window can be generated independently, in any order, on any thread, and a
 //! 65537² terrain never needs more than one block per thread in memory.
 
@@ -123,24 +124,33 @@ impl Synthetic {
                         + buf[(j - half) * side + i + half]
                         + buf[(j + half) * side + i - half]
                         + buf[(j + half) * side + i + half];
-                    buf[j * side + i] = 0.25 * c + amp * noise(gx(i), gy(j), self.seed);
+                    let m = 0.25 * c;
+                    buf[j * side + i] =
+                        m + amp * Self::roughness(m) * noise(gx(i), gy(j), self.seed);
                 }
             }
             // Edge midpoints from the two ends of their edge only, so blocks agree.
             for j in (0..side).step_by(step) {
                 for i in (half..side).step_by(step) {
-                    let c = buf[j * side + i - half] + buf[j * side + i + half];
-                    buf[j * side + i] = 0.5 * c + amp * noise(gx(i), gy(j), self.seed);
+                    let m = 0.5 * (buf[j * side + i - half] + buf[j * side + i + half]);
+                    buf[j * side + i] =
+                        m + amp * Self::roughness(m) * noise(gx(i), gy(j), self.seed);
                 }
             }
             for j in (half..side).step_by(step) {
                 for i in (0..side).step_by(step) {
-                    let c = buf[(j - half) * side + i] + buf[(j + half) * side + i];
-                    buf[j * side + i] = 0.5 * c + amp * noise(gx(i), gy(j), self.seed);
+                    let m = 0.5 * (buf[(j - half) * side + i] + buf[(j + half) * side + i]);
+                    buf[j * side + i] =
+                        m + amp * Self::roughness(m) * noise(gx(i), gy(j), self.seed);
                 }
             }
             step = half;
         }
+    }
+
+    /// Roughness grows with height: ×0.25 in the deepest lowlands, ×1.75 on the peaks.
+    fn roughness(mean: f32) -> f32 {
+        (1.0 + mean / (0.5 * AMPLITUDE)).clamp(0.25, 1.75)
     }
 
     fn quantize(h: f32) -> u16 {

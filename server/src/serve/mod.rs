@@ -4,6 +4,7 @@ pub mod cache;
 pub mod config;
 pub mod dataset;
 pub mod error;
+pub mod http_range;
 pub mod metrics;
 pub mod ranges;
 pub mod routes;

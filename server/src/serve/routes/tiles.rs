@@ -4,12 +4,12 @@
 //! stored records, never re-encoded) interleaved with 32-byte frame headers, so its
 //! exact length is known up front and sent as `Content-Length`.
 
-use super::{dataset, level, pinned};
+use super::{Params, dataset, level, pinned};
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::ranges::parse_ranges;
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Path, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
@@ -159,7 +159,7 @@ fn stream(
 pub async fn ranges(
     State(state): State<Arc<AppState>>,
     Path((name, level)): Path<(String, String)>,
-    Query(query): Query<HashMap<String, String>>,
+    Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     stream(&state, &name, &level, &query, &headers, Payload::Records)
@@ -169,7 +169,7 @@ pub async fn ranges(
 pub async fn errors(
     State(state): State<Arc<AppState>>,
     Path((name, level)): Path<(String, String)>,
-    Query(query): Query<HashMap<String, String>>,
+    Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     stream(
@@ -186,7 +186,7 @@ pub async fn errors(
 pub async fn single(
     State(state): State<Arc<AppState>>,
     Path((name, level_raw, x, y)): Path<(String, String, String, String)>,
-    Query(query): Query<HashMap<String, String>>,
+    Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;

@@ -1,0 +1,257 @@
+//! Parsing the HTTP `Range` request header for byte ranges (RFC 9110 §14.1–14.2).
+//!
+//! Only the `bytes` unit is understood. The outcome follows the RFC: a header that
+//! does not parse (or names another unit) is ignored and the whole representation
+//! is sent; a well-formed header none of whose ranges overlaps the representation
+//! is unsatisfiable (416). Ranges are returned in the order requested, clamped to
+//! the representation, and are neither sorted nor merged.
+
+/// Most range-specs accepted in one `Range` header. A request for more is rejected
+/// with 416, which RFC 9110 §15.5.17 allows for "an excessive request of small or
+/// overlapping ranges".
+pub const MAX_RANGES: usize = 64;
+
+/// An inclusive byte range `start..=end` inside the representation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ByteRange {
+    pub start: u64,
+    pub end: u64,
+}
+
+impl ByteRange {
+    /// Number of bytes in the range (never zero).
+    pub const fn byte_count(self) -> u64 {
+        self.end - self.start + 1
+    }
+
+    /// `Content-Range` value for this range of a `size`-byte representation.
+    pub fn content_range(self, size: u64) -> String {
+        format!("bytes {}-{}/{size}", self.start, self.end)
+    }
+}
+
+/// What a `Range` header asks of a `size`-byte representation.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum RangeRequest {
+    /// Send the whole representation (no header, an invalid one, or another unit).
+    Full,
+    /// Send these ranges (at least one), clamped to the representation, as given.
+    Partial(Vec<ByteRange>),
+    /// Well-formed, but no range overlaps the representation: 416.
+    Unsatisfiable,
+    /// More than [`MAX_RANGES`] range-specs (this many): 416.
+    TooMany(usize),
+}
+
+/// One syntactically valid range-spec, before it meets the representation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Spec {
+    /// `first-[last]`
+    Int(u64, Option<u64>),
+    /// `-suffix`
+    Suffix(u64),
+}
+
+/// `1*DIGIT` as a number, saturating at `u64::MAX` (a position that large is past
+/// any representation, and a length that large means "all of it").
+fn digits(s: &str) -> Option<u64> {
+    if s.is_empty() || !s.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    Some(s.bytes().fold(0u64, |n, b| {
+        n.saturating_mul(10).saturating_add(u64::from(b - b'0'))
+    }))
+}
+
+fn spec(s: &str) -> Option<Spec> {
+    let (first, last) = s.split_once('-')?;
+    if first.is_empty() {
+        return digits(last).map(Spec::Suffix);
+    }
+    let first = digits(first)?;
+    if last.is_empty() {
+        return Some(Spec::Int(first, None));
+    }
+    let last = digits(last)?;
+    // RFC 9110 §14.1.1: an int-range whose last-pos is below its first-pos is invalid.
+    (last >= first).then_some(Spec::Int(first, Some(last)))
+}
+
+impl Spec {
+    /// The bytes this spec selects of a `size`-byte representation, if any.
+    fn resolve(self, size: u64) -> Option<ByteRange> {
+        match self {
+            Spec::Int(first, last) if first < size => Some(ByteRange {
+                start: first,
+                end: last.map_or(size - 1, |l| l.min(size - 1)),
+            }),
+            Spec::Suffix(n) if n > 0 && size > 0 => Some(ByteRange {
+                start: size.saturating_sub(n),
+                end: size - 1,
+            }),
+            _ => None,
+        }
+    }
+}
+
+/// Interprets the value of a `Range` header for a representation of `size` bytes.
+///
+/// `bytes=a-b`, `bytes=a-` and `bytes=-n` are understood, separated by commas
+/// (optional whitespace around them; empty list elements are skipped). The unit
+/// name is case-insensitive. `b` past the end is clamped to the last byte; a
+/// suffix longer than the representation selects all of it. A zero-length
+/// representation satisfies no range.
+pub fn parse(header: &str, size: u64) -> RangeRequest {
+    let Some((unit, set)) = header.split_once('=') else {
+        return RangeRequest::Full;
+    };
+    if !unit.eq_ignore_ascii_case("bytes") {
+        return RangeRequest::Full;
+    }
+    let mut count = 0usize;
+    let mut ranges = Vec::new();
+    for element in set.split(',').map(|e| e.trim_matches([' ', '\t'])) {
+        if element.is_empty() {
+            continue;
+        }
+        let Some(s) = spec(element) else {
+            return RangeRequest::Full;
+        };
+        count += 1;
+        if count <= MAX_RANGES {
+            ranges.extend(s.resolve(size));
+        }
+    }
+    if count == 0 {
+        RangeRequest::Full
+    } else if count > MAX_RANGES {
+        RangeRequest::TooMany(count)
+    } else if ranges.is_empty() {
+        RangeRequest::Unsatisfiable
+    } else {
+        RangeRequest::Partial(ranges)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn r(start: u64, end: u64) -> ByteRange {
+        ByteRange { start, end }
+    }
+
+    fn partial(v: &[(u64, u64)]) -> RangeRequest {
+        RangeRequest::Partial(v.iter().map(|&(a, b)| r(a, b)).collect())
+    }
+
+    #[test]
+    fn single_range() {
+        assert_eq!(parse("bytes=0-499", 1000), partial(&[(0, 499)]));
+        assert_eq!(parse("bytes=999-999", 1000), partial(&[(999, 999)]));
+        assert_eq!(parse("Bytes=10-19", 1000), partial(&[(10, 19)]));
+        assert_eq!(r(10, 19).byte_count(), 10);
+        assert_eq!(r(10, 19).content_range(1000), "bytes 10-19/1000");
+    }
+
+    #[test]
+    fn open_ended() {
+        assert_eq!(parse("bytes=900-", 1000), partial(&[(900, 999)]));
+        assert_eq!(parse("bytes=0-", 1000), partial(&[(0, 999)]));
+    }
+
+    #[test]
+    fn suffix() {
+        assert_eq!(parse("bytes=-100", 1000), partial(&[(900, 999)]));
+        assert_eq!(parse("bytes=-1", 1000), partial(&[(999, 999)]));
+    }
+
+    #[test]
+    fn suffix_longer_than_the_file_is_all_of_it() {
+        assert_eq!(parse("bytes=-5000", 1000), partial(&[(0, 999)]));
+        assert_eq!(
+            parse("bytes=-99999999999999999999999", 1000),
+            partial(&[(0, 999)])
+        );
+    }
+
+    #[test]
+    fn end_past_the_file_is_clamped() {
+        assert_eq!(parse("bytes=500-5000", 1000), partial(&[(500, 999)]));
+        assert_eq!(
+            parse("bytes=0-99999999999999999999999", 1000),
+            partial(&[(0, 999)])
+        );
+    }
+
+    #[test]
+    fn multiple_ranges_in_the_order_given() {
+        assert_eq!(
+            parse("bytes=500-599, 0-9,-10 ,\t0-0", 1000),
+            partial(&[(500, 599), (0, 9), (990, 999), (0, 0)])
+        );
+        // Overlapping ranges are kept as they are.
+        assert_eq!(parse("bytes=0-10,5-15", 1000), partial(&[(0, 10), (5, 15)]));
+        // Empty list elements are skipped (RFC 9110 §5.6.1).
+        assert_eq!(parse("bytes=,0-1,,2-3,", 1000), partial(&[(0, 1), (2, 3)]));
+        // Unsatisfiable members are dropped when another one is satisfiable.
+        assert_eq!(parse("bytes=2000-2001,0-1", 1000), partial(&[(0, 1)]));
+    }
+
+    #[test]
+    fn invalid_syntax_is_ignored() {
+        for h in [
+            "",
+            "bytes",
+            "bytes=",
+            "bytes=,",
+            "bytes=-",
+            "bytes=a-b",
+            "bytes=1-2-3",
+            "bytes=5-1",
+            "bytes=0-1,x",
+            "bytes=+1-2",
+            "bytes=1 -2",
+            "bytes=0x10-",
+            "bytes =0-1",
+            "bytes=--5",
+            "items=0-1",
+            "0-499",
+        ] {
+            assert_eq!(parse(h, 1000), RangeRequest::Full, "{h:?}");
+        }
+    }
+
+    #[test]
+    fn unsatisfiable() {
+        assert_eq!(parse("bytes=1000-", 1000), RangeRequest::Unsatisfiable);
+        assert_eq!(parse("bytes=1000-2000", 1000), RangeRequest::Unsatisfiable);
+        assert_eq!(
+            parse("bytes=5000-6000,1000-", 1000),
+            RangeRequest::Unsatisfiable
+        );
+        assert_eq!(
+            parse("bytes=99999999999999999999999-", 1000),
+            RangeRequest::Unsatisfiable
+        );
+        assert_eq!(parse("bytes=-0", 1000), RangeRequest::Unsatisfiable);
+        assert_eq!(parse("bytes=0-0", 0), RangeRequest::Unsatisfiable);
+        assert_eq!(parse("bytes=-5", 0), RangeRequest::Unsatisfiable);
+    }
+
+    #[test]
+    fn too_many_ranges() {
+        let at_cap = vec!["0-0"; MAX_RANGES].join(",");
+        assert!(matches!(
+            parse(&format!("bytes={at_cap}"), 10),
+            RangeRequest::Partial(v) if v.len() == MAX_RANGES
+        ));
+        let over = vec!["0-0"; MAX_RANGES + 1].join(",");
+        assert_eq!(
+            parse(&format!("bytes={over}"), 10),
+            RangeRequest::TooMany(MAX_RANGES + 1)
+        );
+        // Syntax is still checked first: an invalid header is ignored.
+        assert_eq!(parse(&format!("bytes={over},oops"), 10), RangeRequest::Full);
+    }
+}
