@@ -107,7 +107,7 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
         )
         .into_response()
     } else {
-        next.run(req).await
+        json_if_empty(next.run(req).await)
     };
     let status = response.status();
     // Bodies of known size (all of ours) say so in their size hint, even when hyper
@@ -142,6 +142,29 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
         "request"
     );
     response
+}
+
+/// Gives the few responses the framework makes itself (405 wrong method, 408 timeout)
+/// a JSON reason like every other error.
+fn json_if_empty(response: Response) -> Response {
+    let status = response.status();
+    let empty = axum::body::HttpBody::size_hint(response.body()).exact() == Some(0);
+    if !empty {
+        return response;
+    }
+    match status {
+        StatusCode::METHOD_NOT_ALLOWED => {
+            let allow = response.headers().get(header::ALLOW).cloned();
+            let mut r = ApiError::new(status, "method not allowed: this API is read-only (GET)")
+                .into_response();
+            if let Some(a) = allow {
+                r.headers_mut().insert(header::ALLOW, a);
+            }
+            r
+        }
+        StatusCode::REQUEST_TIMEOUT => ApiError::new(status, "request timed out").into_response(),
+        _ => response,
+    }
 }
 
 /// Resolves once SIGINT or SIGTERM arrives.

@@ -148,7 +148,13 @@ fn stream(
     let h = r.headers_mut();
     h.insert(header::CONTENT_TYPE, HeaderValue::from_static(CONTENT_TYPE));
     h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
-    cache::set_headers(h, &etag, pin, state.cache_max_age);
+    if errors == 0 {
+        cache::set_headers(h, &etag, pin, state.cache_max_age);
+    } else {
+        // A body with Error frames is not the dataset's content (whose hash comes from
+        // the checksums the records should have): no cache may keep it or revalidate it.
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    }
     if payload == Payload::Records {
         r.extensions_mut().insert(TilesServed(tiles));
     }

@@ -257,19 +257,21 @@ fn html_escape(s: &str) -> String {
 /// datasets georeferenced in EPSG:4326 (clamped to ±180°, ±90°). A dataset in any
 /// other CRS gets no `bounds` but a `crs` field (e.g. `"EPSG:32632"`) instead; one
 /// with no georeferencing, or no EPSG code, gets neither.
-pub fn tilejson_doc(ds: &Dataset, host: &str) -> serde_json::Value {
+pub fn tilejson_doc(ds: &Dataset, host: &str, encoding: Encoding) -> serde_json::Value {
     let m = ds.pyramid.metadata();
     let mut doc = serde_json::json!({
         "tilejson": "3.0.0",
         "name": ds.name,
         "tiles": [format!(
-            "http://{host}/v1/datasets/{}/{{z}}/{{x}}/{{y}}.png?encoding=terrarium&v={}",
-            ds.name, m.content_hash
+            "http://{host}/v1/datasets/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&v={}",
+            ds.name,
+            encoding.name(),
+            m.content_hash
         )],
         "minzoom": 0,
         "maxzoom": ds.pyramid.geometry().finest().get(),
         "tileSize": m.tile_size,
-        "encoding": "terrarium",
+        "encoding": encoding.name(),
         "scheme": "xyz",
         "attribution": html_escape(&m.source),
     });
@@ -298,13 +300,17 @@ pub async fn tilejson(
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
     let host = host(&headers)?;
+    let encoding = Encoding::from_query(query.get("encoding").map(String::as_str))?;
     let pin = pinned(ds, &query);
-    // The document names the host, so the ETag does too.
-    let etag = cache::etag(ds.content_hash(), &format!("tilejson {host}"));
+    // The document names the host and the encoding, so the ETag does too.
+    let etag = cache::etag(
+        ds.content_hash(),
+        &format!("tilejson {host} {}", encoding.name()),
+    );
     if cache::not_modified(&headers, &etag) {
         return Ok(not_modified(&etag, pin, state.cache_max_age));
     }
-    let mut r = Json(tilejson_doc(ds, &host)).into_response();
+    let mut r = Json(tilejson_doc(ds, &host, encoding)).into_response();
     cache::set_headers(r.headers_mut(), &etag, pin, state.cache_max_age);
     Ok(r)
 }
