@@ -368,6 +368,7 @@ mod tests {
             77,
             "checksum mismatch",
         ));
+        s.extend(error_table_frame(level, Morton::from_raw(11), 3, 4, b"table"));
         let outside = [MortonRange::new(Morton::from_raw(40), Morton::from_raw(63)).unwrap()];
         s.extend(trailer_frame(level, 1, 1, &outside));
         (s, record)
