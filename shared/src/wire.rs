@@ -368,7 +368,13 @@ mod tests {
             77,
             "checksum mismatch",
         ));
-        s.extend(error_table_frame(level, Morton::from_raw(11), 3, 4, b"table"));
+        s.extend(error_table_frame(
+            level,
+            Morton::from_raw(11),
+            3,
+            4,
+            b"table",
+        ));
         let outside = [MortonRange::new(Morton::from_raw(40), Morton::from_raw(63)).unwrap()];
         s.extend(trailer_frame(level, 1, 1, &outside));
         (s, record)
@@ -395,7 +401,10 @@ mod tests {
                 matches!(&frames[1], Frame::Error { message, .. } if message == "checksum mismatch")
             );
             assert!(
-                matches!(&frames[2], Frame::Trailer { tiles: 1, errors: 1, outside } if outside[0].to_string() == "40-63")
+                matches!(&frames[2], Frame::ErrorTable { min: 3, max: 4, table, .. } if table == b"table")
+            );
+            assert!(
+                matches!(&frames[3], Frame::Trailer { tiles: 1, errors: 1, outside } if outside[0].to_string() == "40-63")
             );
         }
     }
