@@ -1,0 +1,219 @@
+//! View-dependent selection (DESIGN §5): which tiles, which patches, which LODs.
+//!
+//! Each frame:
+//! 1. [`tiles`]: walk the pyramid from the root; refine a tile into its children
+//!    when its own full resolution misses `τ` and its children are resident,
+//!    otherwise draw it and ask for the children. Then balance, so that drawn
+//!    tiles sharing an edge are at most one level apart.
+//! 2. [`quadtree`]: inside each drawn tile, Kang's quadtree (depth ≤ t − 6): the
+//!    smallest power-of-two inner LOD ≤ 64 that meets `τ`, split where 64 is not
+//!    enough, with hysteresis from the previous frame (Kang §4.4, Alg. 1–2).
+//! 3. [`edge_lod`]: edge LODs so that both sides of every shared edge produce the
+//!    same vertices (Kang §4.3), across tiles and pyramid levels too.
+
+pub mod edge_lod;
+pub mod metric;
+pub mod quadtree;
+pub mod tiles;
+
+use crate::camera::Camera;
+use std::collections::{HashMap, HashSet};
+use std::time::Instant;
+use tessera_shared::{ErrorTable, Quantization, TileGeometry, TileId};
+
+/// The terrain in world units.
+#[derive(Clone, Copy, Debug)]
+pub struct World {
+    pub geometry: TileGeometry,
+    pub quant: Quantization,
+    /// Metres between neighbouring finest samples.
+    pub spacing: f64,
+}
+
+impl World {
+    /// `(x0, z0, span)` of a tile in metres.
+    pub fn tile_extent(&self, tile: TileId) -> (f64, f64, f64) {
+        let (gx, gy) = self.geometry.origin(tile);
+        let span =
+            (self.geometry.spacing(tile.level()) * u64::from(self.geometry.tile_size())) as f64;
+        (
+            gx as f64 * self.spacing,
+            gy as f64 * self.spacing,
+            span * self.spacing,
+        )
+    }
+
+    /// Deepest quadtree level inside a tile: nodes of 64 cells (Kang §4.2), at most 5
+    /// so that neighbouring patches never differ by more than the 64 an edge can bridge.
+    pub fn max_depth(&self) -> u32 {
+        (self.geometry.tile_log2() - 6).min(5)
+    }
+}
+
+/// Error tables of the tiles that are resident (decoded and available).
+pub trait TileTables {
+    fn table(&self, tile: TileId) -> Option<&ErrorTable>;
+}
+
+impl TileTables for HashMap<TileId, ErrorTable> {
+    fn table(&self, tile: TileId) -> Option<&ErrorTable> {
+        self.get(&tile)
+    }
+}
+
+/// Selection settings.
+#[derive(Clone, Copy, Debug)]
+pub struct SelectParams {
+    /// Screen-space error threshold `τ` in pixels.
+    pub tau: f64,
+    /// Hysteresis: a finer choice is only given up once the coarser one is below
+    /// `τ·(1 − hysteresis)`.
+    pub hysteresis: f64,
+}
+
+impl Default for SelectParams {
+    fn default() -> Self {
+        Self {
+            tau: 1.0,
+            hysteresis: 0.15,
+        }
+    }
+}
+
+/// Sides of a patch: north (`y` = origin), east, south, west.
+pub const NORTH: usize = 0;
+pub const EAST: usize = 1;
+pub const SOUTH: usize = 2;
+pub const WEST: usize = 3;
+
+/// One quad patch to draw: a quadtree leaf of a resident tile.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Patch {
+    pub tile: TileId,
+    /// First sample of the patch, in the tile's samples.
+    pub origin: [u32; 2],
+    /// Side in tile cells (a power of two, ≥ 64).
+    pub size: u32,
+    /// Inner LOD `n`: the patch is an `n × n` grid (1, 2, 4, …, 64).
+    pub inner: u32,
+    /// Edge LODs (north, east, south, west), each a power of two `≤ inner`.
+    pub edges: [u32; 4],
+}
+
+impl Patch {
+    /// Triangles drawn (degenerate ones along snapped edges included).
+    pub fn triangles(&self) -> u64 {
+        2 * u64::from(self.inner) * u64::from(self.inner)
+    }
+}
+
+/// A tile the selection wants and does not have, with how much it is wanted (the
+/// screen-space error of what is drawn in its place).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Wanted {
+    pub tile: TileId,
+    pub rho: f64,
+}
+
+/// Per-frame statistics (DESIGN §6 invariant 4: the deficit is reported, never hidden).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct FrameStats {
+    pub tiles: usize,
+    pub patches: usize,
+    pub triangles: u64,
+    /// Largest screen-space error of anything drawn, in pixels.
+    pub max_rho: f64,
+    /// `max_rho / τ`: above 1 while what is needed is still streaming.
+    pub deficit: f64,
+    pub select_us: f64,
+}
+
+/// What to draw this frame.
+#[derive(Clone, Debug, Default)]
+pub struct Selection {
+    pub tiles: Vec<TileId>,
+    pub patches: Vec<Patch>,
+    pub wanted: Vec<Wanted>,
+    pub stats: FrameStats,
+}
+
+/// Selection with memory: quadtrees and refinements carried from frame to frame.
+#[derive(Debug)]
+pub struct Selector {
+    pub world: World,
+    pub params: SelectParams,
+    quadtrees: HashMap<TileId, quadtree::TileState>,
+    refined: HashSet<TileId>,
+}
+
+impl Selector {
+    pub fn new(world: World, params: SelectParams) -> Self {
+        Self {
+            world,
+            params,
+            quadtrees: HashMap::new(),
+            refined: HashSet::new(),
+        }
+    }
+
+    /// Selects what to draw for `camera` from the resident `tables`.
+    pub fn select(&mut self, camera: &Camera, tables: &dyn TileTables) -> Selection {
+        let started = Instant::now();
+        let eye = camera.position;
+        let lambda = camera.lambda();
+        let frustum = camera.frustum();
+        let mut choice = tiles::choose(
+            &self.world,
+            &self.params,
+            eye,
+            lambda,
+            &frustum,
+            tables,
+            &self.refined,
+        );
+        self.refined = std::mem::take(&mut choice.refined);
+        let mut patches = Vec::new();
+        let mut max_rho = 0f64;
+        let mut next_state = HashMap::with_capacity(choice.drawn.len());
+        for &tile in &choice.drawn {
+            let rho = choice.rhos.remove(&tile).unwrap_or_else(|| {
+                let table = tables.table(tile).expect("drawn tiles are resident");
+                metric::TileRho::new(
+                    &self.world,
+                    tile,
+                    table,
+                    eye,
+                    lambda,
+                    self.world.max_depth(),
+                )
+            });
+            let prev = self.quadtrees.remove(&tile);
+            let (state, r) = quadtree::build(
+                &self.world,
+                &self.params,
+                tile,
+                &rho,
+                prev.as_ref(),
+                &mut patches,
+            );
+            max_rho = max_rho.max(r);
+            next_state.insert(tile, state);
+        }
+        self.quadtrees = next_state;
+        edge_lod::assign(&self.world, &mut patches);
+        let stats = FrameStats {
+            tiles: choice.drawn.len(),
+            patches: patches.len(),
+            triangles: patches.iter().map(Patch::triangles).sum(),
+            max_rho,
+            deficit: max_rho / self.params.tau,
+            select_us: started.elapsed().as_secs_f64() * 1e6,
+        };
+        Selection {
+            tiles: choice.drawn,
+            patches,
+            wanted: choice.wanted,
+            stats,
+        }
+    }
+}

@@ -1,0 +1,182 @@
+//! Pyramid refinement (DESIGN §5) and balancing of the drawn tiles.
+
+use super::metric::{TileRho, tile_box};
+use super::{SelectParams, TileTables, Wanted, World};
+use crate::camera::Frustum;
+use glam::DVec3;
+use std::collections::{HashMap, HashSet};
+use tessera_shared::{Level, TileId};
+
+/// The tiles to draw, what to fetch, and which tiles were refined (for hysteresis).
+#[derive(Debug, Default)]
+pub struct TileChoice {
+    pub drawn: Vec<TileId>,
+    pub wanted: Vec<Wanted>,
+    pub refined: HashSet<TileId>,
+    /// `ρ` tables computed on the way, for reuse when building the drawn quadtrees.
+    pub rhos: HashMap<TileId, TileRho>,
+}
+
+fn present_children(world: &World, tile: TileId) -> Vec<TileId> {
+    if tile.level() >= world.geometry.finest() {
+        return Vec::new();
+    }
+    tile.children()
+        .map(|c| {
+            c.into_iter()
+                .filter(|c| world.geometry.is_present(*c))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn all_resident(tables: &dyn TileTables, tiles: &[TileId]) -> bool {
+    !tiles.is_empty() && tiles.iter().all(|c| tables.table(*c).is_some())
+}
+
+/// Walks the pyramid from the root and balances the result.
+pub fn choose(
+    world: &World,
+    params: &SelectParams,
+    eye: DVec3,
+    lambda: f64,
+    frustum: &Frustum,
+    tables: &dyn TileTables,
+    prev_refined: &HashSet<TileId>,
+) -> TileChoice {
+    let mut out = TileChoice::default();
+    let root = TileId::new(Level::ROOT, 0, 0).expect("the root exists");
+    if tables.table(root).is_none() {
+        out.wanted.push(Wanted {
+            tile: root,
+            rho: f64::INFINITY,
+        });
+        return out;
+    }
+    let t = world.geometry.tile_log2();
+    let mut stack = vec![root];
+    while let Some(tile) = stack.pop() {
+        let table = tables.table(tile).expect("visited tiles are resident");
+        let Some((min, max)) = tile_box(world, tile, table) else {
+            continue;
+        };
+        if !frustum.intersects_box(min, max) {
+            continue;
+        }
+        let rho = TileRho::new(world, tile, table, eye, lambda, world.max_depth());
+        let children = present_children(world, tile);
+        // Refine once the tile would need its finest within-tile level somewhere
+        // (level t − 1 misses τ): there its children do the same job with blocks a
+        // quarter the size. Waiting until level t itself misses τ draws coarse tiles
+        // at full density, which costs more triangles than their children would.
+        let need = rho.rho(t - 1, 0, 0, 0);
+        out.rhos.insert(tile, rho);
+        if children.is_empty() {
+            out.drawn.push(tile);
+            continue;
+        }
+        let limit = if prev_refined.contains(&tile) {
+            params.tau * (1.0 - params.hysteresis)
+        } else {
+            params.tau
+        };
+        if need <= limit {
+            out.drawn.push(tile);
+        } else if all_resident(tables, &children) {
+            out.refined.insert(tile);
+            stack.extend(children);
+        } else {
+            out.drawn.push(tile);
+            for c in children.into_iter().filter(|c| tables.table(*c).is_none()) {
+                out.wanted.push(Wanted { tile: c, rho: need });
+            }
+        }
+    }
+    balance(world, tables, &mut out);
+    out.drawn.sort();
+    out
+}
+
+/// Makes drawn tiles that share an edge differ by at most one level, so that edge
+/// LODs can always bridge them (a patch edge spans at most 64 of its neighbour's).
+/// A coarse tile next to much finer ones is refined when its children are resident;
+/// otherwise the finer side is coarsened (and the deficit shows in the statistics).
+fn balance(world: &World, tables: &dyn TileTables, choice: &mut TileChoice) {
+    let mut drawn: HashSet<TileId> = choice.drawn.iter().copied().collect();
+    let mut frozen: HashSet<TileId> = HashSet::new();
+    for _round in 0..64 {
+        let mut changed = false;
+        let tiles: Vec<TileId> = drawn.iter().copied().collect();
+        for fine in tiles {
+            if !drawn.contains(&fine) {
+                continue;
+            }
+            let Some(coarse) = coarser_neighbour(&drawn, fine) else {
+                continue;
+            };
+            if coarse.level().get() + 1 >= fine.level().get() {
+                continue;
+            }
+            let children = present_children(world, coarse);
+            if !frozen.contains(&coarse) && all_resident(tables, &children) {
+                drawn.remove(&coarse);
+                choice.refined.insert(coarse);
+                drawn.extend(children);
+            } else {
+                let keep = Level::new(coarse.level().get() + 1).expect("finer than coarse");
+                let mut a = fine;
+                while a.level() > keep {
+                    a = a.parent().expect("level > 0");
+                }
+                drawn.retain(|t| !is_descendant(*t, a));
+                drawn.insert(a);
+                frozen.insert(a);
+            }
+            changed = true;
+        }
+        if !changed {
+            break;
+        }
+    }
+    choice.drawn = drawn.into_iter().collect();
+}
+
+fn is_descendant(t: TileId, ancestor: TileId) -> bool {
+    if t.level() < ancestor.level() {
+        return false;
+    }
+    let shift = t.level().get() - ancestor.level().get();
+    (t.x() >> shift, t.y() >> shift) == (ancestor.x(), ancestor.y())
+}
+
+/// The coarsest drawn tile sharing an edge with `tile` and strictly coarser than it.
+fn coarser_neighbour(drawn: &HashSet<TileId>, tile: TileId) -> Option<TileId> {
+    let n = i64::from(tile.level().tiles_per_side());
+    let mut best: Option<TileId> = None;
+    for (dx, dy) in [(0i64, -1i64), (1, 0), (0, 1), (-1, 0)] {
+        let (x, y) = (i64::from(tile.x()) + dx, i64::from(tile.y()) + dy);
+        if x < 0 || y < 0 || x >= n || y >= n {
+            continue;
+        }
+        let mut cell = TileId::new(tile.level(), x as u32, y as u32).expect("inside the level");
+        while let Some(p) = cell.parent() {
+            cell = p;
+            if drawn.contains(&cell) {
+                if best.is_none_or(|b| cell.level() < b.level()) {
+                    best = Some(cell);
+                }
+                break;
+            }
+        }
+    }
+    best
+}
+
+/// Tiles per level, for statistics and tests.
+pub fn levels_histogram(tiles: &[TileId]) -> HashMap<u8, usize> {
+    let mut h = HashMap::new();
+    for t in tiles {
+        *h.entry(t.level().get()).or_insert(0) += 1;
+    }
+    h
+}
