@@ -2,7 +2,8 @@
 //! the request asked for), `304 Not Modified`, and `Cache-Control` that lets CDNs
 //! keep immutable data (DESIGN §4).
 
-use axum::http::{HeaderMap, HeaderValue, header};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
 
 /// A strong ETag for `content_hash` and a request-specific `variant`.
 pub fn etag(content_hash: &str, variant: &str) -> String {
@@ -43,6 +44,13 @@ pub fn set_headers(h: &mut HeaderMap, etag: &str, pinned: bool, max_age: u64) {
         HeaderValue::from_str(etag).expect("ETags are ASCII"),
     );
     h.insert(header::CACHE_CONTROL, cache_control(pinned, max_age));
+}
+
+/// A `304 Not Modified` carrying the same `ETag` and `Cache-Control` as the full response.
+pub fn not_modified_response(etag: &str, pinned: bool, max_age: u64) -> Response {
+    let mut r = StatusCode::NOT_MODIFIED.into_response();
+    set_headers(r.headers_mut(), etag, pinned, max_age);
+    r
 }
 
 #[cfg(test)]

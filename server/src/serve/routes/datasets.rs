@@ -6,7 +6,7 @@ use crate::serve::error::ApiResult;
 use crate::serve::{AppState, cache};
 use axum::Json;
 use axum::extract::{Path, State};
-use axum::http::{HeaderMap, StatusCode};
+use axum::http::HeaderMap;
 use axum::response::{IntoResponse, Response};
 use std::sync::Arc;
 
@@ -62,9 +62,11 @@ pub async fn get_one(
     let ds = dataset(&state, &name)?;
     let etag = cache::etag(ds.content_hash(), "metadata");
     if cache::not_modified(&headers, &etag) {
-        let mut r = StatusCode::NOT_MODIFIED.into_response();
-        cache::set_headers(r.headers_mut(), &etag, false, state.cache_max_age);
-        return Ok(r);
+        return Ok(cache::not_modified_response(
+            &etag,
+            false,
+            state.cache_max_age,
+        ));
     }
     let mut r = Json(describe(ds)).into_response();
     cache::set_headers(r.headers_mut(), &etag, false, state.cache_max_age);

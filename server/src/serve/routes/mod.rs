@@ -11,9 +11,11 @@ use super::dataset::{Dataset, valid_name};
 use super::error::{ApiError, ApiResult};
 use axum::extract::{FromRequestParts, Query};
 use axum::http::request::Parts;
+use bytes::Bytes;
 use std::collections::HashMap;
 use std::sync::Arc;
-use tessera_shared::Level;
+use tessera_shared::format::IndexEntry;
+use tessera_shared::{Level, TileId};
 
 /// The query string as a map; an unparseable one is a 400 with a JSON reason
 /// (axum's own `Query` rejection would answer in plain text).
@@ -58,6 +60,40 @@ pub fn level(ds: &Dataset, raw: &str) -> ApiResult<Level> {
                 ds.name
             ))
         })
+}
+
+/// The tile `(x, y)` of `level`, or 404 naming the valid range.
+pub fn tile(level: Level, x: &str, y: &str) -> ApiResult<TileId> {
+    match (x.parse::<u32>(), y.parse::<u32>()) {
+        (Ok(x), Ok(y)) => TileId::new(level, x, y),
+        _ => None,
+    }
+    .ok_or_else(|| {
+        ApiError::not_found(format!(
+            "tile ({x}, {y}) is not in level {level} (x and y are 0-{})",
+            level.tiles_per_side() - 1
+        ))
+    })
+}
+
+/// A present tile's checked record: 404 when the tile lies outside the DEM, 500 (and
+/// counted) when its checksum fails.
+pub fn stored_record(
+    state: &AppState,
+    ds: &Dataset,
+    tile: TileId,
+) -> ApiResult<(IndexEntry, Bytes)> {
+    match ds.record(tile) {
+        Ok(Some(found)) => Ok(found),
+        Ok(None) => Err(ApiError::not_found(format!("{tile} lies outside the DEM"))),
+        Err(c) => {
+            state.metrics.corrupt.inc();
+            Err(ApiError::internal(format!(
+                "{}: record fails its checksum",
+                c.tile
+            )))
+        }
+    }
 }
 
 /// Whether the query pins the content with `v=<content hash>` (then responses are immutable).

@@ -4,14 +4,14 @@
 //! stored records, never re-encoded) interleaved with 32-byte frame headers, so its
 //! exact length is known up front and sent as `Content-Length`.
 
-use super::{Params, dataset, level, pinned};
-use crate::serve::error::{ApiError, ApiResult};
+use super::{Params, dataset, level, pinned, stored_record, tile};
+use crate::serve::error::ApiResult;
 use crate::serve::ranges::parse_ranges;
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
 use axum::extract::{Path, State};
-use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::http::{HeaderMap, HeaderValue, header};
+use axum::response::Response;
 use bytes::Bytes;
 use std::collections::HashMap;
 use std::convert::Infallible;
@@ -57,12 +57,6 @@ impl Outside {
     }
 }
 
-fn not_modified(etag: &str, pinned: bool, max_age: u64) -> Response {
-    let mut r = StatusCode::NOT_MODIFIED.into_response();
-    cache::set_headers(r.headers_mut(), etag, pinned, max_age);
-    r
-}
-
 fn stream(
     state: &AppState,
     name: &str,
@@ -86,7 +80,11 @@ fn stream(
         &format!("{kind} {level} {}", canonical.join(",")),
     );
     if cache::not_modified(headers, &etag) {
-        return Ok(not_modified(&etag, pin, state.cache_max_age));
+        return Ok(cache::not_modified_response(
+            &etag,
+            pin,
+            state.cache_max_age,
+        ));
     }
     let table_len = ErrorTable::byte_len(ds.pyramid.geometry().tile_log2());
     let mut chunks: Vec<Bytes> = Vec::new();
@@ -197,33 +195,17 @@ pub async fn single(
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
     let level = level(ds, &level_raw)?;
-    let n = level.tiles_per_side();
-    let tile = match (x.parse::<u32>(), y.parse::<u32>()) {
-        (Ok(x), Ok(y)) => TileId::new(level, x, y),
-        _ => None,
-    }
-    .ok_or_else(|| {
-        ApiError::not_found(format!(
-            "tile ({x}, {y}) is not in level {level} (x and y are 0-{})",
-            n - 1
-        ))
-    })?;
-    let (entry, bytes) = match ds.record(tile) {
-        Ok(Some(found)) => found,
-        Ok(None) => return Err(ApiError::not_found(format!("{tile} lies outside the DEM"))),
-        Err(c) => {
-            state.metrics.corrupt.inc();
-            return Err(ApiError::internal(format!(
-                "{}: record fails its checksum",
-                c.tile
-            )));
-        }
-    };
+    let tile = tile(level, &x, &y)?;
+    let (entry, bytes) = stored_record(&state, ds, tile)?;
     let pin = pinned(ds, &query);
     // The record's own checksum identifies its bytes: the strongest possible ETag.
     let etag = format!("\"{:016x}\"", entry.checksum);
     if cache::not_modified(&headers, &etag) {
-        return Ok(not_modified(&etag, pin, state.cache_max_age));
+        return Ok(cache::not_modified_response(
+            &etag,
+            pin,
+            state.cache_max_age,
+        ));
     }
     let mut r = Response::new(Body::from(bytes));
     let h = r.headers_mut();

@@ -8,18 +8,18 @@
 //! with the next tile east and south, are dropped, as web tiles do not overlap.
 //! Tiles line up with a Web Mercator map only when the DEM itself is in that grid.
 
-use super::{Params, dataset, level, pinned};
+use super::{Params, dataset, level, pinned, stored_record, tile};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::Json;
 use axum::body::Body;
 use axum::extract::{Path, State};
-use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use std::sync::Arc;
+use tessera_shared::Quantization;
 use tessera_shared::codec::{self, CodecError};
-use tessera_shared::{Quantization, TileId};
 
 /// How heights become the colours of a PNG tile.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -117,26 +117,6 @@ enum PngFailure {
     Encode(png::EncodingError),
 }
 
-fn not_modified(etag: &str, pin: bool, max_age: u64) -> Response {
-    let mut r = StatusCode::NOT_MODIFIED.into_response();
-    cache::set_headers(r.headers_mut(), etag, pin, max_age);
-    r
-}
-
-/// The tile `(x, y)` of `level`, or 404 naming the valid range.
-fn tile(level: tessera_shared::Level, x: &str, y: &str) -> ApiResult<TileId> {
-    match (x.parse::<u32>(), y.parse::<u32>()) {
-        (Ok(x), Ok(y)) => TileId::new(level, x, y),
-        _ => None,
-    }
-    .ok_or_else(|| {
-        ApiError::not_found(format!(
-            "tile ({x}, {y}) is not in zoom level {level} (x and y are 0-{})",
-            level.tiles_per_side() - 1
-        ))
-    })
-}
-
 /// `GET /v1/datasets/{name}/{z}/{x}/{y}.png?encoding=terrarium|mapbox`: one tile's
 /// heights as a PNG (see the module documentation).
 pub async fn png(
@@ -154,17 +134,7 @@ pub async fn png(
     let encoding = Encoding::from_query(query.get("encoding").map(String::as_str))?;
     let level = level(ds, &z)?;
     let tile = tile(level, &x, y)?;
-    let record = match ds.record(tile) {
-        Ok(Some((_, bytes))) => bytes,
-        Ok(None) => return Err(ApiError::not_found(format!("{tile} lies outside the DEM"))),
-        Err(c) => {
-            state.metrics.corrupt.inc();
-            return Err(ApiError::internal(format!(
-                "{}: record fails its checksum",
-                c.tile
-            )));
-        }
-    };
+    let (_, record) = stored_record(&state, ds, tile)?;
     let pin = pinned(ds, &query);
     let etag = cache::etag(
         ds.content_hash(),
@@ -177,7 +147,11 @@ pub async fn png(
         ),
     );
     if cache::not_modified(&headers, &etag) {
-        return Ok(not_modified(&etag, pin, state.cache_max_age));
+        return Ok(cache::not_modified_response(
+            &etag,
+            pin,
+            state.cache_max_age,
+        ));
     }
     let geometry = *ds.pyramid.geometry();
     let q = ds.pyramid.metadata().quantization;
@@ -308,7 +282,11 @@ pub async fn tilejson(
         &format!("tilejson {host} {}", encoding.name()),
     );
     if cache::not_modified(&headers, &etag) {
-        return Ok(not_modified(&etag, pin, state.cache_max_age));
+        return Ok(cache::not_modified_response(
+            &etag,
+            pin,
+            state.cache_max_age,
+        ));
     }
     let mut r = Json(tilejson_doc(ds, &host, encoding)).into_response();
     cache::set_headers(r.headers_mut(), &etag, pin, state.cache_max_age);
@@ -383,7 +361,7 @@ mod tests {
             Encoding::Mapbox
         );
         let e = Encoding::from_query(Some("webp")).unwrap_err();
-        assert_eq!(e.status, StatusCode::BAD_REQUEST);
+        assert_eq!(e.status, axum::http::StatusCode::BAD_REQUEST);
         assert!(e.message.contains("terrarium, mapbox"), "{}", e.message);
     }
 
