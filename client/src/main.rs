@@ -75,7 +75,7 @@ fn spacing(meta: &tessera_shared::Metadata, fallback: f64) -> f64 {
 }
 
 fn bench_select(
-    file: &PathBuf,
+    file: &std::path::Path,
     tau: f64,
     frames: u32,
     viewport: &str,
