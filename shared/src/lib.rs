@@ -2,7 +2,7 @@
 //!
 //! Everything both sides must agree on lives here and nowhere else (DESIGN §1):
 //! tile ids and Morton codes ([`tile`], [`morton`]), the pyramid file format
-//! ([`format`], written down in `FORMAT.md`), dataset metadata ([`metadata`]),
+//! ([`format`](mod@format), written down in `FORMAT.md`), dataset metadata ([`metadata`]),
 //! the tile-record codec ([`codec`]), error tables ([`error_table`]), the surface
 //! a tile is triangulated into ([`triangulation`]) and a reader that works over
 //! any source of byte ranges ([`reader`]).

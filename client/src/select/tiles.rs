@@ -171,12 +171,3 @@ fn coarser_neighbour(drawn: &HashSet<TileId>, tile: TileId) -> Option<TileId> {
     }
     best
 }
-
-/// Tiles per level, for statistics and tests.
-pub fn levels_histogram(tiles: &[TileId]) -> HashMap<u8, usize> {
-    let mut h = HashMap::new();
-    for t in tiles {
-        *h.entry(t.level().get()).or_insert(0) += 1;
-    }
-    h
-}

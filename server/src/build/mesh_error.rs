@@ -13,7 +13,6 @@
 //! numerator and power-of-two `s` is exact.
 
 use tessera_shared::tile::BLOCKS;
-use tessera_shared::triangulation::Cell;
 
 /// Per-block maxima for every mesh spacing `k`: `values[k · 64 + by · 8 + bx]`.
 #[derive(Clone, Debug, PartialEq)]
@@ -132,7 +131,8 @@ pub fn finest_tile_errors(
 
 /// Errors of samples `u0..u0+len` of row `v` against one cell `[q00, q10, q01, q11]`
 /// of size `s`, where sample `u0` sits at offset `a0` across the cell and row `v` at `b`.
-/// Same planes as [`Cell::scaled_height`], in `f64` (exact for these integers).
+/// Same planes as [`tessera_shared::triangulation::Cell::scaled_height`], in `f64`
+/// (exact for these integers).
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn cell_row_errors(
@@ -166,15 +166,10 @@ fn cell_row_errors(
     }
 }
 
-/// The reference definition the fast path must equal: the error of one sample at
-/// offset `(a, b)` in a cell, via [`Cell`].
-pub fn reference_error(cell: Cell, s: i64, a: i64, b: i64, q: i64) -> f64 {
-    cell.vertical_error(s, a, b, q)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tessera_shared::triangulation::Cell;
 
     /// Brute force over one tile with the reference planes: the fast path must give
     /// the same maxima for every spacing inside the tile.
@@ -209,8 +204,7 @@ mod tests {
                                 q01: g(cx * s, cy * s + s),
                                 q11: g(cx * s + s, cy * s + s),
                             };
-                            let e = reference_error(
-                                cell,
+                            let e = cell.vertical_error(
                                 s as i64,
                                 (u - cx * s) as i64,
                                 (v - cy * s) as i64,
