@@ -9,5 +9,8 @@
 //! Streaming, fly-through paths and the load generator come next (issue 4).
 
 pub mod camera;
+pub mod fly;
+pub mod paths;
 pub mod select;
+pub mod stream;
 pub mod tessellate;

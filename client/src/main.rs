@@ -8,7 +8,9 @@ use glam::DVec3;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use tessera_client::camera::Camera;
+use tessera_client::fly::{self, FlyOptions};
 use tessera_client::select::{SelectParams, Selector, World};
+use tessera_client::stream::StreamConfig;
 use tessera_shared::Pyramid;
 
 #[derive(Debug, Parser)]
@@ -24,6 +26,46 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Fly a path over a dataset served by `tessera-server serve`: selection and
+    /// streaming at a fixed frame rate, in real time, with per-frame statistics.
+    Fly {
+        /// Server base URL, e.g. http://127.0.0.1:8080.
+        #[arg(long)]
+        server: String,
+        /// Dataset name on the server.
+        #[arg(long)]
+        dataset: String,
+        /// canyon, pass, orbit, or a path JSON file.
+        #[arg(long, default_value = "canyon")]
+        path: String,
+        #[arg(long, default_value_t = 600)]
+        frames: u32,
+        #[arg(long, default_value_t = 60.0)]
+        fps: f64,
+        /// Screen-space error threshold in pixels.
+        #[arg(long, default_value_t = 1.0)]
+        tau: f64,
+        #[arg(long, default_value = "1920x1080")]
+        viewport: String,
+        /// Metres between samples (default: from the georeferencing, else 100).
+        #[arg(long)]
+        spacing: Option<f64>,
+        /// No rendering (the only mode until the renderer lands).
+        #[arg(long)]
+        no_render: bool,
+        /// Turn off prefetching (the enlarged, predicted view).
+        #[arg(long)]
+        no_prefetch: bool,
+        /// Tiles kept decoded in memory.
+        #[arg(long, default_value_t = 1024)]
+        pool_tiles: usize,
+        /// Per-frame streaming budget in milliseconds.
+        #[arg(long, default_value_t = 4.0)]
+        budget_ms: f64,
+        /// Write per-frame statistics here (JSON Lines).
+        #[arg(long)]
+        stats: Option<PathBuf>,
+    },
     /// Time view-dependent selection on a local pyramid: every error table resident,
     /// a camera flying low across the terrain, median and worst time per frame.
     BenchSelect {
@@ -60,20 +102,6 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-/// Metres between samples: from a projected CRS's pixel size, from degrees for a
-/// geographic one, else `fallback`.
-fn spacing(meta: &tessera_shared::Metadata, fallback: f64) -> f64 {
-    match &meta.georef {
-        Some(g) if g.epsg == Some(4326) => {
-            let lat =
-                (g.geotransform[3] + g.geotransform[5] * f64::from(meta.height) / 2.0).to_radians();
-            g.geotransform[1].abs() * 111_320.0 * lat.cos()
-        }
-        Some(g) if g.epsg.is_some() => g.geotransform[1].abs(),
-        _ => fallback,
-    }
-}
-
 fn bench_select(
     file: &std::path::Path,
     tau: f64,
@@ -81,10 +109,7 @@ fn bench_select(
     viewport: &str,
     spacing_m: Option<f64>,
 ) -> anyhow::Result<()> {
-    let (w, h) = viewport
-        .split_once('x')
-        .and_then(|(a, b)| Some((a.parse::<u32>().ok()?, b.parse::<u32>().ok()?)))
-        .with_context(|| format!("viewport {viewport:?} is not WIDTHxHEIGHT"))?;
+    let (w, h) = parse_viewport(viewport)?;
     let p = Pyramid::open_file(file).with_context(|| file.display().to_string())?;
     let g = *p.geometry();
     let meta = p.metadata().clone();
@@ -100,7 +125,8 @@ fn bench_select(
     let world = World {
         geometry: g,
         quant: meta.quantization,
-        spacing: spacing_m.unwrap_or_else(|| spacing(&meta, 100.0)),
+        spacing: spacing_m
+            .unwrap_or_else(|| fly::spacing_from(meta.georef.as_ref(), meta.height, 100.0)),
     };
     let extent = f64::from(g.width().max(g.height())) * world.spacing;
     let mut sel = Selector::new(
@@ -147,8 +173,66 @@ fn bench_select(
     Ok(())
 }
 
+fn parse_viewport(v: &str) -> anyhow::Result<(u32, u32)> {
+    v.split_once('x')
+        .and_then(|(a, b)| Some((a.parse::<u32>().ok()?, b.parse::<u32>().ok()?)))
+        .filter(|(w, h)| *w > 0 && *h > 0)
+        .with_context(|| format!("viewport {v:?} is not WIDTHxHEIGHT"))
+}
+
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Fly {
+            server,
+            dataset,
+            path,
+            frames,
+            fps,
+            tau,
+            viewport,
+            spacing,
+            no_render: _,
+            no_prefetch,
+            pool_tiles,
+            budget_ms,
+            stats,
+        } => {
+            let (width, height) = parse_viewport(&viewport)?;
+            anyhow::ensure!(
+                fps > 0.0 && tau > 0.0 && budget_ms > 0.0,
+                "--fps, --tau and --budget-ms must be positive"
+            );
+            let opts = FlyOptions {
+                server,
+                dataset,
+                path,
+                frames,
+                fps,
+                tau,
+                width,
+                height,
+                spacing,
+                prefetch: !no_prefetch,
+                pool_tiles,
+                stream: StreamConfig {
+                    budget: std::time::Duration::from_secs_f64(budget_ms / 1e3),
+                    ..StreamConfig::default()
+                },
+            };
+            let mut file = match &stats {
+                Some(p) => Some(std::io::BufWriter::new(
+                    std::fs::File::create(p)
+                        .with_context(|| format!("{}: cannot create", p.display()))?,
+                )),
+                None => None,
+            };
+            let summary = fly::fly(&opts, file.as_mut().map(|f| f as &mut dyn std::io::Write))?;
+            if let Some(mut f) = file {
+                std::io::Write::flush(&mut f)?;
+            }
+            println!("{}", serde_json::to_string_pretty(&summary)?);
+            Ok(())
+        }
         Command::BenchSelect {
             file,
             tau,

@@ -116,7 +116,7 @@ pub struct Wanted {
 }
 
 /// Per-frame statistics (DESIGN §6 invariant 4: the deficit is reported, never hidden).
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameStats {
     pub tiles: usize,
     pub patches: usize,

@@ -100,7 +100,8 @@ pub fn choose(
 /// Makes drawn tiles that share an edge differ by at most one level, so that edge
 /// LODs can always bridge them (a patch edge spans at most 64 of its neighbour's).
 /// A coarse tile next to much finer ones is refined when its children are resident;
-/// otherwise the finer side is coarsened (and the deficit shows in the statistics).
+/// otherwise the finer side is coarsened (the deficit shows in the statistics) and
+/// the coarse tile's children are requested first.
 fn balance(world: &World, tables: &dyn TileTables, choice: &mut TileChoice) {
     let mut drawn: HashSet<TileId> = choice.drawn.iter().copied().collect();
     let mut frozen: HashSet<TileId> = HashSet::new();
@@ -123,6 +124,16 @@ fn balance(world: &World, tables: &dyn TileTables, choice: &mut TileChoice) {
                 choice.refined.insert(coarse);
                 drawn.extend(children);
             } else {
+                // Coarsening costs detail next to `coarse`: its children are what
+                // would restore it, so fetch them first.
+                for c in children.iter().filter(|c| tables.table(**c).is_none()) {
+                    if !choice.wanted.iter().any(|w| w.tile == *c) {
+                        choice.wanted.push(Wanted {
+                            tile: *c,
+                            rho: f64::MAX,
+                        });
+                    }
+                }
                 let keep = Level::new(coarse.level().get() + 1).expect("finer than coarse");
                 let mut a = fine;
                 while a.level() > keep {

@@ -190,18 +190,14 @@ pub async fn shutdown_signal() {
     tracing::info!("shutting down: finishing in-flight requests");
 }
 
-/// Loads the datasets and serves until SIGINT/SIGTERM, letting in-flight responses finish.
-pub async fn run(settings: Settings) -> anyhow::Result<()> {
+/// The shared state for `settings`' datasets and limits.
+pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
     let registry = Registry::load(&settings.datasets)?;
-    let listener = tokio::net::TcpListener::bind(settings.listen)
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", settings.listen))?;
-    let addr = listener.local_addr()?;
     for (name, ds) in &registry.datasets {
         let m = ds.pyramid.metadata();
         tracing::info!(dataset = %name, file = %ds.path.display(), width = m.width, height = m.height, levels = m.levels, "serving");
     }
-    let state = Arc::new(AppState {
+    Ok(Arc::new(AppState {
         registry,
         metrics: Metrics::new(),
         limits: RangeLimits {
@@ -210,12 +206,32 @@ pub async fn run(settings: Settings) -> anyhow::Result<()> {
         },
         cache_max_age: settings.cache_max_age,
         max_query_bytes: settings.max_query_bytes,
-    });
+    }))
+}
+
+/// Serves on an already bound listener until `shutdown` resolves, then lets
+/// in-flight responses finish. (Tests and embedders use this directly.)
+pub async fn serve_until(
+    listener: tokio::net::TcpListener,
+    state: Arc<AppState>,
+    settings: &Settings,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
+    axum::serve(listener, app(state, settings))
+        .with_graceful_shutdown(shutdown)
+        .await?;
+    Ok(())
+}
+
+/// Loads the datasets and serves until SIGINT/SIGTERM, letting in-flight responses finish.
+pub async fn run(settings: Settings) -> anyhow::Result<()> {
+    let state = state(&settings)?;
+    let listener = tokio::net::TcpListener::bind(settings.listen)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", settings.listen))?;
+    let addr = listener.local_addr()?;
     // Tools and tests read this line to find an ephemeral port.
     println!("listening on http://{addr}");
     tracing::info!(%addr, "listening");
-    axum::serve(listener, app(state, &settings))
-        .with_graceful_shutdown(shutdown_signal())
-        .await?;
-    Ok(())
+    serve_until(listener, state, &settings, shutdown_signal()).await
 }

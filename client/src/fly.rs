@@ -1,0 +1,202 @@
+//! `tessera fly --no-render`: selection and streaming along a path at a fixed frame
+//! rate, in real time against a real server, writing per-frame statistics.
+
+use crate::camera::Camera;
+use crate::paths::{FlyPath, eye};
+use crate::select::{FrameStats, SelectParams, Selector, World};
+use crate::stream::pool::TilePool;
+use crate::stream::{FrameWork, StreamConfig, StreamStats, Streamer};
+use anyhow::Context;
+use glam::DVec2;
+use std::io::Write;
+use std::time::{Duration, Instant};
+use tessera_shared::{GeoRef, Quantization, TileGeometry};
+
+#[derive(Clone, Debug)]
+pub struct FlyOptions {
+    pub server: String,
+    pub dataset: String,
+    pub path: String,
+    pub frames: u32,
+    pub fps: f64,
+    pub tau: f64,
+    pub width: u32,
+    pub height: u32,
+    /// Metres between samples; default from the georeferencing, else 100.
+    pub spacing: Option<f64>,
+    pub prefetch: bool,
+    pub pool_tiles: usize,
+    pub stream: StreamConfig,
+}
+
+/// One line of `--stats` (JSON Lines).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FrameRecord {
+    pub frame: u32,
+    pub t: f64,
+    #[serde(flatten)]
+    pub select: FrameStats,
+    #[serde(flatten)]
+    pub stream: FrameWork,
+    pub resident: usize,
+    pub wanted: usize,
+    pub bytes_fetched: u64,
+    pub requests: u64,
+}
+
+/// Totals of a flight.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FlySummary {
+    pub frames: u32,
+    pub within_tau: f64,
+    pub within_2tau: f64,
+    pub p99_stream_us: f64,
+    pub max_stream_us: f64,
+    pub stream: StreamStats,
+}
+
+/// Metres between samples from the georeferencing, else `fallback`.
+pub fn spacing_from(georef: Option<&GeoRef>, height: u32, fallback: f64) -> f64 {
+    match georef {
+        Some(g) if g.epsg == Some(4326) => {
+            let lat =
+                (g.geotransform[3] + g.geotransform[5] * f64::from(height) / 2.0).to_radians();
+            g.geotransform[1].abs() * 111_320.0 * lat.cos()
+        }
+        Some(g) if g.epsg.is_some() => g.geotransform[1].abs(),
+        _ => fallback,
+    }
+}
+
+/// Reads `/v1/datasets/{name}` into a [`World`].
+fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64)> {
+    let url = format!(
+        "{}/v1/datasets/{}",
+        opts.server.trim_end_matches('/'),
+        opts.dataset
+    );
+    let j: serde_json::Value = streamer.block_on(async {
+        let r = streamer.client().get(&url).send().await?;
+        let status = r.status();
+        let body = r.text().await?;
+        anyhow::ensure!(status.is_success(), "{url}: HTTP {status}: {body}");
+        Ok::<_, anyhow::Error>(serde_json::from_str(&body)?)
+    })?;
+    let num = |k: &str| {
+        j[k].as_f64()
+            .with_context(|| format!("{url}: no {k} in the metadata"))
+    };
+    let geometry = TileGeometry::new(
+        num("width")? as u32,
+        num("height")? as u32,
+        num("tile_size")? as u32,
+    )?;
+    let quant: Quantization =
+        serde_json::from_value(j["quantization"].clone()).context("quantization")?;
+    let georef: Option<GeoRef> = serde_json::from_value(j["georef"].clone()).unwrap_or(None);
+    let spacing = opts
+        .spacing
+        .unwrap_or_else(|| spacing_from(georef.as_ref(), geometry.height(), 100.0));
+    Ok((
+        World {
+            geometry,
+            quant,
+            spacing,
+        },
+        num("max_height")?,
+    ))
+}
+
+/// Flies the path, writing one [`FrameRecord`] per frame to `stats`.
+pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Result<FlySummary> {
+    let probe = Streamer::new(&opts.server, &opts.dataset, 9, opts.stream.clone())?;
+    let (world, max_height) = world(&probe, opts)?;
+    drop(probe);
+    let mut streamer = Streamer::new(
+        &opts.server,
+        &opts.dataset,
+        world.geometry.tile_log2(),
+        opts.stream.clone(),
+    )?;
+    let size = DVec2::new(
+        f64::from(world.geometry.width()),
+        f64::from(world.geometry.height()),
+    ) * world.spacing;
+    let path = FlyPath::load(&opts.path, size.max_element())?;
+    let params = SelectParams {
+        tau: opts.tau,
+        ..SelectParams::default()
+    };
+    let mut selector = Selector::new(world, params);
+    let mut ahead = Selector::new(world, params);
+    let mut pool = TilePool::new(opts.pool_tiles);
+    let start = Instant::now();
+    let (mut within1, mut within2) = (0u32, 0u32);
+    let mut stream_us = Vec::new();
+    let camera_at = |pool: &TilePool, t: f64, fov_scale: f64| {
+        let pose = path.pose(t, size);
+        let ground = pool
+            .ground_height(&world, pose.ground.x, pose.ground.y)
+            .unwrap_or(max_height);
+        Camera {
+            position: eye(&pose, ground),
+            yaw: pose.yaw,
+            pitch: pose.pitch,
+            fovy: 60f64.to_radians() * fov_scale,
+            width: opts.width,
+            height: opts.height,
+            near: 1.0,
+            far: 4.0 * size.max_element() + 1e5,
+        }
+    };
+    for frame in 0..opts.frames {
+        let t = f64::from(frame) / opts.fps;
+        let camera = camera_at(&pool, t, 1.0);
+        let sel = selector.select(&camera, &pool);
+        pool.touch(&sel.tiles);
+        // Prefetch: the view one second ahead, through a wider lens (Kang §6.1).
+        let prefetch = if opts.prefetch {
+            ahead.select(&camera_at(&pool, t + 1.0, 1.5), &pool).wanted
+        } else {
+            Vec::new()
+        };
+        let work = streamer.frame(&mut pool, &sel.wanted, &prefetch);
+        stream_us.push(work.stream_us);
+        // A frame that draws nothing (before the root arrives) is never within τ.
+        let drawn = !sel.tiles.is_empty();
+        within1 += u32::from(drawn && sel.stats.deficit <= 1.0);
+        within2 += u32::from(drawn && sel.stats.deficit <= 2.0);
+        if let Some(out) = stats.as_deref_mut() {
+            let rec = FrameRecord {
+                frame,
+                t,
+                select: sel.stats,
+                stream: work,
+                resident: pool.len(),
+                wanted: sel.wanted.len(),
+                bytes_fetched: streamer.stats.bytes,
+                requests: streamer.stats.requests,
+            };
+            serde_json::to_writer(&mut *out, &rec)?;
+            out.write_all(b"\n")?;
+        }
+        // Fixed simulated frame rate, in real time (the network is real).
+        let next = start + Duration::from_secs_f64(f64::from(frame + 1) / opts.fps);
+        if let Some(wait) = next.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+    }
+    stream_us.sort_by(f64::total_cmp);
+    let n = f64::from(opts.frames.max(1));
+    Ok(FlySummary {
+        frames: opts.frames,
+        within_tau: f64::from(within1) / n,
+        within_2tau: f64::from(within2) / n,
+        p99_stream_us: stream_us
+            .get(((stream_us.len() as f64 - 1.0) * 0.99) as usize)
+            .copied()
+            .unwrap_or(0.0),
+        max_stream_us: stream_us.last().copied().unwrap_or(0.0),
+        stream: streamer.stats,
+    })
+}

@@ -1,0 +1,373 @@
+//! Streaming tiles from a Tessera server (DESIGN §5, Kang §6.1).
+//!
+//! The frame thread never waits on the network. Each frame it calls
+//! [`Streamer::frame`], which
+//! 1. accepts finished tiles (already decoded by the fetch tasks) into the
+//!    [`pool::TilePool`] until the frame's time budget is spent;
+//! 2. cancels requests none of whose tiles are still wanted;
+//! 3. requests what the selection needs now (required), coalesced into Morton ranges
+//!    per level, up to a cap on requests in flight; and then what the enlarged,
+//!    predicted view will need (prefetch), but only while the frame is still within
+//!    its budget — prefetch stops when over it (Kang §6.1).
+//!
+//! Failed requests are retried with exponential backoff per tile; a server that is
+//! slow, failing or restarting only delays refinement, while the pool keeps drawing
+//! what it has.
+
+pub mod pool;
+
+use crate::select::Wanted;
+use pool::TilePool;
+use std::collections::{HashMap, HashSet};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+use tessera_shared::wire::{Frame, FrameDecoder};
+use tessera_shared::{ErrorTable, Level, Morton, TileId, codec, morton};
+
+/// Streaming settings.
+#[derive(Clone, Debug)]
+pub struct StreamConfig {
+    pub max_in_flight: usize,
+    pub max_tiles_per_request: usize,
+    /// Per-frame time for accepting tiles and issuing requests.
+    pub budget: Duration,
+    pub retry_base: Duration,
+    pub retry_max: Duration,
+    pub request_timeout: Duration,
+}
+
+impl Default for StreamConfig {
+    fn default() -> Self {
+        Self {
+            max_in_flight: 4,
+            max_tiles_per_request: 32,
+            budget: Duration::from_millis(4),
+            retry_base: Duration::from_millis(100),
+            retry_max: Duration::from_secs(4),
+            request_timeout: Duration::from_secs(20),
+        }
+    }
+}
+
+/// Running totals.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StreamStats {
+    pub requests: u64,
+    pub bytes: u64,
+    pub tiles: u64,
+    pub failures: u64,
+    pub corrupt: u64,
+    pub cancelled: u64,
+}
+
+/// What one frame's streaming work did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FrameWork {
+    pub accepted: usize,
+    pub issued: usize,
+    pub stream_us: f64,
+    pub in_flight: usize,
+    pub prefetch_skipped: bool,
+}
+
+/// A decoded tile on its way to the pool.
+struct Decoded {
+    tile: TileId,
+    errors: ErrorTable,
+    heights: Vec<u16>,
+}
+
+enum Event {
+    Tile(Box<Decoded>),
+    Corrupt { tile: TileId },
+    Finished { id: u64, bytes: u64 },
+    Failed { id: u64, error: String },
+}
+
+struct Flight {
+    tiles: HashSet<TileId>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+/// Fetches tiles in the background on its own runtime.
+pub struct Streamer {
+    rt: tokio::runtime::Runtime,
+    client: reqwest::Client,
+    base: String,
+    tile_log2: u32,
+    config: StreamConfig,
+    tx: mpsc::Sender<Event>,
+    rx: mpsc::Receiver<Event>,
+    flights: HashMap<u64, Flight>,
+    next_id: u64,
+    backoff: HashMap<TileId, (u32, Instant)>,
+    /// Tiles whose records the server reports corrupt: not asked for again.
+    corrupt: HashSet<TileId>,
+    pub stats: StreamStats,
+    pub last_error: Option<String>,
+}
+
+impl std::fmt::Debug for Streamer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Streamer")
+            .field("base", &self.base)
+            .field("in_flight", &self.flights.len())
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Streamer {
+    /// A streamer for dataset `name` on `server` (e.g. `http://127.0.0.1:8080`).
+    pub fn new(
+        server: &str,
+        name: &str,
+        tile_log2: u32,
+        config: StreamConfig,
+    ) -> anyhow::Result<Self> {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()?;
+        let client = reqwest::Client::builder()
+            .timeout(config.request_timeout)
+            .build()?;
+        let (tx, rx) = mpsc::channel();
+        Ok(Self {
+            rt,
+            client,
+            base: format!("{}/v1/datasets/{name}", server.trim_end_matches('/')),
+            tile_log2,
+            config,
+            tx,
+            rx,
+            flights: HashMap::new(),
+            next_id: 0,
+            backoff: HashMap::new(),
+            corrupt: HashSet::new(),
+            stats: StreamStats::default(),
+            last_error: None,
+        })
+    }
+
+    /// Runs a future on the streamer's runtime (for one-off requests such as metadata).
+    pub fn block_on<F: Future>(&self, f: F) -> F::Output {
+        self.rt.block_on(f)
+    }
+
+    pub fn client(&self) -> &reqwest::Client {
+        &self.client
+    }
+
+    pub fn in_flight(&self) -> usize {
+        self.flights.len()
+    }
+
+    fn pending(&self, tile: TileId) -> bool {
+        self.flights.values().any(|f| f.tiles.contains(&tile))
+    }
+
+    /// One frame's streaming work; see the module documentation.
+    pub fn frame(
+        &mut self,
+        pool: &mut TilePool,
+        required: &[Wanted],
+        prefetch: &[Wanted],
+    ) -> FrameWork {
+        let started = Instant::now();
+        let budget = self.config.budget;
+        let mut work = FrameWork::default();
+        while started.elapsed() < budget {
+            let Ok(ev) = self.rx.try_recv() else { break };
+            match ev {
+                Event::Tile(d) => {
+                    let Decoded {
+                        tile,
+                        errors,
+                        heights,
+                    } = *d;
+                    for f in self.flights.values_mut() {
+                        f.tiles.remove(&tile);
+                    }
+                    self.backoff.remove(&tile);
+                    pool.insert(tile, errors, heights);
+                    self.stats.tiles += 1;
+                    work.accepted += 1;
+                }
+                Event::Corrupt { tile } => {
+                    self.stats.corrupt += 1;
+                    self.corrupt.insert(tile);
+                }
+                Event::Finished { id, bytes } => {
+                    self.stats.bytes += bytes;
+                    if let Some(f) = self.flights.remove(&id) {
+                        // Tiles the response did not carry (should not happen) are retried.
+                        for t in f.tiles {
+                            self.back_off(t);
+                        }
+                    }
+                }
+                Event::Failed { id, error } => {
+                    self.stats.failures += 1;
+                    self.last_error = Some(error);
+                    if let Some(f) = self.flights.remove(&id) {
+                        for t in f.tiles {
+                            self.back_off(t);
+                        }
+                    }
+                }
+            }
+        }
+        // Cancel requests that nothing wants any more.
+        let wanted: HashSet<TileId> = required.iter().chain(prefetch).map(|w| w.tile).collect();
+        let stale: Vec<u64> = self
+            .flights
+            .iter()
+            .filter(|(_, f)| !f.tiles.is_empty() && f.tiles.iter().all(|t| !wanted.contains(t)))
+            .map(|(id, _)| *id)
+            .collect();
+        for id in stale {
+            if let Some(f) = self.flights.remove(&id) {
+                f.task.abort();
+                self.stats.cancelled += 1;
+            }
+        }
+        work.issued += self.issue(pool, required);
+        if started.elapsed() < budget {
+            work.issued += self.issue(pool, prefetch);
+        } else {
+            work.prefetch_skipped = !prefetch.is_empty();
+        }
+        work.in_flight = self.flights.len();
+        work.stream_us = started.elapsed().as_secs_f64() * 1e6;
+        work
+    }
+
+    fn back_off(&mut self, tile: TileId) {
+        let e = self.backoff.entry(tile).or_insert((0, Instant::now()));
+        e.0 += 1;
+        let delay = self
+            .config
+            .retry_base
+            .saturating_mul(1 << e.0.min(10))
+            .min(self.config.retry_max);
+        e.1 = Instant::now() + delay;
+    }
+
+    /// Requests the wanted tiles that are not resident, pending or backing off, most
+    /// wanted first, coalesced into Morton ranges per level.
+    fn issue(&mut self, pool: &TilePool, wanted: &[Wanted]) -> usize {
+        let now = Instant::now();
+        let mut sorted: Vec<&Wanted> = wanted.iter().collect();
+        sorted.sort_by(|a, b| b.rho.total_cmp(&a.rho));
+        let mut by_level: Vec<(Level, Vec<Morton>)> = Vec::new();
+        let mut seen = HashSet::new();
+        for w in sorted {
+            let t = w.tile;
+            if pool.contains(t)
+                || self.corrupt.contains(&t)
+                || self.pending(t)
+                || self.backoff.get(&t).is_some_and(|(_, at)| *at > now)
+                || !seen.insert(t)
+            {
+                continue;
+            }
+            match by_level.iter_mut().find(|(l, _)| *l == t.level()) {
+                Some((_, v)) => v.push(t.morton()),
+                None => by_level.push((t.level(), vec![t.morton()])),
+            }
+        }
+        let mut issued = 0;
+        for (level, codes) in by_level {
+            for chunk in codes.chunks(self.config.max_tiles_per_request) {
+                if self.flights.len() >= self.config.max_in_flight {
+                    return issued;
+                }
+                let ranges = morton::coalesce(chunk.iter().copied());
+                let spec: Vec<String> = ranges.iter().map(ToString::to_string).collect();
+                let url = format!(
+                    "{}/levels/{level}/tiles?ranges={}",
+                    self.base,
+                    spec.join(",")
+                );
+                let tiles: HashSet<TileId> = chunk
+                    .iter()
+                    .filter_map(|m| TileId::from_morton(level, *m))
+                    .collect();
+                let id = self.next_id;
+                self.next_id += 1;
+                let task = self.rt.spawn(fetch(
+                    self.client.clone(),
+                    url,
+                    id,
+                    self.tile_log2,
+                    self.tx.clone(),
+                ));
+                self.flights.insert(id, Flight { tiles, task });
+                self.stats.requests += 1;
+                issued += 1;
+            }
+        }
+        issued
+    }
+}
+
+/// One range request: streams the body through the frame decoder and decodes each
+/// record as it completes, off the frame thread.
+async fn fetch(
+    client: reqwest::Client,
+    url: String,
+    id: u64,
+    tile_log2: u32,
+    tx: mpsc::Sender<Event>,
+) {
+    let result = async {
+        let mut resp = client
+            .get(&url)
+            .send()
+            .await
+            .map_err(|e| format!("{url}: {e}"))?;
+        if !resp.status().is_success() {
+            return Err(format!("{url}: HTTP {}", resp.status()));
+        }
+        let mut dec = FrameDecoder::new();
+        let mut bytes = 0u64;
+        while let Some(chunk) = resp.chunk().await.map_err(|e| format!("{url}: {e}"))? {
+            bytes += chunk.len() as u64;
+            dec.push(&chunk);
+            while let Some(frame) = dec.next_frame().map_err(|e| format!("{url}: {e}"))? {
+                match frame {
+                    Frame::Tile {
+                        level,
+                        morton,
+                        record,
+                        ..
+                    } => {
+                        let tile = TileId::from_morton(level, morton)
+                            .ok_or_else(|| format!("{url}: tile outside its level"))?;
+                        let rec = codec::decode_record(&record, tile_log2)
+                            .map_err(|e| format!("{url}: {tile}: {e}"))?;
+                        let _ = tx.send(Event::Tile(Box::new(Decoded {
+                            tile,
+                            errors: rec.errors,
+                            heights: rec.heights,
+                        })));
+                    }
+                    Frame::Error { level, morton, .. } => {
+                        if let Some(tile) = TileId::from_morton(level, morton) {
+                            let _ = tx.send(Event::Corrupt { tile });
+                        }
+                    }
+                    Frame::ErrorTable { .. } | Frame::Trailer { .. } => {}
+                }
+            }
+        }
+        dec.finish().map_err(|e| format!("{url}: {e}"))?;
+        Ok(bytes)
+    }
+    .await;
+    let _ = tx.send(match result {
+        Ok(bytes) => Event::Finished { id, bytes },
+        Err(error) => Event::Failed { id, error },
+    });
+}
