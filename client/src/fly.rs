@@ -50,6 +50,12 @@ pub struct FlySummary {
     pub frames: u32,
     pub within_tau: f64,
     pub within_2tau: f64,
+    /// Frames before the first one within τ (start-up: the root and its first
+    /// descendants are still on their way).
+    pub warmup_frames: u32,
+    /// Fractions over the frames after the warm-up.
+    pub steady_within_tau: f64,
+    pub steady_within_2tau: f64,
     pub p99_stream_us: f64,
     pub max_stream_us: f64,
     pub stream: StreamStats,
@@ -132,6 +138,8 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let mut pool = TilePool::new(opts.pool_tiles);
     let start = Instant::now();
     let (mut within1, mut within2) = (0u32, 0u32);
+    let mut warmup: Option<u32> = None;
+    let (mut steady1, mut steady2) = (0u32, 0u32);
     let mut stream_us = Vec::new();
     let camera_at = |pool: &TilePool, t: f64, fov_scale: f64| {
         let pose = path.pose(t, size);
@@ -164,8 +172,19 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         stream_us.push(work.stream_us);
         // A frame that draws nothing (before the root arrives) is never within τ.
         let drawn = !sel.tiles.is_empty();
-        within1 += u32::from(drawn && sel.stats.deficit <= 1.0);
-        within2 += u32::from(drawn && sel.stats.deficit <= 2.0);
+        let (ok1, ok2) = (
+            drawn && sel.stats.deficit <= 1.0,
+            drawn && sel.stats.deficit <= 2.0,
+        );
+        within1 += u32::from(ok1);
+        within2 += u32::from(ok2);
+        if warmup.is_none() && ok1 {
+            warmup = Some(frame);
+        }
+        if warmup.is_some() {
+            steady1 += u32::from(ok1);
+            steady2 += u32::from(ok2);
+        }
         if let Some(out) = stats.as_deref_mut() {
             let rec = FrameRecord {
                 frame,
@@ -188,10 +207,15 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     }
     stream_us.sort_by(f64::total_cmp);
     let n = f64::from(opts.frames.max(1));
+    let warmup_frames = warmup.unwrap_or(opts.frames);
+    let steady = f64::from((opts.frames - warmup_frames).max(1));
     Ok(FlySummary {
         frames: opts.frames,
         within_tau: f64::from(within1) / n,
         within_2tau: f64::from(within2) / n,
+        warmup_frames,
+        steady_within_tau: f64::from(steady1) / steady,
+        steady_within_2tau: f64::from(steady2) / steady,
         p99_stream_us: stream_us
             .get(((stream_us.len() as f64 - 1.0) * 0.99) as usize)
             .copied()

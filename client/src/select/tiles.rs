@@ -34,6 +34,40 @@ fn all_resident(tables: &dyn TileTables, tiles: &[TileId]) -> bool {
     !tiles.is_empty() && tiles.iter().all(|c| tables.table(*c).is_some())
 }
 
+/// Asks for the missing children of `tile` and, when the tile misses `τ` by a
+/// factor of `excess`, for as many further levels as that factor implies (errors
+/// roughly halve per level): one round trip then fetches what would otherwise take
+/// one round trip per level. Deeper tiles come with lower priority.
+fn want_descendants(
+    world: &World,
+    tables: &dyn TileTables,
+    tile: TileId,
+    excess: f64,
+    rho: f64,
+    wanted: &mut Vec<Wanted>,
+) {
+    let mut frontier = vec![tile];
+    let mut excess = excess;
+    let mut rho = rho;
+    for _depth in 0..4 {
+        let mut next = Vec::new();
+        for t in frontier {
+            for c in present_children(world, t) {
+                if tables.table(c).is_none() {
+                    wanted.push(Wanted { tile: c, rho });
+                }
+                next.push(c);
+            }
+        }
+        excess /= 2.0;
+        rho /= 2.0;
+        if excess <= 1.0 || next.len() > 64 {
+            break;
+        }
+        frontier = next;
+    }
+}
+
 /// Walks the pyramid from the root and balances the result.
 pub fn choose(
     world: &World,
@@ -87,9 +121,14 @@ pub fn choose(
             stack.extend(children);
         } else {
             out.drawn.push(tile);
-            for c in children.into_iter().filter(|c| tables.table(*c).is_none()) {
-                out.wanted.push(Wanted { tile: c, rho: need });
-            }
+            want_descendants(
+                world,
+                tables,
+                tile,
+                need / params.tau,
+                need,
+                &mut out.wanted,
+            );
         }
     }
     balance(world, tables, &mut out);
