@@ -27,6 +27,12 @@ pub struct FlyOptions {
     pub prefetch: bool,
     pub pool_tiles: usize,
     pub stream: StreamConfig,
+    /// Seconds into the path at the first frame (the load generator staggers clients).
+    pub t_offset: f64,
+    /// Run fetches on this runtime instead of one of the flight's own.
+    pub runtime: Option<tokio::runtime::Handle>,
+    /// Tiles received so far, shared with a progress display.
+    pub progress: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
 }
 
 /// One line of `--stats` (JSON Lines).
@@ -59,6 +65,9 @@ pub struct FlySummary {
     pub p99_stream_us: f64,
     pub max_stream_us: f64,
     pub stream: StreamStats,
+    /// Latency of every finished request, in milliseconds (not serialized).
+    #[serde(skip)]
+    pub latencies_ms: Vec<f64>,
 }
 
 /// Metres between samples from the georeferencing, else `fallback`.
@@ -115,15 +124,20 @@ fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64)>
 
 /// Flies the path, writing one [`FrameRecord`] per frame to `stats`.
 pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Result<FlySummary> {
-    let probe = Streamer::new(&opts.server, &opts.dataset, 9, opts.stream.clone())?;
+    let streamer_for = |tile_log2: u32| match &opts.runtime {
+        Some(h) => Streamer::on_runtime(
+            h.clone(),
+            &opts.server,
+            &opts.dataset,
+            tile_log2,
+            opts.stream.clone(),
+        ),
+        None => Streamer::new(&opts.server, &opts.dataset, tile_log2, opts.stream.clone()),
+    };
+    let probe = streamer_for(9)?;
     let (world, max_height) = world(&probe, opts)?;
     drop(probe);
-    let mut streamer = Streamer::new(
-        &opts.server,
-        &opts.dataset,
-        world.geometry.tile_log2(),
-        opts.stream.clone(),
-    )?;
+    let mut streamer = streamer_for(world.geometry.tile_log2())?;
     let size = DVec2::new(
         f64::from(world.geometry.width()),
         f64::from(world.geometry.height()),
@@ -158,7 +172,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         }
     };
     for frame in 0..opts.frames {
-        let t = f64::from(frame) / opts.fps;
+        let t = opts.t_offset + f64::from(frame) / opts.fps;
         let camera = camera_at(&pool, t, 1.0);
         let sel = selector.select(&camera, &pool);
         pool.touch(&sel.tiles);
@@ -168,7 +182,14 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         } else {
             Vec::new()
         };
+        let before = streamer.stats.tiles;
         let work = streamer.frame(&mut pool, &sel.wanted, &prefetch);
+        if let Some(p) = &opts.progress {
+            p.fetch_add(
+                streamer.stats.tiles - before,
+                std::sync::atomic::Ordering::Relaxed,
+            );
+        }
         stream_us.push(work.stream_us);
         // A frame that draws nothing (before the root arrives) is never within τ.
         let drawn = !sel.tiles.is_empty();
@@ -222,5 +243,6 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             .unwrap_or(0.0),
         max_stream_us: stream_us.last().copied().unwrap_or(0.0),
         stream: streamer.stats,
+        latencies_ms: std::mem::take(&mut streamer.latencies_ms),
     })
 }

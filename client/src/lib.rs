@@ -10,6 +10,7 @@
 
 pub mod camera;
 pub mod fly;
+pub mod load;
 pub mod paths;
 pub mod select;
 pub mod stream;

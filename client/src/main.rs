@@ -26,6 +26,37 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Load-test a server: N simulated clients fly the built-in paths (staggered)
+    /// through the real selection and streaming code, without rendering.
+    Load {
+        /// Server base URL, e.g. http://127.0.0.1:8080.
+        #[arg(long)]
+        server: String,
+        /// Dataset name on the server.
+        #[arg(long)]
+        dataset: String,
+        #[arg(long, default_value_t = 16)]
+        clients: u32,
+        /// How long, e.g. 30s, 2m.
+        #[arg(long, default_value = "30s", value_parser = parse_duration)]
+        duration: std::time::Duration,
+        /// Request Morton-range batches, or one tile per request.
+        #[arg(long, value_enum, default_value_t = Mode::Ranges)]
+        mode: Mode,
+        /// Simulated frames per second per client.
+        #[arg(long, default_value_t = 30.0)]
+        fps: f64,
+        #[arg(long, default_value_t = 1.0)]
+        tau: f64,
+        #[arg(long, default_value = "1280x720")]
+        viewport: String,
+        /// Metres between samples (default: from the georeferencing, else 100).
+        #[arg(long)]
+        spacing: Option<f64>,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Fly a path over a dataset served by `tessera-server serve`: selection and
     /// streaming at a fixed frame rate, in real time, with per-frame statistics.
     Fly {
@@ -173,6 +204,34 @@ fn bench_select(
     Ok(())
 }
 
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum Mode {
+    Ranges,
+    Single,
+}
+
+/// Parses `30s`, `2m`, `1500ms` or plain seconds.
+fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
+    let t = s.trim();
+    let (num, mult) = if let Some(n) = t.strip_suffix("ms") {
+        (n, 1e-3)
+    } else if let Some(n) = t.strip_suffix('s') {
+        (n, 1.0)
+    } else if let Some(n) = t.strip_suffix('m') {
+        (n, 60.0)
+    } else {
+        (t, 1.0)
+    };
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a duration like 30s"))?;
+    if !(v.is_finite() && v > 0.0) {
+        return Err(format!("{s:?} must be positive"));
+    }
+    Ok(std::time::Duration::from_secs_f64(v * mult))
+}
+
 fn parse_viewport(v: &str) -> anyhow::Result<(u32, u32)> {
     v.split_once('x')
         .and_then(|(a, b)| Some((a.parse::<u32>().ok()?, b.parse::<u32>().ok()?)))
@@ -182,6 +241,57 @@ fn parse_viewport(v: &str) -> anyhow::Result<(u32, u32)> {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Load {
+            server,
+            dataset,
+            clients,
+            duration,
+            mode,
+            fps,
+            tau,
+            viewport,
+            spacing,
+            json,
+        } => {
+            let (width, height) = parse_viewport(&viewport)?;
+            let opts = tessera_client::load::LoadOptions {
+                server,
+                dataset,
+                clients,
+                duration,
+                mode: match mode {
+                    Mode::Ranges => tessera_client::stream::RequestMode::Ranges,
+                    Mode::Single => tessera_client::stream::RequestMode::Single,
+                },
+                fps,
+                tau,
+                width,
+                height,
+                spacing,
+                progress: !json,
+            };
+            let r = tessera_client::load::load(&opts)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                println!(
+                    "{} clients, {} mode, {:.1} s: {:.0} tiles/s, {:.1} MB/s, {:.0} requests/s; latency p50 {:.1} ms, p90 {:.1} ms, p99 {:.1} ms, max {:.1} ms; {} errors; {:.1}% of frames within 2τ",
+                    r.clients,
+                    r.mode,
+                    r.seconds,
+                    r.tiles_per_s,
+                    r.mb_per_s,
+                    r.requests_per_s,
+                    r.latency_ms_p50,
+                    r.latency_ms_p90,
+                    r.latency_ms_p99,
+                    r.latency_ms_max,
+                    r.errors,
+                    100.0 * r.frames_within_2tau
+                );
+            }
+            Ok(())
+        }
         Command::Fly {
             server,
             dataset,
@@ -218,6 +328,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     budget: std::time::Duration::from_secs_f64(budget_ms / 1e3),
                     ..StreamConfig::default()
                 },
+                t_offset: 0.0,
+                runtime: None,
+                progress: None,
             };
             let mut file = match &stats {
                 Some(p) => Some(std::io::BufWriter::new(

@@ -81,6 +81,9 @@ fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
             request_timeout: Duration::from_secs(5),
             ..StreamConfig::default()
         },
+        t_offset: 0.0,
+        runtime: None,
+        progress: None,
     }
 }
 
@@ -234,4 +237,45 @@ fn keeps_drawing_through_150_ms_of_latency() {
         last.select.deficit
     );
     assert_eq!(summary.stream.failures, 0);
+}
+
+/// The load generator drives real clients: in single mode every tile is its own
+/// request, in range mode tiles come in batches, and neither sees errors.
+#[test]
+fn load_generator_batches_in_range_mode_only() {
+    use tessera_client::load::{LoadOptions, load};
+    use tessera_client::stream::RequestMode;
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let run = |mode| {
+        load(&LoadOptions {
+            server: format!("http://{addr}"),
+            dataset: "terrain".into(),
+            clients: 3,
+            duration: Duration::from_millis(1500),
+            mode,
+            fps: 30.0,
+            tau: 2.0,
+            width: 640,
+            height: 360,
+            spacing: Some(30.0),
+            progress: false,
+        })
+        .unwrap()
+    };
+    let single = run(RequestMode::Single);
+    let ranges = run(RequestMode::Ranges);
+    for r in [&single, &ranges] {
+        assert_eq!(r.errors, 0, "{r:?}");
+        assert!(r.tiles > 20 && r.bytes > 0, "{r:?}");
+        assert!(r.latency_ms_p50 > 0.0 && r.latency_ms_p50 <= r.latency_ms_max);
+    }
+    assert_eq!(
+        single.responses, single.tiles,
+        "single mode: one tile per response"
+    );
+    assert!(
+        ranges.responses * 2 < ranges.tiles,
+        "range mode batches: {ranges:?}"
+    );
 }

@@ -24,9 +24,19 @@ use std::time::{Duration, Instant};
 use tessera_shared::wire::{Frame, FrameDecoder};
 use tessera_shared::{ErrorTable, Level, Morton, TileId, codec, morton};
 
+/// How tiles are requested.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RequestMode {
+    /// Morton-range batches per level (`/levels/{l}/tiles?ranges=…`).
+    Ranges,
+    /// One request per tile (`/tiles/{l}/{x}/{y}`), for comparison.
+    Single,
+}
+
 /// Streaming settings.
 #[derive(Clone, Debug)]
 pub struct StreamConfig {
+    pub mode: RequestMode,
     pub max_in_flight: usize,
     pub max_tiles_per_request: usize,
     /// Per-frame time for accepting tiles and issuing requests.
@@ -39,6 +49,7 @@ pub struct StreamConfig {
 impl Default for StreamConfig {
     fn default() -> Self {
         Self {
+            mode: RequestMode::Ranges,
             max_in_flight: 4,
             max_tiles_per_request: 32,
             budget: Duration::from_millis(4),
@@ -53,6 +64,8 @@ impl Default for StreamConfig {
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StreamStats {
     pub requests: u64,
+    /// Requests answered in full.
+    pub responses: u64,
     pub bytes: u64,
     pub tiles: u64,
     pub failures: u64,
@@ -79,9 +92,18 @@ struct Decoded {
 
 enum Event {
     Tile(Box<Decoded>),
-    Corrupt { tile: TileId },
-    Finished { id: u64, bytes: u64 },
-    Failed { id: u64, error: String },
+    Corrupt {
+        tile: TileId,
+    },
+    Finished {
+        id: u64,
+        bytes: u64,
+        latency_ms: f64,
+    },
+    Failed {
+        id: u64,
+        error: String,
+    },
 }
 
 struct Flight {
@@ -91,7 +113,8 @@ struct Flight {
 
 /// Fetches tiles in the background on its own runtime.
 pub struct Streamer {
-    rt: tokio::runtime::Runtime,
+    _owned: Option<tokio::runtime::Runtime>,
+    rt: tokio::runtime::Handle,
     client: reqwest::Client,
     base: String,
     tile_log2: u32,
@@ -105,6 +128,8 @@ pub struct Streamer {
     corrupt: HashSet<TileId>,
     pub stats: StreamStats,
     pub last_error: Option<String>,
+    /// Time from sending each finished request to its last byte.
+    pub latencies_ms: Vec<f64>,
 }
 
 impl std::fmt::Debug for Streamer {
@@ -129,11 +154,36 @@ impl Streamer {
             .worker_threads(2)
             .enable_all()
             .build()?;
+        let handle = rt.handle().clone();
+        Self::with_runtime(Some(rt), handle, server, name, tile_log2, config)
+    }
+
+    /// A streamer whose fetches run on an existing runtime (the load generator runs
+    /// many clients on one).
+    pub fn on_runtime(
+        handle: tokio::runtime::Handle,
+        server: &str,
+        name: &str,
+        tile_log2: u32,
+        config: StreamConfig,
+    ) -> anyhow::Result<Self> {
+        Self::with_runtime(None, handle, server, name, tile_log2, config)
+    }
+
+    fn with_runtime(
+        owned: Option<tokio::runtime::Runtime>,
+        rt: tokio::runtime::Handle,
+        server: &str,
+        name: &str,
+        tile_log2: u32,
+        config: StreamConfig,
+    ) -> anyhow::Result<Self> {
         let client = reqwest::Client::builder()
             .timeout(config.request_timeout)
             .build()?;
         let (tx, rx) = mpsc::channel();
         Ok(Self {
+            _owned: owned,
             rt,
             client,
             base: format!("{}/v1/datasets/{name}", server.trim_end_matches('/')),
@@ -147,6 +197,7 @@ impl Streamer {
             corrupt: HashSet::new(),
             stats: StreamStats::default(),
             last_error: None,
+            latencies_ms: Vec::new(),
         })
     }
 
@@ -198,8 +249,14 @@ impl Streamer {
                     self.stats.corrupt += 1;
                     self.corrupt.insert(tile);
                 }
-                Event::Finished { id, bytes } => {
+                Event::Finished {
+                    id,
+                    bytes,
+                    latency_ms,
+                } => {
                     self.stats.bytes += bytes;
+                    self.stats.responses += 1;
+                    self.latencies_ms.push(latency_ms);
                     if let Some(f) = self.flights.remove(&id) {
                         // Tiles the response did not carry (should not happen) are retried.
                         for t in f.tiles {
@@ -278,31 +335,39 @@ impl Streamer {
             }
         }
         let mut issued = 0;
+        let per_request = match self.config.mode {
+            RequestMode::Ranges => self.config.max_tiles_per_request,
+            RequestMode::Single => 1,
+        };
         for (level, codes) in by_level {
-            for chunk in codes.chunks(self.config.max_tiles_per_request) {
+            for chunk in codes.chunks(per_request) {
                 if self.flights.len() >= self.config.max_in_flight {
                     return issued;
                 }
-                let ranges = morton::coalesce(chunk.iter().copied());
-                let spec: Vec<String> = ranges.iter().map(ToString::to_string).collect();
-                let url = format!(
-                    "{}/levels/{level}/tiles?ranges={}",
-                    self.base,
-                    spec.join(",")
-                );
                 let tiles: HashSet<TileId> = chunk
                     .iter()
                     .filter_map(|m| TileId::from_morton(level, *m))
                     .collect();
                 let id = self.next_id;
                 self.next_id += 1;
-                let task = self.rt.spawn(fetch(
-                    self.client.clone(),
-                    url,
-                    id,
-                    self.tile_log2,
-                    self.tx.clone(),
-                ));
+                let (client, tx, log2) = (self.client.clone(), self.tx.clone(), self.tile_log2);
+                let task = match self.config.mode {
+                    RequestMode::Ranges => {
+                        let ranges = morton::coalesce(chunk.iter().copied());
+                        let spec: Vec<String> = ranges.iter().map(ToString::to_string).collect();
+                        let url = format!(
+                            "{}/levels/{level}/tiles?ranges={}",
+                            self.base,
+                            spec.join(",")
+                        );
+                        self.rt.spawn(fetch(client, url, id, log2, tx))
+                    }
+                    RequestMode::Single => {
+                        let tile = *tiles.iter().next().expect("one tile per request");
+                        let url = format!("{}/tiles/{level}/{}/{}", self.base, tile.x(), tile.y());
+                        self.rt.spawn(fetch_one(client, url, tile, id, log2, tx))
+                    }
+                };
                 self.flights.insert(id, Flight { tiles, task });
                 self.stats.requests += 1;
                 issued += 1;
@@ -321,6 +386,7 @@ async fn fetch(
     tile_log2: u32,
     tx: mpsc::Sender<Event>,
 ) {
+    let sent = Instant::now();
     let result = async {
         let mut resp = client
             .get(&url)
@@ -366,8 +432,60 @@ async fn fetch(
         Ok(bytes)
     }
     .await;
+    finish(&tx, id, sent, result);
+}
+
+fn finish(tx: &mpsc::Sender<Event>, id: u64, sent: Instant, result: Result<u64, String>) {
     let _ = tx.send(match result {
-        Ok(bytes) => Event::Finished { id, bytes },
+        Ok(bytes) => Event::Finished {
+            id,
+            bytes,
+            latency_ms: sent.elapsed().as_secs_f64() * 1e3,
+        },
         Err(error) => Event::Failed { id, error },
     });
+}
+
+/// One single-tile request: the body is the stored record; its checksum must match
+/// the one the server sends in `X-Tessera-Checksum`.
+async fn fetch_one(
+    client: reqwest::Client,
+    url: String,
+    tile: TileId,
+    id: u64,
+    tile_log2: u32,
+    tx: mpsc::Sender<Event>,
+) {
+    let sent = Instant::now();
+    let result = async {
+        let resp = client
+            .get(&url)
+            .send()
+            .await
+            .map_err(|e| format!("{url}: {e}"))?;
+        if resp.status() == reqwest::StatusCode::INTERNAL_SERVER_ERROR {
+            let _ = tx.send(Event::Corrupt { tile });
+            return Ok(0);
+        }
+        if !resp.status().is_success() {
+            return Err(format!("{url}: HTTP {}", resp.status()));
+        }
+        let want = resp
+            .headers()
+            .get("x-tessera-checksum")
+            .and_then(|v| u64::from_str_radix(v.to_str().ok()?, 16).ok());
+        let body = resp.bytes().await.map_err(|e| format!("{url}: {e}"))?;
+        if want != Some(tessera_shared::format::checksum(&body)) {
+            return Err(format!("{url}: record fails its checksum"));
+        }
+        let rec = codec::decode_record(&body, tile_log2).map_err(|e| format!("{url}: {e}"))?;
+        let _ = tx.send(Event::Tile(Box::new(Decoded {
+            tile,
+            errors: rec.errors,
+            heights: rec.heights,
+        })));
+        Ok(body.len() as u64)
+    }
+    .await;
+    finish(&tx, id, sent, result);
 }
