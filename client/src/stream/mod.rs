@@ -19,7 +19,7 @@ pub mod pool;
 use crate::select::Wanted;
 use pool::TilePool;
 use std::collections::{HashMap, HashSet};
-use std::sync::mpsc;
+use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 use tessera_shared::wire::{Frame, FrameDecoder};
 use tessera_shared::{ErrorTable, Level, Morton, TileId, codec, morton};
@@ -51,7 +51,7 @@ impl Default for StreamConfig {
         Self {
             mode: RequestMode::Ranges,
             max_in_flight: 4,
-            max_tiles_per_request: 32,
+            max_tiles_per_request: 16,
             budget: Duration::from_millis(4),
             retry_base: Duration::from_millis(100),
             retry_max: Duration::from_secs(4),
@@ -377,6 +377,17 @@ impl Streamer {
     }
 }
 
+/// The process-wide limit on concurrent tile decodes: one per core.
+fn decode_slots() -> Arc<tokio::sync::Semaphore> {
+    static SLOTS: OnceLock<Arc<tokio::sync::Semaphore>> = OnceLock::new();
+    SLOTS
+        .get_or_init(|| {
+            let cores = std::thread::available_parallelism().map_or(2, std::num::NonZero::get);
+            Arc::new(tokio::sync::Semaphore::new(cores))
+        })
+        .clone()
+}
+
 /// One range request: streams the body through the frame decoder and decodes each
 /// record as it completes, off the frame thread.
 async fn fetch(
@@ -387,6 +398,7 @@ async fn fetch(
     tx: mpsc::Sender<Event>,
 ) {
     let sent = Instant::now();
+    let mut decodes = Vec::new();
     let result = async {
         let mut resp = client
             .get(&url)
@@ -411,13 +423,29 @@ async fn fetch(
                     } => {
                         let tile = TileId::from_morton(level, morton)
                             .ok_or_else(|| format!("{url}: tile outside its level"))?;
-                        let rec = codec::decode_record(&record, tile_log2)
-                            .map_err(|e| format!("{url}: {tile}: {e}"))?;
-                        let _ = tx.send(Event::Tile(Box::new(Decoded {
-                            tile,
-                            errors: rec.errors,
-                            heights: rec.heights,
-                        })));
+                        // Decoding is CPU work: keep it off the I/O threads, and run
+                        // no more decodes at once than there are cores, so that many
+                        // clients in one process cannot starve the I/O threads. The
+                        // read goes on meanwhile: latency is the network's.
+                        let tx = tx.clone();
+                        decodes.push(tokio::spawn(async move {
+                            let _slot = decode_slots()
+                                .acquire_owned()
+                                .await
+                                .map_err(|e| e.to_string())?;
+                            tokio::task::spawn_blocking(move || {
+                                let rec = codec::decode_record(&record, tile_log2)
+                                    .map_err(|e| format!("{tile}: {e}"))?;
+                                let _ = tx.send(Event::Tile(Box::new(Decoded {
+                                    tile,
+                                    errors: rec.errors,
+                                    heights: rec.heights,
+                                })));
+                                Ok::<(), String>(())
+                            })
+                            .await
+                            .map_err(|e| e.to_string())?
+                        }));
                     }
                     Frame::Error { level, morton, .. } => {
                         if let Some(tile) = TileId::from_morton(level, morton) {
@@ -432,15 +460,29 @@ async fn fetch(
         Ok(bytes)
     }
     .await;
-    finish(&tx, id, sent, result);
+    // Latency is to the last byte; the flight is finished once every tile is decoded.
+    let latency = sent.elapsed();
+    let mut result = result;
+    for d in decodes {
+        match d.await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => result = Err(format!("{url}: {e}")),
+            Err(e) => result = Err(format!("{url}: decoding task failed: {e}")),
+        }
+    }
+    finish_after(&tx, id, latency, result);
 }
 
 fn finish(tx: &mpsc::Sender<Event>, id: u64, sent: Instant, result: Result<u64, String>) {
+    finish_after(tx, id, sent.elapsed(), result);
+}
+
+fn finish_after(tx: &mpsc::Sender<Event>, id: u64, latency: Duration, result: Result<u64, String>) {
     let _ = tx.send(match result {
         Ok(bytes) => Event::Finished {
             id,
             bytes,
-            latency_ms: sent.elapsed().as_secs_f64() * 1e3,
+            latency_ms: latency.as_secs_f64() * 1e3,
         },
         Err(error) => Event::Failed { id, error },
     });
