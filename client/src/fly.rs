@@ -65,6 +65,8 @@ pub struct FlySummary {
     pub p99_stream_us: f64,
     pub max_stream_us: f64,
     pub stream: StreamStats,
+    /// The last request failure, if any (why a flight against a failing server stalled).
+    pub last_error: Option<String>,
     /// Latency of every finished request, in milliseconds (not serialized).
     #[serde(skip)]
     pub latencies_ms: Vec<f64>,
@@ -243,6 +245,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             .unwrap_or(0.0),
         max_stream_us: stream_us.last().copied().unwrap_or(0.0),
         stream: streamer.stats,
+        last_error: streamer.last_error.take(),
         latencies_ms: std::mem::take(&mut streamer.latencies_ms),
     })
 }

@@ -140,6 +140,7 @@ fn bench_select(
     viewport: &str,
     spacing_m: Option<f64>,
 ) -> anyhow::Result<()> {
+    anyhow::ensure!(frames > 0, "--frames must be at least 1");
     let (w, h) = parse_viewport(viewport)?;
     let p = Pyramid::open_file(file).with_context(|| file.display().to_string())?;
     let g = *p.geometry();
@@ -187,6 +188,7 @@ fn bench_select(
         tris.push(s.stats.triangles);
     }
     times.sort_by(f64::total_cmp);
+    tris.sort_unstable();
     let pct = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
     println!(
         "{}: {} tiles resident, {w}×{h}, τ = {tau} px, {frames} frames: selection median {:.0} µs, p90 {:.0} µs, max {:.0} µs; median {} triangles",
@@ -195,11 +197,7 @@ fn bench_select(
         pct(0.5),
         pct(0.9),
         pct(1.0),
-        {
-            let mut t = tris.clone();
-            t.sort_unstable();
-            t[t.len() / 2]
-        }
+        tris[tris.len() / 2]
     );
     Ok(())
 }

@@ -210,10 +210,6 @@ impl Streamer {
         &self.client
     }
 
-    pub fn in_flight(&self) -> usize {
-        self.flights.len()
-    }
-
     fn pending(&self, tile: TileId) -> bool {
         self.flights.values().any(|f| f.tiles.contains(&tile))
     }
