@@ -12,6 +12,7 @@ pub mod camera;
 pub mod fly;
 pub mod load;
 pub mod paths;
+pub mod render;
 pub mod select;
 pub mod stream;
 pub mod tessellate;

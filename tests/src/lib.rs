@@ -1,1 +1,85 @@
-//! End-to-end tests live in `tests/`; this library is empty on purpose.
+//! Fixtures shared by the end-to-end tests in `tests/`.
+
+#![allow(clippy::unwrap_used)] // test fixtures: a failed unwrap is a failed test
+
+use std::collections::HashMap;
+use tessera_client::select::World;
+use tessera_client::stream::pool::TilePool;
+use tessera_server::build::{BuildOptions, build};
+use tessera_shared::{ErrorTable, FileSource, Pyramid, TileId, testdata};
+
+/// Metres between samples of the moon mosaics (the data README).
+pub const MOON_SPACING: f64 = 118.45;
+
+/// The moon 4096² mosaic built into a pyramid, every tile decoded.
+#[derive(Debug)]
+pub struct Moon {
+    pub pyramid: Pyramid<FileSource>,
+    pub tables: HashMap<TileId, ErrorTable>,
+    pub heights: HashMap<TileId, Vec<u16>>,
+    pub world: World,
+    _dir: tempfile::TempDir,
+}
+
+impl Moon {
+    /// Builds the pyramid with `tile_size`-cell tiles; `None` (with a SKIPPED
+    /// message) when the DEM is not there.
+    pub fn build(tile_size: u32) -> Option<Self> {
+        let path = testdata::dem_or_skip("moon_crisium_gld100_4096.png")?;
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("moon4k.tess");
+        let opts = BuildOptions {
+            tile_size,
+            offset: -10000.0,
+            ..BuildOptions::default()
+        };
+        build(path.to_str().unwrap(), &out, &opts).unwrap();
+        let pyramid = Pyramid::open_file(&out).unwrap();
+        let g = *pyramid.geometry();
+        let mut tables = HashMap::new();
+        let mut heights = HashMap::new();
+        for level in g.levels() {
+            for tile in g.present_tiles(level) {
+                let rec = pyramid.read_tile(tile).unwrap().unwrap();
+                tables.insert(tile, rec.errors);
+                heights.insert(tile, rec.heights);
+            }
+        }
+        let world = World {
+            geometry: g,
+            quant: pyramid.metadata().quantization,
+            spacing: MOON_SPACING,
+        };
+        Some(Self {
+            pyramid,
+            tables,
+            heights,
+            world,
+            _dir: dir,
+        })
+    }
+
+    /// A tile pool holding every tile.
+    pub fn pool(&self) -> TilePool {
+        let mut pool = TilePool::new(self.tables.len() + 1);
+        for (&t, e) in &self.tables {
+            pool.insert(t, e.clone(), self.heights[&t].clone());
+        }
+        pool
+    }
+}
+
+/// A small deterministic generator (SplitMix64), so failures reproduce.
+#[derive(Debug)]
+pub struct Rng(pub u64);
+
+impl Rng {
+    /// Uniform in `[0, 1)`.
+    pub fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+}

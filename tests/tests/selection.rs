@@ -12,69 +12,16 @@ use std::sync::OnceLock;
 use tessera_client::camera::Camera;
 use tessera_client::select::{EAST, NORTH, Patch, SOUTH, SelectParams, Selector, WEST, World};
 use tessera_client::tessellate::{Vertex, side_vertices};
-use tessera_server::build::{BuildOptions, build};
+use tessera_e2e::{Moon, Rng};
+use tessera_shared::TileId;
 use tessera_shared::tile::BLOCKS;
-use tessera_shared::{ErrorTable, FileSource, Pyramid, TileId, testdata};
 
-struct Fixture {
-    pyramid: Pyramid<FileSource>,
-    tables: HashMap<TileId, ErrorTable>,
-    heights: HashMap<TileId, Vec<u16>>,
-    world: World,
-    _dir: tempfile::TempDir,
-}
+type Fixture = Moon;
 
 /// The moon pyramid with every tile decoded, built once per test binary.
 fn fixture() -> Option<&'static Fixture> {
     static F: OnceLock<Option<Fixture>> = OnceLock::new();
-    F.get_or_init(|| {
-        let path = testdata::dem_or_skip("moon_crisium_gld100_4096.png")?;
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("moon4k.tess");
-        let opts = BuildOptions {
-            tile_size: 128,
-            offset: -10000.0,
-            ..BuildOptions::default()
-        };
-        build(path.to_str().unwrap(), &out, &opts).unwrap();
-        let pyramid = Pyramid::open_file(&out).unwrap();
-        let g = *pyramid.geometry();
-        let mut tables = HashMap::new();
-        let mut heights = HashMap::new();
-        for level in g.levels() {
-            for tile in g.present_tiles(level) {
-                let rec = pyramid.read_tile(tile).unwrap().unwrap();
-                tables.insert(tile, rec.errors);
-                heights.insert(tile, rec.heights);
-            }
-        }
-        let world = World {
-            geometry: g,
-            quant: pyramid.metadata().quantization,
-            spacing: 118.45, // metres between samples (the data README)
-        };
-        Some(Fixture {
-            pyramid,
-            tables,
-            heights,
-            world,
-            _dir: dir,
-        })
-    })
-    .as_ref()
-}
-
-/// A small deterministic generator (SplitMix64), so failures reproduce.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
+    F.get_or_init(|| Moon::build(128)).as_ref()
 }
 
 /// A camera somewhere above the terrain, looking around and mostly down.
@@ -82,11 +29,11 @@ fn random_camera(f: &Fixture, rng: &mut Rng) -> Camera {
     let extent = f64::from(f.world.geometry.width()) * f.world.spacing;
     let m = f.pyramid.metadata();
     // From a few metres above the highest ground to well above it.
-    let altitude = m.max_height + 50.0 + rng.next().powi(3) * 60_000.0;
+    let altitude = m.max_height + 50.0 + rng.uniform().powi(3) * 60_000.0;
     Camera {
-        position: DVec3::new(rng.next() * extent, altitude, rng.next() * extent),
-        yaw: rng.next() * std::f64::consts::TAU,
-        pitch: -0.05 - rng.next() * 1.4,
+        position: DVec3::new(rng.uniform() * extent, altitude, rng.uniform() * extent),
+        yaw: rng.uniform() * std::f64::consts::TAU,
+        pitch: -0.05 - rng.uniform() * 1.4,
         fovy: 60f64.to_radians(),
         width: 1920,
         height: 1080,

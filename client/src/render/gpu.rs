@@ -1,0 +1,113 @@
+//! The wgpu device: adapter choice (honouring `WGPU_BACKEND`), and errors collected
+//! from the device so that a failing or lost GPU becomes an error message, not a panic.
+
+use anyhow::Context;
+use std::sync::{Arc, Mutex};
+
+/// Which graphics API to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Backend {
+    /// `WGPU_BACKEND` if set, else whatever the system offers (Vulkan first).
+    Auto,
+    Vulkan,
+    Gl,
+}
+
+#[derive(Debug)]
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub adapter: wgpu::AdapterInfo,
+    pub limits: wgpu::Limits,
+    /// Uncaptured errors and device loss, reported by wgpu's callbacks.
+    errors: Arc<Mutex<Vec<String>>>,
+}
+
+impl Gpu {
+    pub fn new(backend: Backend) -> anyhow::Result<Self> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        match backend {
+            Backend::Auto => {}
+            Backend::Vulkan => desc.backends = wgpu::Backends::VULKAN,
+            Backend::Gl => desc.backends = wgpu::Backends::GL,
+        }
+        let wanted = desc.backends;
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        }))
+        .with_context(|| {
+            format!(
+                "no GPU adapter for {wanted:?}; on Debian/Ubuntu install a software one with \
+                 `apt-get install --no-install-recommends mesa-vulkan-drivers libegl1 libegl-mesa0 libgl1-mesa-dri`"
+            )
+        })?;
+        let features = wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
+        anyhow::ensure!(
+            adapter.features().contains(features),
+            "GPU adapter {:?} lacks 16-bit normalized textures (R16Unorm)",
+            adapter.get_info().name
+        );
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("tessera"),
+            required_features: features,
+            required_limits: wgpu::Limits {
+                max_texture_array_layers: limits.max_texture_array_layers,
+                max_texture_dimension_2d: limits.max_texture_dimension_2d,
+                max_storage_buffers_per_shader_stage: 4,
+                max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
+                max_buffer_size: limits.max_buffer_size,
+                ..wgpu::Limits::downlevel_defaults()
+            },
+            ..Default::default()
+        }))
+        .context("cannot open the GPU device")?;
+        let errors = Arc::new(Mutex::new(Vec::new()));
+        let sink = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(e.to_string());
+            }
+        }));
+        let sink = errors.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(format!("GPU device lost ({reason:?}): {message}"));
+            }
+        });
+        Ok(Self {
+            device,
+            queue,
+            adapter: adapter.get_info(),
+            limits,
+            errors,
+        })
+    }
+
+    /// The first error the device reported since the last check, as an `Err`.
+    pub fn check(&self) -> anyhow::Result<()> {
+        let mut v = self
+            .errors
+            .lock()
+            .map_err(|_| anyhow::anyhow!("GPU error log poisoned"))?;
+        match v.drain(..).next() {
+            Some(e) => Err(anyhow::anyhow!("GPU error on {}: {e}", self.adapter.name)),
+            None => Ok(()),
+        }
+    }
+
+    /// Waits for submitted work, turning a timeout or loss into an error.
+    pub fn wait(&self) -> anyhow::Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| anyhow::anyhow!("GPU wait failed on {}: {e}", self.adapter.name))?;
+        self.check()
+    }
+
+    /// "llvmpipe (Vulkan)" and the like, for logs and statistics.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?})", self.adapter.name, self.adapter.backend)
+    }
+}

@@ -1,0 +1,151 @@
+//! Per-instance data for the terrain draws: one record per patch, grouped by inner
+//! LOD so that each LOD is one instanced draw (at most 7 per frame, DESIGN §5).
+
+use crate::select::Patch;
+use tessera_shared::TileGeometry;
+
+/// Inner LODs 1, 2, 4, …, 64: one index buffer and one draw each.
+pub const LODS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
+
+/// Two `vec4<u32>` as the shader reads them (`terrain.wgsl`):
+/// `a = (slot | level << 16, origin x | origin y << 16, size, inner)`,
+/// `b = (edges N | E << 8 | S << 16 | W << 24, tile origin x, tile origin y, stride)`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct Instance {
+    pub a: [u32; 4],
+    pub b: [u32; 4],
+}
+
+impl Instance {
+    pub fn new(g: &TileGeometry, p: &Patch, slot: u32) -> Self {
+        let (gx, gy) = g.origin(p.tile);
+        let e = p.edges;
+        Self {
+            a: [
+                slot | u32::from(p.tile.level().get()) << 16,
+                p.origin[0] | p.origin[1] << 16,
+                p.size,
+                p.inner,
+            ],
+            b: [
+                e[0] | e[1] << 8 | e[2] << 16 | e[3] << 24,
+                gx as u32,
+                gy as u32,
+                g.spacing(p.tile.level()) as u32,
+            ],
+        }
+    }
+}
+
+/// Instances sorted by inner LOD, and how many there are of each LOD in [`LODS`].
+#[derive(Debug, Default)]
+pub struct Batches {
+    pub instances: Vec<Instance>,
+    pub counts: [u32; 7],
+    /// Patches skipped because their tile has no GPU slot.
+    pub skipped: usize,
+}
+
+impl Batches {
+    pub fn build(
+        g: &TileGeometry,
+        patches: &[Patch],
+        slot_of: impl Fn(&Patch) -> Option<u32>,
+    ) -> Self {
+        let mut b = Self::default();
+        let mut keyed: Vec<(u32, Instance)> = Vec::with_capacity(patches.len());
+        for p in patches {
+            match slot_of(p) {
+                Some(slot) => keyed.push((p.inner.trailing_zeros(), Instance::new(g, p, slot))),
+                None => b.skipped += 1,
+            }
+        }
+        keyed.sort_by_key(|(k, _)| *k);
+        for (k, inst) in keyed {
+            b.counts[k as usize] += 1;
+            b.instances.push(inst);
+        }
+        b
+    }
+
+    /// `(inner LOD, first instance, instance count)` of each non-empty draw.
+    pub fn draws(&self) -> Vec<(u32, u32, u32)> {
+        let mut first = 0;
+        let mut out = Vec::new();
+        for (k, &count) in self.counts.iter().enumerate() {
+            if count > 0 {
+                out.push((LODS[k], first, count));
+            }
+            first += count;
+        }
+        out
+    }
+}
+
+/// Index data for every LOD's `n × n` grid, concatenated, and each LOD's range;
+/// triangles as the reference tessellator splits cells (NW → SE diagonal).
+pub fn index_buffers() -> (Vec<u16>, [std::ops::Range<u32>; 7]) {
+    let mut data = Vec::new();
+    let ranges = LODS.map(|n| {
+        let start = data.len() as u32;
+        for t in crate::tessellate::triangles(n) {
+            data.extend(t.iter().map(|&i| i as u16));
+        }
+        start..data.len() as u32
+    });
+    (data, ranges)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::{Level, TileId};
+
+    #[test]
+    fn packs_what_the_shader_unpacks_and_batches_by_lod() {
+        let g = TileGeometry::new(2049, 2049, 512).unwrap();
+        let tile = TileId::new(Level::new(2).unwrap(), 3, 1).unwrap();
+        let p = |inner, origin| Patch {
+            tile,
+            origin,
+            size: 128,
+            inner,
+            edges: [inner, inner / 2, 1, inner],
+        };
+        let patches = [
+            p(16, [384, 128]),
+            p(1, [0, 0]),
+            p(16, [0, 384]),
+            p(64, [128, 0]),
+        ];
+        let b = Batches::build(&g, &patches, |p| (p.origin[0] != 128).then_some(7));
+        assert_eq!(b.skipped, 1);
+        assert_eq!(b.draws(), vec![(1, 0, 1), (16, 1, 2)]);
+        let i = b.instances[1];
+        assert_eq!(i.a[0] & 0xffff, 7);
+        assert_eq!(i.a[0] >> 16, 2);
+        assert_eq!((i.a[1] & 0xffff, i.a[1] >> 16), (384, 128));
+        assert_eq!((i.a[2], i.a[3]), (128, 16));
+        assert_eq!(
+            [
+                i.b[0] & 0xff,
+                (i.b[0] >> 8) & 0xff,
+                (i.b[0] >> 16) & 0xff,
+                i.b[0] >> 24
+            ],
+            [16, 8, 1, 16]
+        );
+        assert_eq!((i.b[1], i.b[2], i.b[3]), (3 * 512, 512, 1));
+        let (data, ranges) = index_buffers();
+        assert_eq!(ranges[6].len(), 6 * 64 * 64);
+        assert_eq!(data.len(), ranges[6].end as usize);
+        assert_eq!(
+            *data[ranges[6].start as usize..ranges[6].end as usize]
+                .iter()
+                .max()
+                .unwrap(),
+            65 * 65 - 1
+        );
+    }
+}

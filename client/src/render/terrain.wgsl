@@ -1,0 +1,279 @@
+// Terrain with emulated tessellation (DESIGN §5; Kang §3–4).
+//
+// There is no vertex buffer: vertex `vid` of an inner-LOD-n patch is grid point
+// (vid % (n+1), vid / (n+1)), and the per-instance data says which tile slot, which
+// patch of it, and the four edge LODs. `terrain_vertex` must produce exactly what
+// `client/src/tessellate.rs` produces; the `capture` compute entry point runs the
+// same function so that tests can compare the two bit for bit.
+
+struct Globals {
+    // Projection × view with the eye at the origin (camera-relative rendering).
+    view_proj: mat4x4<f32>,
+    // The eye's finest-grid cell (x, y), so that vertex positions are computed from
+    // small exact integer differences.
+    eye_cell: vec4<i32>,
+    // (eye x − cell x·s, eye height, eye z − cell y·s, s = metres per finest sample).
+    eye_frac: vec4<f32>,
+    // (offset, scale) of the height quantization; (min, max) height for the tint.
+    quant: vec4<f32>,
+    // Direction towards the sun (unit), w unused.
+    sun: vec4<f32>,
+    sky: vec4<f32>,
+    // (debug view, parallax mode, tile size in cells, unused).
+    mode: vec4<u32>,
+};
+
+@group(0) @binding(0) var<uniform> g: Globals;
+@group(0) @binding(1) var heights: texture_2d_array<f32>;
+@group(0) @binding(2) var normals: texture_2d_array<f32>;
+@group(0) @binding(3) var linear_clamp: sampler;
+
+// Per-instance data, packed (see `render/instances.rs`):
+//   a = (slot | level << 16, origin x | origin y << 16, size in tile cells, inner LOD)
+//   b = (edge LODs north | east << 8 | south << 16 | west << 24,
+//        tile origin x, tile origin y (finest samples), finest samples per tile sample)
+struct TerrainVertex {
+    // Global finest-grid coordinates and the quantized height: the contract.
+    x: u32,
+    y: u32,
+    q: u32,
+    // Tile sample coordinates (for the height and normal maps).
+    u: u32,
+    v: u32,
+};
+
+fn snap(index: u32, n: u32, e: u32) -> u32 {
+    let step = n / max(e, 1u);
+    return index / step * step;
+}
+
+fn terrain_vertex(a: vec4<u32>, b: vec4<u32>, vid: u32) -> TerrainVertex {
+    let n = a.w;
+    let w = n + 1u;
+    let i = vid % w;
+    let j = vid / w;
+    let north = b.x & 0xffu;
+    let east = (b.x >> 8u) & 0xffu;
+    let south = (b.x >> 16u) & 0xffu;
+    let west = b.x >> 24u;
+    // Edge snapping (DESIGN §5): the along-edge index goes down to a multiple of n/e.
+    var ia = i;
+    if (j == 0u) {
+        ia = snap(i, n, north);
+    } else if (j == n) {
+        ia = snap(i, n, south);
+    }
+    var jb = j;
+    if (i == 0u) {
+        jb = snap(j, n, west);
+    } else if (i == n) {
+        jb = snap(j, n, east);
+    }
+    let step = a.z / n;
+    let u = (a.y & 0xffffu) + ia * step;
+    let v = (a.y >> 16u) + jb * step;
+    let slot = a.x & 0xffffu;
+    let texel = textureLoad(heights, vec2<i32>(i32(u), i32(v)), i32(slot), 0).r;
+    var out: TerrainVertex;
+    out.x = b.y + u * b.w;
+    out.y = b.z + v * b.w;
+    out.q = u32(round(texel * 65535.0));
+    out.u = u;
+    out.v = v;
+    return out;
+}
+
+fn height_m(q: f32) -> f32 {
+    return g.quant.x + g.quant.y * q;
+}
+
+// Camera-relative position of a finest-grid point: the same integers give the same
+// floats on both sides of a shared edge, so there are no cracks.
+fn relative(x: u32, y: u32, h: f32) -> vec3<f32> {
+    let s = g.eye_frac.w;
+    let dx = f32(i32(x) - g.eye_cell.x) * s - g.eye_frac.x;
+    let dz = f32(i32(y) - g.eye_cell.y) * s - g.eye_frac.z;
+    return vec3<f32>(dx, h - g.eye_frac.y, dz);
+}
+
+struct VsOut {
+    @builtin(position) clip: vec4<f32>,
+    // Tile sample coordinates of this point (continuous).
+    @location(0) uv: vec2<f32>,
+    // Height of the drawn (base) mesh here, metres.
+    @location(1) base_h: f32,
+    @location(2) rel: vec3<f32>,
+    // Grid coordinates before snapping, for the wireframe view.
+    @location(3) grid: vec2<f32>,
+    // (slot, level, inner LOD, tile cells per triangle edge).
+    @location(4) @interpolate(flat) info: vec4<u32>,
+    // Finest samples per tile sample (1 on the finest level).
+    @location(5) @interpolate(flat) stride: u32,
+};
+
+@vertex
+fn vs_main(@builtin(vertex_index) vid: u32, @location(0) a: vec4<u32>, @location(1) b: vec4<u32>) -> VsOut {
+    let t = terrain_vertex(a, b, vid);
+    let h = height_m(f32(t.q));
+    let rel = relative(t.x, t.y, h);
+    var out: VsOut;
+    out.clip = g.view_proj * vec4<f32>(rel, 1.0);
+    out.uv = vec2<f32>(f32(t.u), f32(t.v));
+    out.base_h = h;
+    out.rel = rel;
+    let w = a.w + 1u;
+    out.grid = vec2<f32>(f32(vid % w), f32(vid / w));
+    out.info = vec4<u32>(a.x & 0xffffu, a.x >> 16u, a.w, a.z / a.w);
+    out.stride = b.w;
+    return out;
+}
+
+// Bilinear height (metres) at continuous tile sample coordinates.
+fn fine_height(uv: vec2<f32>, slot: u32) -> f32 {
+    let size = f32(g.mode.z + 1u);
+    let t = textureSampleLevel(heights, linear_clamp, (uv + 0.5) / size, i32(slot), 0.0).r;
+    return height_m(t * 65535.0);
+}
+
+fn normal_at(uv: vec2<f32>, slot: u32) -> vec3<f32> {
+    let size = f32(g.mode.z + 1u);
+    let nxz = textureSampleLevel(normals, linear_clamp, (uv + 0.5) / size, i32(slot), 0.0).rg;
+    let ny = sqrt(max(1.0 - dot(nxz, nxz), 0.0));
+    return normalize(vec3<f32>(nxz.x, ny, nxz.y));
+}
+
+// Parallax over the tessellated base surface (González §2.2–2.4). `d` is the unit
+// view direction (eye → point), `m` metres per tile sample, `tsize` the triangle
+// size in tile samples. Returns where to read the height and normal maps.
+fn parallax(uv0: vec2<f32>, base_h: f32, d: vec3<f32>, m: f32, tsize: f32, slot: u32) -> vec2<f32> {
+    let mode = g.mode.y;
+    // View direction in (tile samples, metres) coordinates.
+    let duv = d.xz / m;
+    if (mode == 1u) {
+        // Offset limiting, threshold 0.5 (González Fig. 7, flat base normal).
+        let h = fine_height(uv0, slot);
+        return uv0 - (h - base_h) * duv / max(-d.y, 0.5);
+    }
+    if (mode == 2u) {
+        // Iterative, Welsh's approximation, 2 iterations (González Fig. 9).
+        var uv = uv0;
+        for (var k = 0; k < 2; k++) {
+            let h = fine_height(uv, slot);
+            uv = uv - (h - base_h) * duv;
+        }
+        return uv;
+    }
+    if (mode == 3u) {
+        // Binary search between points one triangle before and after the base
+        // surface along the ray, 3 steps, then a secant step (González Fig. 10).
+        let len = max(length(duv), 1e-6);
+        let dir = vec3<f32>(duv, d.y) / len * tsize;
+        var p1 = vec3<f32>(uv0, base_h) - dir; // towards the eye: above the surface
+        var p2 = vec3<f32>(uv0, base_h) + dir; // beyond: below the surface
+        var d1 = fine_height(p1.xy, slot) - p1.z;
+        var d2 = fine_height(p2.xy, slot) - p2.z;
+        if (d1 > 0.0 || d2 < 0.0) {
+            // The segment does not bracket the surface: keep the base point.
+            return uv0;
+        }
+        for (var k = 0; k < 3; k++) {
+            let pm = (p1 + p2) * 0.5;
+            let dm = fine_height(pm.xy, slot) - pm.z;
+            if (dm < 0.0) {
+                p1 = pm;
+                d1 = dm;
+            } else {
+                p2 = pm;
+                d2 = dm;
+            }
+        }
+        let denom = d2 - d1;
+        if (denom <= 0.0) {
+            return p2.xy;
+        }
+        return (p2 + (p1 - p2) * (d2 / denom)).xy;
+    }
+    return uv0;
+}
+
+// Hypsometric tint: lowlands green, then tan, brown and grey rock, white peaks.
+fn tint(h: f32) -> vec3<f32> {
+    let t = clamp((h - g.quant.z) / max(g.quant.w - g.quant.z, 1.0), 0.0, 1.0);
+    let c0 = vec3<f32>(0.30, 0.50, 0.28);
+    let c1 = vec3<f32>(0.62, 0.60, 0.40);
+    let c2 = vec3<f32>(0.55, 0.42, 0.30);
+    let c3 = vec3<f32>(0.60, 0.58, 0.56);
+    let c4 = vec3<f32>(0.95, 0.95, 0.97);
+    if (t < 0.25) {
+        return mix(c0, c1, t / 0.25);
+    }
+    if (t < 0.5) {
+        return mix(c1, c2, (t - 0.25) / 0.25);
+    }
+    if (t < 0.8) {
+        return mix(c2, c3, (t - 0.5) / 0.3);
+    }
+    return mix(c3, c4, (t - 0.8) / 0.2);
+}
+
+// Distinct colours for inner LODs 1…64 and pyramid levels.
+fn palette(k: u32) -> vec3<f32> {
+    let colours = array<vec3<f32>, 8>(
+        vec3<f32>(0.20, 0.30, 0.90), vec3<f32>(0.10, 0.70, 0.90), vec3<f32>(0.10, 0.75, 0.35),
+        vec3<f32>(0.65, 0.85, 0.15), vec3<f32>(0.95, 0.80, 0.10), vec3<f32>(0.95, 0.50, 0.10),
+        vec3<f32>(0.90, 0.15, 0.15), vec3<f32>(0.55, 0.25, 0.70),
+    );
+    return colours[k % 8u];
+}
+
+@fragment
+fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
+    // Derivatives first, in uniform control flow.
+    let fw = max(fwidth(in.grid), vec2<f32>(1e-4));
+    let slot = in.info.x;
+    let d = normalize(in.rel);
+    // Metres per tile sample: finest spacing × finest samples per tile sample.
+    let m = g.eye_frac.w * f32(in.stride);
+    let uv = parallax(in.uv, in.base_h, d, m, f32(in.info.w), slot);
+    let n = normal_at(uv, slot);
+    let lambert = max(dot(n, g.sun.xyz), 0.0);
+    let light = 0.25 + 0.75 * lambert;
+    var colour = tint(fine_height(uv, slot)) * light;
+    let view = g.mode.x;
+    if (view == 1u) {
+        colour = palette(firstTrailingBit(in.info.z)) * light;
+    } else if (view == 2u) {
+        colour = palette(in.info.y) * light;
+    } else if (view == 3u) {
+        // Wireframe over the shaded terrain: distance to the nearest grid line or
+        // cell diagonal, in pixels.
+        let f = fract(in.grid);
+        let edge = min(min(f / fw, (1.0 - f) / fw), vec2<f32>(abs(f.x - f.y) / max(fw.x, fw.y)));
+        let line = 1.0 - clamp(min(edge.x, edge.y), 0.0, 1.0);
+        colour = mix(colour, vec3<f32>(0.05, 0.05, 0.05), line);
+    }
+    // Keep terrain distinguishable from the sky colour in every view.
+    colour = clamp(colour, vec3<f32>(0.02), vec3<f32>(0.98));
+    return vec4<f32>(colour, 1.0);
+}
+
+// The vertex-capture pass: one invocation per (instance, vertex).
+struct CaptureJob {
+    a: vec4<u32>,
+    b: vec4<u32>,
+};
+@group(1) @binding(0) var<storage, read> jobs: array<CaptureJob>;
+// (x, y, q, unused) per job.
+@group(1) @binding(1) var<storage, read_write> captured: array<vec4<u32>>;
+// (vertex index of each job); jobs[k] captures vertex vids[k].
+@group(1) @binding(2) var<storage, read> vids: array<u32>;
+
+@compute @workgroup_size(64)
+fn capture(@builtin(global_invocation_id) id: vec3<u32>) {
+    let k = id.x;
+    if (k >= arrayLength(&vids)) {
+        return;
+    }
+    let t = terrain_vertex(jobs[k].a, jobs[k].b, vids[k]);
+    captured[k] = vec4<u32>(t.x, t.y, t.q, 0u);
+}
