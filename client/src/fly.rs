@@ -2,6 +2,7 @@
 //! rate, in real time against a real server, writing per-frame statistics.
 
 use crate::camera::Camera;
+use crate::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles};
 use crate::paths::{FlyPath, eye};
 use crate::select::{FrameStats, SelectParams, Selector, World};
 use crate::stream::pool::TilePool;
@@ -33,6 +34,8 @@ pub struct FlyOptions {
     pub runtime: Option<tokio::runtime::Handle>,
     /// Tiles received so far, shared with a progress display.
     pub progress: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
+    /// Render headless (`--out`); `None` for selection and streaming only.
+    pub render: Option<RenderSetup>,
 }
 
 /// One line of `--stats` (JSON Lines).
@@ -48,6 +51,8 @@ pub struct FrameRecord {
     pub wanted: usize,
     pub bytes_fetched: u64,
     pub requests: u64,
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub render: Option<RenderRecord>,
 }
 
 /// Totals of a flight.
@@ -67,9 +72,64 @@ pub struct FlySummary {
     pub stream: StreamStats,
     /// The last request failure, if any (why a flight against a failing server stalled).
     pub last_error: Option<String>,
+    /// With rendering: medians per frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub render: Option<RenderSummary>,
     /// Latency of every finished request, in milliseconds (not serialized).
     #[serde(skip)]
     pub latencies_ms: Vec<f64>,
+}
+
+/// Rendering totals of a flight.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct RenderSummary {
+    pub gpu: String,
+    pub median_triangles: u64,
+    pub max_draw_calls: u32,
+    pub median_select_ms: f64,
+    pub median_upload_ms: f64,
+    pub median_render_ms: f64,
+    /// With `--quality`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub median_psnr: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub median_mse: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub total_crack_pixels: Option<usize>,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+impl RenderSummary {
+    fn from_records(gpu: String, recs: &[(FrameStats, RenderRecord)]) -> Self {
+        let quality: Vec<&RenderRecord> = recs
+            .iter()
+            .map(|(_, r)| r)
+            .filter(|r| r.mse.is_some())
+            .collect();
+        let mut tris: Vec<u64> = recs.iter().map(|(s, _)| s.triangles).collect();
+        tris.sort_unstable();
+        Self {
+            gpu,
+            median_triangles: tris.get(tris.len() / 2).copied().unwrap_or(0),
+            max_draw_calls: recs.iter().map(|(_, r)| r.draw_calls).max().unwrap_or(0),
+            median_select_ms: median(recs.iter().map(|(s, _)| s.select_us / 1e3).collect()),
+            median_upload_ms: median(recs.iter().map(|(_, r)| r.upload_ms).collect()),
+            median_render_ms: median(recs.iter().map(|(_, r)| r.render_ms).collect()),
+            median_psnr: (!quality.is_empty())
+                .then(|| median(quality.iter().filter_map(|r| r.psnr).collect())),
+            median_mse: (!quality.is_empty())
+                .then(|| median(quality.iter().filter_map(|r| r.mse).collect())),
+            total_crack_pixels: (!quality.is_empty())
+                .then(|| quality.iter().filter_map(|r| r.crack_pixels).sum()),
+        }
+    }
 }
 
 /// Metres between samples from the georeferencing, else `fallback`.
@@ -86,7 +146,7 @@ pub fn spacing_from(georef: Option<&GeoRef>, height: u32, fallback: f64) -> f64 
 }
 
 /// Reads `/v1/datasets/{name}` into a [`World`].
-fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64)> {
+fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64, f64)> {
     let url = format!(
         "{}/v1/datasets/{}",
         opts.server.trim_end_matches('/'),
@@ -120,6 +180,7 @@ fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64)>
             quant,
             spacing,
         },
+        num("min_height")?,
         num("max_height")?,
     ))
 }
@@ -137,7 +198,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         None => Streamer::new(&opts.server, &opts.dataset, tile_log2, opts.stream.clone()),
     };
     let probe = streamer_for(9)?;
-    let (world, max_height) = world(&probe, opts)?;
+    let (world, min_height, max_height) = world(&probe, opts)?;
     drop(probe);
     let mut streamer = streamer_for(world.geometry.tile_log2())?;
     let size = DVec2::new(
@@ -152,6 +213,15 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let mut selector = Selector::new(world, params);
     let mut ahead = Selector::new(world, params);
     let mut pool = TilePool::new(opts.pool_tiles);
+    let mut headless = match &opts.render {
+        Some(setup) => Some(Headless::new(
+            world,
+            (min_height, max_height),
+            setup.clone(),
+        )?),
+        None => None,
+    };
+    let mut rendered: Vec<(FrameStats, RenderRecord)> = Vec::new();
     let start = Instant::now();
     let (mut within1, mut within2) = (0u32, 0u32);
     let mut warmup: Option<u32> = None;
@@ -176,7 +246,10 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     for frame in 0..opts.frames {
         let t = opts.t_offset + f64::from(frame) / opts.fps;
         let camera = camera_at(&pool, t, 1.0);
-        let sel = selector.select(&camera, &pool);
+        let sel = match &headless {
+            Some(h) => selector.select(&camera, &h.tables(&pool)),
+            None => selector.select(&camera, &pool),
+        };
         pool.touch(&sel.tiles);
         // Prefetch: the view one second ahead, through a wider lens (Kang §6.1).
         let prefetch = if opts.prefetch {
@@ -193,6 +266,24 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             );
         }
         stream_us.push(work.stream_us);
+        let render = match &mut headless {
+            Some(h) => {
+                if h.needs_reference() {
+                    fetch_reference_tiles(
+                        &world,
+                        (min_height, max_height),
+                        &camera,
+                        &mut pool,
+                        &mut streamer,
+                        Duration::from_secs(120),
+                    )?;
+                }
+                let rec = h.frame(frame, &camera, &sel, &pool)?;
+                rendered.push((sel.stats, rec));
+                Some(rec)
+            }
+            None => None,
+        };
         // A frame that draws nothing (before the root arrives) is never within τ.
         let drawn = !sel.tiles.is_empty();
         let (ok1, ok2) = (
@@ -218,6 +309,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
                 wanted: sel.wanted.len(),
                 bytes_fetched: streamer.stats.bytes,
                 requests: streamer.stats.requests,
+                render,
             };
             serde_json::to_writer(&mut *out, &rec)?;
             out.write_all(b"\n")?;
@@ -246,6 +338,9 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         max_stream_us: stream_us.last().copied().unwrap_or(0.0),
         stream: streamer.stats,
         last_error: streamer.last_error.take(),
+        render: headless
+            .as_ref()
+            .map(|h| RenderSummary::from_records(h.renderer.gpu.describe(), &rendered)),
         latencies_ms: std::mem::take(&mut streamer.latencies_ms),
     })
 }

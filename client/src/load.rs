@@ -92,6 +92,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 t_offset: f64::from(i) * 1.7,
                 runtime: Some(rt.handle().clone()),
                 progress: Some(tiles.clone()),
+                render: None,
             };
             let done = done.clone();
             std::thread::spawn(move || {

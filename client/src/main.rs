@@ -9,6 +9,9 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 use tessera_client::camera::Camera;
 use tessera_client::fly::{self, FlyOptions};
+use tessera_client::headless::RenderSetup;
+use tessera_client::render::gpu::Backend;
+use tessera_client::render::{DebugView, Parallax, RenderOptions};
 use tessera_client::select::{SelectParams, Selector, World};
 use tessera_client::stream::StreamConfig;
 use tessera_shared::Pyramid;
@@ -81,9 +84,39 @@ enum Command {
         /// Metres between samples (default: from the georeferencing, else 100).
         #[arg(long)]
         spacing: Option<f64>,
-        /// No rendering (the only mode until the renderer lands).
+        /// Viewport width (overrides --viewport).
         #[arg(long)]
+        width: Option<u32>,
+        /// Viewport height (overrides --viewport).
+        #[arg(long)]
+        height: Option<u32>,
+        /// Selection and streaming only: no GPU, no window, no images.
+        #[arg(long, conflicts_with = "out")]
         no_render: bool,
+        /// Render headless into DIR: frame_NNNNN.png and stats.jsonl.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Render the full-resolution reference (every sample a vertex) instead.
+        #[arg(long, requires = "out")]
+        reference: bool,
+        /// Also render the reference and record MSE, PSNR and crack pixels per frame.
+        #[arg(long, requires = "out", conflicts_with = "reference")]
+        quality: bool,
+        /// With --out: write stats but no frame PNGs.
+        #[arg(long, requires = "out")]
+        no_frames: bool,
+        /// Debug view.
+        #[arg(long, value_enum, default_value_t = DebugView::Shaded)]
+        view: DebugView,
+        /// Parallax mapping in the fragment shader (González §2.2–2.4).
+        #[arg(long, value_enum, default_value_t = Parallax::None)]
+        parallax: Parallax,
+        /// Graphics API (WGPU_BACKEND=vulkan|gl also works).
+        #[arg(long, value_enum, default_value_t = Backend::Auto)]
+        backend: Backend,
+        /// Tiles held on the GPU (texture-array layers).
+        #[arg(long, default_value_t = 256)]
+        gpu_tiles: u32,
         /// Turn off prefetching (the enlarged, predicted view).
         #[arg(long)]
         no_prefetch: bool,
@@ -299,13 +332,50 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tau,
             viewport,
             spacing,
-            no_render: _,
+            width: w,
+            height: h,
+            no_render,
+            out,
+            reference,
+            quality,
+            no_frames,
+            view,
+            parallax,
+            backend,
+            gpu_tiles,
             no_prefetch,
             pool_tiles,
             budget_ms,
             stats,
         } => {
-            let (width, height) = parse_viewport(&viewport)?;
+            let (vw, vh) = parse_viewport(&viewport)?;
+            let (width, height) = (w.unwrap_or(vw), h.unwrap_or(vh));
+            anyhow::ensure!(
+                width > 0 && height > 0,
+                "--width and --height must be positive"
+            );
+            anyhow::ensure!(
+                no_render || out.is_some(),
+                "the windowed client is not built yet: pass --out DIR to render headless, or --no-render"
+            );
+            let budget = std::time::Duration::from_secs_f64(budget_ms / 1e3);
+            let render = out.as_ref().map(|dir| RenderSetup {
+                opts: RenderOptions {
+                    width,
+                    height,
+                    slots: gpu_tiles,
+                    view,
+                    parallax,
+                    backend,
+                },
+                out_dir: dir.clone(),
+                reference,
+                quality,
+                write_frames: !no_frames,
+                upload_budget: budget,
+            });
+            // Headless runs write their statistics beside the frames by default.
+            let stats = stats.or_else(|| out.as_ref().map(|d| d.join("stats.jsonl")));
             anyhow::ensure!(
                 fps > 0.0 && tau > 0.0 && budget_ms > 0.0,
                 "--fps, --tau and --budget-ms must be positive"
@@ -323,13 +393,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 prefetch: !no_prefetch,
                 pool_tiles,
                 stream: StreamConfig {
-                    budget: std::time::Duration::from_secs_f64(budget_ms / 1e3),
+                    budget,
                     ..StreamConfig::default()
                 },
                 t_offset: 0.0,
                 runtime: None,
                 progress: None,
+                render,
             };
+            if let Some(dir) = &out {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("{}: cannot create", dir.display()))?;
+            }
             let mut file = match &stats {
                 Some(p) => Some(std::io::BufWriter::new(
                     std::fs::File::create(p)

@@ -25,21 +25,37 @@ pub struct Gpu {
 
 impl Gpu {
     pub fn new(backend: Backend) -> anyhow::Result<Self> {
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        match backend {
-            Backend::Auto => {}
-            Backend::Vulkan => desc.backends = wgpu::Backends::VULKAN,
-            Backend::Gl => desc.backends = wgpu::Backends::GL,
+        // Auto without WGPU_BACKEND: Vulkan first, GL only if there is no Vulkan
+        // adapter (probing EGL prints noise on machines without a display).
+        let tries: Vec<wgpu::Backends> = match backend {
+            Backend::Vulkan => vec![wgpu::Backends::VULKAN],
+            Backend::Gl => vec![wgpu::Backends::GL],
+            Backend::Auto if std::env::var_os("WGPU_BACKEND").is_some() => {
+                vec![wgpu::InstanceDescriptor::new_without_display_handle_from_env().backends]
+            }
+            Backend::Auto => vec![
+                wgpu::Backends::PRIMARY - wgpu::Backends::BROWSER_WEBGPU,
+                wgpu::Backends::GL,
+            ],
+        };
+        let mut adapter = None;
+        for &backends in &tries {
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+            desc.backends = backends;
+            let instance = wgpu::Instance::new(desc);
+            if let Ok(a) =
+                pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                    power_preference: wgpu::PowerPreference::HighPerformance,
+                    ..Default::default()
+                }))
+            {
+                adapter = Some(a);
+                break;
+            }
         }
-        let wanted = desc.backends;
-        let instance = wgpu::Instance::new(desc);
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            ..Default::default()
-        }))
-        .with_context(|| {
+        let adapter = adapter.with_context(|| {
             format!(
-                "no GPU adapter for {wanted:?}; on Debian/Ubuntu install a software one with \
+                "no GPU adapter for {tries:?}; on Debian/Ubuntu install a software one with \
                  `apt-get install --no-install-recommends mesa-vulkan-drivers libegl1 libegl-mesa0 libgl1-mesa-dri`"
             )
         })?;

@@ -19,6 +19,7 @@ pub mod instances;
 pub mod normals;
 pub mod png_out;
 pub mod quality;
+pub mod reference;
 pub mod slots;
 
 use crate::camera::Camera;
@@ -106,7 +107,7 @@ struct Globals {
     eye_frac: [f32; 4],
     quant: [f32; 4],
     sun: [f32; 4],
-    sky: [f32; 4],
+    haze: [f32; 4],
     mode: [u32; 4],
 }
 
@@ -427,7 +428,14 @@ impl Renderer {
         let cell_z = (p.z / s).floor().max(0.0).min(f64::from(i32::MAX));
         let view = glam::DMat4::look_to_rh(DVec3::ZERO, camera.forward(), DVec3::Y);
         let vp = (camera.projection() * view).as_mat4();
-        let sun = DVec3::new(-0.5, 0.75, -0.45).normalize().as_vec3();
+        // A low sun from the north-west brings out relief.
+        let sun = DVec3::new(-0.7, 0.42, -0.58).normalize().as_vec3();
+        let extent = f64::from(
+            self.world
+                .geometry
+                .width()
+                .max(self.world.geometry.height()),
+        ) * s;
         let q = self.world.quant;
         let globals = Globals {
             view_proj: vp.to_cols_array_2d(),
@@ -445,7 +453,7 @@ impl Renderer {
                 self.height_range.1 as f32,
             ],
             sun: [sun.x, sun.y, sun.z, 0.0],
-            sky: [1.0, 0.0, 1.0, 1.0],
+            haze: [0.74, 0.80, 0.88, (extent / 2.0) as f32],
             mode: [
                 self.opts.view as u32,
                 self.opts.parallax as u32,

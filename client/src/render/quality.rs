@@ -15,6 +15,19 @@ pub fn sky_pixels(rgba: &[u8]) -> usize {
     rgba.chunks_exact(4).filter(|p| is_sky(p)).count()
 }
 
+/// Replaces the sky colour with a sky gradient for pictures people look at (the
+/// raw frames keep the sky colour for crack detection).
+pub fn paint_sky(rgba: &mut [u8], width: u32, height: u32) {
+    let w = width as usize;
+    for (i, px) in rgba.chunks_exact_mut(4).enumerate() {
+        if is_sky(px) {
+            let t = (i / w.max(1)) as f64 / f64::from(height.max(1));
+            let mix = |a: f64, b: f64| (a + (b - a) * t).round() as u8;
+            px.copy_from_slice(&[mix(70.0, 190.0), mix(120.0, 205.0), mix(190.0, 225.0), 255]);
+        }
+    }
+}
+
 /// Mean squared error over the RGB channels (0–255 scale).
 pub fn mse(a: &[u8], b: &[u8]) -> f64 {
     assert_eq!(a.len(), b.len(), "images differ in size");

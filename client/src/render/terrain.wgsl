@@ -18,7 +18,8 @@ struct Globals {
     quant: vec4<f32>,
     // Direction towards the sun (unit), w unused.
     sun: vec4<f32>,
-    sky: vec4<f32>,
+    // Haze colour, and the distance over which it takes 63% of the colour.
+    haze: vec4<f32>,
     // (debug view, parallax mode, tile size in cells, unused).
     mode: vec4<u32>,
 };
@@ -251,6 +252,10 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
         let edge = min(min(f / fw, (1.0 - f) / fw), vec2<f32>(abs(f.x - f.y) / max(fw.x, fw.y)));
         let line = 1.0 - clamp(min(edge.x, edge.y), 0.0, 1.0);
         colour = mix(colour, vec3<f32>(0.05, 0.05, 0.05), line);
+    }
+    if (view != 1u && view != 2u) {
+        let fog = 1.0 - exp(-length(in.rel) / g.haze.w);
+        colour = mix(colour, g.haze.rgb, fog);
     }
     // Keep terrain distinguishable from the sky colour in every view.
     colour = clamp(colour, vec3<f32>(0.02), vec3<f32>(0.98));

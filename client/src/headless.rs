@@ -1,0 +1,235 @@
+//! Headless rendering inside a flight (`tessera fly --out DIR`): GPU uploads under
+//! the per-frame budget, the frame itself, PNGs, and, with `--quality`, the
+//! full-resolution reference and its comparison (MSE, PSNR, crack pixels).
+
+use crate::camera::Camera;
+use crate::render::reference::{finest_tiles_in_view, full_resolution_patches};
+use crate::render::slots::OnGpu;
+use crate::render::{RenderOptions, Renderer, png_out, quality};
+use crate::select::{Selection, Wanted, World};
+use crate::stream::Streamer;
+use crate::stream::pool::TilePool;
+use anyhow::Context;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// How a flight renders.
+#[derive(Clone, Debug)]
+pub struct RenderSetup {
+    pub opts: RenderOptions,
+    /// Where frames go (`frame_00000.png`, …).
+    pub out_dir: PathBuf,
+    /// Draw the full-resolution reference instead of the selection.
+    pub reference: bool,
+    /// Draw both; compare them per frame; reference frames go to `out_dir/reference/`.
+    pub quality: bool,
+    /// Write every frame as a PNG (the demo and `--out` do; benchmarks may not).
+    pub write_frames: bool,
+    /// Per-frame budget for GPU uploads.
+    pub upload_budget: Duration,
+}
+
+/// Rendering figures of one frame (flattened into `stats.jsonl`).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct RenderRecord {
+    pub draw_calls: u32,
+    /// Tiles uploaded to the GPU this frame, and the time it took.
+    pub uploads: u32,
+    pub upload_ms: f64,
+    pub render_ms: f64,
+    /// Tiles holding a GPU slot.
+    pub gpu_tiles: usize,
+    /// With `--quality`: against the full-resolution reference.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mse: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psnr: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub crack_pixels: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference_triangles: Option<u64>,
+}
+
+#[derive(Debug)]
+pub struct Headless {
+    pub renderer: Renderer,
+    setup: RenderSetup,
+    heights: (f64, f64),
+}
+
+impl Headless {
+    pub fn new(world: World, heights: (f64, f64), setup: RenderSetup) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(&setup.out_dir)
+            .with_context(|| format!("{}: cannot create", setup.out_dir.display()))?;
+        if setup.quality {
+            std::fs::create_dir_all(setup.out_dir.join("reference"))?;
+        }
+        let renderer = Renderer::new(world, heights, setup.opts)?;
+        tracing::info!(gpu = %renderer.gpu.describe(), "renderer ready");
+        Ok(Self {
+            renderer,
+            setup,
+            heights,
+        })
+    }
+
+    /// Whether frames need every finest tile in view (fetched before the frame).
+    pub fn needs_reference(&self) -> bool {
+        self.setup.reference || self.setup.quality
+    }
+
+    /// What selection may draw: tiles that are decoded and uploaded.
+    pub fn tables<'a>(&'a self, pool: &'a TilePool) -> OnGpu<'a> {
+        OnGpu {
+            pool,
+            slots: &self.renderer.slots,
+        }
+    }
+
+    /// Uploads, draws and writes frame `frame`.
+    pub fn frame(
+        &mut self,
+        frame: u32,
+        camera: &Camera,
+        sel: &Selection,
+        pool: &TilePool,
+    ) -> anyhow::Result<RenderRecord> {
+        let r = &mut self.renderer;
+        r.slots.touch(&sel.tiles);
+        // Uploads under the budget (at least one, so a slow frame still makes
+        // progress): coarse levels first so ancestors arrive before descendants,
+        // then the most wanted.
+        let started = Instant::now();
+        let mut todo: Vec<&Wanted> = sel
+            .wanted
+            .iter()
+            .filter(|w| pool.contains(w.tile) && r.slots.get(w.tile).is_none())
+            .collect();
+        todo.sort_by(|a, b| {
+            a.tile
+                .level()
+                .cmp(&b.tile.level())
+                .then(b.rho.total_cmp(&a.rho))
+        });
+        let mut uploads = 0;
+        for w in todo {
+            if uploads > 0 && started.elapsed() >= self.setup.upload_budget {
+                break;
+            }
+            if r.upload(pool, w.tile) {
+                uploads += 1;
+            }
+        }
+        let upload_ms = started.elapsed().as_secs_f64() * 1e3;
+        let mut rec = RenderRecord {
+            uploads,
+            upload_ms,
+            ..RenderRecord::default()
+        };
+        let name = format!("frame_{frame:05}.png");
+        if self.setup.reference {
+            let (d, tris) = self.draw_reference(camera, pool)?;
+            rec.draw_calls = d;
+            rec.reference_triangles = Some(tris);
+        } else {
+            let d = self.renderer.draw(camera, &sel.patches)?;
+            rec.draw_calls = d.draw_calls;
+            rec.render_ms = d.render_ms;
+        }
+        let (w, h) = (self.renderer.width(), self.renderer.height());
+        let image = self.renderer.read_rgba()?;
+        if self.setup.write_frames {
+            write_frame(&self.setup.out_dir.join(&name), &image, w, h)?;
+        }
+        if self.setup.quality {
+            let (_, tris) = self.draw_reference(camera, pool)?;
+            let reference = self.renderer.read_rgba()?;
+            if self.setup.write_frames {
+                write_frame(
+                    &self.setup.out_dir.join("reference").join(&name),
+                    &reference,
+                    w,
+                    h,
+                )?;
+            }
+            let mse = quality::mse(&image, &reference);
+            rec.mse = Some(mse);
+            rec.psnr = Some(quality::psnr(mse));
+            rec.crack_pixels = Some(quality::crack_pixels(&image, &reference, w, h));
+            rec.reference_triangles = Some(tris);
+        }
+        rec.gpu_tiles = self.renderer.slots.len();
+        Ok(rec)
+    }
+
+    /// Fetches (waiting for them) and uploads every finest tile in view, then draws
+    /// them at full resolution. Returns draw calls and triangles.
+    fn draw_reference(&mut self, camera: &Camera, pool: &TilePool) -> anyhow::Result<(u32, u64)> {
+        let world = self.renderer.world;
+        let frustum = camera.frustum();
+        let tiles = finest_tiles_in_view(&world, &frustum, self.heights);
+        // The flight fetched these before the frame ([`fetch_reference_tiles`]).
+        let missing = tiles.iter().filter(|t| !pool.contains(**t)).count();
+        anyhow::ensure!(
+            missing == 0,
+            "{missing} finest tiles in view are not resident for the reference; raise --pool-tiles"
+        );
+        self.renderer.slots.touch(&tiles);
+        for &t in &tiles {
+            anyhow::ensure!(
+                self.renderer.upload(pool, t),
+                "no GPU slot left for the reference's tiles; raise --gpu-tiles"
+            );
+        }
+        self.renderer.slots.touch(&tiles);
+        let patches = full_resolution_patches(&world, &tiles, pool, &frustum);
+        let tris = patches.iter().map(crate::select::Patch::triangles).sum();
+        let d = self.renderer.draw(camera, &patches)?;
+        Ok((d.draw_calls, tris))
+    }
+}
+
+/// Writes a frame for people to look at: the sky painted in.
+fn write_frame(path: &std::path::Path, rgba: &[u8], w: u32, h: u32) -> anyhow::Result<()> {
+    let mut shown = rgba.to_vec();
+    quality::paint_sky(&mut shown, w, h);
+    png_out::write_png(path, &shown, w, h)
+}
+
+/// Fetches every finest tile in `camera`'s view into the pool, waiting up to
+/// `timeout` (the reference needs them all; this is a measurement, not a flight).
+pub fn fetch_reference_tiles(
+    world: &World,
+    heights: (f64, f64),
+    camera: &Camera,
+    pool: &mut TilePool,
+    streamer: &mut Streamer,
+    timeout: Duration,
+) -> anyhow::Result<()> {
+    let tiles = finest_tiles_in_view(world, &camera.frustum(), heights);
+    let started = Instant::now();
+    loop {
+        let missing: Vec<Wanted> = tiles
+            .iter()
+            .filter(|t| !pool.contains(**t))
+            .map(|&tile| Wanted { tile, rho: 1.0 })
+            .collect();
+        if missing.is_empty() {
+            pool.touch(&tiles);
+            return Ok(());
+        }
+        anyhow::ensure!(
+            started.elapsed() < timeout,
+            "{} reference tiles still missing after {timeout:?}{}",
+            missing.len(),
+            streamer
+                .last_error
+                .as_ref()
+                .map(|e| format!(" (last error: {e})"))
+                .unwrap_or_default()
+        );
+        streamer.frame(pool, &missing, &[]);
+        pool.touch(&tiles);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}

@@ -1,0 +1,88 @@
+//! The full-resolution reference (issue 5, DESIGN §7): every finest sample a
+//! vertex. Finest tiles are cut into 64-cell patches drawn at inner LOD 64 with all
+//! edges at 64, so no vertex is snapped and nothing is simplified.
+
+use crate::camera::Frustum;
+use crate::select::metric::tile_box;
+use crate::select::{Patch, TileTables, World};
+use glam::DVec3;
+use tessera_shared::TileId;
+use tessera_shared::tile::BLOCKS;
+
+/// Finest tiles whose column (the dataset's whole height range) meets the frustum.
+pub fn finest_tiles_in_view(world: &World, frustum: &Frustum, heights: (f64, f64)) -> Vec<TileId> {
+    let g = world.geometry;
+    g.present_tiles(g.finest())
+        .filter(|&t| {
+            let (x0, z0, span) = world.tile_extent(t);
+            frustum.intersects_box(
+                DVec3::new(x0, heights.0, z0),
+                DVec3::new(x0 + span, heights.1, z0 + span),
+            )
+        })
+        .collect()
+}
+
+/// Full-resolution patches of the given finest tiles, culled against the frustum
+/// by their blocks' min/max boxes. Tiles without a table are skipped.
+pub fn full_resolution_patches(
+    world: &World,
+    tiles: &[TileId],
+    tables: &dyn TileTables,
+    frustum: &Frustum,
+) -> Vec<Patch> {
+    let t = world.geometry.tile_size();
+    let size = t.min(64);
+    let block = t / BLOCKS;
+    let mut out = Vec::new();
+    for &tile in tiles {
+        let Some(table) = tables.table(tile) else {
+            continue;
+        };
+        let Some((lo, hi)) = tile_box(world, tile, table) else {
+            continue;
+        };
+        if !frustum.intersects_box(lo, hi) {
+            continue;
+        }
+        let (x0, z0, span) = world.tile_extent(tile);
+        let metres = span / f64::from(t);
+        for py in (0..t).step_by(size as usize) {
+            for px in (0..t).step_by(size as usize) {
+                // Height range of the blocks under this patch.
+                let (mut qmin, mut qmax) = (u16::MAX, 0);
+                let blocks = |p: u32| p / block..(p + size).div_ceil(block);
+                for by in blocks(py) {
+                    for bx in blocks(px) {
+                        let (a, b) = table.block_range(bx, by);
+                        qmin = qmin.min(a);
+                        qmax = qmax.max(b);
+                    }
+                }
+                if qmin > qmax {
+                    continue;
+                }
+                let lo = DVec3::new(
+                    x0 + f64::from(px) * metres,
+                    world.quant.height(qmin),
+                    z0 + f64::from(py) * metres,
+                );
+                let hi = DVec3::new(
+                    x0 + f64::from(px + size) * metres,
+                    world.quant.height(qmax),
+                    z0 + f64::from(py + size) * metres,
+                );
+                if frustum.intersects_box(lo, hi) {
+                    out.push(Patch {
+                        tile,
+                        origin: [px, py],
+                        size,
+                        inner: size,
+                        edges: [size; 4],
+                    });
+                }
+            }
+        }
+    }
+    out
+}
