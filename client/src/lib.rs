@@ -1,18 +1,22 @@
-//! The Tessera client: view-dependent selection of what to draw (DESIGN §5), and
-//! the reference tessellator the renderer must match.
+//! The Tessera client (DESIGN §5): view-dependent selection, streaming, the wgpu
+//! renderer, headless fly-throughs and the load generator.
 //!
 //! - [`camera`]: a perspective camera and its frustum;
 //! - [`select`]: pyramid refinement by screen-space error, Kang's per-tile
 //!   quadtrees with power-of-two inner LODs, crack-free edge LODs;
-//! - [`tessellate`]: the exact vertex positions a patch produces.
-//!
-//! Streaming, fly-through paths and the load generator come next (issue 4).
+//! - [`tessellate`]: the exact vertex positions a patch produces;
+//! - [`stream`]: fetching, decoding and the CPU tile pool;
+//! - [`render`]: the wgpu renderer (emulated tessellation, ≤ 7 terrain draws);
+//! - [`fly`], [`headless`], [`load`]: flights, headless rendering, load tests;
+//! - [`report`]: contact sheets and plots of a flight.
 
 pub mod camera;
 pub mod fly;
+pub mod headless;
 pub mod load;
 pub mod paths;
 pub mod render;
+pub mod report;
 pub mod select;
 pub mod stream;
 pub mod tessellate;

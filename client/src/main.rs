@@ -148,6 +148,18 @@ enum Command {
         #[arg(long)]
         spacing: Option<f64>,
     },
+    /// Pictures of a headless flight: stats.png (plots over time) and
+    /// contact_sheet.png (12 frames), plus a short summary.
+    Report {
+        /// The flight's stats.jsonl.
+        stats: PathBuf,
+        /// The frames directory (frame_NNNNN.png) for the contact sheet.
+        #[arg(long)]
+        frames: Option<PathBuf>,
+        /// Where to write stats.png and contact_sheet.png.
+        #[arg(long, short, default_value = ".")]
+        out: PathBuf,
+    },
     /// Print the size, levels and height range of a local pyramid file.
     Inspect {
         /// A `.tess` pyramid file.
@@ -426,6 +438,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             viewport,
             spacing,
         } => bench_select(&file, tau, frames, &viewport, spacing),
+        Command::Report { stats, frames, out } => {
+            let summary =
+                tessera_client::report::flight::write_report(&stats, frames.as_deref(), &out)?;
+            println!("{summary}");
+            Ok(())
+        }
         Command::Inspect { file } => {
             let p = Pyramid::open_file(&file).with_context(|| file.display().to_string())?;
             let m = p.metadata();

@@ -453,7 +453,7 @@ impl Renderer {
                 self.height_range.1 as f32,
             ],
             sun: [sun.x, sun.y, sun.z, 0.0],
-            haze: [0.74, 0.80, 0.88, (extent / 2.0) as f32],
+            haze: [0.74, 0.80, 0.88, extent as f32],
             mode: [
                 self.opts.view as u32,
                 self.opts.parallax as u32,

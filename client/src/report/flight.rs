@@ -1,0 +1,171 @@
+//! `tessera report`: a flight's `stats.jsonl` (and frames) into `stats.png`,
+//! `contact_sheet.png` and a few lines of summary.
+
+use super::{Series, contact_sheet_labelled, pick_evenly_indices, plot_panels};
+use crate::render::png_out::{read_png, write_png};
+use anyhow::Context;
+use std::path::Path;
+
+/// Reads `stats.jsonl`: one JSON object per frame.
+pub fn read_stats(path: &Path) -> anyhow::Result<Vec<serde_json::Value>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            serde_json::from_str(l)
+                .with_context(|| format!("{}: line {} is not JSON", path.display(), i + 1))
+        })
+        .collect()
+}
+
+fn column(records: &[serde_json::Value], key: &str, scale: f64) -> Vec<f64> {
+    records
+        .iter()
+        .map(|r| r[key].as_f64().map_or(f64::NAN, |v| v * scale))
+        .collect()
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Writes `out/stats.png` and, with `frames`, `out/contact_sheet.png` (12 frames
+/// spread over the flight). Returns a short summary for people.
+pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::Result<String> {
+    let records = read_stats(stats)?;
+    anyhow::ensure!(!records.is_empty(), "{}: no frames", stats.display());
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let series = [
+        Series::new("triangles", "", column(&records, "triangles", 1.0)),
+        Series::new("draw calls", "", column(&records, "draw_calls", 1.0)),
+        Series::new(
+            "resident tiles (CPU)",
+            "",
+            column(&records, "resident", 1.0),
+        ),
+        Series::new(
+            "bytes fetched",
+            "MB",
+            column(&records, "bytes_fetched", 1e-6),
+        ),
+        Series::new(
+            "deficit (max rho / tau)",
+            "",
+            column(&records, "deficit", 1.0),
+        ),
+        Series::new("selection + upload", "ms", {
+            let sel = column(&records, "select_us", 1e-3);
+            let up = column(&records, "upload_ms", 1.0);
+            sel.iter()
+                .zip(&up)
+                .map(|(a, b)| a + if b.is_finite() { *b } else { 0.0 })
+                .collect()
+        }),
+    ];
+    let (rgba, w, h) = plot_panels(&series, "frame", 1200, 180);
+    write_png(&out.join("stats.png"), &rgba, w, h)?;
+    if let Some(dir) = frames {
+        let mut names: Vec<_> = std::fs::read_dir(dir)
+            .with_context(|| format!("{}: cannot list frames", dir.display()))?
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e == "png"))
+            .collect();
+        names.sort();
+        anyhow::ensure!(!names.is_empty(), "{}: no frame PNGs", dir.display());
+        let picked = pick_evenly_indices(names.len(), 12);
+        let mut thumbs = Vec::new();
+        let mut labels = Vec::new();
+        for &i in &picked {
+            thumbs.push(read_png(&names[i])?);
+            labels.push(format!(
+                "#{}",
+                names[i]
+                    .file_stem()
+                    .and_then(|s| s.to_str())
+                    .and_then(|s| s.rsplit('_').next())
+                    .and_then(|n| n.parse::<u32>().ok())
+                    .unwrap_or(i as u32)
+            ));
+        }
+        let (rgba, w, h) = contact_sheet_labelled(&thumbs, &labels, 4, 320);
+        write_png(&out.join("contact_sheet.png"), &rgba, w, h)?;
+    }
+    let n = records.len();
+    let within = |limit: f64| {
+        100.0
+            * records
+                .iter()
+                .filter(|r| {
+                    r["deficit"].as_f64().is_some_and(|d| d <= limit)
+                        && r["tiles"].as_u64().unwrap_or(0) > 0
+                })
+                .count() as f64
+            / n as f64
+    };
+    let last = &records[n - 1];
+    let max_draws = column(&records, "draw_calls", 1.0)
+        .into_iter()
+        .filter(|v| v.is_finite())
+        .fold(0f64, f64::max);
+    Ok(format!(
+        "{n} frames: median {:.0} triangles, at most {max_draws:.0} terrain draw calls; {:.1}% of frames within τ, {:.1}% within 2τ; \
+         {:.1} MB in {} requests; median selection {:.2} ms, upload {:.2} ms, render {:.1} ms",
+        median(&column(&records, "triangles", 1.0)),
+        within(1.0),
+        within(2.0),
+        last["bytes_fetched"].as_f64().unwrap_or(0.0) / 1e6,
+        last["requests"].as_u64().unwrap_or(0),
+        median(&column(&records, "select_us", 1e-3)),
+        median(&column(&records, "upload_ms", 1.0)),
+        median(&column(&records, "render_ms", 1.0)),
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_plots_and_a_sheet_and_rejects_bad_stats() {
+        let dir = tempfile::tempdir().unwrap();
+        let stats = dir.path().join("stats.jsonl");
+        let lines: Vec<String> = (0..30)
+            .map(|f| {
+                format!(
+                    r#"{{"frame":{f},"tiles":3,"triangles":{},"draw_calls":4,"resident":{f},"bytes_fetched":{},"requests":2,"deficit":{},"select_us":300,"upload_ms":1.5,"render_ms":40}}"#,
+                    1000 + f * 10,
+                    f * 100_000,
+                    if f < 10 { 3.0 } else { 0.9 }
+                )
+            })
+            .collect();
+        std::fs::write(&stats, lines.join("\n")).unwrap();
+        let frames = dir.path().join("frames");
+        std::fs::create_dir(&frames).unwrap();
+        for f in 0..30 {
+            let img = vec![(f * 8) as u8; 64 * 36 * 4];
+            write_png(&frames.join(format!("frame_{f:05}.png")), &img, 64, 36).unwrap();
+        }
+        let out = dir.path().join("out");
+        let summary = write_report(&stats, Some(&frames), &out).unwrap();
+        assert!(
+            summary.starts_with("30 frames: median 1150 triangles"),
+            "{summary}"
+        );
+        assert!(summary.contains("66.7% of frames within τ"), "{summary}");
+        assert!(read_png(&out.join("stats.png")).is_ok());
+        let (_, w, _) = read_png(&out.join("contact_sheet.png")).unwrap();
+        assert!(w > 4 * 320);
+        std::fs::write(&stats, "{\"frame\":0}\nnot json\n").unwrap();
+        let e = write_report(&stats, None, &out).unwrap_err();
+        assert!(format!("{e:#}").contains("line 2 is not JSON"), "{e:#}");
+    }
+}
