@@ -89,7 +89,11 @@ pub struct RenderSummary {
     pub median_select_ms: f64,
     pub median_upload_ms: f64,
     pub median_render_ms: f64,
-    /// With `--quality`.
+    /// With `--quality`, over the measured frames that draw what τ asks for
+    /// (deficit ≤ 1): while coarser tiles stand in, the image differs from the
+    /// reference by design, and a coarse silhouette is not a crack.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quality_frames: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub median_psnr: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -110,9 +114,10 @@ impl RenderSummary {
     fn from_records(gpu: String, recs: &[(FrameStats, RenderRecord)]) -> Self {
         let quality: Vec<&RenderRecord> = recs
             .iter()
+            .filter(|(s, r)| r.mse.is_some() && s.tiles > 0 && s.deficit <= 1.0)
             .map(|(_, r)| r)
-            .filter(|r| r.mse.is_some())
             .collect();
+        let measured = recs.iter().any(|(_, r)| r.mse.is_some());
         let mut tris: Vec<u64> = recs.iter().map(|(s, _)| s.triangles).collect();
         tris.sort_unstable();
         Self {
@@ -122,11 +127,10 @@ impl RenderSummary {
             median_select_ms: median(recs.iter().map(|(s, _)| s.select_us / 1e3).collect()),
             median_upload_ms: median(recs.iter().map(|(_, r)| r.upload_ms).collect()),
             median_render_ms: median(recs.iter().map(|(_, r)| r.render_ms).collect()),
-            median_psnr: (!quality.is_empty())
-                .then(|| median(quality.iter().filter_map(|r| r.psnr).collect())),
-            median_mse: (!quality.is_empty())
-                .then(|| median(quality.iter().filter_map(|r| r.mse).collect())),
-            total_crack_pixels: (!quality.is_empty())
+            quality_frames: measured.then_some(quality.len()),
+            median_psnr: measured.then(|| median(quality.iter().filter_map(|r| r.psnr).collect())),
+            median_mse: measured.then(|| median(quality.iter().filter_map(|r| r.mse).collect())),
+            total_crack_pixels: measured
                 .then(|| quality.iter().filter_map(|r| r.crack_pixels).sum()),
         }
     }
@@ -268,7 +272,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         stream_us.push(work.stream_us);
         let render = match &mut headless {
             Some(h) => {
-                if h.needs_reference() {
+                if h.needs_reference(frame) {
                     fetch_reference_tiles(
                         &world,
                         (min_height, max_height),

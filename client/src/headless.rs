@@ -23,6 +23,9 @@ pub struct RenderSetup {
     pub reference: bool,
     /// Draw both; compare them per frame; reference frames go to `out_dir/reference/`.
     pub quality: bool,
+    /// With `quality` or `reference`: only every Nth frame (the reference draws every
+    /// sample in view, which is slow on a CPU rasterizer).
+    pub quality_every: u32,
     /// Write every frame as a PNG (the demo and `--out` do; benchmarks may not).
     pub write_frames: bool,
     /// Per-frame budget for GPU uploads.
@@ -73,9 +76,10 @@ impl Headless {
         })
     }
 
-    /// Whether frames need every finest tile in view (fetched before the frame).
-    pub fn needs_reference(&self) -> bool {
-        self.setup.reference || self.setup.quality
+    /// Whether frame `frame` needs every finest tile in view (fetched before it).
+    pub fn needs_reference(&self, frame: u32) -> bool {
+        (self.setup.reference || self.setup.quality)
+            && frame.is_multiple_of(self.setup.quality_every.max(1))
     }
 
     /// What selection may draw: tiles that are decoded and uploaded.
@@ -127,6 +131,11 @@ impl Headless {
             ..RenderRecord::default()
         };
         let name = format!("frame_{frame:05}.png");
+        let measured = self.needs_reference(frame);
+        if self.setup.reference && !measured {
+            rec.gpu_tiles = self.renderer.slots.len();
+            return Ok(rec);
+        }
         if self.setup.reference {
             let (d, tris) = self.draw_reference(camera, pool)?;
             rec.draw_calls = d;
@@ -141,7 +150,7 @@ impl Headless {
         if self.setup.write_frames {
             write_frame(&self.setup.out_dir.join(&name), &image, w, h)?;
         }
-        if self.setup.quality {
+        if self.setup.quality && measured {
             let (_, tris) = self.draw_reference(camera, pool)?;
             let reference = self.renderer.read_rgba()?;
             if self.setup.write_frames {

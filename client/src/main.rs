@@ -102,6 +102,9 @@ enum Command {
         /// Also render the reference and record MSE, PSNR and crack pixels per frame.
         #[arg(long, requires = "out", conflicts_with = "reference")]
         quality: bool,
+        /// With --quality or --reference: only every Nth frame.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+        quality_every: u32,
         /// With --out: write stats but no frame PNGs.
         #[arg(long, requires = "out")]
         no_frames: bool,
@@ -350,6 +353,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             out,
             reference,
             quality,
+            quality_every,
             no_frames,
             view,
             parallax,
@@ -383,6 +387,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 out_dir: dir.clone(),
                 reference,
                 quality,
+                quality_every,
                 write_frames: !no_frames,
                 upload_budget: budget,
             });
