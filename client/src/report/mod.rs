@@ -42,8 +42,8 @@
 
 mod canvas;
 pub mod contact_sheet;
-pub mod font;
 pub mod flight;
+pub mod font;
 pub mod plot;
 
 pub use contact_sheet::{contact_sheet, contact_sheet_labelled, pick_evenly, pick_evenly_indices};
