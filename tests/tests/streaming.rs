@@ -1,18 +1,24 @@
-//! Streaming against a real server over real sockets (DESIGN §6 invariant 5): a
-//! flight never draws a hole once the root has arrived, recovers after the server is
-//! killed and restarted, and keeps drawing through a proxy that delays every response.
+//! Streaming against a real server over real sockets (DESIGN §6 invariants 5 and 6):
+//! a flight never draws a hole once the root has arrived, recovers after the server
+//! is killed and restarted, keeps drawing through a proxy that delays every response,
+//! and rejects tile frames that a proxy damages in transit (flipped bytes, streams cut
+//! short mid-frame) without crashing, without making them resident, and retrying
+//! them with backoff.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
+use std::collections::{HashMap, HashSet};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
-use std::time::Duration;
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
 use tessera_client::fly::{FlyOptions, FrameRecord, fly};
 use tessera_client::stream::StreamConfig;
 use tessera_server::build::{BuildOptions, build};
 use tessera_server::serve::config::Settings;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tessera_shared::wire::{self, FRAME_HEADER_LEN};
+use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt};
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 
 fn pyramid() -> &'static Path {
     static P: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
@@ -84,6 +90,7 @@ fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
         t_offset: 0.0,
         runtime: None,
         progress: None,
+        render: None,
     }
 }
 
@@ -170,51 +177,66 @@ fn recovers_after_the_server_is_killed_and_restarted() {
     assert_eq!(last.wanted, 0);
 }
 
-/// A TCP proxy that holds every response from upstream for `delay` before passing it on.
-async fn delaying_proxy(upstream: SocketAddr, delay: Duration) -> SocketAddr {
+/// A real TCP proxy in front of `upstream`, on a port of its own. Every accepted
+/// connection gets its own connection upstream; the client's bytes (requests) pass
+/// through unchanged, and `downstream` carries the upstream's bytes (responses) to
+/// the client however it likes. The connection closes when `downstream` returns.
+async fn proxy<F, Fut>(upstream: SocketAddr, downstream: F) -> SocketAddr
+where
+    F: Fn(OwnedReadHalf, OwnedWriteHalf) -> Fut + Send + Sync + 'static,
+    Fut: Future<Output = ()> + Send + 'static,
+{
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
+    let downstream = Arc::new(downstream);
     tokio::spawn(async move {
         loop {
             let Ok((client, _)) = listener.accept().await else {
                 return;
             };
+            let downstream = downstream.clone();
             tokio::spawn(async move {
                 let Ok(server) = tokio::net::TcpStream::connect(upstream).await else {
                     return;
                 };
-                let (mut cr, mut cw) = client.into_split();
-                let (mut sr, mut sw) = server.into_split();
+                let (mut cr, cw) = client.into_split();
+                let (sr, mut sw) = server.into_split();
                 let up = tokio::spawn(async move {
                     let _ = tokio::io::copy(&mut cr, &mut sw).await;
                 });
-                let mut buf = vec![0u8; 1 << 16];
-                let mut fresh = true;
-                loop {
-                    let n = match tokio::time::timeout(Duration::from_millis(20), sr.read(&mut buf))
-                        .await
-                    {
-                        Ok(Ok(0) | Err(_)) => break,
-                        Ok(Ok(n)) => n,
-                        // A pause in the stream: the next bytes start a new response.
-                        Err(_) => {
-                            fresh = true;
-                            continue;
-                        }
-                    };
-                    if fresh {
-                        tokio::time::sleep(delay).await;
-                        fresh = false;
-                    }
-                    if cw.write_all(&buf[..n]).await.is_err() {
-                        break;
-                    }
-                }
+                downstream(sr, cw).await;
                 up.abort();
             });
         }
     });
     addr
+}
+
+/// A TCP proxy that holds every response from upstream for `delay` before passing it on.
+async fn delaying_proxy(upstream: SocketAddr, delay: Duration) -> SocketAddr {
+    proxy(upstream, move |mut sr, mut cw| async move {
+        let mut buf = vec![0u8; 1 << 16];
+        let mut fresh = true;
+        loop {
+            let n = match tokio::time::timeout(Duration::from_millis(20), sr.read(&mut buf)).await {
+                Ok(Ok(0) | Err(_)) => break,
+                Ok(Ok(n)) => n,
+                // A pause in the stream: the next bytes start a new response.
+                Err(_) => {
+                    fresh = true;
+                    continue;
+                }
+            };
+            if fresh {
+                tokio::time::sleep(delay).await;
+                fresh = false;
+            }
+            if cw.write_all(&buf[..n]).await.is_err() {
+                break;
+            }
+        }
+    })
+    .await
 }
 
 #[test]
@@ -278,4 +300,334 @@ fn load_generator_batches_in_range_mode_only() {
         ranges.responses * 2 < ranges.tiles,
         "range mode batches: {ranges:?}"
     );
+}
+
+/// What the corrupting proxy does to a tile frame it picks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Damage {
+    /// Flip one byte in the middle of the record: the frame fails its checksum.
+    FlipByte,
+    /// End the body in the middle of the record, with a Content-Length that says so:
+    /// the HTTP response is complete and well formed, the tile stream is truncated.
+    CutShort,
+}
+
+/// A fault plan for the corrupting proxy, and what it did.
+struct Faults {
+    damage: Damage,
+    /// Damage a picked tile only the first time it passes (a transient fault), or
+    /// every time (a tile that always arrives damaged).
+    once: bool,
+    /// Which tiles `(level, Morton code)` to damage.
+    picks: fn(u8, u64) -> bool,
+    /// Tiles that have passed through (or been cut off) at least once.
+    seen: Mutex<HashSet<(u8, u64)>>,
+    /// How many times each tile was the first damaged frame of a response: the one the
+    /// client meets, rejects and must blame (the stream is broken after it).
+    first_damaged: Mutex<HashMap<(u8, u64), u32>>,
+}
+
+impl Faults {
+    fn new(damage: Damage, once: bool, picks: fn(u8, u64) -> bool) -> Arc<Self> {
+        Arc::new(Self {
+            damage,
+            once,
+            picks,
+            seen: Mutex::new(HashSet::new()),
+            first_damaged: Mutex::new(HashMap::new()),
+        })
+    }
+
+    fn first_damaged(&self) -> HashMap<(u8, u64), u32> {
+        self.first_damaged.lock().unwrap().clone()
+    }
+
+    /// Damages the tile frames it picks inside a tile-stream body (the wire format of
+    /// `tessera_shared::wire`: 32-byte headers, payload length at 0, kind at 4 with 0
+    /// for a tile, level at 5, Morton code at 8). Only payload bytes change, or the
+    /// body ends early; frame headers and HTTP framing stay intact.
+    fn apply(&self, body: &mut Vec<u8>) {
+        const TILE: u8 = 0;
+        let mut frames = Vec::new();
+        let mut at = 0;
+        while at + FRAME_HEADER_LEN <= body.len() {
+            let len = u32::from_le_bytes(body[at..at + 4].try_into().unwrap()) as usize;
+            let morton = u64::from_le_bytes(body[at + 8..at + 16].try_into().unwrap());
+            frames.push((at, len, body[at + 4], body[at + 5], morton));
+            at += FRAME_HEADER_LEN + len;
+        }
+        assert_eq!(at, body.len(), "the server sent a body of whole frames");
+        let mut seen = self.seen.lock().unwrap();
+        let mut first_damaged = self.first_damaged.lock().unwrap();
+        let mut any = false;
+        for (i, &(at, len, kind, level, morton)) in frames.iter().enumerate() {
+            if kind != TILE {
+                continue;
+            }
+            let first = seen.insert((level, morton));
+            let pick = (self.picks)(level, morton) && (first || !self.once);
+            if !pick {
+                continue;
+            }
+            if !any {
+                *first_damaged.entry((level, morton)).or_default() += 1;
+                any = true;
+            }
+            let middle = at + FRAME_HEADER_LEN + len / 2;
+            match self.damage {
+                Damage::FlipByte => body[middle] ^= 0x5a,
+                Damage::CutShort => {
+                    // The tiles cut off count as sent: a transient fault spares the retry.
+                    for &(_, _, kind, level, morton) in &frames[i + 1..] {
+                        if kind == TILE {
+                            seen.insert((level, morton));
+                        }
+                    }
+                    body.truncate(middle);
+                    return;
+                }
+            }
+        }
+    }
+}
+
+/// Carries HTTP/1.1 responses from upstream to the client one at a time, damaging
+/// tile streams as `faults` says. Status lines, headers and HTTP framing stay intact
+/// (damage there would test hyper, not the client): a body that was cut short goes
+/// out with a Content-Length that matches it.
+async fn relay_damaging(sr: OwnedReadHalf, mut cw: OwnedWriteHalf, faults: Arc<Faults>) {
+    let mut r = tokio::io::BufReader::new(sr);
+    loop {
+        let mut head = Vec::new();
+        while !head.ends_with(b"\r\n\r\n") {
+            match r.read_until(b'\n', &mut head).await {
+                Ok(0) | Err(_) => return,
+                Ok(_) => {}
+            }
+        }
+        let text = String::from_utf8_lossy(&head).into_owned();
+        let header = |name: &str| {
+            text.lines().find_map(|l| {
+                let (k, v) = l.split_once(':')?;
+                k.trim()
+                    .eq_ignore_ascii_case(name)
+                    .then(|| v.trim().to_string())
+            })
+        };
+        let Some(len) = header("content-length").and_then(|v| v.parse::<usize>().ok()) else {
+            // A body this proxy cannot delimit: pass everything on unchanged.
+            let _ = cw.write_all(&head).await;
+            let _ = tokio::io::copy(&mut r, &mut cw).await;
+            return;
+        };
+        let mut body = vec![0u8; len];
+        if r.read_exact(&mut body).await.is_err() {
+            return;
+        }
+        if header("content-type").as_deref() == Some(wire::CONTENT_TYPE) {
+            faults.apply(&mut body);
+            if body.len() != len {
+                head = text
+                    .split("\r\n")
+                    .map(|l| match l.split_once(':') {
+                        Some((k, _)) if k.trim().eq_ignore_ascii_case("content-length") => {
+                            format!("content-length: {}", body.len())
+                        }
+                        _ => l.to_string(),
+                    })
+                    .collect::<Vec<_>>()
+                    .join("\r\n")
+                    .into_bytes();
+            }
+        }
+        if cw.write_all(&head).await.is_err() || cw.write_all(&body).await.is_err() {
+            return;
+        }
+    }
+}
+
+/// A TCP proxy that damages tile frames in the responses it relays.
+async fn corrupting_proxy(upstream: SocketAddr, faults: Arc<Faults>) -> SocketAddr {
+    proxy(upstream, move |sr, cw| {
+        relay_damaging(sr, cw, faults.clone())
+    })
+    .await
+}
+
+/// DESIGN §6 invariant 6 in transit: damaged frames are rejected with an error that
+/// says why, counted, retried (a transient fault is not the server's corrupt record),
+/// and the flight goes on drawing what is resident, then recovers.
+fn assert_survived_transient(
+    frames: &[FrameRecord],
+    summary: &tessera_client::fly::FlySummary,
+    faults: &Faults,
+    why: &str,
+) {
+    assert!(
+        !faults.first_damaged().is_empty(),
+        "the proxy damaged nothing"
+    );
+    assert!(
+        summary.stream.failures > 0,
+        "damaged responses were not counted as failures: {:?}",
+        summary.stream
+    );
+    let error = summary.last_error.as_deref().unwrap_or_default();
+    assert!(
+        error.contains(why),
+        "the last error {error:?} does not say {why:?}"
+    );
+    assert_eq!(
+        summary.stream.corrupt, 0,
+        "damage in transit must not mark tiles corrupt for good"
+    );
+    assert_no_holes(frames);
+    let last = frames.last().unwrap();
+    assert!(
+        last.select.deficit <= 1.0,
+        "no recovery from transient damage: deficit {}",
+        last.select.deficit
+    );
+    assert_eq!(last.wanted, 0, "every tile arrived whole in the end");
+}
+
+#[test]
+fn flipped_bytes_in_tile_frames_are_rejected_and_retried() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    // Every tile's first copy arrives with a flipped byte.
+    let faults = Faults::new(Damage::FlipByte, true, |_, _| true);
+    let proxy = rt.block_on(corrupting_proxy(server, faults.clone()));
+    let dir = tempfile::tempdir().unwrap();
+    let (frames, summary) = run_flight(&options(proxy, glide(dir.path()), 180));
+    assert_survived_transient(&frames, &summary, &faults, "checksum");
+}
+
+#[test]
+fn streams_cut_short_mid_frame_are_rejected_and_retried() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    // The first response carrying each tile ends in the middle of that tile's record.
+    let faults = Faults::new(Damage::CutShort, true, |_, _| true);
+    let proxy = rt.block_on(corrupting_proxy(server, faults.clone()));
+    let dir = tempfile::tempdir().unwrap();
+    let (frames, summary) = run_flight(&options(proxy, glide(dir.path()), 180));
+    assert_survived_transient(&frames, &summary, &faults, "truncated");
+}
+
+/// Tiles that always arrive damaged: a few of levels 2 and 3, by Morton code.
+fn always_damaged(level: u8, morton: u64) -> bool {
+    (level == 2 && morton % 5 == 1) || (level == 3 && morton % 7 == 3)
+}
+
+/// A flight over tiles that always arrive damaged still draws every frame (their
+/// ancestors stand in, and the deficit says so) and retries them with backoff.
+#[test]
+fn flight_draws_ancestors_of_tiles_that_always_arrive_damaged() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let faults = Faults::new(Damage::FlipByte, false, always_damaged);
+    let proxy = rt.block_on(corrupting_proxy(server, faults.clone()));
+    let dir = tempfile::tempdir().unwrap();
+    let opts = options(proxy, glide(dir.path()), 150);
+    let started = Instant::now();
+    let (frames, summary) = run_flight(&opts);
+    let elapsed = started.elapsed();
+    assert_no_holes(&frames);
+    let damaged = faults.first_damaged();
+    assert!(!damaged.is_empty(), "the view never needed a damaged tile");
+    assert!(summary.stream.failures > 0);
+    assert_eq!(summary.stream.corrupt, 0);
+    let error = summary.last_error.as_deref().unwrap_or_default();
+    assert!(error.contains("checksum"), "last error {error:?}");
+    assert_backed_off(&damaged, elapsed, &opts.stream, 2);
+}
+
+/// A tile that keeps failing waits `retry_base · 2^k` (at most `retry_max`) after each
+/// failure blamed on it before it is asked for again, so in `elapsed` it can be the
+/// damaged frame a client meets at most `4 + elapsed / retry_max` times (`slack`
+/// times that where a flight may also cancel and reissue requests); without backoff
+/// it would be about once per frame. Slowness only lowers the count.
+fn assert_backed_off(
+    first_damaged: &HashMap<(u8, u64), u32>,
+    elapsed: Duration,
+    config: &StreamConfig,
+    slack: u32,
+) {
+    let bound = slack * (4 + (elapsed.as_secs_f64() / config.retry_max.as_secs_f64()) as u32);
+    for (&(level, morton), &n) in first_damaged {
+        assert!(
+            n <= bound,
+            "tile {morton} of level {level} was met damaged {n} times in {elapsed:?}: no backoff (at most {bound} expected)"
+        );
+    }
+}
+
+/// Through the streamer alone (the part of `fly` that accepts tiles), so that the
+/// pool can be inspected afterwards: a tile whose every copy is damaged never becomes
+/// resident, every resident tile equals the pyramid's own, bit for bit, and tiles
+/// sent in the same responses as a damaged one still arrive.
+#[test]
+fn damaged_tiles_never_become_resident() {
+    use tessera_client::select::Wanted;
+    use tessera_client::stream::Streamer;
+    use tessera_client::stream::pool::TilePool;
+    use tessera_shared::Pyramid;
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let faults = Faults::new(Damage::FlipByte, false, always_damaged);
+    let proxy = rt.block_on(corrupting_proxy(server, faults.clone()));
+    let file = Pyramid::open_file(pyramid()).unwrap();
+    let g = *file.geometry();
+    // The four coarsest levels (85 tiles), coarse first as selection would rank them.
+    let wanted: Vec<Wanted> = g
+        .levels()
+        .take(4)
+        .flat_map(|l| g.present_tiles(l))
+        .map(|tile| Wanted {
+            tile,
+            rho: 64.0 / f64::from(1u32 << tile.level().get()),
+        })
+        .collect();
+    assert!(
+        wanted
+            .iter()
+            .any(|w| always_damaged(w.tile.level().get(), w.tile.morton().get()))
+    );
+    let config = options(proxy, String::new(), 0).stream;
+    let mut streamer = Streamer::new(
+        &format!("http://{proxy}"),
+        "terrain",
+        g.tile_log2(),
+        config.clone(),
+    )
+    .unwrap();
+    let mut pool = TilePool::new(1024);
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_millis(1500) {
+        streamer.frame(&mut pool, &wanted, &[]);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let elapsed = started.elapsed();
+    for w in &wanted {
+        let t = w.tile;
+        let damaged = always_damaged(t.level().get(), t.morton().get());
+        match pool.get(t) {
+            Some(r) => {
+                assert!(!damaged, "{t} always arrives damaged, yet is resident");
+                let truth = file.read_tile(t).unwrap().unwrap();
+                assert!(
+                    r.heights == truth.heights,
+                    "{t}: resident heights differ from the pyramid's"
+                );
+                assert_eq!(r.errors, truth.errors, "{t}: resident error table differs");
+            }
+            None => assert!(damaged, "{t} arrives whole but never became resident"),
+        }
+    }
+    let s = streamer.stats;
+    assert!(s.failures > 0 && s.corrupt == 0, "{s:?}");
+    let error = streamer.last_error.clone().unwrap_or_default();
+    assert!(error.contains("checksum"), "last error {error:?}");
+    assert_backed_off(&faults.first_damaged(), elapsed, &config, 1);
 }

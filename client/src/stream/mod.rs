@@ -12,7 +12,11 @@
 //!
 //! Failed requests are retried with exponential backoff per tile; a server that is
 //! slow, failing or restarting only delays refinement, while the pool keeps drawing
-//! what it has.
+//! what it has. When a range stream breaks on one tile (a frame that fails its
+//! checksum or does not decode, or a stream cut short, which breaks on the first tile
+//! still missing), only that tile backs off: the tiles that were to follow it are
+//! asked for again after the base delay, without it, so that a tile that always
+//! arrives damaged cannot hold back the others batched with it.
 
 pub mod pool;
 
@@ -21,7 +25,7 @@ use pool::TilePool;
 use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
-use tessera_shared::wire::{Frame, FrameDecoder};
+use tessera_shared::wire::{Frame, FrameDecoder, WireError};
 use tessera_shared::{ErrorTable, Level, Morton, TileId, codec, morton};
 
 /// How tiles are requested.
@@ -103,8 +107,23 @@ enum Event {
     Failed {
         id: u64,
         error: String,
+        blame: Blame,
     },
 }
+
+/// What a failed request's failure is to be blamed on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Blame {
+    /// The request as a whole (no connection, an HTTP error, a broken stream).
+    Request,
+    /// One tile: its frame failed its checksum or its record did not decode.
+    Tile(TileId),
+    /// The stream ended early: on the first tile of the request still missing.
+    Truncated,
+}
+
+/// A failed request: what to report, and whom to blame.
+type Failure = (String, Blame);
 
 struct Flight {
     tiles: HashSet<TileId>,
@@ -244,6 +263,9 @@ impl Streamer {
                 Event::Corrupt { tile } => {
                     self.stats.corrupt += 1;
                     self.corrupt.insert(tile);
+                    for f in self.flights.values_mut() {
+                        f.tiles.remove(&tile);
+                    }
                 }
                 Event::Finished {
                     id,
@@ -260,12 +282,22 @@ impl Streamer {
                         }
                     }
                 }
-                Event::Failed { id, error } => {
+                Event::Failed { id, error, blame } => {
                     self.stats.failures += 1;
                     self.last_error = Some(error);
                     if let Some(f) = self.flights.remove(&id) {
+                        let culprit = match blame {
+                            Blame::Request => None,
+                            Blame::Tile(t) => Some(t),
+                            // Frames come in Morton order (one level per request).
+                            Blame::Truncated => f.tiles.iter().min_by_key(|t| t.morton()).copied(),
+                        }
+                        .filter(|c| f.tiles.contains(c));
                         for t in f.tiles {
-                            self.back_off(t);
+                            match culprit {
+                                Some(c) if c != t => self.retry_soon(t),
+                                _ => self.back_off(t),
+                            }
                         }
                     }
                 }
@@ -294,6 +326,16 @@ impl Streamer {
         work.in_flight = self.flights.len();
         work.stream_us = started.elapsed().as_secs_f64() * 1e6;
         work
+    }
+
+    /// A bystander of a request that failed on another tile: asked for again after
+    /// the base delay, without raising its own backoff.
+    fn retry_soon(&mut self, tile: TileId) {
+        let at = Instant::now() + self.config.retry_base;
+        self.backoff
+            .entry(tile)
+            .and_modify(|e| e.1 = at)
+            .or_insert((0, at));
     }
 
     fn back_off(&mut self, tile: TileId) {
@@ -395,21 +437,26 @@ async fn fetch(
 ) {
     let sent = Instant::now();
     let mut decodes = Vec::new();
+    let whole = |e: &dyn std::fmt::Display| (format!("{url}: {e}"), Blame::Request);
     let result = async {
-        let mut resp = client
-            .get(&url)
-            .send()
-            .await
-            .map_err(|e| format!("{url}: {e}"))?;
+        let mut resp = client.get(&url).send().await.map_err(|e| whole(&e))?;
         if !resp.status().is_success() {
-            return Err(format!("{url}: HTTP {}", resp.status()));
+            return Err(whole(&format!("HTTP {}", resp.status())));
         }
         let mut dec = FrameDecoder::new();
         let mut bytes = 0u64;
-        while let Some(chunk) = resp.chunk().await.map_err(|e| format!("{url}: {e}"))? {
+        while let Some(chunk) = resp.chunk().await.map_err(|e| whole(&e))? {
             bytes += chunk.len() as u64;
             dec.push(&chunk);
-            while let Some(frame) = dec.next_frame().map_err(|e| format!("{url}: {e}"))? {
+            while let Some(frame) = dec.next_frame().map_err(|e| {
+                let blame = match e {
+                    WireError::Checksum { level, morton, .. } => Level::new(level)
+                        .and_then(|l| TileId::from_morton(l, Morton::from_raw(morton)))
+                        .map_or(Blame::Request, Blame::Tile),
+                    _ => Blame::Request,
+                };
+                (format!("{url}: {e}"), blame)
+            })? {
                 match frame {
                     Frame::Tile {
                         level,
@@ -418,7 +465,7 @@ async fn fetch(
                         ..
                     } => {
                         let tile = TileId::from_morton(level, morton)
-                            .ok_or_else(|| format!("{url}: tile outside its level"))?;
+                            .ok_or_else(|| whole(&"tile outside its level"))?;
                         // Decoding is CPU work: keep it off the I/O threads, and run
                         // no more decodes at once than there are cores, so that many
                         // clients in one process cannot starve the I/O threads. The
@@ -428,19 +475,19 @@ async fn fetch(
                             let _slot = decode_slots()
                                 .acquire_owned()
                                 .await
-                                .map_err(|e| e.to_string())?;
+                                .map_err(|e| (e.to_string(), Blame::Request))?;
                             tokio::task::spawn_blocking(move || {
                                 let rec = codec::decode_record(&record, tile_log2)
-                                    .map_err(|e| format!("{tile}: {e}"))?;
+                                    .map_err(|e| (format!("{tile}: {e}"), Blame::Tile(tile)))?;
                                 let _ = tx.send(Event::Tile(Box::new(Decoded {
                                     tile,
                                     errors: rec.errors,
                                     heights: rec.heights,
                                 })));
-                                Ok::<(), String>(())
+                                Ok::<(), Failure>(())
                             })
                             .await
-                            .map_err(|e| e.to_string())?
+                            .map_err(|e| (e.to_string(), Blame::Tile(tile)))?
                         }));
                     }
                     Frame::Error { level, morton, .. } => {
@@ -452,7 +499,8 @@ async fn fetch(
                 }
             }
         }
-        dec.finish().map_err(|e| format!("{url}: {e}"))?;
+        dec.finish()
+            .map_err(|e| (format!("{url}: {e}"), Blame::Truncated))?;
         Ok(bytes)
     }
     .await;
@@ -460,27 +508,36 @@ async fn fetch(
     let latency = sent.elapsed();
     let mut result = result;
     for d in decodes {
-        match d.await {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => result = Err(format!("{url}: {e}")),
-            Err(e) => result = Err(format!("{url}: decoding task failed: {e}")),
+        let failed = match d.await {
+            Ok(Ok(())) => continue,
+            Ok(Err((e, blame))) => (format!("{url}: {e}"), blame),
+            Err(e) => (format!("{url}: decoding task failed: {e}"), Blame::Request),
+        };
+        // The first failure is the one reported and blamed.
+        if result.is_ok() {
+            result = Err(failed);
         }
     }
     finish_after(&tx, id, latency, result);
 }
 
-fn finish(tx: &mpsc::Sender<Event>, id: u64, sent: Instant, result: Result<u64, String>) {
+fn finish(tx: &mpsc::Sender<Event>, id: u64, sent: Instant, result: Result<u64, Failure>) {
     finish_after(tx, id, sent.elapsed(), result);
 }
 
-fn finish_after(tx: &mpsc::Sender<Event>, id: u64, latency: Duration, result: Result<u64, String>) {
+fn finish_after(
+    tx: &mpsc::Sender<Event>,
+    id: u64,
+    latency: Duration,
+    result: Result<u64, Failure>,
+) {
     let _ = tx.send(match result {
         Ok(bytes) => Event::Finished {
             id,
             bytes,
             latency_ms: latency.as_secs_f64() * 1e3,
         },
-        Err(error) => Event::Failed { id, error },
+        Err((error, blame)) => Event::Failed { id, error, blame },
     });
 }
 
@@ -495,28 +552,29 @@ async fn fetch_one(
     tx: mpsc::Sender<Event>,
 ) {
     let sent = Instant::now();
+    let whole = |e: &dyn std::fmt::Display| (format!("{url}: {e}"), Blame::Request);
     let result = async {
-        let resp = client
-            .get(&url)
-            .send()
-            .await
-            .map_err(|e| format!("{url}: {e}"))?;
+        let resp = client.get(&url).send().await.map_err(|e| whole(&e))?;
         if resp.status() == reqwest::StatusCode::INTERNAL_SERVER_ERROR {
             let _ = tx.send(Event::Corrupt { tile });
             return Ok(0);
         }
         if !resp.status().is_success() {
-            return Err(format!("{url}: HTTP {}", resp.status()));
+            return Err(whole(&format!("HTTP {}", resp.status())));
         }
         let want = resp
             .headers()
             .get("x-tessera-checksum")
             .and_then(|v| u64::from_str_radix(v.to_str().ok()?, 16).ok());
-        let body = resp.bytes().await.map_err(|e| format!("{url}: {e}"))?;
+        let body = resp.bytes().await.map_err(|e| whole(&e))?;
         if want != Some(tessera_shared::format::checksum(&body)) {
-            return Err(format!("{url}: record fails its checksum"));
+            return Err((
+                format!("{url}: record fails its checksum"),
+                Blame::Tile(tile),
+            ));
         }
-        let rec = codec::decode_record(&body, tile_log2).map_err(|e| format!("{url}: {e}"))?;
+        let rec = codec::decode_record(&body, tile_log2)
+            .map_err(|e| (format!("{url}: {e}"), Blame::Tile(tile)))?;
         let _ = tx.send(Event::Tile(Box::new(Decoded {
             tile,
             errors: rec.errors,
