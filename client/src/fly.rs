@@ -149,8 +149,8 @@ pub fn spacing_from(georef: Option<&GeoRef>, height: u32, fallback: f64) -> f64 
     }
 }
 
-/// Reads `/v1/datasets/{name}` into a [`World`].
-fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64, f64)> {
+/// Reads `/v1/datasets/{name}` into a [`World`] and the height range.
+pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64, f64)> {
     let url = format!(
         "{}/v1/datasets/{}",
         opts.server.trim_end_matches('/'),

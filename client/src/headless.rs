@@ -100,30 +100,8 @@ impl Headless {
     ) -> anyhow::Result<RenderRecord> {
         let r = &mut self.renderer;
         r.slots.touch(&sel.tiles);
-        // Uploads under the budget (at least one, so a slow frame still makes
-        // progress): coarse levels first so ancestors arrive before descendants,
-        // then the most wanted.
         let started = Instant::now();
-        let mut todo: Vec<&Wanted> = sel
-            .wanted
-            .iter()
-            .filter(|w| pool.contains(w.tile) && r.slots.get(w.tile).is_none())
-            .collect();
-        todo.sort_by(|a, b| {
-            a.tile
-                .level()
-                .cmp(&b.tile.level())
-                .then(b.rho.total_cmp(&a.rho))
-        });
-        let mut uploads = 0;
-        for w in todo {
-            if uploads > 0 && started.elapsed() >= self.setup.upload_budget {
-                break;
-            }
-            if r.upload(pool, w.tile) {
-                uploads += 1;
-            }
-        }
+        let uploads = r.upload_wanted(pool, &sel.wanted, self.setup.upload_budget);
         let upload_ms = started.elapsed().as_secs_f64() * 1e3;
         let mut rec = RenderRecord {
             uploads,

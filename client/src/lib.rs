@@ -8,7 +8,8 @@
 //! - [`stream`]: fetching, decoding and the CPU tile pool;
 //! - [`render`]: the wgpu renderer (emulated tessellation, ≤ 7 terrain draws);
 //! - [`fly`], [`headless`], [`load`]: flights, headless rendering, load tests;
-//! - [`report`]: contact sheets and plots of a flight.
+//! - [`report`]: contact sheets and plots of a flight;
+//! - [`window`]: the interactive winit client.
 
 pub mod camera;
 pub mod fly;
@@ -20,3 +21,4 @@ pub mod report;
 pub mod select;
 pub mod stream;
 pub mod tessellate;
+pub mod window;

@@ -90,7 +90,9 @@ enum Command {
         /// Viewport height (overrides --viewport).
         #[arg(long)]
         height: Option<u32>,
-        /// Selection and streaming only: no GPU, no window, no images.
+        /// Selection and streaming only: no GPU, no window, no images. Without
+        /// this or --out, a window opens (mouse drag looks, WASD/QE move, Shift
+        /// faster, +/- τ, 1–4 debug views, P parallax, Esc quits).
         #[arg(long, conflicts_with = "out")]
         no_render: bool,
         /// Render headless into DIR: frame_NNNNN.png and stats.jsonl.
@@ -370,10 +372,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 width > 0 && height > 0,
                 "--width and --height must be positive"
             );
-            anyhow::ensure!(
-                no_render || out.is_some(),
-                "the windowed client is not built yet: pass --out DIR to render headless, or --no-render"
-            );
             let budget = std::time::Duration::from_secs_f64(budget_ms / 1e3);
             let render = out.as_ref().map(|dir| RenderSetup {
                 opts: RenderOptions {
@@ -418,6 +416,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 progress: None,
                 render,
             };
+            if !no_render && out.is_none() {
+                // Neither headless nor --no-render: the windowed client.
+                let render = RenderOptions {
+                    width,
+                    height,
+                    slots: gpu_tiles,
+                    view,
+                    parallax,
+                    backend,
+                };
+                return tessera_client::window::run(&opts, render);
+            }
             if let Some(dir) = &out {
                 std::fs::create_dir_all(dir)
                     .with_context(|| format!("{}: cannot create", dir.display()))?;

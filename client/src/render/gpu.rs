@@ -59,6 +59,12 @@ impl Gpu {
                  `apt-get install --no-install-recommends mesa-vulkan-drivers libegl1 libegl-mesa0 libgl1-mesa-dri`"
             )
         })?;
+        Self::from_adapter(&adapter)
+    }
+
+    /// Opens the device on a chosen adapter (the windowed client picks one that
+    /// can present to its window).
+    pub fn from_adapter(adapter: &wgpu::Adapter) -> anyhow::Result<Self> {
         let features = wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
         anyhow::ensure!(
             adapter.features().contains(features),

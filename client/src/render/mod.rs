@@ -18,12 +18,13 @@ pub mod gpu;
 pub mod instances;
 pub mod normals;
 pub mod png_out;
+pub mod present;
 pub mod quality;
 pub mod reference;
 pub mod slots;
 
 use crate::camera::Camera;
-use crate::select::{Patch, World};
+use crate::select::{Patch, Wanted, World};
 use crate::stream::pool::TilePool;
 use crate::tessellate::Vertex;
 use anyhow::Context;
@@ -31,7 +32,7 @@ use glam::DVec3;
 use gpu::{Backend, Gpu};
 use instances::{Batches, Instance};
 use slots::SlotTable;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 use tessera_shared::TileId;
 use wgpu::util::DeviceExt;
 
@@ -161,7 +162,22 @@ impl Renderer {
             opts.width,
             opts.height
         );
-        let gpu = Gpu::new(opts.backend)?;
+        Self::with_gpu(Gpu::new(opts.backend)?, world, height_range, opts)
+    }
+
+    /// A renderer on an already opened device.
+    pub fn with_gpu(
+        gpu: Gpu,
+        world: World,
+        height_range: (f64, f64),
+        opts: RenderOptions,
+    ) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            opts.width > 0 && opts.height > 0,
+            "viewport {}x{} is empty",
+            opts.width,
+            opts.height
+        );
         let dim = gpu.limits.max_texture_dimension_2d;
         anyhow::ensure!(
             opts.width <= dim && opts.height <= dim,
@@ -419,6 +435,34 @@ impl Renderer {
         write(&self.heights, bytemuck::cast_slice(&resident.heights), 2);
         write(&self.normals, bytemuck::cast_slice(&normal_map), 2);
         true
+    }
+
+    /// Uploads the wanted tiles that are decoded but not on the GPU, within
+    /// `budget` (at least one, so a slow frame still makes progress): coarse levels
+    /// first so ancestors arrive before descendants, then the most wanted.
+    /// Returns how many were uploaded.
+    pub fn upload_wanted(&mut self, pool: &TilePool, wanted: &[Wanted], budget: Duration) -> u32 {
+        let started = Instant::now();
+        let mut todo: Vec<&Wanted> = wanted
+            .iter()
+            .filter(|w| pool.contains(w.tile) && self.slots.get(w.tile).is_none())
+            .collect();
+        todo.sort_by(|a, b| {
+            a.tile
+                .level()
+                .cmp(&b.tile.level())
+                .then(b.rho.total_cmp(&a.rho))
+        });
+        let mut uploads = 0;
+        for w in todo {
+            if uploads > 0 && started.elapsed() >= budget {
+                break;
+            }
+            if self.upload(pool, w.tile) {
+                uploads += 1;
+            }
+        }
+        uploads
     }
 
     fn write_globals(&self, camera: &Camera) {
@@ -730,6 +774,21 @@ impl Renderer {
         self.opts.width
     }
 
+    /// The offscreen frame (RGBA8), for presenting to a window.
+    pub fn colour(&self) -> &wgpu::Texture {
+        &self.colour
+    }
+
+    /// Resizes the offscreen targets (a window was resized).
+    pub fn resize(&mut self, width: u32, height: u32) {
+        if width == 0 || height == 0 || (width, height) == (self.opts.width, self.opts.height) {
+            return;
+        }
+        self.opts.width = width;
+        self.opts.height = height;
+        (self.colour, self.depth) = targets(&self.gpu.device, width, height);
+    }
+
     pub fn height(&self) -> u32 {
         self.opts.height
     }
@@ -756,7 +815,9 @@ fn targets(device: &wgpu::Device, width: u32, height: u32) -> (wgpu::Texture, wg
         make(
             "colour",
             COLOUR_FORMAT,
-            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
         ),
         make(
             "depth",
