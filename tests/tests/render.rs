@@ -160,9 +160,31 @@ fn render_frames(r: &mut Renderer, m: &Moon, cams: &[Camera], unsnapped: bool) -
 }
 
 #[test]
-fn frames_have_no_cracks_across_lods_tiles_and_levels() {
+fn frames_have_no_cracks_across_lods_tiles_and_levels_vulkan() {
+    check_cracks(Backend::Vulkan);
+}
+
+#[test]
+fn frames_have_no_cracks_across_lods_tiles_and_levels_gl() {
+    check_cracks(Backend::Gl);
+}
+
+#[test]
+fn an_impossible_viewport_is_an_error_not_a_panic() {
     let Some(m) = moon() else { return };
-    let mut r = renderer(m, Backend::Vulkan);
+    let opts = RenderOptions {
+        width: 1 << 20,
+        height: 16,
+        backend: Backend::Vulkan,
+        ..RenderOptions::default()
+    };
+    let e = Renderer::new(m.world, (0.0, 1.0), opts).unwrap_err();
+    assert!(format!("{e:#}").contains("exceeds this GPU's"), "{e:#}");
+}
+
+fn check_cracks(backend: Backend) {
+    let Some(m) = moon() else { return };
+    let mut r = renderer(m, backend);
     let cams = cameras(m, 10);
     // The cameras straddle what the test is about: snapped edges, several levels.
     let mut sel = Selector::new(m.world, SelectParams::default());
