@@ -21,6 +21,8 @@ pub struct FlyOptions {
     pub frames: u32,
     pub fps: f64,
     pub tau: f64,
+    /// Screen-space error (the default) or distance only.
+    pub policy: crate::select::Policy,
     pub width: u32,
     pub height: u32,
     /// Metres between samples; default from the georeferencing, else 100.
@@ -212,6 +214,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let path = FlyPath::load(&opts.path, size.max_element())?;
     let params = SelectParams {
         tau: opts.tau,
+        policy: opts.policy,
         ..SelectParams::default()
     };
     let mut selector = Selector::new(world, params);

@@ -79,6 +79,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 frames,
                 fps: opts.fps,
                 tau: opts.tau,
+                policy: crate::select::Policy::ScreenError,
                 width: opts.width,
                 height: opts.height,
                 spacing: opts.spacing,

@@ -12,7 +12,7 @@ use tessera_client::fly::{self, FlyOptions};
 use tessera_client::headless::RenderSetup;
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
-use tessera_client::select::{SelectParams, Selector, World};
+use tessera_client::select::{Policy, SelectParams, Selector, World};
 use tessera_client::stream::StreamConfig;
 use tessera_shared::Pyramid;
 
@@ -116,6 +116,11 @@ enum Command {
         /// Parallax mapping in the fragment shader (González §2.2–2.4).
         #[arg(long, value_enum, default_value_t = Parallax::None)]
         parallax: Parallax,
+        /// How detail is chosen: screen-space error from the error tables, or
+        /// distance only (the brute-force baseline; τ then bounds a cell's size on
+        /// screen).
+        #[arg(long, value_enum, default_value_t = Policy::ScreenError)]
+        policy: Policy,
         /// Graphics API (WGPU_BACKEND=vulkan|gl also works).
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
@@ -359,6 +364,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             no_frames,
             view,
             parallax,
+            policy,
             backend,
             gpu_tiles,
             no_prefetch,
@@ -402,6 +408,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 frames,
                 fps,
                 tau,
+                policy,
                 width,
                 height,
                 spacing,

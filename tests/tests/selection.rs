@@ -10,7 +10,9 @@ use glam::DVec3;
 use std::collections::{BTreeSet, HashMap};
 use std::sync::OnceLock;
 use tessera_client::camera::Camera;
-use tessera_client::select::{EAST, NORTH, Patch, SOUTH, SelectParams, Selector, WEST, World};
+use tessera_client::select::{
+    EAST, NORTH, Patch, Policy, SOUTH, SelectParams, Selector, WEST, World,
+};
 use tessera_client::tessellate::{Vertex, side_vertices};
 use tessera_e2e::{Moon, Rng};
 use tessera_shared::TileId;
@@ -236,6 +238,7 @@ fn lowering_tau_never_reduces_triangles_within_a_tile() {
                 camera.position,
                 camera.lambda(),
                 f.world.max_depth(),
+                Policy::ScreenError,
             );
             let tris = |tau: f64| {
                 let params = SelectParams {

@@ -76,6 +76,7 @@ fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
         frames,
         fps: 60.0,
         tau: 2.0,
+        policy: tessera_client::select::Policy::ScreenError,
         width: 960,
         height: 540,
         spacing: Some(30.0),

@@ -5,7 +5,7 @@
 //! every 8×8 block, max-pooled up the tile's quadtree, so choosing a node's inner
 //! LOD is a handful of lookups. Level `m`'s value bounds every level `≥ m` too.
 
-use super::World;
+use super::{Policy, World};
 use crate::camera::distance_to_box;
 use glam::DVec3;
 use tessera_shared::tile::BLOCKS;
@@ -59,6 +59,7 @@ impl TileRho {
         eye: DVec3,
         lambda: f64,
         max_depth: u32,
+        policy: Policy,
     ) -> Self {
         let t = table.tile_log2();
         let block_depth = BLOCKS.trailing_zeros().min(max_depth);
@@ -97,8 +98,16 @@ impl TileRho {
         // level m is judged by the largest error of m and every finer level.
         let mut suffix = [0f64; 64];
         for m in (0..=t).rev() {
-            for (s, e) in suffix.iter_mut().zip(table.level_errors(m)) {
-                *s = s.max(f64::from(*e));
+            match policy {
+                Policy::ScreenError => {
+                    for (s, e) in suffix.iter_mut().zip(table.level_errors(m)) {
+                        *s = s.max(f64::from(*e));
+                    }
+                }
+                // The brute-force policy Kang compares against (González Fig. 2):
+                // detail from distance alone, as if every cell were off by its own
+                // size, whatever the terrain does.
+                Policy::Distance => suffix = [span / f64::from(1u32 << m); 64],
             }
             let base = m as usize * nodes;
             // Blocks at depth `fine`, then pool up to the root.
@@ -155,5 +164,54 @@ impl TileRho {
             (k, i, j)
         };
         self.rho[m as usize * self.nodes + node_index(k, i, j)]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::{Level, Quantization, TileGeometry};
+
+    #[test]
+    fn the_distance_policy_ignores_roughness_and_the_error_policy_does_not() {
+        let world = World {
+            geometry: TileGeometry::new(513, 513, 512).unwrap(),
+            quant: Quantization {
+                offset: 0.0,
+                scale: 1.0,
+                max_error: 0.0,
+            },
+            spacing: 10.0,
+        };
+        let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
+        let table = |err: f32| {
+            let mut t = ErrorTable::empty(9);
+            for n in 0..=9 {
+                for b in 0..64 {
+                    t.set_error(n, b % 8, b / 8, if n == 9 { 0.0 } else { err });
+                    t.set_block_range(b % 8, b / 8, 100, 200);
+                }
+            }
+            t
+        };
+        let (flat, rough) = (table(0.1), table(50.0));
+        let eye = DVec3::new(2560.0, 3000.0, 2560.0);
+        let rho = |t: &ErrorTable, p| TileRho::new(&world, tile, t, eye, 1000.0, 3, p);
+        let (fe, re) = (
+            rho(&flat, Policy::ScreenError),
+            rho(&rough, Policy::ScreenError),
+        );
+        let (fd, rd) = (rho(&flat, Policy::Distance), rho(&rough, Policy::Distance));
+        for m in 0..9 {
+            assert!(re.rho(m, 0, 0, 0) > 100.0 * fe.rho(m, 0, 0, 0));
+            // Distance: only the boxes differ (the rough one widened 50 m towards
+            // the eye, ~2.8 km away), so ρ differs by a couple of percent at most.
+            let ratio = rd.rho(m, 0, 0, 0) / fd.rho(m, 0, 0, 0);
+            assert!((1.0..1.03).contains(&ratio), "level {m}: {ratio}");
+            // A cell of 2^(9−m) samples of 10 m, seen from ~2.7 km by λ = 1000.
+            assert!(fd.rho(m, 0, 0, 0) >= 5120.0 / f64::from(1u32 << m) * 1000.0 / 3100.0);
+            // Finer levels always have smaller cells.
+            assert!(fd.rho(m + 1, 0, 0, 0) < fd.rho(m, 0, 0, 0));
+        }
     }
 }

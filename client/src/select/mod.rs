@@ -61,6 +61,19 @@ impl TileTables for HashMap<TileId, ErrorTable> {
     }
 }
 
+/// How detail is chosen.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Policy {
+    /// Screen-space error from the error tables: `ρ = ε·λ/d ≤ τ` (DESIGN §5).
+    #[default]
+    ScreenError,
+    /// Distance only (the brute-force policy Kang compares against): a cell's own
+    /// size stands in for its error, so `τ` bounds the on-screen size of a cell
+    /// whatever the terrain's roughness.
+    Distance,
+}
+
 /// Selection settings.
 #[derive(Clone, Copy, Debug)]
 pub struct SelectParams {
@@ -69,6 +82,7 @@ pub struct SelectParams {
     /// Hysteresis: a finer choice is only given up once the coarser one is below
     /// `τ·(1 − hysteresis)`.
     pub hysteresis: f64,
+    pub policy: Policy,
 }
 
 impl Default for SelectParams {
@@ -76,6 +90,7 @@ impl Default for SelectParams {
         Self {
             tau: 1.0,
             hysteresis: 0.15,
+            policy: Policy::ScreenError,
         }
     }
 }
@@ -185,6 +200,7 @@ impl Selector {
                     eye,
                     lambda,
                     self.world.max_depth(),
+                    self.params.policy,
                 )
             });
             let prev = self.quadtrees.remove(&tile);

@@ -97,7 +97,15 @@ pub fn choose(
         if !frustum.intersects_box(min, max) {
             continue;
         }
-        let rho = TileRho::new(world, tile, table, eye, lambda, world.max_depth());
+        let rho = TileRho::new(
+            world,
+            tile,
+            table,
+            eye,
+            lambda,
+            world.max_depth(),
+            params.policy,
+        );
         let children = present_children(world, tile);
         // Refine once the tile would need its finest within-tile level somewhere
         // (level t − 1 misses τ): there its children do the same job with blocks a
