@@ -91,9 +91,9 @@ pub struct RenderSummary {
     pub median_select_ms: f64,
     pub median_upload_ms: f64,
     pub median_render_ms: f64,
-    /// With `--quality`, over the measured frames that draw what τ asks for
-    /// (deficit ≤ 1): while coarser tiles stand in, the image differs from the
-    /// reference by design, and a coarse silhouette is not a crack.
+    /// With `--quality`, over the measured frames that draw what the policy asks
+    /// for (nothing wanted): while coarser tiles stand in, the image differs from
+    /// the reference by design, and a coarse silhouette is not a crack.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub quality_frames: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -116,7 +116,7 @@ impl RenderSummary {
     fn from_records(gpu: String, recs: &[(FrameStats, RenderRecord)]) -> Self {
         let quality: Vec<&RenderRecord> = recs
             .iter()
-            .filter(|(s, r)| r.mse.is_some() && s.tiles > 0 && s.deficit <= 1.0)
+            .filter(|(s, r)| r.mse.is_some() && s.tiles > 0 && r.converged)
             .map(|(_, r)| r)
             .collect();
         let measured = recs.iter().any(|(_, r)| r.mse.is_some());
@@ -285,7 +285,8 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
                         Duration::from_secs(120),
                     )?;
                 }
-                let rec = h.frame(frame, &camera, &sel, &pool)?;
+                let mut rec = h.frame(frame, &camera, &sel, &pool)?;
+                rec.converged = sel.wanted.is_empty();
                 rendered.push((sel.stats, rec));
                 Some(rec)
             }

@@ -42,6 +42,9 @@ pub struct RenderRecord {
     pub render_ms: f64,
     /// Tiles holding a GPU slot.
     pub gpu_tiles: usize,
+    /// Selection wants nothing it does not have: what is drawn is what the policy
+    /// asks for (not an ancestor standing in).
+    pub converged: bool,
     /// With `--quality`: against the full-resolution reference.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mse: Option<f64>,
