@@ -48,21 +48,29 @@ fn renderer(m: &Moon, backend: Backend) -> Renderer {
     r
 }
 
-/// Oblique cameras low over the terrain, looking down steeply enough that terrain
-/// fills the whole view (any sky pixel is then a crack).
-fn cameras(m: &Moon, count: usize) -> Vec<Camera> {
-    let mut rng = Rng(7);
+/// Random cameras over the middle of the moon: `(low, span)` ranges for the
+/// position (fraction of the extent), the altitude above the highest ground (m) and
+/// the pitch below the horizon (radians).
+fn random_cameras(
+    m: &Moon,
+    seed: u64,
+    count: usize,
+    spread: (f64, f64),
+    altitude: (f64, f64),
+    pitch: (f64, f64),
+) -> Vec<Camera> {
+    let mut rng = Rng(seed);
     let extent = f64::from(m.world.geometry.width()) * m.world.spacing;
     let meta = m.pyramid.metadata();
     (0..count)
         .map(|_| Camera {
             position: DVec3::new(
-                (0.3 + 0.4 * rng.uniform()) * extent,
-                meta.max_height + 500.0 + 8000.0 * rng.uniform(),
-                (0.3 + 0.4 * rng.uniform()) * extent,
+                (spread.0 + spread.1 * rng.uniform()) * extent,
+                meta.max_height + altitude.0 + altitude.1 * rng.uniform(),
+                (spread.0 + spread.1 * rng.uniform()) * extent,
             ),
             yaw: rng.uniform() * std::f64::consts::TAU,
-            pitch: -0.75 - 0.5 * rng.uniform(),
+            pitch: -pitch.0 - pitch.1 * rng.uniform(),
             fovy: 60f64.to_radians(),
             width: W,
             height: H,
@@ -70,6 +78,12 @@ fn cameras(m: &Moon, count: usize) -> Vec<Camera> {
             far: 2.0 * extent,
         })
         .collect()
+}
+
+/// Oblique cameras low over the terrain, looking down steeply enough that terrain
+/// fills the whole view (any sky pixel is then a crack).
+fn cameras(m: &Moon, count: usize) -> Vec<Camera> {
+    random_cameras(m, 7, count, (0.3, 0.4), (500.0, 8000.0), (0.75, 0.5))
 }
 
 /// Every (inner LOD, edge LOD) combination on every side, on tiles of every level.
@@ -245,25 +259,7 @@ fn ours_and_reference(
 /// Cameras looking steeply down from a few kilometres, so that the reference
 /// (every sample a vertex) stays small.
 fn close_cameras(m: &Moon, count: usize) -> Vec<Camera> {
-    let mut rng = Rng(23);
-    let extent = f64::from(m.world.geometry.width()) * m.world.spacing;
-    let meta = m.pyramid.metadata();
-    (0..count)
-        .map(|_| Camera {
-            position: DVec3::new(
-                (0.2 + 0.6 * rng.uniform()) * extent,
-                meta.max_height + 9000.0 + 6000.0 * rng.uniform(),
-                (0.2 + 0.6 * rng.uniform()) * extent,
-            ),
-            yaw: rng.uniform() * std::f64::consts::TAU,
-            pitch: -1.0 - 0.3 * rng.uniform(),
-            fovy: 60f64.to_radians(),
-            width: W,
-            height: H,
-            near: 1.0,
-            far: 2.0 * extent,
-        })
-        .collect()
+    random_cameras(m, 23, count, (0.2, 0.6), (9000.0, 6000.0), (1.0, 0.3))
 }
 
 /// Against the full-resolution reference at τ = 1 px. Every drawn vertex is a

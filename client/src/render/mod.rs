@@ -156,12 +156,6 @@ impl Renderer {
         height_range: (f64, f64),
         opts: RenderOptions,
     ) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            opts.width > 0 && opts.height > 0,
-            "viewport {}x{} is empty",
-            opts.width,
-            opts.height
-        );
         Self::with_gpu(Gpu::new(opts.backend)?, world, height_range, opts)
     }
 
