@@ -194,15 +194,7 @@ impl Terrain {
     fn load(file: &Path, spacing: f64) -> anyhow::Result<Self> {
         let p = Pyramid::open_file(file).with_context(|| file.display().to_string())?;
         let g = *p.geometry();
-        let mut tables = HashMap::new();
-        for level in g.levels() {
-            for tile in g.present_tiles(level) {
-                let t = p
-                    .read_error_table(tile)?
-                    .context("present tile without a record")?;
-                tables.insert(tile, t);
-            }
-        }
+        let tables = tessera_client::select::all_tables(&p)?;
         Ok(Self {
             file: file.to_path_buf(),
             world: World {

@@ -5,14 +5,13 @@
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use glam::DVec3;
-use std::collections::HashMap;
 use std::path::PathBuf;
 use tessera_client::camera::Camera;
 use tessera_client::fly::{self, FlyOptions};
 use tessera_client::headless::RenderSetup;
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
-use tessera_client::select::{Policy, SelectParams, Selector, World};
+use tessera_client::select::{self, Policy, SelectParams, Selector, World};
 use tessera_client::stream::StreamConfig;
 use tessera_shared::Pyramid;
 
@@ -200,15 +199,7 @@ fn bench_select(
     let p = Pyramid::open_file(file).with_context(|| file.display().to_string())?;
     let g = *p.geometry();
     let meta = p.metadata().clone();
-    let mut tables = HashMap::new();
-    for level in g.levels() {
-        for tile in g.present_tiles(level) {
-            let t = p
-                .read_error_table(tile)?
-                .context("present tile without a record")?;
-            tables.insert(tile, t);
-        }
-    }
+    let tables = select::all_tables(&p)?;
     let world = World {
         geometry: g,
         quant: meta.quantization,

@@ -17,9 +17,10 @@ pub mod quadtree;
 pub mod tiles;
 
 use crate::camera::Camera;
+use anyhow::Context;
 use std::collections::{HashMap, HashSet};
 use std::time::Instant;
-use tessera_shared::{ErrorTable, Quantization, TileGeometry, TileId};
+use tessera_shared::{ByteSource, ErrorTable, Pyramid, Quantization, TileGeometry, TileId};
 
 /// The terrain in world units.
 #[derive(Clone, Copy, Debug)]
@@ -53,6 +54,24 @@ impl World {
 /// Error tables of the tiles that are resident (decoded and available).
 pub trait TileTables {
     fn table(&self, tile: TileId) -> Option<&ErrorTable>;
+}
+
+/// Every error table of a local pyramid (benchmarks and tools: selection with
+/// everything resident).
+pub fn all_tables<S: ByteSource>(
+    pyramid: &Pyramid<S>,
+) -> anyhow::Result<HashMap<TileId, ErrorTable>> {
+    let g = *pyramid.geometry();
+    let mut tables = HashMap::new();
+    for level in g.levels() {
+        for tile in g.present_tiles(level) {
+            let t = pyramid
+                .read_error_table(tile)?
+                .with_context(|| format!("present tile {tile} without a record"))?;
+            tables.insert(tile, t);
+        }
+    }
+    Ok(tables)
 }
 
 impl TileTables for HashMap<TileId, ErrorTable> {
