@@ -1,46 +1,62 @@
 #!/usr/bin/env bash
-# Build benchmark: wall time, CPU time, peak RSS and bytes per sample of
-# `tessera-server build`, median (min–max) of N runs per input.
-#   bench/build.sh [RUNS] [INPUT[=FLAGS]]...
-# Defaults: the moon 8192² mosaic, synthetic:16385 and synthetic:65537 (1 run).
-# Prints a Markdown table. Needs GNU time (/usr/bin/time, Debian package `time`).
-set -euo pipefail
-cd "$(dirname "$0")/.."
-runs=${1:-3}; shift || true
-dem=../shared/data/dem
-inputs=("$@")
-if [ ${#inputs[@]} -eq 0 ]; then
-  inputs=("$dem/moon_crisium_gld100_8192.png=--offset -10000" "synthetic:16385" "synthetic:65537@1")
-fi
-if [ ! -x /usr/bin/time ]; then
-  if [ "$(id -u)" -eq 0 ]; then apt-get install -y -qq time >/dev/null; else echo "install GNU time: sudo apt-get install time" >&2; exit 1; fi
-fi
-cargo build --release --locked -q -p tessera-server
-bin=target/release/tessera-server
-work=$(mktemp -d "${TMPDIR:-/tmp}/tessera-bench.XXXXXX")
-trap 'rm -rf "$work"' EXIT
+# Build (issue 6 item 2): `tessera-server build` against GDAL's
+#   gdal_translate -of GTiff -co TILED=YES -co COMPRESS=LZW -co PREDICTOR=2 IN out.tif
+#   gdaladdo -r nearest out.tif 2 4 8 16
+# on the moon 8192² mosaic (the two alternate within each run, after one untimed read
+# of the PNG into the page cache), and Tessera alone on synthetic:16385 and
+# synthetic:65537. Wall and CPU (user + sys) seconds and peak RSS from GNU time;
+# GDAL's wall and CPU add its two commands, its RSS is the larger. Appends to
+# $RESULTS/build.jsonl: {tool, input, run, wall_s, cpu_s, rss_mib, bytes, samples}.
+source "$(dirname "$0")/common.sh"
 
-median() { sort -g | awk '{a[NR]=$1} END {m=(NR%2)?a[(NR+1)/2]:(a[NR/2]+a[NR/2+1])/2; printf "%s (%s–%s)", m, a[1], a[NR]}'; }
+# timed TOOL INPUT SAMPLES RUN OUTPUT COMMAND...: one timed build, one record.
+timed() {
+  local tool=$1 input=$2 samples=$3 run=$4 output=$5
+  shift 5
+  /usr/bin/time -f "%e %U %S %M" -o "$WORK/time" "$@" > "$WORK/log" 2>&1 || { cat "$WORK/log" >&2; exit 1; }
+  read -r wall user sys rss < "$WORK/time"
+  echo "$wall $user $sys $rss" >> "$WORK/times"
+}
 
-echo "| input | samples | runs | wall s | CPU s | M samples/s | peak RSS MiB | bytes/sample |"
-echo "|---|---|---|---|---|---|---|---|"
-for spec in "${inputs[@]}"; do
-  n=$runs
-  case "$spec" in *@*) n=${spec##*@}; spec=${spec%@*} ;; esac
-  input=${spec%%=*}; flags=""
-  [ "$input" != "$spec" ] && flags=${spec#*=}
-  : > "$work/wall"; : > "$work/cpu"; : > "$work/rss"; : > "$work/rate"
-  for _ in $(seq "$n"); do
-    rm -f "$work/out.tess"
-    # shellcheck disable=SC2086
-    /usr/bin/time -f "%e %U %S %M" -o "$work/time" "$bin" build "$input" -o "$work/out.tess" --quiet $flags > "$work/log"
-    read -r wall user sys rss < "$work/time"
-    echo "$wall" >> "$work/wall"
-    echo "$user $sys" | awk '{print $1+$2}' >> "$work/cpu"
-    echo "$rss" | awk '{printf "%.0f\n", $1/1024}' >> "$work/rss"
-    samples=$("$bin" info "$work/out.tess" --json | awk -F'[:,]' '/"width"/{w=$2} /"height"/{h=$2} END{printf "%.0f", w*h}')
-    echo "$samples $wall" | awk '{printf "%.1f\n", $1/$2/1e6}' >> "$work/rate"
+# emit TOOL INPUT SAMPLES RUN OUTPUT: sums $WORK/times (wall, CPU; RSS is the max).
+emit() {
+  local t
+  t=$(awk '{w += $1; c += $2 + $3; if ($4 > r) r = $4} END {printf "{\"wall_s\":%.3f,\"cpu_s\":%.3f,\"rss_mib\":%.1f}", w, c, r / 1024}' "$WORK/times")
+  record build "$(jq -c -n --argjson t "$t" --arg tool "$1" --arg input "$2" --argjson samples "$3" \
+    --argjson run "$4" --argjson bytes "$(stat -c %s "$5")" \
+    '{tool: $tool, input: $input, run: $run, samples: $samples, bytes: $bytes} + $t')"
+  : > "$WORK/times"
+}
+
+moon=$DEM/moon_crisium_gld100_8192.png
+cat "$moon" > /dev/null
+: > "$WORK/times"
+for run in $(seq "$RUNS"); do
+  log "build: moon 8192², run $run of $RUNS (Tessera, then GDAL)"
+  rm -f "$WORK/moon.tess"
+  timed tessera "$(basename "$moon")" 67108864 "$run" "$WORK/moon.tess" \
+    "$SERVER_BIN" build "$moon" --offset -10000 -o "$WORK/moon.tess" --quiet
+  emit tessera "$(basename "$moon")" 67108864 "$run" "$WORK/moon.tess"
+  rm -f "$WORK/out.tif"
+  timed gdal "$(basename "$moon")" 67108864 "$run" "$WORK/out.tif" \
+    gdal_translate -q -of GTiff -co TILED=YES -co COMPRESS=LZW -co PREDICTOR=2 "$moon" "$WORK/out.tif"
+  timed gdal "$(basename "$moon")" 67108864 "$run" "$WORK/out.tif" \
+    gdaladdo -q -r nearest "$WORK/out.tif" 2 4 8 16
+  emit gdal "$(basename "$moon")" 67108864 "$run" "$WORK/out.tif"
+done
+rm -f "$WORK/moon.tess" "$WORK/out.tif"
+
+sizes=(16385 65537)
+[ "$QUICK" = 1 ] && sizes=(4097 16385)
+for n in "${sizes[@]}"; do
+  for run in $(seq "$RUNS"); do
+    log "build: synthetic:$n, run $run of $RUNS"
+    rm -f "$WORK/synth.tess"
+    timed tessera "synthetic:$n" $((n * n)) "$run" "$WORK/synth.tess" \
+      "$SERVER_BIN" build "synthetic:$n" -o "$WORK/synth.tess" --quiet
+    emit tessera "synthetic:$n" $((n * n)) "$run" "$WORK/synth.tess"
   done
-  bps=$("$bin" info "$work/out.tess" --json | awk -F'[:,]' '/"bytes_per_sample"/{print $2; exit}' | awk '{printf "%.3f", $1}')
-  echo "| \`$(basename "$input")\` $flags | $samples | $n | $(median < "$work/wall") | $(median < "$work/cpu") | $(median < "$work/rate") | $(median < "$work/rss") | $bps |"
+  # The selection benchmark reuses the largest synthetic pyramid.
+  [ -n "${KEEP_SYNTH:-}" ] && mv "$WORK/synth.tess" "$KEEP_SYNTH"
+  rm -f "$WORK/synth.tess"
 done

@@ -1,67 +1,144 @@
 #!/usr/bin/env bash
-# Serving benchmark: wrk against `tessera-server serve` on the moon 8192² pyramid,
-# finest level, built with 512-cell tiles (256 tiles of ~230 KB) and with 128-cell
-# tiles (4096 tiles of ~15 KB):
-#   (a) Morton-range requests of 16 consecutive tiles, random aligned start;
-#   (b) one tile per request, random tile.
-#   bench/serve.sh [DURATION] [CONNECTIONS]     (defaults: 30s 64)
-# Prints a Markdown table: requests/s, tiles/s, MB/s (wrk's transfer rate, headers
-# included), p50/p99 latency. wrk comes from Debian's `wrk` package.
-set -euo pipefail
-cd "$(dirname "$0")/.."
-duration=${1:-30s}
-conns=${2:-64}
-if ! command -v wrk >/dev/null; then
-  if [ "$(id -u)" -eq 0 ]; then apt-get install -y -qq wrk >/dev/null; else echo "install wrk: sudo apt-get install wrk" >&2; exit 1; fi
-fi
-cargo build --release --locked -q -p tessera-server
-bin=$PWD/target/release/tessera-server
-work=$(mktemp -d "${TMPDIR:-/tmp}/tessera-serve-bench.XXXXXX")
-server_pid=
-cleanup() { [ -n "$server_pid" ] && kill -TERM "$server_pid" 2>/dev/null; wait 2>/dev/null; rm -rf "$work"; }
-trap cleanup EXIT
+# Serving (issue 6 item 3): the finest level of the moon 8192² pyramid (512-cell tiles:
+# level 4, 16×16 tiles) on loopback, wrk with 2 threads at 64, 256 and 1024 connections:
+#   (a) Tessera Morton-range batches of 4, 16 and 64 consecutive tiles from a random
+#       batch-aligned start (one Z-order quadtree block);
+#   (b) Tessera one tile per request (`/v1/datasets/NAME/tiles/L/X/Y`), a random tile;
+#   (c) nginx serving the same records as static files `L/X/Y.bin`, exported through
+#       (b)'s route so they are byte for byte what (b) sends; a random file.
+# nginx: 2 workers, sendfile, tcp_nopush, no access log, keep-alive without a request
+# limit (nginx's default closes a connection after 1000 requests; Tessera never does).
+# Then the real request pattern: `tessera load --clients 64` in both request modes.
+# wrk, nginx, the clients and the server share the machine's cores.
+# Appends to $RESULTS/serve.jsonl {server, request, tiles_per_request, connections,
+# run, duration_s, requests, errors, p50_ms, p99_ms, mean_tile_bytes, wrk_bytes} and
+# to $RESULTS/load.jsonl {mode, run, …`tessera load --json`}.
+#   ROW_SECONDS (default 5) per wrk row, LOAD_SECONDS (default 10) per load run.
+source "$(dirname "$0")/common.sh"
+row=${ROW_SECONDS:-5}
+load_s=${LOAD_SECONDS:-10}
+conns=(64 256 1024)
+if [ "$QUICK" = 1 ]; then row=2; load_s=4; conns=(64); fi
+nginx_bin=$(command -v nginx || echo /usr/sbin/nginx)
+ulimit -n 65536 2>/dev/null || ulimit -n "$(ulimit -Hn)"
 
-"$bin" build ../shared/data/dem/moon_crisium_gld100_8192.png --offset -10000 -o "$work/moon8k.tess" --quiet >/dev/null
-"$bin" build ../shared/data/dem/moon_crisium_gld100_8192.png --offset -10000 --tile-size 128 -o "$work/moon8k128.tess" --quiet >/dev/null
-"$bin" serve "$work/moon8k.tess" "$work/moon8k128.tess" --listen 127.0.0.1:0 > "$work/serve.out" 2> "$work/serve.log" &
-server_pid=$!
-for _ in $(seq 100); do grep -q "listening on" "$work/serve.out" 2>/dev/null && break; sleep 0.05; done
-url=$(sed -n 's/^listening on //p' "$work/serve.out")
+ds=moon8k level=4 side=16
+build_moon 8192 "$WORK/$ds.tess"
+url=$(serve "$WORK/$ds.tess")
 
-cat > "$work/ranges.lua" <<'LUA'
--- 16 consecutive finest-level tiles from a random 16-aligned Morton start.
-local ds, level, side = os.getenv("DS"), os.getenv("LEVEL"), tonumber(os.getenv("SIDE"))
-math.randomseed(os.time() + tonumber(tostring({}):sub(8), 16))
-request = function()
-  local s = 16 * math.random(0, side * side / 16 - 1)
-  return wrk.format("GET", "/v1/datasets/" .. ds .. "/levels/" .. level .. "/tiles?ranges=" .. s .. "-" .. (s + 15))
+# Export every finest tile through the single-tile route, one curl over one connection.
+static=$WORK/static
+for x in $(seq 0 $((side - 1))); do
+  for y in $(seq 0 $((side - 1))); do
+    printf 'url = "%s/v1/datasets/%s/tiles/%s/%s/%s"\noutput = "%s/%s/%s/%s.bin"\n' \
+      "$url" "$ds" "$level" "$x" "$y" "$static" "$level" "$x" "$y"
+  done
+done > "$WORK/export.curl"
+curl -sS --fail --create-dirs -K "$WORK/export.curl"
+ntiles=$(find "$static" -name '*.bin' | wc -l)
+[ "$ntiles" -eq $((side * side)) ] || { echo "exported $ntiles tiles, expected $((side * side))" >&2; exit 1; }
+mean_bytes=$(find "$static" -name '*.bin' -printf '%s\n' | awk '{s += $1} END {printf "%.0f", s / NR}')
+
+port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+mkdir -p "$WORK/nginx"
+{
+  [ "$(id -u)" -eq 0 ] && echo "user root;"
+  cat <<CONF
+worker_processes 2;
+worker_rlimit_nofile 65536;
+pid $WORK/nginx/nginx.pid;
+error_log $WORK/nginx/error.log warn;
+events { worker_connections 4096; }
+http {
+  access_log off;
+  sendfile on;
+  tcp_nopush on;
+  keepalive_requests 1000000;
+  keepalive_timeout 75s;
+  default_type application/octet-stream;
+  client_body_temp_path $WORK/nginx/body;
+  proxy_temp_path $WORK/nginx/proxy;
+  fastcgi_temp_path $WORK/nginx/fastcgi;
+  uwsgi_temp_path $WORK/nginx/uwsgi;
+  scgi_temp_path $WORK/nginx/scgi;
+  server {
+    listen 127.0.0.1:$port;
+    root $static;
+  }
+}
+CONF
+} > "$WORK/nginx.conf"
+spawn "$WORK/nginx.out" "$WORK/nginx/error.log" "$nginx_bin" -p "$WORK/nginx" -e "$WORK/nginx/error.log" \
+  -c "$WORK/nginx.conf" -g 'daemon off;'
+for _ in $(seq 200); do curl -sf -o /dev/null "http://127.0.0.1:$port/$level/0/0.bin" && break; sleep 0.05; done
+cmp -s <(curl -sf "http://127.0.0.1:$port/$level/3/5.bin") <(curl -sf "$url/v1/datasets/$ds/tiles/$level/3/5") \
+  || { echo "nginx does not serve the exported tiles" >&2; cat "$WORK/nginx/error.log" >&2; exit 1; }
+
+# wrk scripts: a request generator each, and one shared done() printing JSON.
+cat > "$WORK/report.lua" <<'LUA'
+done = function(summary, latency, requests)
+  local e = summary.errors
+  io.write(string.format(
+    '{"duration_s":%.6f,"requests":%d,"wrk_bytes":%d,"errors":%d,"p50_ms":%.3f,"p99_ms":%.3f}\n',
+    summary.duration / 1e6, summary.requests, summary.bytes,
+    e.connect + e.read + e.write + e.status + e.timeout,
+    latency:percentile(50) / 1e3, latency:percentile(99) / 1e3))
 end
 LUA
-cat > "$work/single.lua" <<'LUA'
+seed='math.randomseed(os.time() + tonumber(tostring({}):sub(8), 16))'
+cat > "$WORK/batch.lua" <<LUA
+local ds, level, side, batch = os.getenv("DS"), os.getenv("LEVEL"), tonumber(os.getenv("SIDE")), tonumber(os.getenv("BATCH"))
+$seed
+request = function()
+  local s = batch * math.random(0, side * side / batch - 1)
+  return wrk.format("GET", "/v1/datasets/" .. ds .. "/levels/" .. level .. "/tiles?ranges=" .. s .. "-" .. (s + batch - 1))
+end
+LUA
+cat > "$WORK/single.lua" <<LUA
 local ds, level, side = os.getenv("DS"), os.getenv("LEVEL"), tonumber(os.getenv("SIDE"))
-math.randomseed(os.time() + tonumber(tostring({}):sub(8), 16))
+$seed
 request = function()
   return wrk.format("GET", "/v1/datasets/" .. ds .. "/tiles/" .. level .. "/" .. math.random(0, side - 1) .. "/" .. math.random(0, side - 1))
 end
 LUA
+cat > "$WORK/static.lua" <<LUA
+local level, side = os.getenv("LEVEL"), tonumber(os.getenv("SIDE"))
+$seed
+request = function()
+  return wrk.format("GET", "/" .. level .. "/" .. math.random(0, side - 1) .. "/" .. math.random(0, side - 1) .. ".bin")
+end
+LUA
+for s in batch single static; do cat "$WORK/report.lua" >> "$WORK/$s.lua"; done
+export DS=$ds LEVEL=$level SIDE=$side
 
-run() { # name script tiles_per_request
-  wrk -t2 -c"$conns" -d"$duration" --latency -s "$work/$2" "$url" > "$work/run.txt"
-  mv "$work/run.txt" "$work/$(echo "$1" | tr -c 'A-Za-z0-9\n' _).txt"
-  local out="$work/$(echo "$1" | tr -c 'A-Za-z0-9\n' _).txt"
-  local rps mbs p50 p99 errs
-  rps=$(awk '/^Requests\/sec/ {print $2}' "$out")
-  mbs=$(awk '/^Transfer\/sec/ {v=$2; if (v ~ /GB$/) {sub(/GB/,"",v); v*=1024} else if (v ~ /MB$/) {sub(/MB/,"",v)} else if (v ~ /KB$/) {sub(/KB/,"",v); v/=1024}; printf "%.0f", v}' "$out")
-  p50=$(awk '$1=="50%" {print $2}' "$out")
-  p99=$(awk '$1=="99%" {print $2}' "$out")
-  errs=$(awk '/Non-2xx|Socket errors/ {print}' "$out" | tr '\n' ' ')
-  printf "| %s | %s | %.0f | %s | %s | %s | %s | %s |\n" "$1" "$conns" "$rps" "$(awk -v r="$rps" -v t="$3" 'BEGIN {printf "%.0f", r * t}')" "$mbs" "$p50" "$p99" "${errs:-none}"
+# wrk_row SERVER REQUEST TILES CONNECTIONS RUN BASE_URL: one wrk run, one record.
+wrk_row() {
+  local server=$1 request=$2 tiles=$3 c=$4 run=$5 base=$6
+  BATCH=$tiles wrk -t2 -c"$c" -d"${row}s" --timeout 60s -s "$WORK/$request.lua" "$base" > "$WORK/wrk.out"
+  local non2xx
+  non2xx=$(awk '/Non-2xx/ {print $NF}' "$WORK/wrk.out")
+  record serve "$(tail -n1 "$WORK/wrk.out" | jq -c --arg server "$server" --arg request "$request" \
+    --argjson tiles "$tiles" --argjson c "$c" --argjson run "$run" --argjson mean "$mean_bytes" \
+    --argjson non2xx "${non2xx:-0}" \
+    '{server: $server, request: $request, tiles_per_request: $tiles, connections: $c, run: $run,
+      mean_tile_bytes: $mean} + . + {errors: (.errors + $non2xx)}')"
 }
-echo "| request | connections | requests/s | tiles/s | MiB/s | p50 | p99 | errors |"
-echo "|---|---|---|---|---|---|---|---|"
-export DS=moon8k LEVEL=4 SIDE=16
-run "T=512: ranges of 16 tiles" ranges.lua 16
-run "T=512: single tile" single.lua 1
-export DS=moon8k128 LEVEL=6 SIDE=64
-run "T=128: ranges of 16 tiles" ranges.lua 16
-run "T=128: single tile" single.lua 1
+
+for run in $(seq "$RUNS"); do
+  for c in "${conns[@]}"; do
+    log "serve: run $run of $RUNS, $c connections, ${row}s per row"
+    for b in 4 16 64; do wrk_row tessera batch "$b" "$c" "$run" "$url"; done
+    wrk_row tessera single 1 "$c" "$run" "$url"
+    wrk_row nginx static 1 "$c" "$run" "http://127.0.0.1:$port"
+  done
+done
+
+for run in $(seq "$RUNS"); do
+  for mode in ranges single; do
+    log "load: run $run of $RUNS, 64 clients, $mode, ${load_s}s"
+    "$CLIENT_BIN" load --server "$url" --dataset "$ds" --clients 64 --duration "${load_s}s" \
+      --mode "$mode" --spacing "$MOON_SPACING" --json > "$WORK/load.json" 2> "$WORK/load.log" \
+      || { cat "$WORK/load.log" >&2; exit 1; }
+    record load "$(jq -c --arg mode "$mode" --argjson run "$run" '{mode: $mode, run: $run} + .' "$WORK/load.json")"
+  done
+done

@@ -1,47 +1,38 @@
 #!/usr/bin/env bash
-# Streaming under latency: `tessera fly --no-render --path pass` over the moon 8192²
-# pyramid, at 0 and 150 ms added latency (bench/delay_proxy.py holds each response
-# that long), prefetch on and off. Prints a Markdown table.
-#   bench/stream.sh [FRAMES] [TAU]     (defaults: 600 frames at 60 fps, τ = 1)
-set -euo pipefail
-cd "$(dirname "$0")/.."
-frames=${1:-600}
-tau=${2:-1}
-cargo build --release --locked -q -p tessera-server -p tessera-client
-server_bin=$PWD/target/release/tessera-server
-fly_bin=$PWD/target/release/tessera
-work=$(mktemp -d "${TMPDIR:-/tmp}/tessera-stream-bench.XXXXXX")
-pids=()
-cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; wait 2>/dev/null || true; rm -rf "$work"; }
-trap cleanup EXIT
-
-"$server_bin" build ../shared/data/dem/moon_crisium_gld100_8192.png --offset -10000 -o "$work/moon8k.tess" --quiet >/dev/null
-"$server_bin" serve "$work/moon8k.tess" --listen 127.0.0.1:0 > "$work/serve.out" 2> "$work/serve.log" &
-pids+=($!)
-wait_line() { for _ in $(seq 200); do grep -q "listening on" "$1" 2>/dev/null && return 0; sleep 0.05; done; return 1; }
-wait_line "$work/serve.out"
-direct=$(sed -n 's/^listening on //p' "$work/serve.out")
-python3 bench/delay_proxy.py 0 "${direct#http://}" 150 > "$work/proxy.out" 2>&1 &
-pids+=($!)
-wait_line "$work/proxy.out"
-delayed="http://$(sed -n 's/^listening on //p' "$work/proxy.out")"
-
-echo "| added latency | prefetch | frames ≤ τ | frames ≤ 2τ | warm-up frames | after warm-up ≤ τ | after warm-up ≤ 2τ | p99 streaming work | max streaming work | bytes fetched | requests |"
-echo "|---|---|---|---|---|---|---|---|---|---|---|"
-for latency in 0 150; do
-  url=$direct; [ "$latency" = 150 ] && url=$delayed
-  for prefetch in on off; do
-    flag=""; [ "$prefetch" = off ] && flag="--no-prefetch"
-    # shellcheck disable=SC2086
-    "$fly_bin" fly --server "$url" --dataset moon8k --path pass --frames "$frames" --tau "$tau" \
-      --spacing 118.45 --no-render $flag > "$work/summary.json"
-    python3 - "$work/summary.json" "$latency" "$prefetch" <<'PY'
-import json, sys
-s = json.load(open(sys.argv[1]))
-st = s["stream"]
-print(f"| {sys.argv[2]} ms | {sys.argv[3]} | {100*s['within_tau']:.1f}% | {100*s['within_2tau']:.1f}% "
-      f"| {s['warmup_frames']} | {100*s['steady_within_tau']:.1f}% | {100*s['steady_within_2tau']:.1f}% "
-      f"| {s['p99_stream_us']:.0f} µs | {s['max_stream_us']:.0f} µs | {st['bytes']/1e6:.1f} MB | {st['requests']} |")
-PY
+# Streaming under latency (issue 6 item 6): `tessera fly --no-render` over the moon
+# 8192² on loopback, `pass` and `canyon` paths, 1920×1080, τ = 1 px, 60 fps in real
+# time, 4 ms streaming budget per frame, at 0, 50 and 150 ms added latency
+# (bench/delay_proxy.py holds each response that long before its first byte), prefetch
+# on and off. Appends to $RESULTS/stream.jsonl {dataset, path, latency_ms, prefetch,
+# run, summary}.
+source "$(dirname "$0")/common.sh"
+frames=300
+latencies=(0 50 150)
+paths=(pass canyon)
+[ "$QUICK" = 1 ] && { frames=120; latencies=(0 150); paths=(pass); }
+build_moon 8192 "$WORK/moon8192.tess"
+direct=$(serve "$WORK/moon8192.tess")
+declare -A via
+for latency in "${latencies[@]}"; do
+  if [ "$latency" = 0 ]; then via[$latency]=$direct; continue; fi
+  spawn "$WORK/proxy$latency.out" "$WORK/proxy$latency.log" \
+    python3 "$ROOT/bench/delay_proxy.py" 0 "${direct#http://}" "$latency"
+  via[$latency]="http://$(wait_listening "$WORK/proxy$latency.out")"
+done
+for run in $(seq "$RUNS"); do
+  for path in "${paths[@]}"; do
+    for latency in "${latencies[@]}"; do
+      for prefetch in true false; do
+        log "stream: run $run of $RUNS, $path, +$latency ms, prefetch $prefetch"
+        flag=()
+        [ "$prefetch" = false ] && flag=(--no-prefetch)
+        "$CLIENT_BIN" fly --server "${via[$latency]}" --dataset moon8192 --path "$path" --frames "$frames" \
+          --fps 60 --tau 1 --spacing "$MOON_SPACING" --no-render "${flag[@]}" > "$WORK/run.json" 2> "$WORK/run.log" \
+          || { cat "$WORK/run.log" >&2; exit 1; }
+        fly_record stream "$(jq -n -c --arg path "$path" --argjson latency "$latency" --argjson prefetch "$prefetch" \
+          --argjson run "$run" '{dataset: "moon8192", path: $path, latency_ms: $latency, prefetch: $prefetch, run: $run}')" \
+          "$WORK/run.json"
+      done
+    done
   done
 done

@@ -8,12 +8,14 @@
 //! cargo bench -p tessera-client --bench select
 //! ```
 //!
-//! Each divan sample is one frame. The camera runs the path forward and back
-//! (0, 1, …, N−1, N−2, …, 1, 0, 1, …) so that consecutive frames are always
-//! neighbours on the path; the first frame, which builds every quadtree from
-//! scratch, is selected once before timing starts. After each run a line on stderr
-//! gives the selector's own clock (`FrameStats::select_us`, what `tessera
-//! bench-select` reports), the median triangle count and the worst deficit.
+//! Each divan sample is one frame. The cameras are those of
+//! `tessera_client::paths::path_cameras` (placed as `tessera fly` places them); the
+//! camera runs the path forward and back (0, 1, …, N−1, N−2, …, 1, 0, 1, …) so that
+//! consecutive frames are always neighbours on the path; the first frame, which
+//! builds every quadtree from scratch, is selected once before timing starts. After
+//! each run a line on stderr gives the selector's own clock (`FrameStats::select_us`,
+//! what `tessera bench-select --path pass|canyon` reports for the same frames), the
+//! median triangle count and the worst deficit.
 //!
 //! Pyramids: `$TESSERA_BENCH_MOON` and `$TESSERA_BENCH_SYNTH` name existing `.tess`
 //! files; otherwise `cargo bench` builds them once into `target/bench-data/` with
@@ -25,23 +27,21 @@
 
 use anyhow::Context;
 use divan::Bencher;
-use glam::DVec2;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
-use tessera_client::camera::Camera;
-use tessera_client::paths::{FlyPath, eye};
+use tessera_client::paths::path_cameras;
 use tessera_client::select::{SelectParams, Selector, World};
-use tessera_client::stream::pool::TilePool;
-use tessera_shared::{ErrorTable, Pyramid, TileId};
+use tessera_shared::{ErrorTable, FileSource, Pyramid, TileId};
 
 const FPS: f64 = 60.0;
 const WIDTH: u32 = 1920;
 const HEIGHT: u32 = 1080;
 const TAU: f64 = 1.0;
-/// Frames timed per dataset and path: `pass` (979 frames) forward and back, or
-/// most of `canyon` (about 2200 frames).
+/// Frames timed per dataset and path: `pass` (979 frames on any square DEM: the
+/// path and its speed both scale with the extent) forward and back, or most of
+/// `canyon` (2581 frames).
 const FRAMES: u32 = 2000;
 
 fn main() {
@@ -185,8 +185,8 @@ impl Dataset {
 /// A pyramid with every error table resident.
 struct Terrain {
     file: PathBuf,
+    pyramid: Pyramid<FileSource>,
     world: World,
-    max_height: f64,
     tables: HashMap<TileId, ErrorTable>,
 }
 
@@ -202,62 +202,9 @@ impl Terrain {
                 quant: p.metadata().quantization,
                 spacing,
             },
-            max_height: p.metadata().max_height,
+            pyramid: p,
             tables,
         })
-    }
-
-    /// The camera of every frame of a built-in path at [`FPS`], as `tessera fly`
-    /// places it: the path sized to the DEM, the eye at the path's altitude above the
-    /// ground under it (here from the finest tile there).
-    fn cameras(&self, name: &str) -> anyhow::Result<Vec<Camera>> {
-        let p = Pyramid::open_file(&self.file)?;
-        let (world, g) = (&self.world, &self.world.geometry);
-        let spacing = world.spacing;
-        let size = DVec2::new(f64::from(g.width()), f64::from(g.height())) * spacing;
-        let path = FlyPath::builtin(name, size.max_element()).context("a built-in path")?;
-        let length: f64 = path
-            .waypoints
-            .windows(2)
-            .map(|w| ((DVec2::from(w[1]) - DVec2::from(w[0])) * size).length())
-            .sum();
-        let frames = (length / path.speed_mps * FPS).ceil() as u32 + 1;
-        let mut ground = TilePool::new(64);
-        let finest = g.finest();
-        let n = finest.tiles_per_side() - 1;
-        let mut cameras = Vec::with_capacity(frames as usize);
-        for f in 0..frames {
-            let pose = path.pose(f64::from(f) / FPS, size);
-            let sample = |v: f64, len: u32| ((v / spacing).round().max(0.0) as u32).min(len - 1);
-            let (fx, fy) = (
-                sample(pose.ground.x, g.width()),
-                sample(pose.ground.y, g.height()),
-            );
-            let under = TileId::new(
-                finest,
-                (fx / g.tile_size()).min(n),
-                (fy / g.tile_size()).min(n),
-            )
-            .context("tile under the camera")?;
-            if !ground.contains(under) {
-                let rec = p.read_tile(under)?.context("tile under the camera")?;
-                ground.insert(under, rec.errors, rec.heights);
-            }
-            let h = ground
-                .ground_height(world, pose.ground.x, pose.ground.y)
-                .unwrap_or(self.max_height);
-            cameras.push(Camera {
-                position: eye(&pose, h),
-                yaw: pose.yaw,
-                pitch: pose.pitch,
-                fovy: 60f64.to_radians(),
-                width: WIDTH,
-                height: HEIGHT,
-                near: 1.0,
-                far: 4.0 * size.max_element() + 1e5,
-            });
-        }
-        Ok(cameras)
     }
 }
 
@@ -272,8 +219,7 @@ fn run(bencher: Bencher, dataset: &Dataset, cell: &OnceLock<Option<Terrain>>, pa
     let Some(terrain) = terrain else {
         return;
     };
-    let cameras = terrain
-        .cameras(path)
+    let cameras = path_cameras(&terrain.pyramid, &terrain.world, path, FPS, WIDTH, HEIGHT)
         .unwrap_or_else(|e| panic!("{}: {e:#}", terrain.file.display()));
     let n = cameras.len();
     // Forward and back: frame k of the sequence is camera `order[k % len]`.

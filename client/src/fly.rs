@@ -2,7 +2,7 @@
 //! rate, in real time against a real server, writing per-frame statistics.
 
 use crate::camera::Camera;
-use crate::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles};
+use crate::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles, fetch_tiles};
 use crate::paths::{FlyPath, eye};
 use crate::select::{FrameStats, SelectParams, Selector, World};
 use crate::stream::pool::TilePool;
@@ -191,6 +191,10 @@ pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(W
     ))
 }
 
+/// How long a measured frame may wait for its tiles ([`RenderSetup::settle`], the
+/// reference's tiles).
+const SETTLE_TIMEOUT: Duration = Duration::from_secs(120);
+
 /// Flies the path, writing one [`FrameRecord`] per frame to `stats`.
 pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Result<FlySummary> {
     let streamer_for = |tile_log2: u32| match &opts.runtime {
@@ -252,11 +256,38 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     };
     for frame in 0..opts.frames {
         let t = opts.t_offset + f64::from(frame) / opts.fps;
+        let settle = headless.as_ref().is_some_and(|h| h.settles(frame));
+        if settle {
+            // The eye's height from the finest tile under it: the same camera in
+            // every run, whatever streaming has delivered so far.
+            let ground = path.pose(t, size).ground;
+            let under = world.finest_tile_at(ground.x, ground.y);
+            fetch_tiles(&[under], &mut pool, &mut streamer, SETTLE_TIMEOUT)?;
+        }
         let camera = camera_at(&pool, t, 1.0);
-        let sel = match &headless {
+        let mut sel = match &headless {
             Some(h) => selector.select(&camera, &h.tables(&pool)),
             None => selector.select(&camera, &pool),
         };
+        if settle && let Some(h) = &mut headless {
+            let started = Instant::now();
+            while !sel.wanted.is_empty() {
+                anyhow::ensure!(
+                    started.elapsed() < SETTLE_TIMEOUT,
+                    "frame {frame}: the selection still wants {} tiles after {SETTLE_TIMEOUT:?}{}",
+                    sel.wanted.len(),
+                    streamer.last_error.as_ref().map_or_else(
+                        || " (raise --gpu-tiles or --pool-tiles)".to_string(),
+                        |e| format!(" (last error: {e})")
+                    )
+                );
+                streamer.frame(&mut pool, &sel.wanted, &[]);
+                if h.upload_all(&pool, &sel.wanted) == 0 {
+                    std::thread::sleep(Duration::from_millis(2));
+                }
+                sel = selector.select(&camera, &h.tables(&pool));
+            }
+        }
         pool.touch(&sel.tiles);
         // Prefetch: the view one second ahead, through a wider lens (Kang §6.1).
         let prefetch = if opts.prefetch {
@@ -275,14 +306,14 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         stream_us.push(work.stream_us);
         let render = match &mut headless {
             Some(h) => {
-                if h.needs_reference(frame) {
+                if h.needs_reference(frame) && !h.has_cached_reference(&camera) {
                     fetch_reference_tiles(
                         &world,
                         (min_height, max_height),
                         &camera,
                         &mut pool,
                         &mut streamer,
-                        Duration::from_secs(120),
+                        SETTLE_TIMEOUT,
                     )?;
                 }
                 let mut rec = h.frame(frame, &camera, &sel, &pool)?;

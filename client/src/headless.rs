@@ -5,13 +5,14 @@
 use crate::camera::Camera;
 use crate::render::reference::{finest_tiles_in_view, full_resolution_patches};
 use crate::render::slots::OnGpu;
-use crate::render::{RenderOptions, Renderer, png_out, quality};
+use crate::render::{Parallax, RenderOptions, Renderer, png_out, quality};
 use crate::select::{Selection, Wanted, World};
 use crate::stream::Streamer;
 use crate::stream::pool::TilePool;
 use anyhow::Context;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
+use tessera_shared::TileId;
 
 /// How a flight renders.
 #[derive(Clone, Debug)]
@@ -19,17 +20,34 @@ pub struct RenderSetup {
     pub opts: RenderOptions,
     /// Where frames go (`frame_00000.png`, …).
     pub out_dir: PathBuf,
-    /// Draw the full-resolution reference instead of the selection.
-    pub reference: bool,
-    /// Draw both; compare them per frame; reference frames go to `out_dir/reference/`.
-    pub quality: bool,
-    /// With `quality` or `reference`: only every Nth frame (the reference draws every
+    /// What each frame draws and measures.
+    pub draws: Draws,
+    /// With [`Draws::Reference`] or [`Draws::Quality`]: only every Nth frame (the reference draws every
     /// sample in view, which is slow on a CPU rasterizer).
     pub quality_every: u32,
     /// Write every frame as a PNG (the demo and `--out` do; benchmarks may not).
     pub write_frames: bool,
     /// Per-frame budget for GPU uploads.
     pub upload_budget: Duration,
+    /// At measured frames, wait until the selection has everything it asks for
+    /// (fetched and uploaded) before drawing, with the eye placed on the finest
+    /// ground under it: the comparison then measures the policy, not how far
+    /// streaming has got, and every run sees the same camera.
+    pub settle: bool,
+    /// Reuse reference images between flights (one benchmark session): keyed by
+    /// the dataset, the exact camera and the view.
+    pub reference_cache: Option<PathBuf>,
+}
+
+/// What a headless flight draws.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Draws {
+    /// The selection.
+    Selection,
+    /// The full-resolution reference instead of the selection.
+    Reference,
+    /// Both; they are compared per frame, and references go to `out_dir/reference/`.
+    Quality,
 }
 
 /// Rendering figures of one frame (flattened into `stats.jsonl`).
@@ -67,7 +85,7 @@ impl Headless {
     pub fn new(world: World, heights: (f64, f64), setup: RenderSetup) -> anyhow::Result<Self> {
         std::fs::create_dir_all(&setup.out_dir)
             .with_context(|| format!("{}: cannot create", setup.out_dir.display()))?;
-        if setup.quality {
+        if setup.draws == Draws::Quality {
             std::fs::create_dir_all(setup.out_dir.join("reference"))?;
         }
         let renderer = Renderer::new(world, heights, setup.opts)?;
@@ -81,8 +99,13 @@ impl Headless {
 
     /// Whether frame `frame` needs every finest tile in view (fetched before it).
     pub fn needs_reference(&self, frame: u32) -> bool {
-        (self.setup.reference || self.setup.quality)
+        self.setup.draws != Draws::Selection
             && frame.is_multiple_of(self.setup.quality_every.max(1))
+    }
+
+    /// Whether frame `frame` waits for its selection to converge ([`RenderSetup::settle`]).
+    pub fn settles(&self, frame: u32) -> bool {
+        self.setup.settle && self.needs_reference(frame)
     }
 
     /// What selection may draw: tiles that are decoded and uploaded.
@@ -113,11 +136,11 @@ impl Headless {
         };
         let name = format!("frame_{frame:05}.png");
         let measured = self.needs_reference(frame);
-        if self.setup.reference && !measured {
+        if self.setup.draws == Draws::Reference && !measured {
             rec.gpu_tiles = self.renderer.slots.len();
             return Ok(rec);
         }
-        if self.setup.reference {
+        if self.setup.draws == Draws::Reference {
             let (d, tris) = self.draw_reference(camera, pool)?;
             rec.draw_calls = d;
             rec.reference_triangles = Some(tris);
@@ -131,9 +154,8 @@ impl Headless {
         if self.setup.write_frames {
             write_frame(&self.setup.out_dir.join(&name), &image, w, h)?;
         }
-        if self.setup.quality && measured {
-            let (_, tris) = self.draw_reference(camera, pool)?;
-            let reference = self.renderer.read_rgba()?;
+        if self.setup.draws == Draws::Quality && measured {
+            let (reference, tris) = self.reference_image(camera, pool)?;
             if self.setup.write_frames {
                 write_frame(
                     &self.setup.out_dir.join("reference").join(&name),
@@ -152,8 +174,96 @@ impl Headless {
         Ok(rec)
     }
 
+    /// Uploads what `wanted` asks for, without a time budget (settling a measured
+    /// frame). Returns the tiles uploaded.
+    pub fn upload_all(&mut self, pool: &TilePool, wanted: &[Wanted]) -> u32 {
+        self.renderer.upload_wanted(pool, wanted, Duration::MAX)
+    }
+
+    /// Whether the reference of `camera` is in the cache (its tiles need not be fetched).
+    pub fn has_cached_reference(&self, camera: &Camera) -> bool {
+        self.setup.draws == Draws::Quality
+            && self.setup.reference_cache.as_ref().is_some_and(|dir| {
+                let base = dir.join(self.reference_key(camera));
+                base.with_extension("png").is_file() && base.with_extension("json").is_file()
+            })
+    }
+
+    /// The reference image of this camera and its triangles: from the cache when it
+    /// holds them, else drawn (and then cached).
+    fn reference_image(
+        &mut self,
+        camera: &Camera,
+        pool: &TilePool,
+    ) -> anyhow::Result<(Vec<u8>, u64)> {
+        let cached = self
+            .setup
+            .reference_cache
+            .as_ref()
+            .map(|dir| dir.join(self.reference_key(camera)));
+        if let Some(base) = &cached {
+            let (png, meta) = (base.with_extension("png"), base.with_extension("json"));
+            if png.is_file() && meta.is_file() {
+                let (rgba, w, h) = png_out::read_png(&png)?;
+                let tris: u64 = serde_json::from_slice::<serde_json::Value>(&std::fs::read(&meta)?)
+                    .ok()
+                    .and_then(|v| v["triangles"].as_u64())
+                    .with_context(|| format!("{}: no \"triangles\"", meta.display()))?;
+                if (w, h) == (self.renderer.width(), self.renderer.height()) {
+                    return Ok((rgba, tris));
+                }
+            }
+        }
+        let (_, tris) = self.draw_reference(camera, pool)?;
+        let rgba = self.renderer.read_rgba()?;
+        if let Some(base) = &cached {
+            if let Some(dir) = base.parent() {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("{}: cannot create", dir.display()))?;
+            }
+            let (w, h) = (self.renderer.width(), self.renderer.height());
+            // The sidecar last: it marks the PNG as complete.
+            png_out::write_png(&base.with_extension("png"), &rgba, w, h)?;
+            std::fs::write(
+                base.with_extension("json"),
+                serde_json::json!({ "triangles": tris }).to_string(),
+            )?;
+        }
+        Ok((rgba, tris))
+    }
+
+    /// The cache key of a reference image: everything that decides its pixels.
+    fn reference_key(&self, camera: &Camera) -> String {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        let w = &self.renderer.world;
+        let g = &w.geometry;
+        (g.width(), g.height(), g.tile_size()).hash(&mut h);
+        for v in [
+            w.spacing,
+            w.quant.scale,
+            w.quant.offset,
+            self.heights.0,
+            self.heights.1,
+            camera.position.x,
+            camera.position.y,
+            camera.position.z,
+            camera.yaw,
+            camera.pitch,
+            camera.fovy,
+            camera.near,
+            camera.far,
+        ] {
+            v.to_bits().hash(&mut h);
+        }
+        (camera.width, camera.height).hash(&mut h);
+        (self.renderer.opts.view as u32).hash(&mut h);
+        format!("reference-{:016x}", h.finish())
+    }
+
     /// Fetches (waiting for them) and uploads every finest tile in view, then draws
-    /// them at full resolution. Returns draw calls and triangles.
+    /// them at full resolution without parallax (the ground truth every parallax mode
+    /// is compared with). Returns draw calls and triangles.
     fn draw_reference(&mut self, camera: &Camera, pool: &TilePool) -> anyhow::Result<(u32, u64)> {
         let world = self.renderer.world;
         let frustum = camera.frustum();
@@ -174,7 +284,10 @@ impl Headless {
         self.renderer.slots.touch(&tiles);
         let patches = full_resolution_patches(&world, &tiles, pool, &frustum);
         let tris = patches.iter().map(crate::select::Patch::triangles).sum();
-        let d = self.renderer.draw(camera, &patches)?;
+        let parallax = std::mem::replace(&mut self.renderer.opts.parallax, Parallax::None);
+        let d = self.renderer.draw(camera, &patches);
+        self.renderer.opts.parallax = parallax;
+        let d = d?;
         Ok((d.draw_calls, tris))
     }
 }
@@ -197,6 +310,16 @@ pub fn fetch_reference_tiles(
     timeout: Duration,
 ) -> anyhow::Result<()> {
     let tiles = finest_tiles_in_view(world, &camera.frustum(), heights);
+    fetch_tiles(&tiles, pool, streamer, timeout)
+}
+
+/// Fetches `tiles` into the pool, waiting up to `timeout` for all of them.
+pub fn fetch_tiles(
+    tiles: &[TileId],
+    pool: &mut TilePool,
+    streamer: &mut Streamer,
+    timeout: Duration,
+) -> anyhow::Result<()> {
     let started = Instant::now();
     loop {
         let missing: Vec<Wanted> = tiles
@@ -205,12 +328,12 @@ pub fn fetch_reference_tiles(
             .map(|&tile| Wanted { tile, rho: 1.0 })
             .collect();
         if missing.is_empty() {
-            pool.touch(&tiles);
+            pool.touch(tiles);
             return Ok(());
         }
         anyhow::ensure!(
             started.elapsed() < timeout,
-            "{} reference tiles still missing after {timeout:?}{}",
+            "{} tiles still missing after {timeout:?}{}",
             missing.len(),
             streamer
                 .last_error
@@ -219,7 +342,7 @@ pub fn fetch_reference_tiles(
                 .unwrap_or_default()
         );
         streamer.frame(pool, &missing, &[]);
-        pool.touch(&tiles);
+        pool.touch(tiles);
         std::thread::sleep(Duration::from_millis(5));
     }
 }

@@ -4,11 +4,10 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use glam::DVec3;
 use std::path::PathBuf;
-use tessera_client::camera::Camera;
 use tessera_client::fly::{self, FlyOptions};
-use tessera_client::headless::RenderSetup;
+use tessera_client::headless::{Draws, RenderSetup};
+use tessera_client::paths;
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
 use tessera_client::select::{self, Policy, SelectParams, Selector, World};
@@ -109,6 +108,16 @@ enum Command {
         /// With --out: write stats but no frame PNGs.
         #[arg(long, requires = "out")]
         no_frames: bool,
+        /// With --quality: at each measured frame, wait until the selection has every
+        /// tile it asks for (fetched and uploaded) before drawing, with the eye on the
+        /// finest ground under it. Quality then measures the policy, not how far
+        /// streaming has got, and every run of the flight sees the same cameras.
+        #[arg(long, requires = "quality")]
+        settle: bool,
+        /// With --quality: keep reference images in DIR and reuse them in later runs
+        /// of the same flight (same dataset, camera, viewport and view).
+        #[arg(long, value_name = "DIR", requires = "quality")]
+        reference_cache: Option<PathBuf>,
         /// Debug view.
         #[arg(long, value_enum, default_value_t = DebugView::Shaded)]
         view: DebugView,
@@ -139,16 +148,28 @@ enum Command {
         #[arg(long)]
         stats: Option<PathBuf>,
     },
-    /// Time view-dependent selection on a local pyramid: every error table resident,
-    /// a camera flying low across the terrain, median and worst time per frame.
+    /// Time view-dependent selection on a local pyramid, with every error table
+    /// resident: the camera flies a path as `tessera fly` does (the eye at the
+    /// path's altitude above the finest ground under it), one selection per frame,
+    /// the selector's state carried from frame to frame. The path is run forward
+    /// and back until --frames frames are timed; the first frame, which builds every
+    /// quadtree from nothing, is not timed. Reports the selector's own clock
+    /// (median, mean, p90, max), the median triangle count and the worst deficit.
     BenchSelect {
         /// A `.tess` pyramid file.
         file: PathBuf,
+        /// canyon (low and fast), pass (high, across the whole dataset), orbit, or
+        /// a path JSON file.
+        #[arg(long, default_value = "pass")]
+        path: String,
+        /// Frames per second along the path (how far the camera moves per frame).
+        #[arg(long, default_value_t = 60.0)]
+        fps: f64,
         /// Screen-space error threshold in pixels.
         #[arg(long, default_value_t = 1.0)]
         tau: f64,
-        /// Frames to time.
-        #[arg(long, default_value_t = 300)]
+        /// Frames to time (the path is run forward and back as often as needed).
+        #[arg(long, default_value_t = 2000)]
         frames: u32,
         /// Viewport, e.g. 1920x1080.
         #[arg(long, default_value = "1920x1080")]
@@ -156,6 +177,11 @@ enum Command {
         /// Metres between neighbouring samples (default: from the georeferencing, else 100).
         #[arg(long)]
         spacing: Option<f64>,
+        /// Print one JSON object: file, tiles, width, height, tau, path, fps,
+        /// frames, median_us, mean_us, p90_us, max_us, median_triangles,
+        /// worst_deficit.
+        #[arg(long)]
+        json: bool,
     },
     /// Pictures of a headless flight: stats.png (plots over time) and
     /// contact_sheet.png (12 frames), plus a short summary.
@@ -187,65 +213,101 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-fn bench_select(
-    file: &std::path::Path,
+/// What `tessera bench-select` times.
+#[derive(Debug)]
+struct BenchSelect<'a> {
+    file: &'a std::path::Path,
+    path: &'a str,
+    fps: f64,
     tau: f64,
     frames: u32,
-    viewport: &str,
-    spacing_m: Option<f64>,
-) -> anyhow::Result<()> {
-    anyhow::ensure!(frames > 0, "--frames must be at least 1");
-    let (w, h) = parse_viewport(viewport)?;
-    let p = Pyramid::open_file(file).with_context(|| file.display().to_string())?;
-    let g = *p.geometry();
+    width: u32,
+    height: u32,
+    spacing: Option<f64>,
+}
+
+/// What `tessera bench-select` reports (`--json`): the selector's own clock
+/// (`FrameStats::select_us`) over the timed frames.
+#[derive(Debug, serde::Serialize)]
+struct BenchSelectReport {
+    file: String,
+    /// Error tables resident (every present tile).
+    tiles: usize,
+    width: u32,
+    height: u32,
+    tau: f64,
+    path: String,
+    fps: f64,
+    /// Frames timed.
+    frames: u32,
+    median_us: f64,
+    mean_us: f64,
+    p90_us: f64,
+    max_us: f64,
+    median_triangles: u64,
+    worst_deficit: f64,
+}
+
+fn bench_select(b: &BenchSelect) -> anyhow::Result<BenchSelectReport> {
+    anyhow::ensure!(b.frames > 0, "--frames must be at least 1");
+    anyhow::ensure!(
+        b.fps.is_finite() && b.fps > 0.0 && b.tau > 0.0,
+        "--fps and --tau must be positive"
+    );
+    let p = Pyramid::open_file(b.file).with_context(|| b.file.display().to_string())?;
     let meta = p.metadata().clone();
     let tables = select::all_tables(&p)?;
     let world = World {
-        geometry: g,
+        geometry: *p.geometry(),
         quant: meta.quantization,
-        spacing: spacing_m
+        spacing: b
+            .spacing
             .unwrap_or_else(|| fly::spacing_from(meta.georef.as_ref(), meta.height, 100.0)),
     };
-    let extent = f64::from(g.width().max(g.height())) * world.spacing;
+    let cameras = paths::path_cameras(&p, &world, b.path, b.fps, b.width, b.height)?;
+    // Forward and back, so consecutive frames are always neighbours on the path:
+    // frame k is camera `order[k % order.len()]`.
+    let n = cameras.len();
+    let order: Vec<usize> = (0..n).chain((1..n.saturating_sub(1)).rev()).collect();
     let mut sel = Selector::new(
         world,
         SelectParams {
-            tau,
+            tau: b.tau,
             ..SelectParams::default()
         },
     );
-    let mut times = Vec::new();
-    let mut tris = Vec::new();
-    for f in 0..frames {
-        // A straight low pass along the diagonal, looking ahead and down.
-        let a = 0.1 + 0.8 * f64::from(f) / f64::from(frames.max(1));
-        let camera = Camera {
-            position: DVec3::new(a * extent, meta.max_height + 300.0, a * extent),
-            yaw: 135f64.to_radians(),
-            pitch: -0.25,
-            fovy: 60f64.to_radians(),
-            width: w,
-            height: h,
-            near: 1.0,
-            far: 4.0 * extent,
-        };
-        let s = sel.select(&camera, &tables);
+    // The first frame builds every quadtree from nothing: not a steady-state frame.
+    sel.select(&cameras[order[0]], &tables);
+    let mut times = Vec::with_capacity(b.frames as usize);
+    let mut tris = Vec::with_capacity(b.frames as usize);
+    let mut worst_deficit = 0f64;
+    for k in 1..=b.frames as usize {
+        let s = sel.select(&cameras[order[k % order.len()]], &tables);
         times.push(s.stats.select_us);
         tris.push(s.stats.triangles);
+        worst_deficit = worst_deficit.max(s.stats.deficit);
     }
     times.sort_by(f64::total_cmp);
     tris.sort_unstable();
-    let pct = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
-    println!(
-        "{}: {} tiles resident, {w}×{h}, τ = {tau} px, {frames} frames: selection median {:.0} µs, p90 {:.0} µs, max {:.0} µs; median {} triangles",
-        file.display(),
-        tables.len(),
-        pct(0.5),
-        pct(0.9),
-        pct(1.0),
-        tris[tris.len() / 2]
-    );
-    Ok(())
+    // Microseconds to the nanosecond: the clock's own resolution, without float noise.
+    let ns = |us: f64| (us * 1e3).round() / 1e3;
+    let pct = |q: f64| ns(times[((times.len() - 1) as f64 * q).round() as usize]);
+    Ok(BenchSelectReport {
+        file: b.file.display().to_string(),
+        tiles: tables.len(),
+        width: b.width,
+        height: b.height,
+        tau: b.tau,
+        path: b.path.to_string(),
+        fps: b.fps,
+        frames: b.frames,
+        median_us: pct(0.5),
+        mean_us: ns(times.iter().sum::<f64>() / times.len() as f64),
+        p90_us: pct(0.9),
+        max_us: pct(1.0),
+        median_triangles: tris[tris.len() / 2],
+        worst_deficit,
+    })
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -353,6 +415,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             quality,
             quality_every,
             no_frames,
+            settle,
+            reference_cache,
             view,
             parallax,
             policy,
@@ -380,11 +444,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     backend,
                 },
                 out_dir: dir.clone(),
-                reference,
-                quality,
+                draws: if reference {
+                    Draws::Reference
+                } else if quality {
+                    Draws::Quality
+                } else {
+                    Draws::Selection
+                },
                 quality_every,
                 write_frames: !no_frames,
                 upload_budget: budget,
+                settle,
+                reference_cache,
             });
             // Headless runs write their statistics beside the frames by default.
             let stats = stats.or_else(|| out.as_ref().map(|d| d.join("stats.jsonl")));
@@ -446,11 +517,48 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::BenchSelect {
             file,
+            path,
+            fps,
             tau,
             frames,
             viewport,
             spacing,
-        } => bench_select(&file, tau, frames, &viewport, spacing),
+            json,
+        } => {
+            let (width, height) = parse_viewport(&viewport)?;
+            let r = bench_select(&BenchSelect {
+                file: &file,
+                path: &path,
+                fps,
+                tau,
+                frames,
+                width,
+                height,
+                spacing,
+            })?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                println!(
+                    "{}: {} tiles resident, path `{}` at {} fps (forward and back), {}×{}, τ = {} px, {} frames: selection median {:.0} µs, mean {:.0} µs, p90 {:.0} µs, max {:.0} µs; median {} triangles, worst deficit {:.2}",
+                    r.file,
+                    r.tiles,
+                    r.path,
+                    r.fps,
+                    r.width,
+                    r.height,
+                    r.tau,
+                    r.frames,
+                    r.median_us,
+                    r.mean_us,
+                    r.p90_us,
+                    r.max_us,
+                    r.median_triangles,
+                    r.worst_deficit
+                );
+            }
+            Ok(())
+        }
         Command::Report { stats, frames, out } => {
             let summary =
                 tessera_client::report::flight::write_report(&stats, frames.as_deref(), &out)?;

@@ -7,11 +7,16 @@
 //! ```
 //! Waypoints are fractions of the DEM's width and height (so one path fits any
 //! dataset); the camera flies the polyline at `speed_mps`, looking along it.
+//! [`path_cameras`] places every frame's camera over a local pyramid, for benchmarks.
 
+use crate::camera::Camera;
+use crate::select::World;
+use crate::stream::pool::TilePool;
 use anyhow::{Context, bail};
 use glam::{DVec2, DVec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use tessera_shared::{ByteSource, Pyramid};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -110,13 +115,26 @@ impl FlyPath {
         Ok(())
     }
 
-    /// The pose after `t` seconds on a DEM `size_m` metres wide and high.
-    pub fn pose(&self, t: f64, size_m: DVec2) -> Pose {
-        let pts: Vec<DVec2> = self
-            .waypoints
+    /// The waypoints in metres on a DEM `size_m` metres wide and high.
+    fn points(&self, size_m: DVec2) -> Vec<DVec2> {
+        self.waypoints
             .iter()
             .map(|w| DVec2::new(w[0], w[1]) * size_m)
-            .collect();
+            .collect()
+    }
+
+    /// Length in metres of the polyline (one lap of a looped path) on a DEM
+    /// `size_m` metres wide and high.
+    pub fn length_m(&self, size_m: DVec2) -> f64 {
+        self.points(size_m)
+            .windows(2)
+            .map(|w| w[0].distance(w[1]))
+            .sum()
+    }
+
+    /// The pose after `t` seconds on a DEM `size_m` metres wide and high.
+    pub fn pose(&self, t: f64, size_m: DVec2) -> Pose {
+        let pts = self.points(size_m);
         let lens: Vec<f64> = pts.windows(2).map(|w| w[0].distance(w[1])).collect();
         let total: f64 = lens.iter().sum::<f64>().max(1e-9);
         let mut d = t * self.speed_mps;
@@ -146,6 +164,70 @@ impl FlyPath {
 /// World position of a pose over ground at height `ground_m`.
 pub fn eye(pose: &Pose, ground_m: f64) -> DVec3 {
     DVec3::new(pose.ground.x, ground_m + pose.altitude_agl, pose.ground.y)
+}
+
+/// The camera of every frame of a path flown at `fps` over a local pyramid, placed
+/// as `tessera fly` places it: the path (`canyon`, `pass`, `orbit` or a path JSON
+/// file, as [`FlyPath::load`] reads it) sized to the DEM, the eye at the path's
+/// altitude above the ground under it, the camera looking along the path (60°
+/// vertical field of view, `width × height` pixels). `tessera fly` reads the ground
+/// from the finest tile it has streamed; here it is always read from the finest
+/// tile under the eye ([`Pyramid::read_tile`] into a [`TilePool`], then
+/// [`TilePool::ground_height`]).
+///
+/// One camera for each frame from the start of the path to its end (one lap of a
+/// looped path): `⌈length / speed · fps⌉ + 1` cameras.
+pub fn path_cameras<S: ByteSource>(
+    pyramid: &Pyramid<S>,
+    world: &World,
+    path: &str,
+    fps: f64,
+    width: u32,
+    height: u32,
+) -> anyhow::Result<Vec<Camera>> {
+    anyhow::ensure!(
+        fps.is_finite() && fps > 0.0,
+        "frames per second must be positive"
+    );
+    let g = &world.geometry;
+    anyhow::ensure!(
+        g == pyramid.geometry(),
+        "the world's geometry is not the pyramid's"
+    );
+    let size = DVec2::new(f64::from(g.width()), f64::from(g.height())) * world.spacing;
+    let fly_path = FlyPath::load(path, size.max_element())?;
+    let frames = (fly_path.length_m(size) / fly_path.speed_mps * fps).ceil() + 1.0;
+    anyhow::ensure!(
+        frames <= 1e7,
+        "{path}: {frames} frames at {fps} fps is too many"
+    );
+    let max_height = pyramid.metadata().max_height;
+    let mut ground = TilePool::new(64);
+    let mut cameras = Vec::with_capacity(frames as usize);
+    for f in 0..frames as u32 {
+        let pose = fly_path.pose(f64::from(f) / fps, size);
+        let under = world.finest_tile_at(pose.ground.x, pose.ground.y);
+        if !ground.contains(under) {
+            let rec = pyramid
+                .read_tile(under)?
+                .with_context(|| format!("{under} under the camera is absent"))?;
+            ground.insert(under, rec.errors, rec.heights);
+        }
+        let h = ground
+            .ground_height(world, pose.ground.x, pose.ground.y)
+            .unwrap_or(max_height);
+        cameras.push(Camera {
+            position: eye(&pose, h),
+            yaw: pose.yaw,
+            pitch: pose.pitch,
+            fovy: 60f64.to_radians(),
+            width,
+            height,
+            near: 1.0,
+            far: 4.0 * size.max_element() + 1e5,
+        });
+    }
+    Ok(cameras)
 }
 
 #[cfg(test)]
@@ -184,5 +266,182 @@ mod tests {
             );
         }
         assert!(FlyPath::load("no-such-path.json", 1.0).is_err());
+    }
+
+    /// Quantized height of finest sample `(x, y)` of the test pyramid; coarser
+    /// levels store it raised by 5000 so a camera standing on them shows.
+    fn test_height(x: u64, y: u64, level_above_finest: u8) -> u16 {
+        ((x * 37 + y * 101) % 4000) as u16 + 5000 * u16::from(level_above_finest.min(1))
+    }
+
+    /// A small pyramid in memory: `width × height` samples of [`test_height`] in
+    /// 64-cell tiles, empty error tables.
+    fn test_pyramid(width: u32, height: u32) -> Pyramid<Vec<u8>> {
+        use tessera_shared::format::{
+            self, FileHeader, HEADER_LEN, INDEX_ENTRY_LEN, IndexEntry, LEVEL_ENTRY_LEN, LevelEntry,
+            VERSION,
+        };
+        use tessera_shared::{ErrorTable, Metadata, Quantization, TileGeometry, codec};
+        let g = TileGeometry::new(width, height, 64).unwrap();
+        let side = g.tile_samples();
+        // Records level by level (relative offsets for now) and each level's index.
+        let mut records = Vec::new();
+        let mut levels = Vec::new();
+        for level in g.levels() {
+            let start = records.len() as u64;
+            let mut index = vec![IndexEntry::default(); level.tile_slots() as usize];
+            for tile in g.present_tiles(level) {
+                let (x0, y0) = g.origin(tile);
+                let s = g.spacing(level);
+                let heights: Vec<u16> = (0..side as u64)
+                    .flat_map(|v| {
+                        (0..side as u64).map(move |u| {
+                            test_height(x0 + u * s, y0 + v * s, g.finest().get() - level.get())
+                        })
+                    })
+                    .collect();
+                let rec = codec::encode_record(&ErrorTable::empty(g.tile_log2()), &heights);
+                index[tile.morton().get() as usize] = IndexEntry {
+                    offset: records.len() as u64,
+                    length: rec.len() as u32,
+                    checksum: format::checksum(&rec),
+                    ..IndexEntry::default()
+                };
+                records.extend_from_slice(&rec);
+            }
+            levels.push((start, records.len() as u64 - start, index));
+        }
+        let meta = Metadata {
+            width,
+            height,
+            tile_size: g.tile_size(),
+            levels: g.level_count(),
+            quantization: Quantization {
+                offset: -1000.0,
+                scale: 0.5,
+                max_error: 0.0,
+            },
+            min_height: -1000.0,
+            max_height: 3500.0,
+            nodata_count: 0,
+            nodata_fill: String::new(),
+            georef: None,
+            source: "test".into(),
+            generator: "test".into(),
+            content_hash: String::new(),
+        };
+        let meta_bytes = format::encode_metadata(&meta);
+        let table_len = levels.len() * LEVEL_ENTRY_LEN;
+        let index_len: usize = levels.iter().map(|l| l.2.len() * INDEX_ENTRY_LEN).sum();
+        let records_offset = (HEADER_LEN + table_len + index_len + meta_bytes.len()) as u64;
+        let mut region = Vec::new();
+        let mut index_at = (HEADER_LEN + table_len) as u64;
+        for (level, (start, len, index)) in g.levels().zip(&levels) {
+            let entry = LevelEntry {
+                level: level.get(),
+                tiles_per_side: level.tiles_per_side(),
+                index_offset: index_at,
+                index_entries: level.tile_slots(),
+                records_offset: records_offset + start,
+                records_len: *len,
+            };
+            region.extend_from_slice(&entry.to_bytes());
+            index_at += (index.len() * INDEX_ENTRY_LEN) as u64;
+        }
+        for (_, _, index) in &levels {
+            for e in index {
+                let mut e = *e;
+                if e.is_present() {
+                    e.offset += records_offset;
+                }
+                region.extend_from_slice(&e.to_bytes());
+            }
+        }
+        let meta_offset = (HEADER_LEN + region.len()) as u64;
+        region.extend_from_slice(&meta_bytes);
+        let mut header = FileHeader {
+            version: VERSION,
+            flags: 0,
+            meta_offset,
+            meta_len: meta_bytes.len() as u64,
+            level_table_offset: HEADER_LEN as u64,
+            level_count: u32::from(g.level_count()),
+            index_entry_len: INDEX_ENTRY_LEN as u32,
+            records_offset,
+            checksum: 0,
+        };
+        header.checksum = header.compute_checksum(&region);
+        let mut file = header.to_bytes().to_vec();
+        file.extend_from_slice(&region);
+        file.extend_from_slice(&records);
+        Pyramid::open(file).unwrap()
+    }
+
+    #[test]
+    fn path_cameras_fly_the_whole_path_at_altitude_over_the_finest_ground() {
+        // 300 × 200 samples: a finest level of 8 × 8 slots (5 × 4 tiles present)
+        // under three coarser levels.
+        let pyramid = test_pyramid(300, 200);
+        let world = World {
+            geometry: *pyramid.geometry(),
+            quant: pyramid.metadata().quantization,
+            spacing: 7.5,
+        };
+        let size = DVec2::new(300.0, 200.0) * 7.5;
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("corner.json");
+        std::fs::write(
+            &file,
+            r#"{"waypoints": [[0, 0], [1, 0], [1, 1]], "speed_mps": 40, "altitude_agl_m": 20}"#,
+        )
+        .unwrap();
+        let file = file.to_str().unwrap();
+        for (name, fps) in [
+            ("canyon", 60.0),
+            ("pass", 60.0),
+            ("orbit", 24.0),
+            (file, 30.0),
+        ] {
+            let path = FlyPath::load(name, size.max_element()).unwrap();
+            let length: f64 = path
+                .waypoints
+                .windows(2)
+                .map(|w| ((DVec2::from(w[1]) - DVec2::from(w[0])) * size).length())
+                .sum();
+            let cameras = path_cameras(&pyramid, &world, name, fps, 640, 480).unwrap();
+            let want = (length / path.speed_mps * fps).ceil() as usize + 1;
+            assert_eq!(cameras.len(), want, "{name}: frames");
+            for (f, c) in cameras.iter().enumerate() {
+                let pose = path.pose(f as f64 / fps, size);
+                assert_eq!(c.position.x, pose.ground.x, "{name} frame {f}");
+                assert_eq!(c.position.z, pose.ground.y, "{name} frame {f}");
+                let (fx, fy) = (
+                    ((pose.ground.x / 7.5).round() as u64).min(299),
+                    ((pose.ground.y / 7.5).round() as u64).min(199),
+                );
+                let ground = world.quant.height(test_height(fx, fy, 0));
+                assert_eq!(
+                    c.position.y,
+                    ground + path.altitude_agl_m,
+                    "{name} frame {f}: eye over ({fx}, {fy})"
+                );
+                assert_eq!((c.yaw, c.pitch), (pose.yaw, pose.pitch));
+                assert_eq!((c.width, c.height), (640, 480));
+            }
+            // The last frame is at the last waypoint: exactly for a path that stops
+            // there, within a frame's flight for a looped one (orbit's last waypoint
+            // is its first).
+            let end = DVec2::from(*path.waypoints.last().unwrap()) * size;
+            let last = cameras.last().unwrap().position;
+            let miss = (DVec2::new(last.x, last.z) - end).length();
+            let within = if path.looped {
+                path.speed_mps / fps
+            } else {
+                1e-6
+            };
+            assert!(miss <= within, "{name}: last frame {miss} m from the end");
+        }
+        assert!(path_cameras(&pyramid, &world, "pass", 0.0, 640, 480).is_err());
+        assert!(path_cameras(&pyramid, &world, "no-such-path", 60.0, 640, 480).is_err());
     }
 }

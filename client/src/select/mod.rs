@@ -44,6 +44,22 @@ impl World {
         )
     }
 
+    /// The finest-level tile holding the sample nearest to `(x, z)` metres (clamped
+    /// to the DEM): where the ground under a camera is read from.
+    pub fn finest_tile_at(&self, x: f64, z: f64) -> TileId {
+        let g = &self.geometry;
+        let sample = |v: f64, len: u32| ((v / self.spacing).round().max(0.0) as u32).min(len - 1);
+        let (fx, fy) = (sample(x, g.width()), sample(z, g.height()));
+        let finest = g.finest();
+        let n = finest.tiles_per_side() - 1;
+        TileId::new(
+            finest,
+            (fx / g.tile_size()).min(n),
+            (fy / g.tile_size()).min(n),
+        )
+        .expect("clamped to the finest level's tiles")
+    }
+
     /// Deepest quadtree level inside a tile: nodes of 64 cells (Kang §4.2), at most 5
     /// so that neighbouring patches never differ by more than the 64 an edge can bridge.
     pub fn max_depth(&self) -> u32 {
