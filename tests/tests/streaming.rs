@@ -141,6 +141,112 @@ fn flight_converges_and_never_draws_a_hole() {
     assert_eq!(summary.stream.failures, 0);
 }
 
+/// `fly --quality --settle --reference-cache` (what the benchmarks use): every
+/// measured frame waits until it draws what the policy asks for, two runs see the same
+/// cameras and selections, and the second run takes its references from the cache.
+#[test]
+fn settled_quality_frames_converge_and_reuse_cached_references() {
+    use tessera_client::headless::{Draws, RenderSetup};
+    use tessera_client::render::RenderOptions;
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let flight = |out: &str| {
+        let mut opts = options(addr, glide(dir.path()), 9);
+        opts.width = 320;
+        opts.height = 180;
+        // The reference needs every finest tile in view resident and uploaded.
+        opts.pool_tiles = 2048;
+        opts.render = Some(RenderSetup {
+            opts: RenderOptions {
+                width: 320,
+                height: 180,
+                slots: 1100,
+                ..RenderOptions::default()
+            },
+            out_dir: dir.path().join(out),
+            draws: Draws::Quality,
+            quality_every: 4,
+            write_frames: false,
+            // One upload per frame at most: without settling, measured frames would
+            // still be waiting for tiles.
+            upload_budget: Duration::ZERO,
+            settle: true,
+            reference_cache: Some(cache.clone()),
+        });
+        run_flight(&opts).0
+    };
+    let measured = |frames: &[FrameRecord]| -> Vec<(u32, u64, f64)> {
+        frames
+            .iter()
+            .filter_map(|f| {
+                let r = f.render.as_ref()?;
+                Some((f.frame, f.select.triangles, r.mse?))
+            })
+            .collect()
+    };
+    let first = flight("a");
+    let m1 = measured(&first);
+    assert_eq!(
+        m1.iter().map(|m| m.0).collect::<Vec<_>>(),
+        [0, 4, 8],
+        "every 4th frame is measured"
+    );
+    for f in first.iter().filter(|f| f.frame % 4 == 0) {
+        let r = f.render.unwrap();
+        assert!(
+            r.converged && f.wanted == 0,
+            "frame {} did not settle",
+            f.frame
+        );
+        assert!(
+            f.select.deficit <= 1.0,
+            "frame {}: deficit {}",
+            f.frame,
+            f.select.deficit
+        );
+    }
+    let cached: Vec<_> = std::fs::read_dir(&cache)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    assert_eq!(cached.len(), 3, "one cached reference per measured frame");
+
+    // Same cameras and selections: the same triangles. The error is close, not
+    // equal: a tile's normal map takes its border from the same-level neighbours
+    // resident when it is uploaded, and that depends on timing.
+    let close = |a: &[(u32, u64, f64)], b: &[(u32, u64, f64)]| {
+        a.len() == b.len()
+            && a.iter()
+                .zip(b)
+                .all(|(x, y)| x.0 == y.0 && x.1 == y.1 && (x.2 - y.2).abs() <= 0.1 * y.2.max(1.0))
+    };
+    let second = measured(&flight("b"));
+    assert!(close(&second, &m1), "{second:?} against {m1:?}");
+    // The cache is what the runs compare against: spoil one reference (black) and
+    // that frame's error explodes while the others stay.
+    let spoiled = cached[0].clone();
+    let (rgba, w, h) = tessera_client::render::png_out::read_png(&spoiled).unwrap();
+    tessera_client::render::png_out::write_png(&spoiled, &vec![0u8; rgba.len()], w, h).unwrap();
+    let third = measured(&flight("c"));
+    let exploded: Vec<_> = third
+        .iter()
+        .zip(&m1)
+        .filter(|(a, b)| a.2 > 20.0 * b.2.max(1.0))
+        .map(|(a, _)| a.0)
+        .collect();
+    assert_eq!(exploded.len(), 1, "{third:?} against {m1:?}");
+    let rest: (Vec<_>, Vec<_>) = third
+        .iter()
+        .zip(&m1)
+        .filter(|(a, _)| a.0 != exploded[0])
+        .map(|(a, b)| (*a, *b))
+        .unzip();
+    assert!(close(&rest.0, &rest.1), "{third:?} against {m1:?}");
+}
+
 #[test]
 fn recovers_after_the_server_is_killed_and_restarted() {
     // The server runs on its own runtime, so killing it (shutting the runtime down)
