@@ -7,7 +7,7 @@
 # GPU). Appends to $RESULTS/gonzalez.jsonl {dataset, path, tau, parallax, run, summary,
 # frames}.
 source "$(dirname "$0")/common.sh"
-frames=41
+frames=31
 taus=(1 2 4)
 [ "$QUICK" = 1 ] && { frames=11; taus=(1 4); }
 build_moon 4096 "$WORK/moon4096.tess"

@@ -9,7 +9,7 @@
 # frame's triangles and image do not depend on timing, so each setting flies once.
 # Appends to $RESULTS/policy.jsonl {dataset, path, policy, tau, run, summary, frames}.
 source "$(dirname "$0")/common.sh"
-frames=41
+frames=31
 screen=(1 2)
 distance=(2 4 8 16 32)
 paths=(canyon pass)

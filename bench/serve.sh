@@ -13,9 +13,9 @@
 # Appends to $RESULTS/serve.jsonl {server, request, tiles_per_request, connections,
 # run, duration_s, requests, errors, p50_ms, p99_ms, mean_tile_bytes, wrk_bytes} and
 # to $RESULTS/load.jsonl {mode, run, …`tessera load --json`}.
-#   ROW_SECONDS (default 5) per wrk row, LOAD_SECONDS (default 10) per load run.
+#   ROW_SECONDS (default 4) per wrk row, LOAD_SECONDS (default 10) per load run.
 source "$(dirname "$0")/common.sh"
-row=${ROW_SECONDS:-5}
+row=${ROW_SECONDS:-4}
 load_s=${LOAD_SECONDS:-10}
 conns=(64 256 1024)
 if [ "$QUICK" = 1 ]; then row=2; load_s=4; conns=(64); fi

@@ -1,0 +1,480 @@
+//! The results directory that `./run bench` writes, read into typed records.
+//!
+//! The runner is bash; this is where its output meets a schema. Each record type
+//! names only the fields the report uses, so the runner may add more, but a
+//! missing or mistyped field is an error naming the file and line. A missing file
+//! is not an error: that benchmark was not run, and its section says so.
+//! Every record carries the 1-based `run` it belongs to; two records for the same
+//! measurement and run are an error (a runner that appended twice).
+
+use anyhow::{Context, bail};
+use serde::Deserialize;
+use serde::de::DeserializeOwned;
+use std::collections::HashMap;
+use std::path::Path;
+
+/// `meta.json`: when, on what and with which tools the results were measured.
+#[derive(Clone, Debug, Deserialize)]
+pub struct Meta {
+    pub started: String,
+    pub finished: String,
+    pub commit: String,
+    pub dirty: bool,
+    pub cpu: String,
+    pub cores: u32,
+    pub memory_gib: f64,
+    pub os: String,
+    pub rustc: String,
+    /// Peer tools; `null` where one was not installed.
+    pub gdal: Option<String>,
+    pub nginx: Option<String>,
+    pub wrk: Option<String>,
+    /// The wgpu adapter the rendering benchmarks ran on.
+    pub renderer: Option<String>,
+    /// Repeats per measurement.
+    pub runs: u32,
+    /// A shortened smoke run: the numbers are not comparable with a full one.
+    pub quick: bool,
+}
+
+/// `build.jsonl`: one pyramid build (`tool` is "tessera" or "gdal").
+#[derive(Clone, Debug, Deserialize)]
+pub struct Build {
+    pub tool: String,
+    pub input: String,
+    pub run: u32,
+    pub wall_s: f64,
+    pub cpu_s: f64,
+    pub rss_mib: f64,
+    /// The output file(s), all levels.
+    pub bytes: f64,
+    /// DEM samples in the input.
+    pub samples: f64,
+}
+
+/// `serve.jsonl`: one wrk row against Tessera or nginx.
+#[derive(Clone, Debug, Deserialize)]
+pub struct Serve {
+    /// "tessera" or "nginx".
+    pub server: String,
+    /// "batch", "single" or "static".
+    pub request: String,
+    pub tiles_per_request: u32,
+    pub connections: u32,
+    pub run: u32,
+    pub duration_s: f64,
+    /// Completed requests.
+    pub requests: f64,
+    /// Socket errors plus non-2xx responses.
+    pub errors: f64,
+    pub p50_ms: f64,
+    pub p99_ms: f64,
+    pub mean_tile_bytes: f64,
+}
+
+impl Serve {
+    pub fn requests_per_s(&self) -> f64 {
+        self.requests / self.duration_s
+    }
+
+    pub fn tiles_per_s(&self) -> f64 {
+        self.requests_per_s() * f64::from(self.tiles_per_request)
+    }
+
+    /// Tile payload in MB (10⁶ bytes) per second, headers not counted.
+    pub fn payload_mb_per_s(&self) -> f64 {
+        self.tiles_per_s() * self.mean_tile_bytes / 1e6
+    }
+}
+
+/// `load.jsonl`: one `tessera load --json` run (`mode` "ranges" or "single").
+#[derive(Clone, Debug, Deserialize)]
+pub struct Load {
+    pub mode: String,
+    pub run: u32,
+    pub clients: u32,
+    pub requests_per_s: f64,
+    pub tiles_per_s: f64,
+    pub mb_per_s: f64,
+    pub latency_ms_p50: f64,
+    pub latency_ms_p90: f64,
+    pub latency_ms_p99: f64,
+    pub latency_ms_max: f64,
+    pub errors: f64,
+    /// Fraction (0–1) of all clients' frames within 2τ.
+    pub frames_within_2tau: f64,
+}
+
+/// One line of a rendered flight's `stats.jsonl` (only what the report uses).
+#[derive(Clone, Debug, Deserialize)]
+pub struct Frame {
+    pub triangles: u64,
+    pub draw_calls: u32,
+    pub render_ms: f64,
+    /// Drawing what the policy asks for (no stand-ins); absent counts as yes.
+    #[serde(default)]
+    pub converged: Option<bool>,
+    /// On measured frames only (`--quality`).
+    #[serde(default)]
+    pub mse: Option<f64>,
+    #[serde(default)]
+    pub psnr: Option<f64>,
+}
+
+impl Frame {
+    /// Something was drawn.
+    pub fn drawn(&self) -> bool {
+        self.triangles > 0
+    }
+
+    /// Compared against the full-resolution reference while drawing what the
+    /// policy asks for.
+    pub fn measured(&self) -> bool {
+        self.psnr.is_some() && self.converged != Some(false)
+    }
+}
+
+/// `policy.jsonl`: one rendered flight with the screen-error or distance policy.
+#[derive(Clone, Debug, Deserialize)]
+pub struct PolicyFlight {
+    pub dataset: String,
+    /// Flight path ("canyon", "pass").
+    pub path: String,
+    /// "screen-error" or "distance".
+    pub policy: String,
+    pub tau: f64,
+    pub run: u32,
+    pub frames: Vec<Frame>,
+}
+
+/// `gonzalez.jsonl`: one rendered flight with a parallax mode.
+#[derive(Clone, Debug, Deserialize)]
+pub struct Gonzalez {
+    pub dataset: String,
+    pub path: String,
+    pub tau: f64,
+    /// "none", "offset", "iterative" or "binary".
+    pub parallax: String,
+    pub run: u32,
+    pub frames: Vec<Frame>,
+}
+
+/// The streaming totals of a flight summary.
+#[derive(Clone, Debug, Deserialize)]
+pub struct StreamTotals {
+    pub requests: f64,
+    pub bytes: f64,
+}
+
+/// The parts of `tessera fly`'s summary that the streaming section uses.
+#[derive(Clone, Debug, Deserialize)]
+pub struct FlySummary {
+    /// Fractions (0–1) of frames with deficit ≤ 1 and ≤ 2.
+    pub within_tau: f64,
+    pub within_2tau: f64,
+    pub warmup_frames: u32,
+    pub steady_within_2tau: f64,
+    pub p99_stream_us: f64,
+    pub stream: StreamTotals,
+}
+
+/// `stream.jsonl`: one `tessera fly --no-render` flight behind the delaying proxy.
+#[derive(Clone, Debug, Deserialize)]
+pub struct Stream {
+    pub dataset: String,
+    pub path: String,
+    pub latency_ms: f64,
+    pub prefetch: bool,
+    pub run: u32,
+    pub summary: FlySummary,
+}
+
+/// `select.jsonl`: one `tessera bench-select --json` run.
+#[derive(Clone, Debug, Deserialize)]
+pub struct Select {
+    pub dataset: String,
+    pub path: String,
+    pub run: u32,
+    pub width: u32,
+    pub height: u32,
+    pub tau: f64,
+    pub median_us: f64,
+    pub p90_us: f64,
+    pub max_us: f64,
+    pub median_triangles: f64,
+    pub worst_deficit: f64,
+}
+
+/// `gpu.jsonl`: frames per second on a real GPU (only when one was lent).
+#[derive(Clone, Debug, Deserialize)]
+pub struct GpuRun {
+    pub gpu: String,
+    pub width: u32,
+    pub height: u32,
+    pub tau: f64,
+    pub run: u32,
+    pub fps_median: f64,
+}
+
+/// A record of a `.jsonl` file: its run and what it measured, for the checks.
+pub trait Record: DeserializeOwned {
+    const FILE: &'static str;
+    fn run(&self) -> u32;
+    /// What was measured, without the run ("tessera synthetic:16385").
+    fn key(&self) -> String;
+    /// Values the report cannot use (a zero duration) as an error message.
+    fn check(&self) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+impl Record for Build {
+    const FILE: &'static str = "build.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!("{} {}", self.tool, self.input)
+    }
+    fn check(&self) -> Result<(), String> {
+        positive(&[("wall_s", self.wall_s), ("samples", self.samples)])
+    }
+}
+
+impl Record for Serve {
+    const FILE: &'static str = "serve.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!(
+            "{} {} ×{} at {} connections",
+            self.server, self.request, self.tiles_per_request, self.connections
+        )
+    }
+    fn check(&self) -> Result<(), String> {
+        positive(&[("duration_s", self.duration_s)])
+    }
+}
+
+impl Record for Load {
+    const FILE: &'static str = "load.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        self.mode.clone()
+    }
+}
+
+impl Record for PolicyFlight {
+    const FILE: &'static str = "policy.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!(
+            "{} {} {} τ={}",
+            self.dataset, self.path, self.policy, self.tau
+        )
+    }
+}
+
+impl Record for Gonzalez {
+    const FILE: &'static str = "gonzalez.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!(
+            "{} {} {} τ={}",
+            self.dataset, self.path, self.parallax, self.tau
+        )
+    }
+}
+
+impl Record for Stream {
+    const FILE: &'static str = "stream.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!(
+            "{} {} {} ms prefetch {}",
+            self.dataset, self.path, self.latency_ms, self.prefetch
+        )
+    }
+}
+
+impl Record for Select {
+    const FILE: &'static str = "select.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!("{} {} τ={}", self.dataset, self.path, self.tau)
+    }
+}
+
+impl Record for GpuRun {
+    const FILE: &'static str = "gpu.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!("{} {}x{} τ={}", self.gpu, self.width, self.height, self.tau)
+    }
+}
+
+fn positive(fields: &[(&str, f64)]) -> Result<(), String> {
+    match fields.iter().find(|(_, v)| v.is_nan() || *v <= 0.0) {
+        Some((name, v)) => Err(format!("`{name}` must be positive, not {v}")),
+        None => Ok(()),
+    }
+}
+
+/// Everything in a results directory; `None` for a benchmark that was not run.
+#[derive(Debug, Default)]
+pub struct Results {
+    pub meta: Option<Meta>,
+    pub build: Option<Vec<Build>>,
+    pub serve: Option<Vec<Serve>>,
+    pub load: Option<Vec<Load>>,
+    pub policy: Option<Vec<PolicyFlight>>,
+    pub gonzalez: Option<Vec<Gonzalez>>,
+    pub stream: Option<Vec<Stream>>,
+    pub select: Option<Vec<Select>>,
+    pub gpu: Option<Vec<GpuRun>>,
+}
+
+impl Results {
+    pub fn load(dir: &Path) -> anyhow::Result<Self> {
+        if !dir.is_dir() {
+            bail!("{}: not a directory of benchmark results", dir.display());
+        }
+        let meta_path = dir.join("meta.json");
+        let meta = match std::fs::read_to_string(&meta_path) {
+            Ok(text) => Some(
+                serde_json::from_str(&text)
+                    .with_context(|| format!("{}: not valid metadata", meta_path.display()))?,
+            ),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => {
+                return Err(e).with_context(|| format!("{}: cannot read", meta_path.display()));
+            }
+        };
+        Ok(Self {
+            meta,
+            build: load_jsonl(dir)?,
+            serve: load_jsonl(dir)?,
+            load: load_jsonl(dir)?,
+            policy: load_jsonl(dir)?,
+            gonzalez: load_jsonl(dir)?,
+            stream: load_jsonl(dir)?,
+            select: load_jsonl(dir)?,
+            gpu: load_jsonl(dir)?,
+        })
+    }
+}
+
+/// Reads `dir/T::FILE`: `None` if it does not exist, else one record per
+/// non-blank line, checked.
+pub fn load_jsonl<T: Record>(dir: &Path) -> anyhow::Result<Option<Vec<T>>> {
+    let path = dir.join(T::FILE);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(e).with_context(|| format!("{}: cannot read", path.display())),
+    };
+    parse_jsonl(&text)
+        .map(Some)
+        .with_context(|| path.display().to_string())
+}
+
+/// The records of a JSON Lines text; errors name the line.
+pub fn parse_jsonl<T: Record>(text: &str) -> anyhow::Result<Vec<T>> {
+    let mut records = Vec::new();
+    let mut seen: HashMap<(String, u32), usize> = HashMap::new();
+    for (i, line) in text.lines().enumerate() {
+        let n = i + 1;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let r: T = serde_json::from_str(line).with_context(|| format!("line {n}"))?;
+        if r.run() == 0 {
+            bail!("line {n}: `run` counts from 1");
+        }
+        r.check().map_err(|e| anyhow::anyhow!("line {n}: {e}"))?;
+        if let Some(first) = seen.insert((r.key(), r.run()), n) {
+            bail!(
+                "line {n}: run {} of {} again (first on line {first})",
+                r.run(),
+                r.key()
+            );
+        }
+        records.push(r);
+    }
+    Ok(records)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BUILD: &str = r#"{"tool":"tessera","input":"synthetic:16385","run":1,"wall_s":4.8,"cpu_s":8.9,"rss_mib":72,"bytes":367000000,"samples":268468225,"extra":"ignored"}"#;
+
+    #[test]
+    fn parses_records_and_ignores_extra_fields_and_blank_lines() {
+        let text = format!("{BUILD}\n\n{}\n", BUILD.replace("\"run\":1", "\"run\":2"));
+        let r: Vec<Build> = parse_jsonl(&text).expect("valid");
+        assert_eq!(r.len(), 2);
+        assert_eq!(r[1].run, 2);
+        assert_eq!(r[0].rss_mib, 72.0);
+    }
+
+    #[test]
+    fn errors_name_the_line_and_the_problem() {
+        let missing = BUILD.replace("\"wall_s\":4.8,", "");
+        let e = parse_jsonl::<Build>(&format!("{BUILD}\n{missing}")).expect_err("no wall_s");
+        let msg = format!("{e:#}");
+        assert!(msg.contains("line 2") && msg.contains("wall_s"), "{msg}");
+
+        let e = parse_jsonl::<Build>(&format!("{BUILD}\n{BUILD}")).expect_err("duplicate");
+        let msg = format!("{e:#}");
+        assert!(
+            msg.contains("line 2") && msg.contains("first on line 1"),
+            "{msg}"
+        );
+
+        let zero = BUILD.replace("\"run\":1", "\"run\":0");
+        assert!(parse_jsonl::<Build>(&zero).is_err());
+        let no_time = BUILD.replace("\"wall_s\":4.8", "\"wall_s\":0");
+        let e = parse_jsonl::<Build>(&no_time).expect_err("zero wall time");
+        assert!(format!("{e:#}").contains("wall_s"));
+    }
+
+    #[test]
+    fn a_missing_file_is_not_run_but_a_bad_one_is_an_error() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        assert!(load_jsonl::<Serve>(dir.path()).expect("absent").is_none());
+        std::fs::write(dir.path().join("serve.jsonl"), "{not json\n").expect("write");
+        let e = load_jsonl::<Serve>(dir.path()).expect_err("bad json");
+        let msg = format!("{e:#}");
+        assert!(
+            msg.contains("serve.jsonl") && msg.contains("line 1"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn serve_derives_rates_from_counts() {
+        let s: Serve = serde_json::from_str(
+            r#"{"server":"tessera","request":"batch","tiles_per_request":16,"connections":64,"run":1,
+               "duration_s":10,"requests":1000,"errors":0,"p50_ms":30,"p99_ms":50,"mean_tile_bytes":150000}"#,
+        )
+        .expect("valid");
+        assert_eq!(s.requests_per_s(), 100.0);
+        assert_eq!(s.tiles_per_s(), 1600.0);
+        assert_eq!(s.payload_mb_per_s(), 240.0);
+    }
+}

@@ -1,0 +1,201 @@
+//! End to end: `tessera-bench report` on the hand-made results in
+//! `bench/testdata/results` with the real template, and its failures.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use tessera_client::render::png_out::read_png;
+
+fn crate_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn report(results: &Path, template: &Path, out: &Path, plots: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tessera-bench"))
+        .arg("report")
+        .arg("--results")
+        .arg(results)
+        .arg("--template")
+        .arg(template)
+        .arg("--out")
+        .arg(out)
+        .arg("--plots")
+        .arg(plots)
+        .output()
+        .expect("run tessera-bench")
+}
+
+fn template() -> PathBuf {
+    crate_dir().join("BENCHMARKS.md.in")
+}
+
+fn testdata() -> PathBuf {
+    crate_dir().join("testdata/results")
+}
+
+/// GitHub's anchor of a heading (the test's own, to check the report's links).
+fn anchor(heading: &str) -> String {
+    heading
+        .trim()
+        .to_lowercase()
+        .chars()
+        .filter_map(|c| match c {
+            ' ' => Some('-'),
+            c if c.is_alphanumeric() || c == '-' || c == '_' => Some(c),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The line of `doc` containing `needle`.
+fn line_with<'a>(doc: &'a str, needle: &str) -> &'a str {
+    doc.lines()
+        .find(|l| l.contains(needle))
+        .unwrap_or_else(|| panic!("no line with {needle:?}"))
+}
+
+#[test]
+fn the_report_has_every_section_the_numbers_and_the_verdicts() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("doc/BENCHMARKS.md");
+    let plots = dir.path().join("plots");
+    let o = report(&testdata(), &template(), &out, &plots);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let doc = std::fs::read_to_string(&out).expect("BENCHMARKS.md written");
+
+    assert!(!doc.contains("{{"), "a placeholder is left");
+    for heading in [
+        "## Aims",
+        "## Build",
+        "## Serving",
+        "## Load replay",
+        "## Selection policy",
+        "## Parallax: the González table",
+        "## Streaming under latency",
+        "## Selection time",
+        "## GPU",
+    ] {
+        assert!(doc.contains(&format!("\n{heading}\n")), "no {heading}");
+    }
+    // Every results file is there, so only the GPU section is not measured.
+    assert!(!doc.contains("Not run"), "a section says it was not run");
+    assert!(doc.contains("Not measured: no GPU lent"));
+    assert!(doc.contains("| runs per measurement | 3 |"));
+    assert!(!doc.contains("Quick run"));
+
+    // Known medians (min–max) from the hand-made records.
+    let moon = line_with(&doc, "| Tessera `build` | `moon_crisium_gld100_8192.png` |");
+    assert!(moon.contains("| 2.16 (2.14–2.18) |"), "{moon}");
+    let nginx64 = line_with(&doc, "| nginx: one static tile file per request | 64 |");
+    assert!(nginx64.contains("| 0.98 (0.95–1.01) |"), "{nginx64}");
+    let canyon = line_with(&doc, "| `synthetic:65537` | `canyon` |");
+    assert!(canyon.contains("| 595 (571–619) |"), "{canyon}");
+
+    // Verdicts in the aims table.
+    let faster = line_with(&doc, "| [Build](#build): build faster");
+    assert!(faster.ends_with("| **met** |"), "{faster}");
+    let flat = line_with(&doc, "| [Build](#build): peak RSS flat");
+    assert!(flat.ends_with("| **not met** |"), "{flat}");
+    assert!(flat.contains("+27%"), "{flat}");
+    let binary = line_with(&doc, "binary-search parallax MSE ≤ 1/5");
+    assert!(
+        binary.contains("0.15×") && binary.ends_with("| **met** |"),
+        "{binary}"
+    );
+    let select = line_with(&doc, "| [Selection time](#selection-time)");
+    assert!(select.ends_with("| **not met** |"), "{select}");
+    assert!(doc.contains("4 of 9 aims met, 5 not met, 0 not measured."));
+
+    // Every link to a section lands on a heading.
+    let headings: Vec<String> = doc
+        .lines()
+        .filter_map(|l| l.strip_prefix("## "))
+        .map(anchor)
+        .collect();
+    for part in doc.split("](#").skip(1) {
+        let a = part.split(')').next().unwrap_or("");
+        assert!(headings.iter().any(|h| h == a), "no heading for #{a}");
+    }
+
+    // The charts: linked relative to the document, 900×500 PNGs.
+    for name in [
+        "build.png",
+        "build_rss.png",
+        "serve.png",
+        "load.png",
+        "policy.png",
+        "gonzalez.png",
+        "stream.png",
+        "select.png",
+    ] {
+        assert!(
+            doc.contains(&format!("](../plots/{name})")),
+            "{name} not linked"
+        );
+        let (_, w, h) = read_png(&plots.join(name)).expect("a PNG");
+        assert_eq!((w, h), (900, 500), "{name}");
+    }
+    // Nothing left behind but the outputs.
+    let names: Vec<String> = std::fs::read_dir(out.parent().expect("dir"))
+        .expect("list")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["BENCHMARKS.md"]);
+}
+
+#[test]
+fn missing_results_say_not_run_and_aims_not_measured() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let results = dir.path().join("results");
+    std::fs::create_dir(&results).expect("mkdir");
+    std::fs::copy(testdata().join("meta.json"), results.join("meta.json")).expect("copy");
+    let out = dir.path().join("BENCHMARKS.md");
+    let o = report(&results, &template(), &out, &dir.path().join("plots"));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let doc = std::fs::read_to_string(&out).expect("written");
+    assert!(doc.contains("*Not run: the results have no `serve.jsonl`.*"));
+    assert!(
+        doc.contains("0 of 9 aims met, 0 not met, 9 not measured."),
+        "{doc}"
+    );
+}
+
+#[test]
+fn bad_input_fails_naming_the_file_and_leaves_the_old_report() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("BENCHMARKS.md");
+    std::fs::write(&out, "old").expect("write");
+    let plots = dir.path().join("plots");
+
+    // A record with a field missing.
+    let results = dir.path().join("results");
+    std::fs::create_dir(&results).expect("mkdir");
+    for e in std::fs::read_dir(testdata()).expect("list") {
+        let e = e.expect("entry");
+        std::fs::copy(e.path(), results.join(e.file_name())).expect("copy");
+    }
+    let serve = std::fs::read_to_string(results.join("serve.jsonl")).expect("read");
+    let broken = serve.replacen("\"p99_ms\":", "\"p98_ms\":", 1);
+    std::fs::write(results.join("serve.jsonl"), broken).expect("write");
+    let o = report(&results, &template(), &out, &plots);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("serve.jsonl") && err.contains("line 1") && err.contains("p99_ms"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&out).expect("read"), "old");
+
+    // An unknown placeholder in the template.
+    let bad = dir.path().join("bad.md.in");
+    let text = std::fs::read_to_string(template()).expect("template");
+    std::fs::write(&bad, text.replace("{{load}}", "{{lod}}")).expect("write");
+    let o = report(&testdata(), &bad, &out, &plots);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("bad.md.in") && err.contains("{{lod}}"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&out).expect("read"), "old");
+    assert!(!plots.exists() || std::fs::read_dir(&plots).expect("list").next().is_none());
+}
