@@ -15,7 +15,7 @@
 
 use anyhow::Context;
 use std::path::Path;
-use tessera_client::report::font::{GLYPH_HEIGHT, draw_text, text_width};
+use tessera_client::report::font::{GLYPH_HEIGHT, text_width};
 use tessera_client::report::format_compact;
 use tessera_client::report::plot::{AXIS, BACKGROUND, GRID, PALETTE, TEXT};
 
@@ -131,54 +131,35 @@ pub fn plain(text: &str) -> String {
     out
 }
 
-/// A minimal opaque RGBA8 raster.
+/// The client's report raster (`tessera_client::report::canvas`), with the marks
+/// charts add on top: lines stamped centred on their points, labels on boxes, markers.
 struct Canvas {
+    raster: tessera_client::report::canvas::Canvas,
     width: i64,
     height: i64,
-    rgba: Vec<u8>,
 }
 
 impl Canvas {
     fn new(width: u32, height: u32) -> Self {
         Self {
+            raster: tessera_client::report::canvas::Canvas::new(width, height, BACKGROUND),
             width: i64::from(width),
             height: i64::from(height),
-            rgba: BACKGROUND.repeat(width as usize * height as usize),
         }
     }
 
     fn fill(&mut self, x: i64, y: i64, w: i64, h: i64, colour: [u8; 4]) {
-        for py in y.max(0)..(y + h).min(self.height) {
-            for px in x.max(0)..(x + w).min(self.width) {
-                let at = ((py * self.width + px) * 4) as usize;
-                self.rgba[at..at + 4].copy_from_slice(&colour);
-            }
-        }
+        self.raster.fill_rect(x, y, w, h, colour);
     }
 
-    /// A `t`-pixel-thick straight line (stamps `t`×`t` squares along it).
+    /// A `t`-pixel-thick straight line, centred on the points.
     fn line(&mut self, from: (i64, i64), to: (i64, i64), t: i64, colour: [u8; 4]) {
-        let steps = (to.0 - from.0).abs().max((to.1 - from.1).abs()).max(1);
-        for i in 0..=steps {
-            let x = from.0 + (to.0 - from.0) * i / steps;
-            let y = from.1 + (to.1 - from.1) * i / steps;
-            self.fill(x - t / 2, y - t / 2, t, t, colour);
-        }
+        let c = |(x, y): (i64, i64)| (x - t / 2, y - t / 2);
+        self.raster.line(c(from), c(to), t, colour);
     }
 
     fn text(&mut self, x: i64, y: i64, text: &str, colour: [u8; 4], scale: u32) {
-        let (w, h) = (self.width as u32, self.height as u32);
-        let clamp = |v: i64| v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
-        draw_text(
-            &mut self.rgba,
-            w,
-            h,
-            clamp(x),
-            clamp(y),
-            text,
-            colour,
-            scale,
-        );
+        self.raster.text(x, y, text, colour, scale);
     }
 
     /// Text on a background-coloured box, so it stays legible over lines.
@@ -214,10 +195,11 @@ impl Canvas {
     }
 
     fn into_image(self) -> Image {
+        let (rgba, width, height) = self.raster.into_parts();
         Image {
-            rgba: self.rgba,
-            width: self.width as u32,
-            height: self.height as u32,
+            rgba,
+            width,
+            height,
         }
     }
 }

@@ -5,7 +5,7 @@ use super::font;
 
 /// An RGBA8 image, row-major, top row first.
 #[derive(Debug)]
-pub(super) struct Canvas {
+pub struct Canvas {
     pub width: u32,
     pub height: u32,
     pub rgba: Vec<u8>,

@@ -40,7 +40,7 @@
 //! # }
 //! ```
 
-mod canvas;
+pub mod canvas;
 pub mod contact_sheet;
 pub mod flight;
 pub mod font;
