@@ -1,9 +1,8 @@
 //! `tessera fly --no-render`: selection and streaming along a path at a fixed frame
 //! rate, in real time against a real server, writing per-frame statistics.
 
-use crate::camera::Camera;
 use crate::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles, fetch_tiles};
-use crate::paths::{FlyPath, eye};
+use crate::paths::{FlyPath, pose_camera};
 use crate::select::{FrameStats, SelectParams, Selector, World};
 use crate::stream::pool::TilePool;
 use crate::stream::{FrameWork, StreamConfig, StreamStats, Streamer};
@@ -243,16 +242,13 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         let ground = pool
             .ground_height(&world, pose.ground.x, pose.ground.y)
             .unwrap_or(max_height);
-        Camera {
-            position: eye(&pose, ground),
-            yaw: pose.yaw,
-            pitch: pose.pitch,
-            fovy: 60f64.to_radians() * fov_scale,
-            width: opts.width,
-            height: opts.height,
-            near: 1.0,
-            far: 4.0 * size.max_element() + 1e5,
-        }
+        pose_camera(
+            &pose,
+            ground,
+            size.max_element(),
+            fov_scale,
+            (opts.width, opts.height),
+        )
     };
     for frame in 0..opts.frames {
         let t = opts.t_offset + f64::from(frame) / opts.fps;

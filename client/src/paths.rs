@@ -166,6 +166,29 @@ pub fn eye(pose: &Pose, ground_m: f64) -> DVec3 {
     DVec3::new(pose.ground.x, ground_m + pose.altitude_agl, pose.ground.y)
 }
 
+/// The camera of a pose over ground at height `ground_m`, on a DEM `extent_m` metres
+/// across: looking along the path with a 60° vertical field of view times
+/// `fov_scale` (the prefetch view is wider), `width × height` pixels, and a far plane
+/// beyond the whole DEM.
+pub fn pose_camera(
+    pose: &Pose,
+    ground_m: f64,
+    extent_m: f64,
+    fov_scale: f64,
+    (width, height): (u32, u32),
+) -> Camera {
+    Camera {
+        position: eye(pose, ground_m),
+        yaw: pose.yaw,
+        pitch: pose.pitch,
+        fovy: 60f64.to_radians() * fov_scale,
+        width,
+        height,
+        near: 1.0,
+        far: 4.0 * extent_m + 1e5,
+    }
+}
+
 /// The camera of every frame of a path flown at `fps` over a local pyramid, placed
 /// as `tessera fly` places it: the path (`canyon`, `pass`, `orbit` or a path JSON
 /// file, as [`FlyPath::load`] reads it) sized to the DEM, the eye at the path's
@@ -216,16 +239,13 @@ pub fn path_cameras<S: ByteSource>(
         let h = ground
             .ground_height(world, pose.ground.x, pose.ground.y)
             .unwrap_or(max_height);
-        cameras.push(Camera {
-            position: eye(&pose, h),
-            yaw: pose.yaw,
-            pitch: pose.pitch,
-            fovy: 60f64.to_radians(),
-            width,
-            height,
-            near: 1.0,
-            far: 4.0 * size.max_element() + 1e5,
-        });
+        cameras.push(pose_camera(
+            &pose,
+            h,
+            size.max_element(),
+            1.0,
+            (width, height),
+        ));
     }
     Ok(cameras)
 }
