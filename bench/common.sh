@@ -83,3 +83,17 @@ fly_record() {
   [ $# -ge 4 ] && frames=$(jq -s -c . "$4")
   record "$1" "$(jq -c --argjson p "$2" --argjson f "$frames" '$p + {summary: ., frames: $f}' "$3")"
 }
+
+# fly_quality SECTION FIELDS_JSON FLY_ARGS...: one settled quality flight (1280×720,
+# 30 fps, every 10th frame against the cached full-resolution reference) recorded
+# with every frame's statistics. FLY_ARGS add the server, dataset, path, frames and
+# the setting under test.
+fly_quality() {
+  local section=$1 fields=$2
+  shift 2
+  rm -rf "$WORK/run"
+  "$CLIENT_BIN" fly --fps 30 --viewport 1280x720 --spacing "$MOON_SPACING" --budget-ms 50 \
+    --quality --quality-every 10 --settle --reference-cache "$RESULTS/reference-cache" --no-frames \
+    --out "$WORK/run" "$@" > "$WORK/run.json" 2> "$WORK/run.log" || { cat "$WORK/run.log" >&2; exit 1; }
+  fly_record "$section" "$fields" "$WORK/run.json" "$WORK/run/stats.jsonl"
+}

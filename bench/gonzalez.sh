@@ -16,15 +16,10 @@ for run in $(seq "$RUNS"); do
   for tau in "${taus[@]}"; do
     for mode in none offset iterative binary; do
       log "gonzalez: run $run of $RUNS, τ = $tau, parallax $mode"
-      rm -rf "$WORK/run"
-      "$CLIENT_BIN" fly --server "$url" --dataset moon4096 --path pass --frames "$frames" --fps 30 \
-        --tau "$tau" --viewport 1280x720 --spacing "$MOON_SPACING" --pool-tiles 2048 --gpu-tiles 640 \
-        --budget-ms 50 --quality --quality-every 10 --settle --reference-cache "$RESULTS/reference-cache" \
-        --no-frames --parallax "$mode" --out "$WORK/run" > "$WORK/run.json" 2> "$WORK/run.log" \
-        || { cat "$WORK/run.log" >&2; exit 1; }
-      fly_record gonzalez "$(jq -n -c --argjson tau "$tau" --arg mode "$mode" --argjson run "$run" \
+      fly_quality gonzalez "$(jq -n -c --argjson tau "$tau" --arg mode "$mode" --argjson run "$run" \
         '{dataset: "moon4096", path: "pass", tau: $tau, parallax: $mode, run: $run}')" \
-        "$WORK/run.json" "$WORK/run/stats.jsonl"
+        --server "$url" --dataset moon4096 --path pass --frames "$frames" --pool-tiles 2048 \
+        --gpu-tiles 640 --tau "$tau" --parallax "$mode"
     done
   done
 done

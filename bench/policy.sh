@@ -20,14 +20,9 @@ for path in "${paths[@]}"; do
   for setting in "${screen[@]/#/screen-error:}" "${distance[@]/#/distance:}"; do
     policy=${setting%%:*} tau=${setting#*:}
     log "policy: $path, $policy, τ = $tau"
-    rm -rf "$WORK/run"
-    "$CLIENT_BIN" fly --server "$url" --dataset moon8192 --path "$path" --frames "$frames" --fps 30 \
-      --viewport 1280x720 --spacing "$MOON_SPACING" --pool-tiles 4096 --gpu-tiles 800 --budget-ms 50 \
-      --quality --quality-every 10 --settle --reference-cache "$RESULTS/reference-cache" --no-frames \
-      --policy "$policy" --tau "$tau" --out "$WORK/run" > "$WORK/run.json" 2> "$WORK/run.log" \
-      || { cat "$WORK/run.log" >&2; exit 1; }
-    fly_record policy "$(jq -n -c --arg path "$path" --arg policy "$policy" --argjson tau "$tau" \
+    fly_quality policy "$(jq -n -c --arg path "$path" --arg policy "$policy" --argjson tau "$tau" \
       '{dataset: "moon8192", path: $path, policy: $policy, tau: $tau, run: 1}')" \
-      "$WORK/run.json" "$WORK/run/stats.jsonl"
+      --server "$url" --dataset moon8192 --path "$path" --frames "$frames" --pool-tiles 4096 \
+      --gpu-tiles 800 --policy "$policy" --tau "$tau"
   done
 done
