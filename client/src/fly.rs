@@ -52,6 +52,10 @@ pub struct FrameRecord {
     pub wanted: usize,
     pub bytes_fetched: u64,
     pub requests: u64,
+    /// The streamer's last failure so far (`null` while there has been none): why
+    /// tiles are missing or a coarser level stands in.
+    #[serde(default)]
+    pub last_error: Option<String>,
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub render: Option<RenderRecord>,
 }
@@ -60,6 +64,14 @@ pub struct FrameRecord {
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct FlySummary {
     pub frames: u32,
+    /// Frames that drew at least one tile. A flight where this is 0 failed
+    /// ([`FlySummary::verdict`]; `tessera fly` exits non-zero).
+    #[serde(default)]
+    pub frames_drawn: u32,
+    /// Frames whose deficit was missing (`max_rho: null`): part of the view had
+    /// nothing drawn, or the eye was inside a stand-in's error box.
+    #[serde(default)]
+    pub frames_missing: u32,
     pub within_tau: f64,
     pub within_2tau: f64,
     /// Frames before the first one within τ (start-up: the root and its first
@@ -101,6 +113,26 @@ pub struct RenderSummary {
     pub median_mse: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub total_crack_pixels: Option<usize>,
+}
+
+impl FlySummary {
+    /// `Err` when the whole flight drew nothing (DESIGN §8: the client exits
+    /// non-zero then), saying what the streamer could not get.
+    pub fn verdict(&self) -> anyhow::Result<()> {
+        if self.frames == 0 || self.frames_drawn > 0 {
+            return Ok(());
+        }
+        let s = &self.stream;
+        anyhow::bail!(
+            "the flight drew nothing in any of its {} frames ({} requests, {} failed, {} corrupt-record reports, {} tiles written off); last error: {}",
+            self.frames,
+            s.requests,
+            s.failures,
+            s.corrupt,
+            s.written_off,
+            self.last_error.as_deref().unwrap_or("none")
+        )
+    }
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -234,6 +266,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let mut rendered: Vec<(FrameStats, RenderRecord)> = Vec::new();
     let start = Instant::now();
     let (mut within1, mut within2) = (0u32, 0u32);
+    let (mut frames_drawn, mut frames_missing) = (0u32, 0u32);
     let mut warmup: Option<u32> = None;
     let (mut steady1, mut steady2) = (0u32, 0u32);
     let mut stream_us = Vec::new();
@@ -319,12 +352,11 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             }
             None => None,
         };
-        // A frame that draws nothing (before the root arrives) is never within τ.
-        let drawn = !sel.tiles.is_empty();
-        let (ok1, ok2) = (
-            drawn && sel.stats.deficit <= 1.0,
-            drawn && sel.stats.deficit <= 2.0,
-        );
+        // A frame that draws nothing (before the root arrives) is never within τ,
+        // nor is one whose deficit is missing.
+        frames_drawn += u32::from(!sel.tiles.is_empty());
+        frames_missing += u32::from(sel.stats.max_rho.is_none());
+        let (ok1, ok2) = (sel.stats.within(1.0), sel.stats.within(2.0));
         within1 += u32::from(ok1);
         within2 += u32::from(ok2);
         if warmup.is_none() && ok1 {
@@ -344,6 +376,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
                 wanted: sel.wanted.len(),
                 bytes_fetched: streamer.stats.bytes,
                 requests: streamer.stats.requests,
+                last_error: streamer.last_error.clone(),
                 render,
             };
             serde_json::to_writer(&mut *out, &rec)?;
@@ -361,6 +394,8 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let steady = f64::from((opts.frames - warmup_frames).max(1));
     Ok(FlySummary {
         frames: opts.frames,
+        frames_drawn,
+        frames_missing,
         within_tau: f64::from(within1) / n,
         within_2tau: f64::from(within2) / n,
         warmup_frames,

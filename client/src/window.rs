@@ -283,13 +283,17 @@ impl State {
             self.fps = (0, Instant::now(), f64::from(self.fps.0) / since);
         }
         self.window.set_title(&format!(
-            "Tessera — {} — {:.0} fps · {} triangles · {} draws · τ {:.2} · deficit {:.2} · {} tiles ({} on GPU) · {:?}, parallax {:?}",
+            "Tessera — {} — {:.0} fps · {} triangles · {} draws · τ {:.2} · deficit {} · {} tiles ({} on GPU) · {:?}, parallax {:?}",
             self.dataset,
             self.fps.2,
             sel.stats.triangles,
             d.draw_calls,
             self.selector.params.tau,
-            sel.stats.deficit.min(999.0),
+            // Unbounded while tiles are missing: say so rather than print a number.
+            sel.stats.deficit.map_or_else(
+                || format!("missing ({} tiles)", sel.stats.missing),
+                |d| format!("{:.2}", d.min(999.0))
+            ),
             self.pool.len(),
             self.renderer.slots.len(),
             self.renderer.opts.view,

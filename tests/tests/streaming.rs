@@ -17,6 +17,7 @@ use tessera_client::stream::StreamConfig;
 use tessera_server::build::{BuildOptions, build};
 use tessera_server::serve::config::Settings;
 use tessera_shared::wire::{self, FRAME_HEADER_LEN};
+use tessera_shared::{Level, TileId};
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 
@@ -41,9 +42,18 @@ fn start_server(
     rt: &tokio::runtime::Runtime,
     addr: SocketAddr,
 ) -> (SocketAddr, tokio::task::JoinHandle<()>) {
+    start_server_for(rt, addr, pyramid())
+}
+
+/// [`start_server`] serving `dataset` (named after its file stem).
+fn start_server_for(
+    rt: &tokio::runtime::Runtime,
+    addr: SocketAddr,
+    dataset: &Path,
+) -> (SocketAddr, tokio::task::JoinHandle<()>) {
     let settings = Settings {
         listen: addr,
-        datasets: vec![pyramid().to_path_buf()],
+        datasets: vec![dataset.to_path_buf()],
         ..Settings::default()
     };
     let state = tessera_server::serve::state(&settings).unwrap();
@@ -132,8 +142,8 @@ fn flight_converges_and_never_draws_a_hole() {
     assert_no_holes(&frames);
     let last = frames.last().unwrap();
     assert!(
-        last.select.deficit <= 1.0,
-        "the still view never reached τ: deficit {}",
+        last.select.deficit.is_some_and(|d| d <= 1.0),
+        "the still view never reached τ: deficit {:?}",
         last.select.deficit
     );
     assert_eq!(last.wanted, 0, "everything the view needs is resident");
@@ -201,8 +211,8 @@ fn settled_quality_frames_converge_and_reuse_cached_references() {
             f.frame
         );
         assert!(
-            f.select.deficit <= 1.0,
-            "frame {}: deficit {}",
+            f.select.deficit.is_some_and(|d| d <= 1.0),
+            "frame {}: deficit {:?}",
             f.frame,
             f.select.deficit
         );
@@ -277,8 +287,8 @@ fn recovers_after_the_server_is_killed_and_restarted() {
     assert!(summary.stream.failures > 0, "the outage was not noticed");
     let last = frames.last().unwrap();
     assert!(
-        last.select.deficit <= 1.0,
-        "no recovery after the restart: deficit {}",
+        last.select.deficit.is_some_and(|d| d <= 1.0),
+        "no recovery after the restart: deficit {:?}",
         last.select.deficit
     );
     assert_eq!(last.wanted, 0);
@@ -361,8 +371,8 @@ fn keeps_drawing_through_150_ms_of_latency() {
     );
     let last = frames.last().unwrap();
     assert!(
-        last.select.deficit <= 1.0,
-        "deficit {} at the end",
+        last.select.deficit.is_some_and(|d| d <= 1.0),
+        "deficit {:?} at the end",
         last.select.deficit
     );
     assert_eq!(summary.stream.failures, 0);
@@ -591,8 +601,8 @@ fn assert_survived_transient(
     assert_no_holes(frames);
     let last = frames.last().unwrap();
     assert!(
-        last.select.deficit <= 1.0,
-        "no recovery from transient damage: deficit {}",
+        last.select.deficit.is_some_and(|d| d <= 1.0),
+        "no recovery from transient damage: deficit {:?}",
         last.select.deficit
     );
     assert_eq!(last.wanted, 0, "every tile arrived whole in the end");
@@ -737,4 +747,282 @@ fn damaged_tiles_never_become_resident() {
     let error = streamer.last_error.clone().unwrap_or_default();
     assert!(error.contains("checksum"), "last error {error:?}");
     assert_backed_off(&faults.first_damaged(), elapsed, &config, 1);
+}
+
+/// A copy of the test pyramid in `dir` (same name, so the same dataset) with one byte
+/// flipped in the middle of every record `pick` chooses: the records' checksums in the
+/// index no longer match, so the server answers them with error frames (API.md), as
+/// it would a record damaged on disk.
+fn corrupted_copy(dir: &Path, pick: impl Fn(TileId) -> bool) -> (PathBuf, Vec<TileId>) {
+    use std::io::{Read, Seek, SeekFrom, Write};
+    use tessera_shared::Pyramid;
+    let out = dir.join("terrain.tess");
+    std::fs::copy(pyramid(), &out).unwrap();
+    let spots: Vec<(TileId, u64)> = {
+        let p = Pyramid::open_file(&out).unwrap();
+        let g = *p.geometry();
+        g.levels()
+            .flat_map(|l| g.present_tiles(l))
+            .filter(|t| pick(*t))
+            .map(|t| {
+                let e = p.entry(t).unwrap();
+                (t, e.offset + u64::from(e.length) / 2)
+            })
+            .collect()
+    };
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&out)
+        .unwrap();
+    for &(_, at) in &spots {
+        let mut b = [0u8];
+        f.seek(SeekFrom::Start(at)).unwrap();
+        f.read_exact(&mut b).unwrap();
+        f.seek(SeekFrom::Start(at)).unwrap();
+        f.write_all(&[b[0] ^ 0x5a]).unwrap();
+    }
+    f.sync_all().unwrap();
+    (out, spots.into_iter().map(|(t, _)| t).collect())
+}
+
+/// A TCP proxy in front of `upstream` that passes everything through unchanged and
+/// records the target of every request line it carries (`/v1/datasets/…`), so a test
+/// can count what the client asked for.
+async fn logging_proxy(upstream: SocketAddr) -> (SocketAddr, Arc<Mutex<Vec<String>>>) {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let log = Arc::new(Mutex::new(Vec::new()));
+    let seen = log.clone();
+    tokio::spawn(async move {
+        loop {
+            let Ok((client, _)) = listener.accept().await else {
+                return;
+            };
+            let seen = seen.clone();
+            tokio::spawn(async move {
+                let Ok(server) = tokio::net::TcpStream::connect(upstream).await else {
+                    return;
+                };
+                let (mut cr, mut cw) = client.into_split();
+                let (mut sr, mut sw) = server.into_split();
+                let down = tokio::spawn(async move {
+                    let _ = tokio::io::copy(&mut sr, &mut cw).await;
+                });
+                let mut buf = vec![0u8; 1 << 14];
+                let mut line = Vec::new();
+                loop {
+                    let n = match cr.read(&mut buf).await {
+                        Ok(0) | Err(_) => break,
+                        Ok(n) => n,
+                    };
+                    for &b in &buf[..n] {
+                        if b == b'\n' {
+                            let text = String::from_utf8_lossy(&line);
+                            if let Some(target) = text.strip_prefix("GET ") {
+                                let target = target.split(' ').next().unwrap_or_default();
+                                seen.lock().unwrap().push(target.to_string());
+                            }
+                            line.clear();
+                        } else {
+                            line.push(b);
+                        }
+                    }
+                    if sw.write_all(&buf[..n]).await.is_err() {
+                        break;
+                    }
+                }
+                down.abort();
+            });
+        }
+    });
+    (addr, log)
+}
+
+fn root() -> TileId {
+    TileId::new(Level::ROOT, 0, 0).unwrap()
+}
+
+/// Requests the client sent for tiles of `level`.
+fn level_requests(log: &Mutex<Vec<String>>, level: u8) -> usize {
+    let needle = format!("/levels/{level}/tiles?");
+    log.lock()
+        .unwrap()
+        .iter()
+        .filter(|t| t.contains(&needle))
+        .count()
+}
+
+/// Issue 11 (DESIGN §8, "the client never goes blind"): the root's record is corrupt
+/// on disk, so the server answers it with an error frame every time. The client
+/// retries it with backoff before writing it off, meanwhile draws the root's
+/// children (level 1) instead of nothing, says why in `last_error`, and the flight
+/// succeeds because it drew.
+#[test]
+fn flight_draws_level_one_when_the_root_record_is_corrupt() {
+    let dir = tempfile::tempdir().unwrap();
+    let (file, corrupted) = corrupted_copy(dir.path(), |t| t == root());
+    assert_eq!(corrupted, [root()]);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &file);
+    let (proxy, log) = rt.block_on(logging_proxy(server));
+    let opts = options(proxy, glide(dir.path()), 150);
+    let (frames, summary) = run_flight(&opts);
+
+    // Drawn: from the first frame with tiles on, every frame draws, never the root.
+    let first = assert_no_holes(&frames);
+    for f in &frames {
+        assert_ne!(
+            f.select.coarsest_level,
+            Some(0),
+            "frame {} drew the corrupt root",
+            f.frame
+        );
+    }
+    assert!(
+        frames[first..]
+            .iter()
+            .all(|f| f.select.coarsest_level >= Some(1) && f.select.triangles > 0)
+    );
+    assert_eq!(summary.frames_drawn as usize, frames.len() - first);
+    // Before level 1 arrives nothing is drawn: the deficit is missing, not 0.
+    for f in &frames[..first] {
+        assert!(
+            f.select.max_rho.is_none() && f.select.deficit.is_none() && f.select.missing > 0,
+            "frame {} draws nothing, yet reports {:?}",
+            f.frame,
+            f.select
+        );
+    }
+
+    // Retried with backoff, then written off: asked for more than twice, and never
+    // after the last report the client allows.
+    let asked = level_requests(&log, 0);
+    assert!(
+        asked >= 3,
+        "the corrupt root was asked for {asked} times: not retried"
+    );
+    assert!(
+        asked <= opts.stream.corrupt_attempts as usize,
+        "the root was asked for {asked} times, beyond the {} reports that write it off",
+        opts.stream.corrupt_attempts
+    );
+    assert!(level_requests(&log, 1) > 0, "level 1 was never asked for");
+    assert!(summary.stream.corrupt >= 3, "{:?}", summary.stream);
+    assert_eq!(
+        summary.stream.written_off, 1,
+        "only the root is corrupt: {:?}",
+        summary.stream
+    );
+
+    // Reported, in the summary and in the per-frame statistics.
+    let error = summary.last_error.as_deref().unwrap_or_default();
+    assert!(
+        error.contains("corrupt") && error.contains(&root().to_string()),
+        "the last error {error:?} does not name the corrupt root"
+    );
+    let last = frames.last().unwrap();
+    assert!(
+        last.last_error
+            .as_deref()
+            .is_some_and(|e| e.contains("corrupt")),
+        "per-frame last_error: {:?}",
+        last.last_error
+    );
+    summary.verdict().unwrap();
+}
+
+/// Issue 11: every record corrupt. The client retries, falls back level by level,
+/// and still has nothing to draw: the flight fails (`tessera fly` exits non-zero
+/// with this error), saying why, and every frame reports its deficit as missing.
+#[test]
+fn a_flight_that_draws_nothing_fails_and_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let (file, corrupted) = corrupted_copy(dir.path(), |_| true);
+    assert!(corrupted.len() > 5);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &file);
+    let (proxy, log) = rt.block_on(logging_proxy(server));
+    let (frames, summary) = run_flight(&options(proxy, glide(dir.path()), 90));
+    assert_eq!(summary.frames_drawn, 0);
+    assert_eq!(summary.frames_missing, summary.frames);
+    for f in &frames {
+        assert_eq!(f.select.tiles, 0, "frame {} drew a corrupt tile", f.frame);
+        assert!(
+            f.select.max_rho.is_none() && f.select.missing > 0,
+            "frame {}: {:?}",
+            f.frame,
+            f.select
+        );
+    }
+    assert!(
+        level_requests(&log, 0) > 1,
+        "the root was not retried: {:?}",
+        log.lock().unwrap()
+    );
+    assert!(
+        level_requests(&log, 1) > 0,
+        "no fallback to level 1 was tried"
+    );
+    let error = summary.last_error.as_deref().unwrap_or_default();
+    assert!(error.contains("corrupt"), "last error {error:?}");
+    let verdict = format!("{:#}", summary.verdict().unwrap_err());
+    assert!(
+        verdict.contains("drew nothing") && verdict.contains(error),
+        "{verdict}"
+    );
+}
+
+/// Issue 11, item 12 (DESIGN §8: the deficit is reported as "missing", not as a
+/// huge number): in an ordinary flight the first frames have only the root, or
+/// nothing, and the eye is inside the root's error box. Those frames say `null`
+/// and count what is missing; a number is only ever a bounded error. The old
+/// selection clamped the distance to 1e-9 m, which made `ε·λ/d` at least 1e9 px
+/// for any error over a metre: no number that large is a measurement.
+#[test]
+fn the_deficit_is_missing_rather_than_huge_while_tiles_are_missing() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let dir = tempfile::tempdir().unwrap();
+    let mut buf = Vec::new();
+    let opts = options(addr, glide(dir.path()), 120);
+    fly(&opts, Some(&mut buf)).unwrap();
+    let lines: Vec<serde_json::Value> = String::from_utf8(buf)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let mut nulls = 0;
+    for l in &lines {
+        let (rho, deficit) = (&l["max_rho"], &l["deficit"]);
+        if rho.is_null() {
+            nulls += 1;
+            assert!(deficit.is_null(), "{l}");
+            continue;
+        }
+        let rho = rho.as_f64().unwrap();
+        assert!(
+            rho.is_finite() && rho < 1e9,
+            "frame {}: max_rho {rho} is no measurement",
+            l["frame"]
+        );
+        assert_eq!(l["missing"].as_u64(), Some(0), "{l}");
+        let deficit = deficit.as_f64().unwrap();
+        assert!(
+            (deficit - rho / opts.tau).abs() <= 1e-9 * rho.max(1.0),
+            "{l}"
+        );
+    }
+    assert!(
+        lines[0]["missing"].as_u64().is_some_and(|m| m > 0) && lines[0]["max_rho"].is_null(),
+        "frame 0 cannot have the root yet: {}",
+        lines[0]
+    );
+    assert!(
+        nulls > 0 && nulls < lines.len(),
+        "{nulls} of {} frames",
+        lines.len()
+    );
+    let last = lines.last().unwrap();
+    assert!(last["deficit"].as_f64().is_some_and(|d| d <= 1.0), "{last}");
 }

@@ -108,6 +108,10 @@ impl TileTables for OnGpu<'_> {
         self.slots.get(tile)?;
         self.pool.table(tile)
     }
+
+    fn unavailable(&self, tile: TileId) -> bool {
+        self.pool.unavailable(tile)
+    }
 }
 
 #[cfg(test)]

@@ -115,9 +115,32 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
         .into_iter()
         .filter(|v| v.is_finite())
         .fold(0f64, f64::max);
+    // DESIGN §8: what the client could not get is reported as missing, never as a
+    // huge deficit, with the error that explains it.
+    let missing = records.iter().filter(|r| r["max_rho"].is_null()).count();
+    let most_missing = records
+        .iter()
+        .filter_map(|r| r["missing"].as_u64())
+        .max()
+        .unwrap_or(0);
+    let blind = records
+        .iter()
+        .all(|r| r["tiles"].as_u64().unwrap_or(0) == 0);
+    let mut trouble = String::new();
+    if blind {
+        trouble.push_str("; nothing drawn in any frame");
+    }
+    if missing > 0 {
+        trouble.push_str(&format!(
+            "; deficit missing in {missing} frames (up to {most_missing} tiles in view with nothing drawn)"
+        ));
+    }
+    if let Some(e) = last["last_error"].as_str() {
+        trouble.push_str(&format!("; last error: {e}"));
+    }
     Ok(format!(
         "{n} frames: median {:.0} triangles, at most {max_draws:.0} terrain draw calls; {:.1}% of frames within τ, {:.1}% within 2τ; \
-         {:.1} MB in {} requests; median selection {:.2} ms, upload {:.2} ms, render {:.1} ms",
+         {:.1} MB in {} requests; median selection {:.2} ms, upload {:.2} ms, render {:.1} ms{trouble}",
         median(&column(&records, "triangles", 1.0)),
         within(1.0),
         within(2.0),
@@ -161,9 +184,27 @@ mod tests {
             "{summary}"
         );
         assert!(summary.contains("66.7% of frames within τ"), "{summary}");
+        assert!(!summary.contains("missing"), "{summary}");
         assert!(read_png(&out.join("stats.png")).is_ok());
         let (_, w, _) = read_png(&out.join("contact_sheet.png")).unwrap();
         assert!(w > 4 * 320);
+        // Frames with tiles missing: the deficit is `null`, the summary says so.
+        let lines: Vec<String> = (0..4)
+            .map(|f| {
+                let (tiles, rho, missing) = if f < 3 { (0, "null", 1) } else { (4, "0.5", 0) };
+                format!(
+                    r#"{{"frame":{f},"tiles":{tiles},"triangles":10,"max_rho":{rho},"deficit":{rho},"missing":{missing},"requests":5,"last_error":"level 0 tile (0, 0) morton 0: corrupt"}}"#
+                )
+            })
+            .collect();
+        std::fs::write(&stats, lines.join("\n")).unwrap();
+        let summary = write_report(&stats, None, &out).unwrap();
+        assert!(summary.contains("25.0% of frames within τ"), "{summary}");
+        assert!(
+            summary.contains("deficit missing in 3 frames (up to 1 tiles"),
+            "{summary}"
+        );
+        assert!(summary.contains("last error: level 0 tile (0, 0) morton 0: corrupt"));
         std::fs::write(&stats, "{\"frame\":0}\nnot json\n").unwrap();
         let e = write_report(&stats, None, &out).unwrap_err();
         assert!(format!("{e:#}").contains("line 2 is not JSON"), "{e:#}");

@@ -89,7 +89,11 @@ impl TileRho {
                     world.quant.height(qmax) + f64::from(eps),
                     min.z + bsz,
                 );
-                inv_d[i] = 1.0 / distance_to_box(eye, min, max).max(1e-9);
+                // With the eye inside the box, `ε·λ/d` has no bound: infinite, not the
+                // 1e12-odd a clamped distance would make of it (DESIGN §8: reported as
+                // missing, not as a huge number). Comparisons with τ are unchanged.
+                let d = distance_to_box(eye, min, max);
+                inv_d[i] = if d > 0.0 { 1.0 / d } else { f64::INFINITY };
             }
         }
         let fine = BLOCKS.trailing_zeros(); // depth of one block per node

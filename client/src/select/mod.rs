@@ -70,6 +70,15 @@ impl World {
 /// Error tables of the tiles that are resident (decoded and available).
 pub trait TileTables {
     fn table(&self, tile: TileId) -> Option<&ErrorTable>;
+
+    /// Whether a tile that is not resident cannot be had for now: its last fetch
+    /// failed (it is backing off) or its record was written off as corrupt. The
+    /// selection then draws that tile's resident children in its place, so that
+    /// a bad root does not blind the client (DESIGN §8: the client draws the
+    /// healthiest level it has).
+    fn unavailable(&self, _tile: TileId) -> bool {
+        false
+    }
 }
 
 /// Every error table of a local pyramid (benchmarks and tools: selection with
@@ -165,17 +174,38 @@ pub struct Wanted {
     pub rho: f64,
 }
 
-/// Per-frame statistics (DESIGN §6 invariant 4: the deficit is reported, never hidden).
+/// Per-frame statistics (DESIGN §6 invariant 4: the deficit is reported, never hidden;
+/// §8: what could not be had is reported as missing, not as a huge number).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameStats {
     pub tiles: usize,
     pub patches: usize,
     pub triangles: u64,
-    /// Largest screen-space error of anything drawn, in pixels.
-    pub max_rho: f64,
-    /// `max_rho / τ`: above 1 while what is needed is still streaming.
-    pub deficit: f64,
+    /// Coarsest pyramid level drawn (`None` when nothing is drawn): 0 once the
+    /// root is resident, 1 or finer while a bad root is drawn through its children.
+    #[serde(default)]
+    pub coarsest_level: Option<u8>,
+    /// Largest screen-space error of anything drawn, in pixels. `None` ("missing")
+    /// when it has no bound: part of the view has nothing drawn at all
+    /// (`missing > 0`), or the eye is inside the error box of a coarse tile drawn in
+    /// place of missing children (`ρ = ε·λ/d` with `d = 0`).
+    pub max_rho: Option<f64>,
+    /// `max_rho / τ`: above 1 while what is needed is still streaming; `None` with
+    /// `max_rho`.
+    pub deficit: Option<f64>,
+    /// Tiles in view with nothing drawn in their place (no resident ancestor): the
+    /// root before it arrives, or the parts of a bad root's children that have not
+    /// arrived or cannot be had.
+    #[serde(default)]
+    pub missing: usize,
     pub select_us: f64,
+}
+
+impl FrameStats {
+    /// Whether the frame drew something and every drawn error is within `limit·τ`.
+    pub fn within(&self, limit: f64) -> bool {
+        self.tiles > 0 && self.deficit.is_some_and(|d| d <= limit)
+    }
 }
 
 /// What to draw this frame.
@@ -252,12 +282,18 @@ impl Selector {
         }
         self.quadtrees = next_state;
         edge_lod::assign(&self.world, &mut patches);
+        // A hole has no bound on its error, and neither has a stand-in whose error
+        // box holds the eye: say "missing" rather than print a number.
+        let bounded = choice.missing == 0 && max_rho.is_finite();
+        let max_rho = bounded.then_some(max_rho);
         let stats = FrameStats {
             tiles: choice.drawn.len(),
             patches: patches.len(),
             triangles: patches.iter().map(Patch::triangles).sum(),
+            coarsest_level: choice.drawn.iter().map(|t| t.level().get()).min(),
             max_rho,
-            deficit: max_rho / self.params.tau,
+            deficit: max_rho.map(|r| r / self.params.tau),
+            missing: choice.missing,
             select_us: started.elapsed().as_secs_f64() * 1e6,
         };
         Selection {

@@ -15,6 +15,8 @@ pub struct TileChoice {
     pub refined: HashSet<TileId>,
     /// `ρ` tables computed on the way, for reuse when building the drawn quadtrees.
     pub rhos: HashMap<TileId, TileRho>,
+    /// Tiles in view with nothing drawn in their place (no resident ancestor).
+    pub missing: usize,
 }
 
 fn present_children(world: &World, tile: TileId) -> Vec<TileId> {
@@ -68,7 +70,73 @@ fn want_descendants(
     }
 }
 
-/// Walks the pyramid from the root and balances the result.
+/// Most tiles a fallback below unavailable tiles asks for at once (as in
+/// [`want_descendants`]): deep enough for the levels a bad root hides, bounded so that
+/// a dataset that is corrupt throughout is not asked for in full.
+const MAX_FALLBACK: usize = 64;
+
+/// Whether `tile` may be in view, before its error table is known: its extent with
+/// every height the quantization can store (nothing tighter is known of a tile
+/// that is not resident).
+fn may_be_in_view(world: &World, frustum: &Frustum, tile: TileId) -> bool {
+    let (x0, z0, span) = world.tile_extent(tile);
+    let (a, b) = (world.quant.height(0), world.quant.height(u16::MAX));
+    frustum.intersects_box(
+        DVec3::new(x0, a.min(b), z0),
+        DVec3::new(x0 + span, a.max(b), z0 + span),
+    )
+}
+
+/// Where the walk starts: the root when it is resident. Otherwise the root is
+/// wanted, and when it cannot be had (its fetch failed, or its record was written
+/// off as corrupt) its children stand in for it, and theirs for any of them that
+/// cannot be had either, down to [`MAX_FALLBACK`] tiles: the client draws the
+/// healthiest level it has instead of nothing (DESIGN §8). Tiles in view with no
+/// resident stand-in are counted as missing; missing ones are wanted with the
+/// highest priority, since nothing is drawn there.
+fn tops(
+    world: &World,
+    frustum: &Frustum,
+    tables: &dyn TileTables,
+    out: &mut TileChoice,
+) -> Vec<TileId> {
+    let root = TileId::new(Level::ROOT, 0, 0).expect("the root exists");
+    let mut tops = Vec::new();
+    let mut frontier = vec![root];
+    while !frontier.is_empty() {
+        let mut next = Vec::new();
+        for tile in frontier {
+            if tables.table(tile).is_some() {
+                tops.push(tile);
+                continue;
+            }
+            if tile != root && !may_be_in_view(world, frustum, tile) {
+                continue;
+            }
+            out.wanted.push(Wanted {
+                tile,
+                rho: if tile == root {
+                    f64::INFINITY
+                } else {
+                    f64::MAX
+                },
+            });
+            let children = present_children(world, tile);
+            if tables.unavailable(tile)
+                && !children.is_empty()
+                && next.len() + children.len() <= MAX_FALLBACK
+            {
+                next.extend(children);
+            } else {
+                out.missing += 1;
+            }
+        }
+        frontier = next;
+    }
+    tops
+}
+
+/// Walks the pyramid from the root (or what stands in for it) and balances the result.
 pub fn choose(
     world: &World,
     params: &SelectParams,
@@ -79,16 +147,8 @@ pub fn choose(
     prev_refined: &HashSet<TileId>,
 ) -> TileChoice {
     let mut out = TileChoice::default();
-    let root = TileId::new(Level::ROOT, 0, 0).expect("the root exists");
-    if tables.table(root).is_none() {
-        out.wanted.push(Wanted {
-            tile: root,
-            rho: f64::INFINITY,
-        });
-        return out;
-    }
     let t = world.geometry.tile_log2();
-    let mut stack = vec![root];
+    let mut stack = tops(world, frustum, tables, &mut out);
     while let Some(tile) = stack.pop() {
         let table = tables.table(tile).expect("visited tiles are resident");
         let Some((min, max)) = tile_box(world, tile, table) else {

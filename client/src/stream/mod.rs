@@ -17,6 +17,13 @@
 //! still missing), only that tile backs off: the tiles that were to follow it are
 //! asked for again after the base delay, without it, so that a tile that always
 //! arrives damaged cannot hold back the others batched with it.
+//!
+//! A record the server reports corrupt (an error frame, or a 500 for a single tile)
+//! is retried with the same backoff, since a reload or another replica may serve it
+//! whole, and written off only after [`StreamConfig::corrupt_attempts`] reports.
+//! Tiles that fail or are written off are marked unavailable in the pool, so that
+//! the selection draws their children in their place (DESIGN §8: the client never
+//! goes blind); [`Streamer::last_error`] says what happened.
 
 pub mod pool;
 
@@ -48,6 +55,10 @@ pub struct StreamConfig {
     pub retry_base: Duration,
     pub retry_max: Duration,
     pub request_timeout: Duration,
+    /// Reports of a corrupt record (from the server, not damage in transit) after
+    /// which a tile is written off and not asked for again; each report before
+    /// that backs it off like any failure.
+    pub corrupt_attempts: u32,
 }
 
 impl Default for StreamConfig {
@@ -60,6 +71,7 @@ impl Default for StreamConfig {
             retry_base: Duration::from_millis(100),
             retry_max: Duration::from_secs(4),
             request_timeout: Duration::from_secs(20),
+            corrupt_attempts: 4,
         }
     }
 }
@@ -73,7 +85,11 @@ pub struct StreamStats {
     pub bytes: u64,
     pub tiles: u64,
     pub failures: u64,
+    /// Reports of a corrupt record from the server (error frames, 500s).
     pub corrupt: u64,
+    /// Tiles written off after [`StreamConfig::corrupt_attempts`] such reports.
+    #[serde(default)]
+    pub written_off: u64,
     pub cancelled: u64,
 }
 
@@ -98,6 +114,7 @@ enum Event {
     Tile(Box<Decoded>),
     Corrupt {
         tile: TileId,
+        error: String,
     },
     Finished {
         id: u64,
@@ -143,8 +160,10 @@ pub struct Streamer {
     flights: HashMap<u64, Flight>,
     next_id: u64,
     backoff: HashMap<TileId, (u32, Instant)>,
-    /// Tiles whose records the server reports corrupt: not asked for again.
-    corrupt: HashSet<TileId>,
+    /// How many times the server has reported each tile's record corrupt.
+    corrupt_reports: HashMap<TileId, u32>,
+    /// Tiles reported corrupt `corrupt_attempts` times: not asked for again.
+    written_off: HashSet<TileId>,
     pub stats: StreamStats,
     pub last_error: Option<String>,
     /// Time from sending each finished request to its last byte.
@@ -213,7 +232,8 @@ impl Streamer {
             flights: HashMap::new(),
             next_id: 0,
             backoff: HashMap::new(),
-            corrupt: HashSet::new(),
+            corrupt_reports: HashMap::new(),
+            written_off: HashSet::new(),
             stats: StreamStats::default(),
             last_error: None,
             latencies_ms: Vec::new(),
@@ -256,16 +276,30 @@ impl Streamer {
                         f.tiles.remove(&tile);
                     }
                     self.backoff.remove(&tile);
+                    self.corrupt_reports.remove(&tile);
                     pool.insert(tile, errors, heights);
                     self.stats.tiles += 1;
                     work.accepted += 1;
                 }
-                Event::Corrupt { tile } => {
+                Event::Corrupt { tile, error } => {
                     self.stats.corrupt += 1;
-                    self.corrupt.insert(tile);
                     for f in self.flights.values_mut() {
                         f.tiles.remove(&tile);
                     }
+                    let reports = self.corrupt_reports.entry(tile).or_default();
+                    *reports += 1;
+                    let reports = *reports;
+                    let attempts = self.config.corrupt_attempts.max(1);
+                    self.last_error = Some(if reports >= attempts {
+                        if self.written_off.insert(tile) {
+                            self.stats.written_off += 1;
+                        }
+                        pool.mark_unavailable(tile);
+                        format!("{error}; written off after {reports} reports")
+                    } else {
+                        let wait = self.back_off(pool, tile);
+                        format!("{error}; report {reports} of {attempts}, retrying in {wait:?}")
+                    });
                 }
                 Event::Finished {
                     id,
@@ -278,7 +312,7 @@ impl Streamer {
                     if let Some(f) = self.flights.remove(&id) {
                         // Tiles the response did not carry (should not happen) are retried.
                         for t in f.tiles {
-                            self.back_off(t);
+                            self.back_off(pool, t);
                         }
                     }
                 }
@@ -296,7 +330,9 @@ impl Streamer {
                         for t in f.tiles {
                             match culprit {
                                 Some(c) if c != t => self.retry_soon(t),
-                                _ => self.back_off(t),
+                                _ => {
+                                    self.back_off(pool, t);
+                                }
                             }
                         }
                     }
@@ -338,7 +374,10 @@ impl Streamer {
             .or_insert((0, at));
     }
 
-    fn back_off(&mut self, tile: TileId) {
+    /// A failure blamed on `tile`: it waits `retry_base · 2ⁿ` after its n-th
+    /// consecutive failure (at most `retry_max`) and is unavailable meanwhile, so
+    /// that the selection draws its children in its place. Returns the wait.
+    fn back_off(&mut self, pool: &mut TilePool, tile: TileId) -> Duration {
         let e = self.backoff.entry(tile).or_insert((0, Instant::now()));
         e.0 += 1;
         let delay = self
@@ -347,6 +386,8 @@ impl Streamer {
             .saturating_mul(1 << e.0.min(10))
             .min(self.config.retry_max);
         e.1 = Instant::now() + delay;
+        pool.mark_unavailable(tile);
+        delay
     }
 
     /// Requests the wanted tiles that are not resident, pending or backing off, most
@@ -360,7 +401,7 @@ impl Streamer {
         for w in sorted {
             let t = w.tile;
             if pool.contains(t)
-                || self.corrupt.contains(&t)
+                || self.written_off.contains(&t)
                 || self.pending(t)
                 || self.backoff.get(&t).is_some_and(|(_, at)| *at > now)
                 || !seen.insert(t)
@@ -490,9 +531,16 @@ async fn fetch(
                             .map_err(|e| (e.to_string(), Blame::Tile(tile)))?
                         }));
                     }
-                    Frame::Error { level, morton, .. } => {
+                    Frame::Error {
+                        level,
+                        morton,
+                        message,
+                    } => {
                         if let Some(tile) = TileId::from_morton(level, morton) {
-                            let _ = tx.send(Event::Corrupt { tile });
+                            let _ = tx.send(Event::Corrupt {
+                                tile,
+                                error: corrupt_error(&url, tile, &message),
+                            });
                         }
                     }
                     Frame::ErrorTable { .. } | Frame::Trailer { .. } => {}
@@ -519,6 +567,17 @@ async fn fetch(
         }
     }
     finish_after(&tx, id, latency, result);
+}
+
+/// What [`Streamer::last_error`] says of a record the server reports corrupt: the
+/// request, and the server's own words (naming the tile unless they already do).
+fn corrupt_error(url: &str, tile: TileId, message: &str) -> String {
+    let name = tile.to_string();
+    if message.contains(&name) {
+        format!("{url}: corrupt record on the server: {message}")
+    } else {
+        format!("{url}: corrupt record on the server: {name}: {message}")
+    }
 }
 
 fn finish(tx: &mpsc::Sender<Event>, id: u64, sent: Instant, result: Result<u64, Failure>) {
@@ -556,7 +615,13 @@ async fn fetch_one(
     let result = async {
         let resp = client.get(&url).send().await.map_err(|e| whole(&e))?;
         if resp.status() == reqwest::StatusCode::INTERNAL_SERVER_ERROR {
-            let _ = tx.send(Event::Corrupt { tile });
+            let status = resp.status();
+            let body = resp.text().await.unwrap_or_default();
+            let reason = body.trim().chars().take(200).collect::<String>();
+            let _ = tx.send(Event::Corrupt {
+                tile,
+                error: corrupt_error(&url, tile, &format!("HTTP {status} {reason}")),
+            });
             return Ok(0);
         }
         if !resp.status().is_success() {

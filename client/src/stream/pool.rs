@@ -1,8 +1,13 @@
 //! The CPU tile pool: a fixed number of decoded tiles, least-recently-used out,
 //! the root level pinned so there is always an ancestor to draw (DESIGN §5).
+//!
+//! It also knows which tiles cannot be had for now (their fetch failed, or their
+//! record was written off as corrupt; the streamer says so): the selection draws
+//! their children instead, and those children are pinned as the root is, since
+//! they stand in for it (DESIGN §8).
 
 use crate::select::{TileTables, World};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use tessera_shared::{ErrorTable, TileId};
 
 #[derive(Debug)]
@@ -18,6 +23,8 @@ pub struct TilePool {
     capacity: usize,
     clock: u64,
     pub evictions: u64,
+    /// Tiles that are not resident and cannot be had for now.
+    unavailable: HashSet<TileId>,
 }
 
 impl TilePool {
@@ -28,6 +35,7 @@ impl TilePool {
             capacity: capacity.max(5),
             clock: 0,
             evictions: 0,
+            unavailable: HashSet::new(),
         }
     }
 
@@ -47,6 +55,38 @@ impl TilePool {
         self.tiles.get(&tile)
     }
 
+    /// Records that `tile` cannot be had for now (until it is inserted).
+    pub fn mark_unavailable(&mut self, tile: TileId) {
+        if !self.tiles.contains_key(&tile) {
+            self.unavailable.insert(tile);
+        }
+    }
+
+    /// Whether `tile` is known not to be available now ([`TileTables::unavailable`]).
+    pub fn is_unavailable(&self, tile: TileId) -> bool {
+        self.unavailable.contains(&tile)
+    }
+
+    /// Whether `tile` stands in for an unavailable parent at the top of what the
+    /// selection can reach: its parent cannot be had and no ancestor is resident.
+    /// Such tiles are pinned, as the root is.
+    fn stands_in(&self, tile: TileId) -> bool {
+        let Some(parent) = tile.parent() else {
+            return false;
+        };
+        if !self.unavailable.contains(&parent) {
+            return false;
+        }
+        let mut cur = Some(parent);
+        while let Some(c) = cur {
+            if self.tiles.contains_key(&c) {
+                return false;
+            }
+            cur = c.parent();
+        }
+        true
+    }
+
     /// Marks tiles as used now (the ones drawn this frame).
     pub fn touch(&mut self, tiles: &[TileId]) {
         self.clock += 1;
@@ -63,8 +103,10 @@ impl TilePool {
     }
 
     /// Adds a decoded tile, evicting the least recently used tile that no resident
-    /// tile depends on (no resident children) and is not on the root level.
+    /// tile depends on (no resident children), is not on the root level and does
+    /// not stand in for an unavailable parent.
     pub fn insert(&mut self, tile: TileId, errors: ErrorTable, heights: Vec<u16>) {
+        self.unavailable.remove(&tile);
         self.tiles.insert(
             tile,
             Resident {
@@ -78,6 +120,7 @@ impl TilePool {
                 .tiles
                 .iter()
                 .filter(|(t, _)| t.level().get() > 0 && **t != tile)
+                .filter(|(t, _)| !self.stands_in(**t))
                 .filter(|(t, _)| {
                     t.children()
                         .is_none_or(|c| c.iter().all(|c| !self.tiles.contains_key(c)))
@@ -125,6 +168,10 @@ impl TileTables for TilePool {
     fn table(&self, tile: TileId) -> Option<&ErrorTable> {
         self.tiles.get(&tile).map(|r| &r.errors)
     }
+
+    fn unavailable(&self, tile: TileId) -> bool {
+        self.is_unavailable(tile)
+    }
 }
 
 #[cfg(test)]
@@ -155,5 +202,29 @@ mod tests {
         );
         assert_eq!(p.len(), 5);
         assert_eq!(p.evictions, 1);
+    }
+
+    #[test]
+    fn children_standing_in_for_an_unavailable_root_are_pinned() {
+        let mut p = TilePool::new(5);
+        let e = || ErrorTable::empty(6);
+        let root = t(0, 0, 0);
+        p.mark_unavailable(root);
+        assert!(p.unavailable(root));
+        for (x, y) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            p.insert(t(1, x, y), e(), vec![]);
+        }
+        p.touch(&[t(1, 0, 0), t(1, 1, 0), t(1, 0, 1)]);
+        // Over capacity, but every level-1 tile stands in for the root: the only
+        // tile that may go is a level-2 one, and the new one stays.
+        p.insert(t(2, 0, 0), e(), vec![]);
+        p.insert(t(2, 1, 0), e(), vec![]);
+        assert!((0..2).all(|x| (0..2).all(|y| p.contains(t(1, x, y)))));
+        assert!(p.contains(t(2, 1, 0)) && !p.contains(t(2, 0, 0)));
+        // Once the root arrives it is available again and pins only its own level:
+        // over capacity, the least recently used leaf of level 1 goes.
+        p.insert(root, e(), vec![]);
+        assert!(!p.unavailable(root));
+        assert!(p.contains(root) && !p.contains(t(1, 1, 1)));
     }
 }
