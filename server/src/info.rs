@@ -112,7 +112,10 @@ pub fn render(i: &Info) -> String {
             let _ = writeln!(
                 s,
                 "georef      {} {:?}, extent west {} south {} east {} north {}",
-                crs.as_deref().unwrap_or("unknown CRS"),
+                // A CRS known only by name (no EPSG code) is still known.
+                crs.as_deref()
+                    .or(g.crs_name.as_deref())
+                    .unwrap_or("unknown CRS"),
                 g.raster_type,
                 e[0],
                 e[1],
@@ -148,4 +151,54 @@ pub fn render(i: &Info) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::{GeoRef, Quantization, RasterType};
+
+    /// olinda_dem_utm25s.tif names its CRS ("WGS 84 / UTM zone 25S") without an EPSG
+    /// code; `info` used to print "unknown CRS" for it.
+    #[test]
+    fn a_crs_known_by_name_only_is_named() {
+        let georef = GeoRef {
+            epsg: None,
+            crs_name: Some("WGS 84 / UTM zone 25S".into()),
+            geotransform: [288_000.0, 90.0, 0.0, 9_120_000.0, 0.0, -90.0],
+            raster_type: RasterType::PixelIsArea,
+        };
+        let metadata = Metadata {
+            width: 111,
+            height: 111,
+            tile_size: 64,
+            levels: 2,
+            quantization: Quantization {
+                offset: 0.0,
+                scale: 0.01,
+                max_error: 0.005,
+            },
+            min_height: 0.0,
+            max_height: 300.0,
+            nodata_count: 0,
+            nodata_fill: "nearest valid sample".into(),
+            georef: Some(georef.clone()),
+            source: "GeoTIFF float32".into(),
+            generator: "test".into(),
+            content_hash: "0123456789abcdef".into(),
+        };
+        let info = Info {
+            file: "olinda.tess".into(),
+            file_bytes: 1,
+            bytes_per_sample: 1.0,
+            format_version: 1,
+            crs: georef.crs(),
+            extent: Some(georef.extent(111, 111)),
+            metadata,
+            levels: Vec::new(),
+        };
+        let text = render(&info);
+        assert!(text.contains("georef      WGS 84 / UTM zone 25S"), "{text}");
+        assert!(!text.contains("unknown CRS"), "{text}");
+    }
 }

@@ -143,6 +143,11 @@ pub fn preview(
         enc.set_depth(png::BitDepth::Eight);
         enc.write_header()?.write_image_data(&rgb)?;
     }
+    // Temporary files are private (0600); a picture is an ordinary file.
+    std::fs::set_permissions(
+        tmp.path(),
+        std::os::unix::fs::PermissionsExt::from_mode(0o644),
+    )?;
     tmp.persist(out).map_err(|e| e.error)?;
     Ok((level, w, h))
 }

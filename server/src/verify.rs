@@ -2,7 +2,9 @@
 
 use rayon::prelude::*;
 use std::path::Path;
-use tessera_shared::reader::ReadError;
+use tessera_shared::codec::TileRecord;
+use tessera_shared::format::{self, IndexEntry};
+use tessera_shared::reader::{FileSource, ReadError};
 use tessera_shared::{Pyramid, TileId, codec};
 
 /// What verification found.
@@ -12,11 +14,22 @@ pub struct VerifyReport {
     pub bytes: u64,
     /// One line per bad tile, naming it and the problem.
     pub bad: Vec<(TileId, String)>,
+    /// Problems of the file as a whole (header, metadata, content hash).
+    pub problems: Vec<String>,
 }
 
-/// Opens `path` (checking the header, metadata and index structure), then reads,
-/// checksums and decodes every record. Structural damage is an `Err`; bad records
-/// are listed in the report.
+impl VerifyReport {
+    pub fn is_ok(&self) -> bool {
+        self.bad.is_empty() && self.problems.is_empty()
+    }
+}
+
+/// Opens `path` (checking the header checksum, metadata and index structure), then
+/// checks every byte that can be checked (DESIGN §8): each record's checksum and
+/// decoding, every stored value's range (finite, non-negative errors; min ≤ max; the
+/// index's summary equal to its record's), the reserved flags, and the metadata
+/// against the records (content hash recomputed, heights equal to the quantized
+/// extremes). Structural damage is an `Err`; everything else is listed in the report.
 pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
     let p = Pyramid::open_file(path)?;
     let g = *p.geometry();
@@ -24,27 +37,154 @@ pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
         .levels()
         .flat_map(|l| g.present_tiles(l).collect::<Vec<_>>())
         .collect();
-    let results: Vec<(TileId, u64, Option<String>)> = tiles
+    let results: Vec<(TileId, u64, Vec<String>)> = tiles
         .par_iter()
-        .map(|&tile| match p.read_record(tile) {
-            Ok(Some(bytes)) => {
-                let problem = codec::decode_record(&bytes, g.tile_log2())
-                    .err()
-                    .map(|e| format!("does not decode: {e}"));
-                (tile, bytes.len() as u64, problem)
+        .map(|&tile| {
+            let entry = p.entry(tile).copied();
+            match p.read_record(tile) {
+                Ok(Some(bytes)) => {
+                    let problems = match (codec::decode_record(&bytes, g.tile_log2()), entry) {
+                        (Ok(record), Some(e)) => record_problems(&record, &e),
+                        (Err(e), _) => vec![format!("does not decode: {e}")],
+                        (Ok(_), None) => vec!["missing from the index".into()],
+                    };
+                    (tile, bytes.len() as u64, problems)
+                }
+                Ok(None) => (tile, 0, vec!["missing from the index".into()]),
+                Err(ReadError::RecordChecksum { .. }) => {
+                    (tile, 0, vec!["checksum mismatch".into()])
+                }
+                Err(e) => (tile, 0, vec![e.to_string()]),
             }
-            Ok(None) => (tile, 0, Some("missing from the index".into())),
-            Err(ReadError::RecordChecksum { .. }) => (tile, 0, Some("checksum mismatch".into())),
-            Err(e) => (tile, 0, Some(e.to_string())),
         })
         .collect();
-    let mut report = VerifyReport::default();
-    for (tile, bytes, problem) in results {
+    let mut report = VerifyReport {
+        problems: file_problems(&p),
+        ..VerifyReport::default()
+    };
+    for (tile, bytes, problems) in results {
         report.tiles += 1;
         report.bytes += bytes;
-        if let Some(p) = problem {
-            report.bad.push((tile, p));
+        for problem in problems {
+            report.bad.push((tile, problem));
         }
     }
     Ok(report)
+}
+
+/// A decoded record against itself and its index entry.
+fn record_problems(record: &TileRecord, e: &IndexEntry) -> Vec<String> {
+    let mut out = Vec::new();
+    let table = &record.errors;
+    let t = table.tile_log2();
+    let bad_errors = (0..=t)
+        .flat_map(|n| table.level_errors(n).iter())
+        .filter(|v| !(v.is_finite() && **v >= 0.0))
+        .count();
+    if bad_errors > 0 {
+        out.push(format!(
+            "error table holds {bad_errors} values that are not finite non-negative metres"
+        ));
+    }
+    let (tmin, tmax) = table.tile_range();
+    if tmin > tmax {
+        out.push(format!("error table's height range is empty ({tmin} > {tmax})"));
+    }
+    let (hmin, hmax) = record
+        .heights
+        .iter()
+        .fold((u16::MAX, 0u16), |(lo, hi), &q| (lo.min(q), hi.max(q)));
+    // The table's ranges cover the finest samples under each block; a coarse tile's
+    // heights are a decimation of those, so they lie inside (equal at the finest level).
+    if hmin < tmin || hmax > tmax {
+        out.push(format!(
+            "heights span {hmin}..={hmax}, outside the error table's {tmin}..={tmax}"
+        ));
+    }
+    if (e.min, e.max) != (tmin, tmax) {
+        out.push(format!(
+            "index says heights {}..={} but the record holds {tmin}..={tmax}",
+            e.min, e.max
+        ));
+    }
+    if !(e.full_res_error.is_finite() && e.full_res_error >= 0.0) {
+        out.push(format!(
+            "index error {} is not a finite non-negative number of metres",
+            e.full_res_error
+        ));
+    } else if e.full_res_error != table.full_resolution_error() {
+        out.push(format!(
+            "index error {} differs from the record's {}",
+            e.full_res_error,
+            table.full_resolution_error()
+        ));
+    }
+    if e.flags != 0 {
+        out.push(format!("reserved index flags are set ({:#x})", e.flags));
+    }
+    out
+}
+
+/// The header's reserved fields and the metadata against the index.
+fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
+    let mut out = Vec::new();
+    let meta = p.metadata();
+    let g = p.geometry();
+    if p.header().flags != 0 {
+        out.push(format!(
+            "reserved header flags are set ({:#x})",
+            p.header().flags
+        ));
+    }
+    if let Err(e) = meta.check_content_hash() {
+        out.push(e);
+    } else {
+        let checksums: Vec<u64> = g
+            .levels()
+            .filter_map(|l| p.index(l))
+            .flat_map(|i| i.iter().filter(|e| e.is_present()).map(|e| e.checksum))
+            .collect();
+        let recomputed = format::content_hash(meta, checksums.iter());
+        if recomputed != meta.content_hash {
+            out.push(format!(
+                "content_hash {} does not match the file's content ({recomputed})",
+                meta.content_hash
+            ));
+        }
+    }
+    let q = &meta.quantization;
+    if !(q.scale.is_finite() && q.scale > 0.0 && q.offset.is_finite()) {
+        out.push(format!(
+            "quantization scale {} / offset {} is not a positive scale and a finite offset",
+            q.scale, q.offset
+        ));
+    }
+    if !(q.max_error.is_finite() && q.max_error >= 0.0) {
+        out.push(format!(
+            "quantization error {} is not a finite non-negative number",
+            q.max_error
+        ));
+    }
+    if !(meta.min_height <= meta.max_height) {
+        out.push(format!(
+            "min_height {} is above max_height {}",
+            meta.min_height, meta.max_height
+        ));
+    }
+    // The builder records the extremes of the finest level's quantized heights.
+    if let Some(index) = p.index(g.finest()) {
+        let (lo, hi) = index
+            .iter()
+            .filter(|e| e.is_present())
+            .fold((u16::MAX, 0u16), |(lo, hi), e| (lo.min(e.min), hi.max(e.max)));
+        let (want_lo, want_hi) = (q.height(lo), q.height(hi));
+        if meta.min_height != want_lo || meta.max_height != want_hi {
+            out.push(format!(
+                "metadata heights {}..{} m disagree with the quantized records ({want_lo}..{want_hi} m): \
+                 the quantization or the heights were changed",
+                meta.min_height, meta.max_height
+            ));
+        }
+    }
+    out
 }

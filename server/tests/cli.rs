@@ -319,3 +319,133 @@ fn help_explains_itself() {
         assert!(s.contains(want), "build --help lacks {want}");
     }
 }
+
+/// The PNG chunks of `bytes`: `(start of the length field, type, data length)`.
+fn png_chunks(bytes: &[u8]) -> Vec<(usize, [u8; 4], usize)> {
+    let mut out = Vec::new();
+    let mut at = 8;
+    while at + 12 <= bytes.len() {
+        let len = u32::from_be_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+        out.push((at, bytes[at + 4..at + 8].try_into().unwrap(), len));
+        at += 12 + len;
+    }
+    out
+}
+
+/// A real DEM PNG with one flipped bit in its last IDAT chunk; with `fix_crc` the
+/// chunk's CRC is recomputed, so only the zlib stream's Adler-32 can tell.
+fn damaged_png(d: &Path, name: &str, fix_crc: bool) -> Option<PathBuf> {
+    let src = testdata::dem_or_skip("jacksboro_fault_dem.png")?;
+    let mut bytes = std::fs::read(src).unwrap();
+    let (at, _, len) = *png_chunks(&bytes)
+        .iter()
+        .rev()
+        .find(|c| &c.1 == b"IDAT")
+        .unwrap();
+    let data = at + 8;
+    if fix_crc {
+        // The Adler-32 is the zlib stream's last four bytes: flip one of its bits so
+        // every decoded sample is still right and only the checksum is wrong.
+        bytes[data + len - 1] ^= 0x01;
+        let crc = crc32fast::hash(&bytes[at + 4..data + len]);
+        bytes[data + len..data + len + 4].copy_from_slice(&crc.to_be_bytes());
+    } else {
+        bytes[data + len / 2] ^= 0x10;
+    }
+    let path = d.join(name);
+    std::fs::write(&path, bytes).unwrap();
+    Some(path)
+}
+
+/// One flipped bit inside IDAT used to build with exit 0 and heights of 44 km:
+/// the chunk CRC and the zlib Adler-32 must both be checked.
+#[test]
+fn damaged_png_is_an_error_not_a_pyramid() {
+    let d = tmpdir("damaged-png");
+    let out = d.join("out.tess");
+    let Some(bad_crc) = damaged_png(&d, "flipped.png", false) else {
+        return;
+    };
+    assert_clean_failure(&build(&bad_crc, &out, &[]), "flipped.png", "png", &out);
+    let bad_adler = damaged_png(&d, "adler.png", true).unwrap();
+    let line = assert_clean_failure(&build(&bad_adler, &out, &[]), "adler.png", "corrupt", &out);
+    assert!(line.to_lowercase().contains("adler") || line.contains("checksum"), "{line}");
+}
+
+/// Starts a long build and returns it once its partial file exists.
+fn start_long_build(d: &Path, out: &Path) -> std::process::Child {
+    let mut child = bin()
+        .args(["build", "synthetic:65537", "--quiet", "-o"])
+        .arg(out)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while !std::fs::read_dir(d)
+        .unwrap()
+        .flatten()
+        .any(|e| e.file_name().to_string_lossy().contains(".partial-"))
+    {
+        assert!(child.try_wait().unwrap().is_none(), "the build ended early");
+        assert!(started.elapsed().as_secs() < 120, "no partial file appeared");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child
+}
+
+/// SIGINT or SIGTERM during a build used to leave `.x.tess.partial-*` behind.
+/// Now the build removes it and exits with the shell's 128 + signal status.
+#[test]
+fn interrupted_build_removes_its_partial_file() {
+    for (sig, code) in [("TERM", 143), ("INT", 130)] {
+        let d = tmpdir(&format!("sig{sig}"));
+        let out = d.join("big.tess");
+        let child = start_long_build(&d, &out);
+        let kill = Command::new("kill")
+            .arg(format!("-{sig}"))
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let o = child.wait_with_output().unwrap();
+        assert_eq!(o.status.code(), Some(code), "SIG{sig}: {o:?}");
+        assert_clean_failure(&o, &format!("SIG{sig}"), "interrupted", &out);
+    }
+}
+
+/// A full disk (here: a file-size limit, which used to kill the build with SIGXFSZ
+/// and leave its partial file) is a clear error that leaves nothing.
+#[test]
+fn full_disk_is_a_clear_error_that_leaves_nothing() {
+    let d = tmpdir("fsize");
+    let out = d.join("big.tess");
+    let o = Command::new("sh")
+        .arg("-c")
+        // 4 MiB (in 1 KiB blocks): far below the pyramid of a 4097² terrain.
+        .arg("ulimit -f 4096 && exec \"$0\" build synthetic:4097 --quiet -o \"$1\"")
+        .arg(env!("CARGO_BIN_EXE_tessera-server"))
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_clean_failure(&o, "big.tess", "too large", &out);
+}
+
+/// `preview` used to leave its picture private (mode 0600, the temporary file's).
+#[test]
+fn preview_writes_an_ordinary_file() {
+    let d = tmpdir("preview");
+    let out = d.join("p.tess");
+    let o = build(Path::new("synthetic:300"), &out, &["--tile-size", "64"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let png = d.join("relief.png");
+    let o = bin()
+        .arg("preview")
+        .arg(&out)
+        .arg("-o")
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mode = std::os::unix::fs::PermissionsExt::mode(&std::fs::metadata(&png).unwrap().permissions());
+    assert_eq!(mode & 0o777, 0o644, "preview wrote mode {:o}", mode & 0o777);
+}

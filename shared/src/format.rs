@@ -22,10 +22,15 @@ pub fn checksum(bytes: &[u8]) -> u64 {
     xxhash_rust::xxh3::xxh3_64(bytes)
 }
 
+/// Metadata is a few KiB; the limit stops a lying length prefix from allocating more
+/// than this while decoding (DESIGN §8: nothing allocated on a header's word alone).
+const METADATA_LIMIT: usize = 1 << 20;
+
 fn bincode_config() -> impl bincode::config::Config {
     bincode::config::standard()
         .with_little_endian()
         .with_variable_int_encoding()
+        .with_limit::<METADATA_LIMIT>()
 }
 
 /// Metadata as stored in the header.
@@ -35,8 +40,18 @@ pub fn encode_metadata(meta: &Metadata) -> Vec<u8> {
 }
 
 pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, String> {
+    use bincode::error::DecodeError;
     let (meta, used): (Metadata, usize) =
-        bincode::serde::decode_from_slice(bytes, bincode_config()).map_err(|e| e.to_string())?;
+        bincode::serde::decode_from_slice(bytes, bincode_config()).map_err(|e| match e {
+            DecodeError::UnexpectedEnd { additional } => {
+                format!("metadata is truncated ({additional} more bytes expected)")
+            }
+            DecodeError::LimitExceeded => {
+                format!("metadata claims more than {METADATA_LIMIT} bytes")
+            }
+            DecodeError::Utf8 { .. } => "a metadata text field is not valid UTF-8".into(),
+            _ => "the metadata bytes are not a valid metadata record".into(),
+        })?;
     if used != bytes.len() {
         return Err(format!(
             "metadata has {} trailing bytes",
@@ -52,15 +67,42 @@ pub fn content_hash<'a>(
     meta: &Metadata,
     record_checksums: impl Iterator<Item = &'a u64>,
 ) -> String {
-    let mut unhashed = meta.clone();
-    unhashed.content_hash.clear();
-    let mut h = Xxh3::new();
-    h.update(&encode_metadata(&unhashed));
+    let mut h = ContentHasher::new(meta);
     for c in record_checksums {
-        h.update(&c.to_le_bytes());
+        h.record(*c);
     }
-    format!("{:016x}", h.digest())
+    h.finish()
 }
+
+/// [`content_hash`] fed one record checksum at a time (levels ascending, Morton order),
+/// for writers and checkers that never hold the whole index.
+#[derive(Clone)]
+pub struct ContentHasher(Xxh3);
+
+impl std::fmt::Debug for ContentHasher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ContentHasher").finish_non_exhaustive()
+    }
+}
+
+impl ContentHasher {
+    pub fn new(meta: &Metadata) -> Self {
+        let mut unhashed = meta.clone();
+        unhashed.content_hash.clear();
+        let mut h = Xxh3::new();
+        h.update(&encode_metadata(&unhashed));
+        Self(h)
+    }
+
+    pub fn record(&mut self, checksum: u64) {
+        self.0.update(&checksum.to_le_bytes());
+    }
+
+    pub fn finish(&self) -> String {
+        format!("{:016x}", self.0.digest())
+    }
+}
+
 
 fn u32_at(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))

@@ -129,13 +129,7 @@ impl<S: ByteSource> Pyramid<S> {
     /// contiguous in Morton order inside that level's record range.
     pub fn open(source: S) -> Result<Self, ReadError> {
         let file_len = source.size()?;
-        let head = source.read_vec(0, HEADER_LEN.min(file_len as usize))?;
-        let header = FileHeader::parse(&head).map_err(ReadError::Header)?;
-        if header.records_offset > file_len || header.records_offset < HEADER_LEN as u64 {
-            return Err(ReadError::Structure(format!(
-                "header points outside the file ({file_len} bytes)"
-            )));
-        }
+        let header = read_header(&source, file_len)?;
         let region = source.read_vec(
             HEADER_LEN as u64,
             (header.records_offset - HEADER_LEN as u64) as usize,
@@ -146,54 +140,36 @@ impl<S: ByteSource> Pyramid<S> {
         // Offsets are absolute; `slice` maps them into the header region.
         let slice = |off: u64, len: u64, what: &str| -> Result<&[u8], ReadError> {
             off.checked_sub(HEADER_LEN as u64)
-                .and_then(|s| region.get(s as usize..(s + len) as usize))
+                .and_then(|s| region.get(s as usize..s.checked_add(len)? as usize))
                 .ok_or_else(|| {
                     ReadError::Structure(format!("{what} lies outside the header region"))
                 })
         };
-        let meta = format::decode_metadata(slice(header.meta_offset, header.meta_len, "metadata")?)
-            .map_err(ReadError::Metadata)?;
-        let geometry = TileGeometry::new(meta.width, meta.height, meta.tile_size)?;
-        if header.level_count != u32::from(geometry.level_count())
-            || meta.levels != geometry.level_count()
-            || header.index_entry_len != INDEX_ENTRY_LEN as u32
-        {
-            return Err(ReadError::Structure(format!(
-                "{} levels in the header, {} in the metadata, {} from the geometry",
-                header.level_count,
-                meta.levels,
-                geometry.level_count()
-            )));
-        }
-        let mut levels = Vec::new();
+        let layout = Layout::read(header, file_len, |o, l, w| slice(o, l, w).map(<[u8]>::to_vec))?;
         let mut index = Vec::new();
-        for level in geometry.levels() {
-            let off = header.level_table_offset + u64::from(level.get()) * LEVEL_ENTRY_LEN as u64;
-            let entry = LevelEntry::parse(slice(off, LEVEL_ENTRY_LEN as u64, "level table")?);
-            let slots = level.tile_slots();
-            if entry.level != level.get()
-                || entry.tiles_per_side != level.tiles_per_side()
-                || entry.index_entries != slots
-                || entry.records_offset < header.records_offset
-                || entry.records_offset + entry.records_len > file_len
-            {
-                return Err(ReadError::Structure(format!(
-                    "level table entry for level {level} is inconsistent"
-                )));
-            }
+        for (level, entry) in layout.geometry.levels().zip(&layout.levels) {
             let bytes = slice(
                 entry.index_offset,
-                slots * INDEX_ENTRY_LEN as u64,
+                level.tile_slots() * INDEX_ENTRY_LEN as u64,
                 &format!("index of level {level}"),
             )?;
             let entries: Vec<IndexEntry> = bytes
                 .chunks_exact(INDEX_ENTRY_LEN)
                 .map(IndexEntry::parse)
                 .collect();
-            check_level_index(&geometry, level, &entry, &entries)?;
-            levels.push(entry);
+            let mut check = IndexCheck::new(&layout.geometry, level, entry);
+            for (m, e) in entries.iter().enumerate() {
+                check.entry(m as u64, e)?;
+            }
+            check.finish()?;
             index.push(entries);
         }
+        let Layout {
+            header,
+            meta,
+            geometry,
+            levels,
+        } = layout;
         Ok(Self {
             source,
             header,
@@ -284,43 +260,199 @@ impl<S: ByteSource> Pyramid<S> {
     }
 }
 
-/// Presence must match the geometry, and records must be contiguous in Morton order.
-fn check_level_index(
-    geometry: &TileGeometry,
+/// Index entries read at a time by [`check_streaming`] (2 MiB).
+const INDEX_CHUNK: u64 = 1 << 16;
+
+/// Parses the fixed header and checks that its header region lies inside the file.
+fn read_header<S: ByteSource>(source: &S, file_len: u64) -> Result<FileHeader, ReadError> {
+    let head = source.read_vec(0, HEADER_LEN.min(file_len as usize))?;
+    let header = FileHeader::parse(&head).map_err(ReadError::Header)?;
+    if header.records_offset > file_len || header.records_offset < HEADER_LEN as u64 {
+        return Err(ReadError::Structure(format!(
+            "header points outside the file ({file_len} bytes)"
+        )));
+    }
+    Ok(header)
+}
+
+/// The small parts of a header region: header, metadata, geometry and level table.
+struct Layout {
+    header: FileHeader,
+    meta: Metadata,
+    geometry: TileGeometry,
+    levels: Vec<LevelEntry>,
+}
+
+impl Layout {
+    /// `read(offset, len, what)` returns header-region bytes, an error when they lie
+    /// outside it.
+    fn read(
+        header: FileHeader,
+        file_len: u64,
+        read: impl Fn(u64, u64, &str) -> Result<Vec<u8>, ReadError>,
+    ) -> Result<Self, ReadError> {
+        let meta = format::decode_metadata(&read(header.meta_offset, header.meta_len, "metadata")?)
+            .map_err(ReadError::Metadata)?;
+        let geometry = TileGeometry::new(meta.width, meta.height, meta.tile_size)?;
+        if header.level_count != u32::from(geometry.level_count())
+            || meta.levels != geometry.level_count()
+            || header.index_entry_len != INDEX_ENTRY_LEN as u32
+        {
+            return Err(ReadError::Structure(format!(
+                "{} levels in the header, {} in the metadata, {} from the geometry",
+                header.level_count,
+                meta.levels,
+                geometry.level_count()
+            )));
+        }
+        let mut levels = Vec::new();
+        for level in geometry.levels() {
+            let off = header.level_table_offset + u64::from(level.get()) * LEVEL_ENTRY_LEN as u64;
+            let entry = LevelEntry::parse(&read(off, LEVEL_ENTRY_LEN as u64, "level table")?);
+            let slots = level.tile_slots();
+            if entry.level != level.get()
+                || entry.tiles_per_side != level.tiles_per_side()
+                || entry.index_entries != slots
+                || entry.records_offset < header.records_offset
+                || entry
+                    .records_offset
+                    .checked_add(entry.records_len)
+                    .is_none_or(|end| end > file_len)
+            {
+                return Err(ReadError::Structure(format!(
+                    "level table entry for level {level} is inconsistent"
+                )));
+            }
+            levels.push(entry);
+        }
+        Ok(Self {
+            header,
+            meta,
+            geometry,
+            levels,
+        })
+    }
+}
+
+/// Checks one level's index entry by entry, in Morton order: presence must match the
+/// geometry, and records must be contiguous inside the level's record range.
+struct IndexCheck<'g> {
+    geometry: &'g TileGeometry,
     level: Level,
-    entry: &LevelEntry,
-    entries: &[IndexEntry],
-) -> Result<(), ReadError> {
-    let mut next = entry.records_offset;
-    for (m, e) in entries.iter().enumerate() {
-        let tile = TileId::from_morton(level, crate::Morton::from_raw(m as u64))
+    next: u64,
+    end: u64,
+}
+
+impl<'g> IndexCheck<'g> {
+    fn new(geometry: &'g TileGeometry, level: Level, entry: &LevelEntry) -> Self {
+        Self {
+            geometry,
+            level,
+            next: entry.records_offset,
+            end: entry.records_offset + entry.records_len,
+        }
+    }
+
+    fn entry(&mut self, m: u64, e: &IndexEntry) -> Result<TileId, ReadError> {
+        let level = self.level;
+        let tile = TileId::from_morton(level, crate::Morton::from_raw(m))
             .ok_or_else(|| ReadError::Structure(format!("index slot {m} of level {level}")))?;
-        if e.is_present() != geometry.is_present(tile) {
+        let present = self.geometry.is_present(tile);
+        if e.is_present() != present {
             return Err(ReadError::Structure(format!(
                 "{tile} is {} in the index but {} by the geometry",
                 if e.is_present() { "present" } else { "absent" },
-                if geometry.is_present(tile) {
-                    "present"
-                } else {
-                    "absent"
-                },
+                if present { "present" } else { "absent" },
             )));
         }
         if e.is_present() {
-            if e.offset != next {
+            if e.offset != self.next {
                 return Err(ReadError::Structure(format!(
-                    "{tile}: record at offset {} but the previous one ends at {next}",
-                    e.offset
+                    "{tile}: record at offset {} but the previous one ends at {}",
+                    e.offset, self.next
                 )));
             }
-            next = e.end();
+            self.next = e.end();
         }
+        Ok(tile)
     }
-    if next != entry.records_offset + entry.records_len {
-        return Err(ReadError::Structure(format!(
-            "level {level} records end at {next}, the level table says {}",
-            entry.records_offset + entry.records_len
-        )));
+
+    fn finish(self) -> Result<(), ReadError> {
+        if self.next != self.end {
+            return Err(ReadError::Structure(format!(
+                "level {} records end at {}, the level table says {}",
+                self.level, self.next, self.end
+            )));
+        }
+        Ok(())
     }
-    Ok(())
+}
+
+/// Checks a whole pyramid without holding its index in memory: the header checksum,
+/// the metadata and level table, every level's index (read a chunk at a time) and
+/// every record's checksum. `each` sees every present tile's checked record, levels
+/// ascending, Morton order. Memory stays a few MiB whatever the file's size, which
+/// is what lets a build verify its output under `--memory` (DESIGN §8).
+pub fn check_streaming<S: ByteSource>(
+    source: &S,
+    mut each: impl FnMut(TileId, &IndexEntry, &[u8]) -> Result<(), ReadError>,
+) -> Result<Metadata, ReadError> {
+    let file_len = source.size()?;
+    let header = read_header(source, file_len)?;
+    let region_end = header.records_offset;
+    let in_region = |off: u64, len: u64, what: &str| -> Result<(), ReadError> {
+        match off.checked_add(len) {
+            Some(end) if off >= HEADER_LEN as u64 && end <= region_end => Ok(()),
+            _ => Err(ReadError::Structure(format!(
+                "{what} lies outside the header region"
+            ))),
+        }
+    };
+    // The header checksum, streamed over the region.
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    h.update(&header.to_bytes()[..56]);
+    let mut at = HEADER_LEN as u64;
+    let mut buf = Vec::new();
+    while at < region_end {
+        let n = (region_end - at).min(1 << 21) as usize;
+        buf.resize(n, 0);
+        source.read_at(at, &mut buf)?;
+        h.update(&buf);
+        at += n as u64;
+    }
+    if h.digest() != header.checksum {
+        return Err(ReadError::HeaderChecksum);
+    }
+    let layout = Layout::read(header, file_len, |off, len, what| {
+        in_region(off, len, what)?;
+        Ok(source.read_vec(off, len as usize)?)
+    })?;
+    for (level, entry) in layout.geometry.levels().zip(&layout.levels) {
+        in_region(
+            entry.index_offset,
+            level.tile_slots() * INDEX_ENTRY_LEN as u64,
+            &format!("index of level {level}"),
+        )?;
+        let mut check = IndexCheck::new(&layout.geometry, level, entry);
+        let slots = level.tile_slots();
+        let mut m = 0u64;
+        while m < slots {
+            let n = (slots - m).min(INDEX_CHUNK);
+            let bytes =
+                source.read_vec(entry.index_offset + m * INDEX_ENTRY_LEN as u64, (n as usize) * INDEX_ENTRY_LEN)?;
+            for e in bytes.chunks_exact(INDEX_ENTRY_LEN).map(IndexEntry::parse) {
+                let tile = check.entry(m, &e)?;
+                if e.is_present() {
+                    let record = source.read_vec(e.offset, e.length as usize)?;
+                    if format::checksum(&record) != e.checksum {
+                        return Err(ReadError::RecordChecksum { tile });
+                    }
+                    each(tile, &e, &record)?;
+                }
+                m += 1;
+            }
+        }
+        check.finish()?;
+    }
+    Ok(layout.meta)
 }

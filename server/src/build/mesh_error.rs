@@ -51,12 +51,15 @@ impl BlockErrors {
     }
 }
 
-/// The corner heights of the coarse mesh cells (spacing > T): the padded finest grid
-/// sampled every `T`, `(n + 1)²` values for `n` tiles per side.
-#[derive(Clone, Debug)]
-pub struct CornerGrid {
-    pub side: usize,
-    pub values: Vec<u16>,
+/// The corner heights of the coarse mesh cells (spacing `2^k > T`) that enclose one
+/// finest tile: `cells[k − t − 1]` is `[top-left, top-right, bottom-left, bottom-right]`.
+///
+/// Read per tile from the raster rather than kept as a grid over the whole DEM, so
+/// the build's memory does not grow with the DEM's area (DESIGN §8: `--memory`
+/// bounds every allocation).
+#[derive(Clone, Debug, Default)]
+pub struct CoarseCorners {
+    pub cells: Vec<[u16; 4]>,
 }
 
 /// Largest vertical error of each spacing `k = 0..spacings` over each 8×8 block
@@ -66,7 +69,7 @@ pub fn finest_tile_errors(
     tile_log2: u32,
     gx0: u64,
     gy0: u64,
-    corners: &CornerGrid,
+    corners: &CoarseCorners,
     spacings: u32,
 ) -> BlockErrors {
     let t = 1usize << tile_log2;
@@ -91,18 +94,8 @@ pub fn finest_tile_errors(
                     cell_row_errors(&cell, sf, b, 0.0, v, u0, end, heights, side, &mut row);
                 }
             } else {
-                // One coarse cell holds the whole tile; its corners come from the grid.
-                let cells = (s / t) as u64;
-                let (ci, cj) = (gx0 / s as u64 * cells, gy0 / s as u64 * cells);
-                let c = |i: u64, j: u64| {
-                    f64::from(corners.values[j as usize * corners.side + i as usize])
-                };
-                let cell = [
-                    c(ci, cj),
-                    c(ci + cells, cj),
-                    c(ci, cj + cells),
-                    c(ci + cells, cj + cells),
-                ];
+                // One coarse cell holds the whole tile; its corners were read for it.
+                let cell = corners.cells[(k - tile_log2 - 1) as usize].map(f64::from);
                 let a0 = (gx0 % s as u64) as f64;
                 let b = (gy0 % s as u64 + v as u64) as f64;
                 cell_row_errors(&cell, sf, b, a0, v, 0, side, heights, side, &mut row);
@@ -182,10 +175,7 @@ mod tests {
         let heights: Vec<u16> = (0..side * side)
             .map(|i| ((i * 2_654_435_761usize) % 997 + (i % side) * 13) as u16)
             .collect();
-        let corners = CornerGrid {
-            side: 2,
-            values: vec![0, 0, 0, 0],
-        };
+        let corners = CoarseCorners::default();
         let fast = finest_tile_errors(&heights, tile_log2, 0, 0, &corners, 7);
         let block = t / 8;
         for k in 1..7u32 {

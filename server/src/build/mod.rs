@@ -14,6 +14,8 @@
 //! Memory stays bounded by the batch of finest tiles in flight and one pending
 //! quadruple of tiles per level, whatever the DEM's size.
 
+pub mod interrupt;
+pub mod memory;
 pub mod mesh_error;
 pub mod raster;
 pub mod spool;
@@ -22,7 +24,7 @@ pub mod writer;
 use crate::ingest::{self, Input};
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use mesh_error::{BlockErrors, CornerGrid};
+use mesh_error::{BlockErrors, CoarseCorners};
 use raster::Raster;
 use rayon::prelude::*;
 use std::path::Path;
@@ -47,6 +49,8 @@ pub struct BuildOptions {
     pub nodata: Option<f64>,
     /// Show progress bars (on a terminal).
     pub progress: bool,
+    /// Set by SIGINT/SIGTERM (when installed): the build stops and cleans up.
+    pub interrupt: interrupt::Interrupt,
 }
 
 impl Default for BuildOptions {
@@ -58,6 +62,7 @@ impl Default for BuildOptions {
             memory_budget: 512 << 20,
             nodata: None,
             progress: false,
+            interrupt: interrupt::Interrupt::default(),
         }
     }
 }
@@ -117,6 +122,12 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
     };
     let geometry =
         TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
+    let input_bytes = match &source {
+        Input::Rows(_) => 0,
+        Input::Synthetic(s) => s.memory_bytes(),
+    };
+    let plan = memory::Plan::new(&geometry, input_bytes, opts.memory_budget)
+        .with_context(|| input.to_string())?;
     let (description, georef) = match &source {
         Input::Rows(r) => (r.info().description.clone(), r.info().georef.clone()),
         Input::Synthetic(s) => (s.description(), None),
@@ -149,12 +160,17 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
     match source {
         Input::Rows(mut rows) => {
             let spool_bar = bar(opts.progress, u64::from(height), "reading");
-            let budget = usize::try_from(opts.memory_budget / 4).unwrap_or(usize::MAX);
-            let spooled =
-                spool::SpooledRaster::spool(rows.as_mut(), dir, opts.nodata, budget, |r| {
+            let spooled = spool::SpooledRaster::spool(
+                rows.as_mut(),
+                dir,
+                opts.nodata,
+                plan.band_bytes,
+                |r| {
                     spool_bar.set_position(u64::from(r));
-                })
-                .with_context(|| input.to_string())?;
+                    opts.interrupt.check()
+                },
+            )
+            .with_context(|| input.to_string())?;
             spool_bar.finish_and_clear();
             tracing::debug!(seconds = started.elapsed().as_secs_f64(), "input spooled");
             meta.quantization = spooled.quantizer.to_metres(
@@ -163,7 +179,7 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
                 spooled.sample_type.is_integer(),
             );
             meta.nodata_count = spooled.nodata_count;
-            build_tiles(&spooled, geometry, &mut meta, writer, opts, started)
+            build_tiles(&spooled, geometry, &mut meta, writer, opts, &plan, started)
         }
         Input::Synthetic(synth) => {
             meta.quantization = Quantization {
@@ -172,7 +188,7 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
                 max_error: 0.0,
             };
             meta.nodata_fill = "none (synthetic)".into();
-            build_tiles(&synth, geometry, &mut meta, writer, opts, started)
+            build_tiles(&synth, geometry, &mut meta, writer, opts, &plan, started)
         }
     }
 }
@@ -197,21 +213,19 @@ fn build_tiles(
     meta: &mut Metadata,
     mut writer: writer::PyramidWriter,
     opts: &BuildOptions,
+    plan: &memory::Plan,
     started: Instant,
 ) -> anyhow::Result<BuildReport> {
     let finest = geometry.finest();
     let t = geometry.tile_log2();
     // Spacings 0 ..= t + L_max: from the data itself to the root's single cell.
     let spacings = t + u32::from(finest.get()) + 1;
-    let corners = corner_grid(raster, &geometry)?;
     let total_tiles: u64 = geometry
         .levels()
         .map(|l| geometry.present_tiles(l).count() as u64)
         .sum();
     let tiles_bar = bar(opts.progress, total_tiles, "tiling");
-    // Finest tiles in flight: a quarter of the budget, counting heights, record and errors.
-    let tile_bytes = geometry.tile_samples().pow(2) as u64 * 4 + spacings as u64 * 512;
-    let batch = (opts.memory_budget / 4 / tile_bytes / 3).clamp(2, 64) as usize;
+    let batch = plan.batch;
     let slots = finest.tile_slots();
     let quant = meta.quantization;
     let mut agg = Aggregator {
@@ -228,7 +242,6 @@ fn build_tiles(
     std::thread::scope(|scope| -> anyhow::Result<()> {
         let (tx, rx) =
             std::sync::mpsc::sync_channel::<anyhow::Result<Vec<Option<(Node, Encoded)>>>>(1);
-        let corners = &corners;
         let producer = scope.spawn(move || {
             let mut start = 0u64;
             while start < slots {
@@ -241,7 +254,7 @@ fn build_tiles(
                         if !geometry.is_present(tile) {
                             return Ok(None);
                         }
-                        let node = finest_node(raster, &geometry, tile, corners, spacings)?;
+                        let node = finest_node(raster, &geometry, tile, spacings)?;
                         let enc = encode(&node, &geometry, finest, &quant);
                         Ok(Some((node, enc)))
                     })
@@ -255,6 +268,7 @@ fn build_tiles(
         });
         let mut m = 0u64;
         for batch in rx {
+            opts.interrupt.check()?;
             for item in batch? {
                 agg.push(&mut writer, finest, Morton::from_raw(m), item)?;
                 m += 1;
@@ -269,7 +283,10 @@ fn build_tiles(
     meta.min_height = quant.height(agg.min_q);
     meta.max_height = quant.height(agg.max_q);
     let verify_bar = bar(opts.progress, total_tiles, "verifying");
-    let (metadata, file_bytes) = writer.finish(meta.clone(), |n| verify_bar.inc(n))?;
+    let target = writer.target().to_path_buf();
+    let (metadata, file_bytes) = writer
+        .finish(meta.clone(), &opts.interrupt, |n| verify_bar.inc(n))
+        .with_context(|| format!("cannot finish {}", target.display()))?;
     verify_bar.finish_and_clear();
     tracing::debug!(
         seconds = started.elapsed().as_secs_f64(),
@@ -284,19 +301,31 @@ fn build_tiles(
     })
 }
 
-/// Corner heights every `T` samples over the padded grid, clamped to the DEM's edge.
-fn corner_grid(raster: &dyn Raster, g: &TileGeometry) -> anyhow::Result<CornerGrid> {
-    let n = g.finest().tiles_per_side() as usize + 1;
-    let t = u64::from(g.tile_size());
-    let mut values = vec![0u16; n * n];
-    for j in 0..n {
-        for i in 0..n {
-            let x = (i as u64 * t).min(u64::from(g.width() - 1)) as u32;
-            let y = (j as u64 * t).min(u64::from(g.height() - 1)) as u32;
-            raster.read_window(x, y, 1, 1, &mut values[j * n + i..=j * n + i])?;
+/// Corner heights of the coarse cells (spacing > T) enclosing the finest tile at
+/// global `(gx0, gy0)`, on the padded grid (clamped to the DEM's edge).
+fn coarse_corners(
+    raster: &dyn Raster,
+    g: &TileGeometry,
+    gx0: u64,
+    gy0: u64,
+    spacings: u32,
+) -> anyhow::Result<CoarseCorners> {
+    let (last_x, last_y) = (u64::from(g.width() - 1), u64::from(g.height() - 1));
+    let mut cells = Vec::with_capacity(spacings.saturating_sub(g.tile_log2() + 1) as usize);
+    for k in g.tile_log2() + 1..spacings {
+        let s = 1u64 << k;
+        let (cx, cy) = (gx0 / s * s, gy0 / s * s);
+        let mut cell = [0u16; 4];
+        for (c, (x, y)) in cell
+            .iter_mut()
+            .zip([(cx, cy), (cx + s, cy), (cx, cy + s), (cx + s, cy + s)])
+        {
+            let (x, y) = (x.min(last_x) as u32, y.min(last_y) as u32);
+            raster.read_window(x, y, 1, 1, std::slice::from_mut(c))?;
         }
+        cells.push(cell);
     }
-    Ok(CornerGrid { side: n, values })
+    Ok(CoarseCorners { cells })
 }
 
 /// Reads a finest tile (clamping the padding to the DEM's edge) and measures it.
@@ -304,7 +333,6 @@ fn finest_node(
     raster: &dyn Raster,
     g: &TileGeometry,
     tile: TileId,
-    corners: &CornerGrid,
     spacings: u32,
 ) -> anyhow::Result<Node> {
     let side = g.tile_samples();
@@ -322,8 +350,9 @@ fn finest_node(
         let edge = dst[w as usize - 1];
         dst[w as usize..].fill(edge);
     }
+    let corners = coarse_corners(raster, g, gx0, gy0, spacings)?;
     let errors =
-        mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, corners, spacings);
+        mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, &corners, spacings);
     let (min, max) = block_ranges(&heights, side);
     Ok(Node {
         heights,
@@ -430,6 +459,9 @@ impl Aggregator<'_> {
                 let enc = encode(&node, &self.geometry, parent_level, &self.quant);
                 (node, enc)
             });
+            // Freed before the parent cascades upward, so each level holds at most
+            // three waiting siblings (memory::Plan counts on it).
+            drop(children);
             self.push(writer, parent_level, m.parent(), parent)?;
         }
         Ok(())

@@ -55,6 +55,13 @@ pub struct SpooledRaster {
     pub sample_type: SampleType,
 }
 
+const SPOOL_WRITE: &str = "cannot write the spooled input in the output directory";
+
+/// Write buffer of the spool file.
+pub const SPOOL_BUFFER: usize = 1 << 20;
+/// Band memory per sample: the `f32` value, its validity flag and its `u32` distance.
+pub const BAND_BYTES_PER_SAMPLE: usize = 9;
+
 /// Chamfer weights (3 for edge neighbours, 4 for diagonals) approximate Euclidean distance.
 const EDGE: u32 = 3;
 const DIAG: u32 = 4;
@@ -126,16 +133,16 @@ impl SpooledRaster {
         dir: &Path,
         nodata: Option<f64>,
         band_bytes: usize,
-        mut progress: impl FnMut(u32),
+        mut progress: impl FnMut(u32) -> anyhow::Result<()>,
     ) -> anyhow::Result<Self> {
         let info = src.info().clone();
         let w = info.width as usize;
         let nodata = nodata.or(info.nodata).map(|v| v as f32);
         let file = tempfile::tempfile_in(dir)
             .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
-        let mut out = BufWriter::with_capacity(1 << 20, file);
+        let mut out = BufWriter::with_capacity(SPOOL_BUFFER, file);
         // Per sample: the value, its validity flag, and a distance while filling.
-        let band_rows = (band_bytes / (w * 9)).clamp(1, info.height as usize);
+        let band_rows = (band_bytes / (w * BAND_BYTES_PER_SAMPLE)).clamp(1, info.height as usize);
         let mut band = vec![0f32; (band_rows + 1) * w];
         let mut valid = vec![false; (band_rows + 1) * w];
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -166,15 +173,16 @@ impl SpooledRaster {
             if fill_band(rows, w, valid) {
                 let body = &rows[ctx * w..];
                 for v in body {
-                    out.write_all(&v.to_le_bytes())?;
+                    out.write_all(&v.to_le_bytes()).context(SPOOL_WRITE)?;
                 }
                 if !have_prev && leading_void_rows > 0 {
                     // Rows above the first valid sample copy the first filled row.
-                    out.flush()?;
+                    out.flush().context(SPOOL_WRITE)?;
                     let first: Vec<u8> = body[..w].iter().flat_map(|v| v.to_le_bytes()).collect();
                     for r in 0..leading_void_rows {
                         out.get_ref()
-                            .write_all_at(&first, u64::from(r) * 4 * w as u64)?;
+                            .write_all_at(&first, u64::from(r) * 4 * w as u64)
+                            .context(SPOOL_WRITE)?;
                     }
                 }
                 let last = rows.len() - w;
@@ -182,19 +190,20 @@ impl SpooledRaster {
                 have_prev = true;
             } else {
                 for _ in 0..n * w {
-                    out.write_all(&f32::NAN.to_le_bytes())?;
+                    out.write_all(&f32::NAN.to_le_bytes()).context(SPOOL_WRITE)?;
                 }
                 leading_void_rows += n as u32;
             }
             row += n as u32;
-            progress(row);
+            progress(row)?;
         }
         if !have_prev {
             bail!("input has no valid samples: every sample is no-data");
         }
         let file = out
             .into_inner()
-            .map_err(std::io::IntoInnerError::into_error)?;
+            .map_err(std::io::IntoInnerError::into_error)
+            .context(SPOOL_WRITE)?;
         let quantizer = if info.sample_type.is_integer() {
             RawQuantizer {
                 raw_offset: if info.sample_type == SampleType::Int16 {

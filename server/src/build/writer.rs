@@ -11,26 +11,81 @@
 use anyhow::{Context, bail};
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
+use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use tempfile::NamedTempFile;
 use tessera_shared::format::{
     self, FileHeader, HEADER_LEN, INDEX_ENTRY_LEN, IndexEntry, LEVEL_ENTRY_LEN, LevelEntry, VERSION,
 };
-use tessera_shared::{Level, Metadata, Morton, Pyramid, TileGeometry};
+use tessera_shared::reader::{self, FileSource};
+use tessera_shared::{Level, Metadata, Morton, TileGeometry};
+use xxhash_rust::xxh3::Xxh3;
 
-/// Records of one level, in Morton order, and their index.
+/// Write buffer of each level's record stream.
+pub const SINK_BUFFER: usize = 1 << 20;
+
+/// Index entries of one level buffered before they are written to the partial file.
+/// Entries arrive in Morton order; short gaps are padded with absent entries so the
+/// buffer is one contiguous run (one write), long gaps flush it.
+const INDEX_RUN: usize = 4096;
+/// The largest run buffer a level holds.
+pub const INDEX_RUN_BYTES: usize = (INDEX_RUN + 256) * size_of::<IndexEntry>();
+
+/// Records of one level, in Morton order; their index goes straight to the file.
 struct LevelSink {
     out: BufWriter<File>,
     /// Bytes written so far (relative to the level's first record).
     len: u64,
-    index: Vec<IndexEntry>,
+    /// Absolute file offset of this level's index.
+    index_offset: u64,
+    /// Morton code of `run[0]`.
+    run_start: u64,
+    run: Vec<IndexEntry>,
+}
+
+impl LevelSink {
+    /// Adds the entry of tile `m` (offsets still relative to the level's first record).
+    fn index(&mut self, file: &File, m: u64, entry: IndexEntry) -> anyhow::Result<()> {
+        let next = self.run_start + self.run.len() as u64;
+        if self.run.is_empty() {
+            self.run_start = m;
+        } else if m < next || m - next > 256 || self.run.len() >= INDEX_RUN {
+            self.flush_index(file)?;
+            self.run_start = m;
+        } else {
+            self.run.resize(self.run.len() + (m - next) as usize, IndexEntry::default());
+        }
+        self.run.push(entry);
+        Ok(())
+    }
+
+    fn flush_index(&mut self, file: &File) -> anyhow::Result<()> {
+        if self.run.is_empty() {
+            return Ok(());
+        }
+        let bytes: Vec<u8> = self.run.iter().flat_map(IndexEntry::to_bytes).collect();
+        file.write_all_at(
+            &bytes,
+            self.index_offset + self.run_start * INDEX_ENTRY_LEN as u64,
+        )
+        .context("writing the index")?;
+        self.run.clear();
+        Ok(())
+    }
 }
 
 /// A pyramid being written.
+///
+/// Nothing here grows with the number of tiles: record bytes stream to files and
+/// index entries are written into the partial file's index region as they come,
+/// so a DEM whose tile grid is mostly empty (or a header that lies about its size)
+/// costs disk, proven by data, not memory (DESIGN §8).
 pub struct PyramidWriter {
     geometry: TileGeometry,
     target: PathBuf,
     partial: NamedTempFile,
+    /// The partial file, for positional index writes.
+    file: File,
     records_offset: u64,
     meta_reserve: u64,
     levels: Vec<LevelSink>,
@@ -123,6 +178,8 @@ impl PyramidWriter {
             + meta_reserve;
         let records_offset = header_region.next_multiple_of(4096);
         let mut levels = Vec::new();
+        let mut index_offset =
+            HEADER_LEN as u64 + u64::from(geometry.level_count()) * LEVEL_ENTRY_LEN as u64;
         for level in geometry.levels() {
             let file = if level == geometry.finest() {
                 let mut f = partial.reopen()?;
@@ -133,14 +190,18 @@ impl PyramidWriter {
                     .with_context(|| format!("cannot create a spill file in {}", dir.display()))?
             };
             levels.push(LevelSink {
-                out: BufWriter::with_capacity(1 << 20, file),
+                out: BufWriter::with_capacity(SINK_BUFFER, file),
                 len: 0,
-                index: vec![IndexEntry::default(); level.tile_slots() as usize],
+                index_offset,
+                run_start: 0,
+                run: Vec::new(),
             });
+            index_offset += level.tile_slots() * INDEX_ENTRY_LEN as u64;
         }
         Ok(Self {
             geometry,
             target: target.to_path_buf(),
+            file: partial.reopen()?,
             partial,
             records_offset,
             meta_reserve,
@@ -164,8 +225,11 @@ impl PyramidWriter {
         full_res_error: f32,
     ) -> anyhow::Result<()> {
         let sink = &mut self.levels[usize::from(level.get())];
-        sink.out.write_all(record)?;
-        sink.index[m.get() as usize] = IndexEntry {
+        let target = &self.target;
+        sink.out
+            .write_all(record)
+            .with_context(|| format!("cannot write {}", target.display()))?;
+        let entry = IndexEntry {
             offset: sink.len,
             length: u32::try_from(record.len()).context("record over 4 GiB")?,
             min,
@@ -174,22 +238,29 @@ impl PyramidWriter {
             full_res_error,
             flags: 0,
         };
+        sink.index(&self.file, m.get(), entry)
+            .with_context(|| format!("cannot write {}", target.display()))?;
         sink.len += record.len() as u64;
         Ok(())
     }
 
-    /// Appends the coarse levels, writes the header, metadata and index, syncs,
-    /// checks every record and renames the file into place. Returns the final metadata
-    /// (with its content hash) and the file's size.
+    /// Appends the coarse levels, rewrites the index with absolute offsets, writes the
+    /// header and metadata, syncs, checks every record and renames the file into
+    /// place. Returns the final metadata (with its content hash) and the file's size.
+    ///
+    /// Every pass streams (index a chunk at a time, hashes fed incrementally), so
+    /// finishing costs a few MiB whatever the number of tiles.
     pub fn finish(
         self,
         mut meta: Metadata,
+        interrupt: &super::interrupt::Interrupt,
         mut progress: impl FnMut(u64),
     ) -> anyhow::Result<(Metadata, u64)> {
         let Self {
             geometry,
             target,
             partial,
+            file: out,
             records_offset,
             meta_reserve,
             levels,
@@ -197,15 +268,17 @@ impl PyramidWriter {
         let finest = usize::from(geometry.finest().get());
         let mut files = Vec::new();
         let mut lens = Vec::new();
-        let mut indices = Vec::new();
-        for sink in levels {
+        let mut index_offsets = Vec::new();
+        for mut sink in levels {
+            sink.flush_index(&out)?;
             files.push(
                 sink.out
                     .into_inner()
-                    .map_err(std::io::IntoInnerError::into_error)?,
+                    .map_err(std::io::IntoInnerError::into_error)
+                    .context("writing a record")?,
             );
             lens.push(sink.len);
-            indices.push(sink.index);
+            index_offsets.push(sink.index_offset);
         }
         // Level record ranges: finest first, then coarser ones in descending order.
         let mut level_offset = vec![0u64; files.len()];
@@ -214,25 +287,45 @@ impl PyramidWriter {
             level_offset[l] = at;
             at += lens[l];
         }
-        let mut out = partial.reopen()?;
         for l in (0..finest).rev() {
             let spill = &mut files[l];
             spill.seek(SeekFrom::Start(0))?;
-            out.seek(SeekFrom::Start(level_offset[l]))?;
-            std::io::copy(spill, &mut out)?;
+            let mut dst = &out;
+            dst.seek(SeekFrom::Start(level_offset[l]))?;
+            std::io::copy(spill, &mut dst).context("appending a level's records")?;
         }
         drop(files);
-        for (l, index) in indices.iter_mut().enumerate() {
-            for e in index.iter_mut().filter(|e| e.is_present()) {
-                e.offset += level_offset[l];
+        // The metadata's own numbers are final, so its content hash can be fed as the
+        // index is rewritten: record checksums, levels ascending, Morton order.
+        let mut content = format::ContentHasher::new(&meta);
+        let mut chunk = Vec::new();
+        for (l, level) in geometry.levels().enumerate() {
+            interrupt.check()?;
+            let slots = level.tile_slots();
+            let mut m = 0u64;
+            while m < slots {
+                let n = (slots - m).min(1 << 16);
+                let off = index_offsets[l] + m * INDEX_ENTRY_LEN as u64;
+                chunk.resize(n as usize * INDEX_ENTRY_LEN, 0);
+                out.read_exact_at(&mut chunk, off)
+                    .context("re-reading the index")?;
+                let mut dirty = false;
+                for b in chunk.chunks_exact_mut(INDEX_ENTRY_LEN) {
+                    let mut e = IndexEntry::parse(b);
+                    if e.is_present() {
+                        e.offset += level_offset[l];
+                        content.record(e.checksum);
+                        b.copy_from_slice(&e.to_bytes());
+                        dirty = true;
+                    }
+                }
+                if dirty {
+                    out.write_all_at(&chunk, off).context("writing the index")?;
+                }
+                m += n;
             }
         }
-        // Content hash over record checksums, levels ascending, Morton order.
-        let checksums: Vec<u64> = indices
-            .iter()
-            .flat_map(|i| i.iter().filter(|e| e.is_present()).map(|e| e.checksum))
-            .collect();
-        meta.content_hash = format::content_hash(&meta, checksums.iter());
+        meta.content_hash = content.finish();
         let meta_bytes = format::encode_metadata(&meta);
         if meta_bytes.len() as u64 > meta_reserve {
             bail!(
@@ -242,29 +335,27 @@ impl PyramidWriter {
         }
         // Header region: header · level table · indices · metadata · zero padding.
         let level_table_offset = HEADER_LEN as u64;
-        let mut region = Vec::with_capacity((records_offset - HEADER_LEN as u64) as usize);
-        let mut index_at =
-            level_table_offset + u64::from(geometry.level_count()) * LEVEL_ENTRY_LEN as u64;
+        let mut table = Vec::new();
         for (l, level) in geometry.levels().enumerate() {
             let entry = LevelEntry {
                 level: level.get(),
                 tiles_per_side: level.tiles_per_side(),
-                index_offset: index_at,
+                index_offset: index_offsets[l],
                 index_entries: level.tile_slots(),
                 records_offset: level_offset[l],
                 records_len: lens[l],
             };
-            region.extend_from_slice(&entry.to_bytes());
-            index_at += level.tile_slots() * INDEX_ENTRY_LEN as u64;
+            table.extend_from_slice(&entry.to_bytes());
         }
-        for index in &indices {
-            for e in index {
-                region.extend_from_slice(&e.to_bytes());
-            }
-        }
-        let meta_offset = HEADER_LEN as u64 + region.len() as u64;
-        region.extend_from_slice(&meta_bytes);
-        region.resize((records_offset - HEADER_LEN as u64) as usize, 0);
+        let meta_offset = level_table_offset + table.len() as u64 + index_len(&geometry);
+        out.write_all_at(&table, level_table_offset)
+            .context("writing the level table")?;
+        // Zero the metadata's reserved space (the file is sparse there otherwise, but
+        // explicit zeros keep the checksummed bytes independent of the filesystem).
+        let mut meta_area = meta_bytes.clone();
+        meta_area.resize((records_offset - meta_offset) as usize, 0);
+        out.write_all_at(&meta_area, meta_offset)
+            .context("writing the metadata")?;
         let mut header = FileHeader {
             version: VERSION,
             flags: 0,
@@ -276,22 +367,35 @@ impl PyramidWriter {
             records_offset,
             checksum: 0,
         };
-        header.checksum = header.compute_checksum(&region);
-        out.seek(SeekFrom::Start(0))?;
-        out.write_all(&header.to_bytes())?;
-        out.write_all(&region)?;
-        out.sync_all()?;
-        // Verify what is on disk before it becomes visible at the output path.
-        let pyramid =
-            Pyramid::open_file(partial.path()).context("re-reading the written pyramid")?;
-        for level in geometry.levels() {
-            for tile in geometry.present_tiles(level) {
-                pyramid
-                    .read_record(tile)
-                    .with_context(|| format!("verifying the written {tile}"))?;
-                progress(1);
-            }
+        // The header checksum over the region as it now lies on disk.
+        let mut h = Xxh3::new();
+        h.update(&header.to_bytes()[..56]);
+        let mut pos = HEADER_LEN as u64;
+        while pos < records_offset {
+            let n = (records_offset - pos).min(1 << 21) as usize;
+            chunk.resize(n, 0);
+            out.read_exact_at(&mut chunk, pos)
+                .context("re-reading the header region")?;
+            h.update(&chunk);
+            pos += n as u64;
         }
+        drop(chunk);
+        header.checksum = h.digest();
+        out.write_all_at(&header.to_bytes(), 0)
+            .context("writing the header")?;
+        out.sync_all().context("syncing the pyramid to disk")?;
+        // Verify what is on disk before it becomes visible at the output path.
+        let source = FileSource::open(partial.path())?;
+        let written = reader::check_streaming(&source, |_, _, _| {
+            progress(1);
+            Ok(())
+        })
+        .context("re-reading the written pyramid")?;
+        anyhow::ensure!(
+            written == meta,
+            "the written pyramid's metadata differs from what was written"
+        );
+        interrupt.check()?;
         // Temporary files are private (0600); a finished pyramid is an ordinary file.
         std::fs::set_permissions(
             partial.path(),

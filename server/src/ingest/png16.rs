@@ -6,12 +6,17 @@
 use super::{RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufRead, BufReader, Seek, SeekFrom};
 use std::path::Path;
+
+/// What a PNG is read from: a buffered file, or any buffered seekable reader
+/// ([`Png16::from_reader`], e.g. bytes in memory for the fuzz targets).
+pub trait PngInput: BufRead + Seek + Send {}
+impl<T: BufRead + Seek + Send> PngInput for T {}
 
 pub struct Png16 {
     info: SourceInfo,
-    reader: png::Reader<BufReader<File>>,
+    reader: png::Reader<Box<dyn PngInput>>,
     rows_read: u32,
 }
 
@@ -26,10 +31,24 @@ impl std::fmt::Debug for Png16 {
 
 impl Png16 {
     pub fn open(path: &Path) -> anyhow::Result<Self> {
-        let file = BufReader::new(File::open(path).context("cannot open")?);
-        let mut decoder = png::Decoder::new(file);
+        let file = File::open(path).context("cannot open")?;
+        Self::from_reader(BufReader::new(file))
+    }
+
+    /// Opens a PNG from any buffered seekable reader (its length is found by seeking
+    /// to the end); [`Png16::open`] is this over a buffered file.
+    pub fn from_reader(mut input: impl PngInput + 'static) -> anyhow::Result<Self> {
+        let file_len = input
+            .seek(SeekFrom::End(0))
+            .and_then(|len| input.seek(SeekFrom::Start(0)).map(|_| len))
+            .context("cannot read file size")?;
+        let input: Box<dyn PngInput> = Box::new(input);
+        let mut decoder = png::Decoder::new(input);
         // Keep samples as stored: no expansion, no stripping to 8 bits.
         decoder.set_transformations(png::Transformations::IDENTITY);
+        // Chunk CRCs and the zlib Adler-32 are both checked: a flipped bit is an error,
+        // never a pyramid (DESIGN §8). The png crate skips Adler-32 by default.
+        decoder.ignore_checksums(false);
         let reader = decoder
             .read_info()
             .map_err(|e| anyhow::anyhow!("not a readable PNG: {e}"))?;
@@ -45,6 +64,7 @@ impl Png16 {
         if i.interlaced {
             bail!("interlaced (Adam7) PNGs are not supported; re-save it without interlacing");
         }
+        check_plausible(width, height, file_len)?;
         Ok(Self {
             info: SourceInfo {
                 width,
@@ -81,8 +101,35 @@ impl RowSource for Png16 {
             }
             self.rows_read += 1;
         }
+        if self.rows_read == self.info.height && !out.is_empty() {
+            // Read on to IEND so the last IDAT chunk's CRC and the zlib stream's
+            // Adler-32 are checked too: the rows alone stop short of both.
+            self.reader
+                .finish()
+                .map_err(|e| anyhow::anyhow!("corrupt PNG after its last row: {e}"))?;
+        }
         Ok(())
     }
+}
+
+/// Deflate cannot compress better than about 1032:1 (a 258-byte match per ~2-bit
+/// code), so a file of `file_len` bytes holds at most this many bytes of image data.
+const DEFLATE_MAX_RATIO: u64 = 1032;
+
+/// Refuses a header whose claimed size the file cannot possibly hold, before anything
+/// is allocated or spooled for it (DESIGN §8).
+fn check_plausible(width: u32, height: u32, file_len: u64) -> anyhow::Result<()> {
+    // Each row is a filter byte and two bytes per sample.
+    let claimed = u64::from(height) * (u64::from(width) * 2 + 1);
+    let most = file_len.saturating_mul(DEFLATE_MAX_RATIO);
+    if claimed > most {
+        bail!(
+            "implausible PNG header: it claims {width}×{height} samples ({claimed} bytes of \
+             image data), but a {file_len}-byte file can hold at most {most} bytes \
+             (deflate compresses at most {DEFLATE_MAX_RATIO}:1)"
+        );
+    }
+    Ok(())
 }
 
 #[cfg(test)]

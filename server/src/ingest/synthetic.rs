@@ -97,6 +97,11 @@ impl Synthetic {
         self.size
     }
 
+    /// Bytes the terrain holds in memory (its coarse grid), for the build's budget.
+    pub fn memory_bytes(&self) -> u64 {
+        (self.coarse.len() * size_of::<f32>()) as u64
+    }
+
     pub fn description(&self) -> String {
         format!(
             "synthetic fractal terrain {0}×{0}, seed {1}",
