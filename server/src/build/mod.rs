@@ -123,7 +123,7 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
     let geometry =
         TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
     let input_bytes = match &source {
-        Input::Rows(_) => 0,
+        Input::Rows(r) => r.buffer_bytes(),
         Input::Synthetic(s) => s.memory_bytes(),
     };
     let plan = memory::Plan::new(&geometry, input_bytes, opts.memory_budget)

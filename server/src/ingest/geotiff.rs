@@ -23,7 +23,7 @@ use super::{RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
 use std::fmt;
 use std::fs::File;
-use std::io::{BufReader, ErrorKind};
+use std::io::{BufReader, ErrorKind, Read, Seek, SeekFrom};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use tessera_shared::{GeoRef, RasterType};
@@ -79,6 +79,21 @@ impl Compression {
             Self::Lzw => "LZW",
             Self::Deflate => "deflate",
             Self::PackBits => "PackBits",
+        }
+    }
+
+    /// The best ratio of decoded to stored bytes the compression can reach, so a
+    /// header's claimed size can be checked against the bytes the file really holds.
+    const fn max_ratio(self) -> u64 {
+        match self {
+            Self::None => 1,
+            // A 2-byte run header and byte expand to at most 128 bytes.
+            Self::PackBits => 64,
+            // A 258-byte match per code of as little as ~2 bits.
+            Self::Deflate => 1032,
+            // 12-bit codes whose strings grow by one byte per code until the table
+            // (4096 entries) is cleared: ~7.4 MB from ~5.7 KB of codes, about 1300:1.
+            Self::Lzw => 1400,
         }
     }
 }
@@ -137,10 +152,17 @@ impl Layout {
     }
 }
 
+/// What a GeoTIFF is read from: a buffered file, or any seekable reader
+/// ([`GeoTiff::from_reader`], e.g. bytes in memory for the fuzz targets).
+pub trait TiffInput: Read + Seek + Send {}
+impl<T: Read + Seek + Send> TiffInput for T {}
+
+type Reader = Box<dyn TiffInput>;
+
 /// A GeoTIFF read as rows, one strip or row of tiles at a time.
 pub struct GeoTiff {
     info: SourceInfo,
-    decoder: Decoder<BufReader<File>>,
+    decoder: Decoder<Reader>,
     layout: Layout,
     compression: Compression,
     /// Compressed size of every chunk; 0 marks a sparse (absent) chunk.
@@ -218,7 +240,7 @@ fn parse_nodata(raw: &str) -> Option<f64> {
 }
 
 /// Reads an ASCII (or byte) tag as text, without the crate's strict NUL handling.
-fn ascii_tag(decoder: &mut Decoder<BufReader<File>>, tag: Tag) -> anyhow::Result<Option<String>> {
+fn ascii_tag(decoder: &mut Decoder<Reader>, tag: Tag) -> anyhow::Result<Option<String>> {
     let mut ifd = decoder.image_ifd();
     let Some(entry) = ifd.find_entry(tag) else {
         return Ok(None);
@@ -341,7 +363,7 @@ fn clean_citation(raw: &str) -> Option<String> {
 
 /// Reads a tag holding doubles; a malformed value is a warning and counts as absent,
 /// so bad georeferencing never stops the samples from being read.
-fn f64_tag(decoder: &mut Decoder<BufReader<File>>, tag: Tag, name: &str) -> Option<Vec<f64>> {
+fn f64_tag(decoder: &mut Decoder<Reader>, tag: Tag, name: &str) -> Option<Vec<f64>> {
     match decoder
         .find_tag(tag)
         .and_then(|v| v.map(tiff::decoder::ifd::Value::into_f64_vec).transpose())
@@ -356,7 +378,7 @@ fn f64_tag(decoder: &mut Decoder<BufReader<File>>, tag: Tag, name: &str) -> Opti
 
 /// The geotransform for the corner of pixel (0, 0) as the file states it (before any
 /// PixelIsPoint shift), or `None` when the file has no usable north-up georeferencing.
-fn raw_geotransform(decoder: &mut Decoder<BufReader<File>>) -> Option<[f64; 6]> {
+fn raw_geotransform(decoder: &mut Decoder<Reader>) -> Option<[f64; 6]> {
     let transform = f64_tag(
         decoder,
         Tag::ModelTransformationTag,
@@ -419,7 +441,7 @@ fn raw_geotransform(decoder: &mut Decoder<BufReader<File>>) -> Option<[f64; 6]> 
 }
 
 /// Reads the GeoTIFF tags into a [`GeoRef`] (GDAL's corner convention).
-fn read_georef(decoder: &mut Decoder<BufReader<File>>) -> Option<GeoRef> {
+fn read_georef(decoder: &mut Decoder<Reader>) -> Option<GeoRef> {
     let dir = match decoder
         .find_tag(Tag::GeoKeyDirectoryTag)
         .and_then(|v| v.map(tiff::decoder::ifd::Value::into_u16_vec).transpose())
@@ -465,7 +487,7 @@ fn read_georef(decoder: &mut Decoder<BufReader<File>>) -> Option<GeoRef> {
 
 /// Reads an optional unsigned tag, with the tag named in the error.
 fn tag_u16(
-    decoder: &mut Decoder<BufReader<File>>,
+    decoder: &mut Decoder<Reader>,
     tag: Tag,
     name: &str,
 ) -> anyhow::Result<Option<u16>> {
@@ -479,9 +501,18 @@ impl GeoTiff {
     /// Opens a GeoTIFF and checks that it can be read, without decoding any samples.
     pub fn open(path: &Path) -> anyhow::Result<Self> {
         let file = File::open(path).context("cannot open file")?;
-        let file_len = file.metadata().context("cannot read file size")?.len();
-        let mut decoder =
-            Decoder::new(BufReader::with_capacity(1 << 16, file)).map_err(|e| header_error(&e))?;
+        Self::from_reader(BufReader::with_capacity(1 << 16, file))
+    }
+
+    /// Opens a GeoTIFF from any seekable reader (its length is found by seeking to
+    /// the end); [`GeoTiff::open`] is this over a buffered file.
+    pub fn from_reader(reader: impl TiffInput + 'static) -> anyhow::Result<Self> {
+        let mut reader: Reader = Box::new(reader);
+        let file_len = reader
+            .seek(SeekFrom::End(0))
+            .and_then(|len| reader.seek(SeekFrom::Start(0)).map(|_| len))
+            .context("cannot read file size")?;
+        let mut decoder = Decoder::new(reader).map_err(|e| header_error(&e))?;
 
         // Check the compression ourselves, so that the message is clear before decoding.
         let compression = Compression::from_code(
@@ -606,6 +637,21 @@ impl GeoTiff {
                 offsets[first],
                 offsets[first].saturating_add(chunk_bytes[first]),
                 beyond.len()
+            );
+        }
+
+        // Nothing is allocated for the claimed size until the data can hold it: the
+        // stored chunks, at the compression's best ratio, must cover every non-empty
+        // chunk but one (the last strip may be short). Empty chunks are sparse tiles.
+        let stored: u64 = chunk_bytes.iter().fold(0u64, |a, &b| a.saturating_add(b));
+        let non_empty = chunk_bytes.iter().filter(|&&b| b > 0).count() as u64;
+        let claimed = non_empty.saturating_sub(1).saturating_mul(chunk_bytes_decoded);
+        if claimed > stored.saturating_mul(compression.max_ratio()) {
+            bail!(
+                "implausible TIFF header: {non_empty} {kind}s of {chunk_bytes_decoded} bytes \
+                 each decoded, but they hold {stored} bytes, more than {} ({}:1) can expand to",
+                compression.name(),
+                compression.max_ratio()
             );
         }
 
@@ -787,6 +833,18 @@ fn place<T: Copy>(
 impl RowSource for GeoTiff {
     fn info(&self) -> &SourceInfo {
         &self.info
+    }
+
+    fn buffer_bytes(&self) -> u64 {
+        // One band of decoded rows (f32), plus one chunk decoded and stored.
+        let band = u64::from(self.layout.band_height()) * u64::from(self.info.width) * 4;
+        let largest = self.chunk_bytes.iter().copied().max().unwrap_or(0);
+        let chunk_w = match self.layout {
+            Layout::Strips { .. } => self.info.width,
+            Layout::Tiles { tile_width, .. } => tile_width,
+        };
+        let chunk = u64::from(chunk_w) * u64::from(self.layout.band_height()) * 4;
+        band + chunk + largest
     }
 
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
@@ -1150,6 +1208,8 @@ mod tests {
         extra: Vec<(u16, u16, u32, Vec<u8>)>,
         /// Sample values, row-major, `bands` per pixel.
         values: Vec<f64>,
+        /// Replaces every chunk's stored byte count (a header that lies).
+        byte_counts: Option<u32>,
     }
 
     impl Spec {
@@ -1171,6 +1231,7 @@ mod tests {
                 predictor: 1,
                 extra: Vec::new(),
                 values,
+                byte_counts: None,
             }
         }
 
@@ -1310,7 +1371,7 @@ mod tests {
             let (mut offsets, mut counts) = (Vec::new(), Vec::new());
             for c in &chunks {
                 offsets.push(out.len() as u32);
-                counts.push(c.len() as u32);
+                counts.push(self.byte_counts.unwrap_or(c.len() as u32));
                 out.extend_from_slice(c);
             }
             let longs = |v: &[u32]| -> Vec<u8> { v.iter().flat_map(|x| x.to_le_bytes()).collect() };
@@ -1613,6 +1674,22 @@ mod tests {
         let mut s = int16();
         s.predictor = 3;
         assert!(open_err(&s).contains("floating-point predictor"));
+    }
+
+    /// Chunks whose stored bytes could not hold what the header says they decode to
+    /// (here: uncompressed strips of 128 bytes said to be stored in 1 byte each) are
+    /// refused in `open`, before any band is allocated for them.
+    #[test]
+    fn a_header_claiming_more_than_its_chunks_can_hold_is_implausible() {
+        let mut s = Spec::new(64, 64, SampleType::UInt16, vec![7.0; 64 * 64]);
+        s.rows_per_strip = 1;
+        let honest = s.write("honest.tif");
+        assert!(GeoTiff::open(&honest.0).is_ok());
+        s.byte_counts = Some(1);
+        let liar = s.write("liar.tif");
+        let e = GeoTiff::open(&liar.0).expect_err("must be rejected").to_string();
+        assert!(e.contains("implausible TIFF header"), "{e}");
+        assert!(e.contains("64 strips"), "{e}");
     }
 
     #[test]

@@ -57,6 +57,12 @@ pub trait RowSource: Send + std::fmt::Debug {
     /// Errors describe the problem (e.g. "truncated TIFF: strip 7 ends past the end
     /// of the file"); the caller adds the file name.
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()>;
+
+    /// Bytes the reader itself holds while reading (decoded bands, chunk buffers),
+    /// for the build's memory plan. Small row-at-a-time readers keep the default.
+    fn buffer_bytes(&self) -> u64 {
+        0
+    }
 }
 
 /// A parsed `INPUT` argument.

@@ -85,6 +85,12 @@ impl RowSource for Png16 {
         &self.info
     }
 
+    fn buffer_bytes(&self) -> u64 {
+        // The decoder's current and previous rows (for unfiltering) and its inflate
+        // window and input buffer.
+        2 * (u64::from(self.info.width) * 2 + 1) + (64 << 10)
+    }
+
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
         let w = self.info.width as usize;
         for row in out.chunks_exact_mut(w) {
