@@ -4,6 +4,7 @@
 use super::{Series, contact_sheet_labelled, pick_evenly_indices, plot_panels};
 use crate::render::png_out::{read_png, write_png};
 use anyhow::Context;
+use std::fmt::Write as _;
 use std::path::Path;
 
 /// Reads `stats.jsonl`: one JSON object per frame.
@@ -117,7 +118,10 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
         .fold(0f64, f64::max);
     // DESIGN §8: what the client could not get is reported as missing, never as a
     // huge deficit, with the error that explains it.
-    let missing = records.iter().filter(|r| r["max_rho"].is_null()).count();
+    let missing = records
+        .iter()
+        .filter(|r| r.get("max_rho").is_some_and(serde_json::Value::is_null))
+        .count();
     let most_missing = records
         .iter()
         .filter_map(|r| r["missing"].as_u64())
@@ -131,12 +135,13 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
         trouble.push_str("; nothing drawn in any frame");
     }
     if missing > 0 {
-        trouble.push_str(&format!(
+        let _ = write!(
+            trouble,
             "; deficit missing in {missing} frames (up to {most_missing} tiles in view with nothing drawn)"
-        ));
+        );
     }
     if let Some(e) = last["last_error"].as_str() {
-        trouble.push_str(&format!("; last error: {e}"));
+        let _ = write!(trouble, "; last error: {e}");
     }
     Ok(format!(
         "{n} frames: median {:.0} triangles, at most {max_draws:.0} terrain draw calls; {:.1}% of frames within τ, {:.1}% within 2τ; \

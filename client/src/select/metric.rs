@@ -177,6 +177,38 @@ mod tests {
     use tessera_shared::{Level, Quantization, TileGeometry};
 
     #[test]
+    fn an_eye_inside_a_block_box_has_no_bound_except_at_zero_error() {
+        let world = World {
+            geometry: TileGeometry::new(513, 513, 512).unwrap(),
+            quant: Quantization {
+                offset: 0.0,
+                scale: 1.0,
+                max_error: 0.0,
+            },
+            spacing: 10.0,
+        };
+        let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
+        let mut table = ErrorTable::empty(9);
+        for n in 0..=9 {
+            for b in 0..64 {
+                table.set_error(n, b % 8, b / 8, if n == 9 { 0.0 } else { 5.0 });
+                table.set_block_range(b % 8, b / 8, 100, 200);
+            }
+        }
+        let inside = DVec3::new(2560.0, 150.0, 2560.0);
+        let rho = TileRho::new(&world, tile, &table, inside, 1000.0, 3, Policy::ScreenError);
+        for m in 0..9 {
+            assert_eq!(rho.rho(m, 0, 0, 0), f64::INFINITY, "level {m}");
+        }
+        // Full resolution is exact: no error, whatever the distance.
+        assert_eq!(rho.rho(9, 0, 0, 0), 0.0);
+        // Just above the box, the bound is finite again: ε·λ/d.
+        let above = DVec3::new(2560.0, 205.0 + 1.0, 2560.0);
+        let rho = TileRho::new(&world, tile, &table, above, 1000.0, 3, Policy::ScreenError);
+        assert!((rho.rho(0, 0, 0, 0) - 5.0 * 1000.0 / 1.0).abs() < 1e-6);
+    }
+
+    #[test]
     fn the_distance_policy_ignores_roughness_and_the_error_policy_does_not() {
         let world = World {
             geometry: TileGeometry::new(513, 513, 512).unwrap(),

@@ -304,3 +304,141 @@ impl Selector {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+    use tessera_shared::Level;
+
+    /// Resident tables, and tiles that cannot be had (the pool's view of both).
+    #[derive(Default)]
+    struct Tables {
+        resident: HashMap<TileId, ErrorTable>,
+        unavailable: HashSet<TileId>,
+    }
+
+    impl TileTables for Tables {
+        fn table(&self, tile: TileId) -> Option<&ErrorTable> {
+            self.resident.get(&tile)
+        }
+        fn unavailable(&self, tile: TileId) -> bool {
+            self.unavailable.contains(&tile)
+        }
+    }
+
+    fn tile(l: u8, x: u32, y: u32) -> TileId {
+        TileId::new(Level::new(l).unwrap(), x, y).unwrap()
+    }
+
+    /// Two levels of 512-cell tiles over 10 km, heights 100–200 m.
+    fn world() -> World {
+        World {
+            geometry: TileGeometry::new(1025, 1025, 512).unwrap(),
+            quant: Quantization {
+                offset: 0.0,
+                scale: 1.0,
+                max_error: 0.0,
+            },
+            spacing: 10.0,
+        }
+    }
+
+    /// Every mesh off by 20 m except, on the finest level, full resolution (the
+    /// DEM itself); a coarser tile's full resolution is still 10 m off.
+    fn table(level: u8) -> ErrorTable {
+        let mut t = ErrorTable::empty(9);
+        let full = if level == 1 { 0.0 } else { 10.0 };
+        for n in 0..=9 {
+            for b in 0..64 {
+                t.set_error(n, b % 8, b / 8, if n == 9 { full } else { 20.0 });
+                t.set_block_range(b % 8, b / 8, 100, 200);
+            }
+        }
+        t
+    }
+
+    fn level_one() -> Vec<TileId> {
+        vec![tile(1, 0, 0), tile(1, 1, 0), tile(1, 0, 1), tile(1, 1, 1)]
+    }
+
+    /// Over the middle of the terrain at `height`, looking down steeply.
+    fn camera(height: f64) -> Camera {
+        Camera {
+            position: DVec3::new(5120.0, height, 5120.0),
+            yaw: 0.0,
+            pitch: -1.2,
+            fovy: 60f64.to_radians(),
+            width: 960,
+            height: 540,
+            near: 1.0,
+            far: 100_000.0,
+        }
+    }
+
+    fn select(tables: &Tables, height: f64) -> Selection {
+        Selector::new(world(), SelectParams::default()).select(&camera(height), tables)
+    }
+
+    #[test]
+    fn without_the_root_nothing_is_drawn_and_the_deficit_is_missing() {
+        let s = select(&Tables::default(), 3000.0);
+        assert!(s.tiles.is_empty());
+        assert_eq!(s.wanted.len(), 1, "only the root is asked for at first");
+        assert_eq!(s.wanted[0].tile, tile(0, 0, 0));
+        assert_eq!(s.stats.missing, 1);
+        assert_eq!((s.stats.max_rho, s.stats.deficit), (None, None));
+        assert!(!s.stats.within(1.0));
+    }
+
+    #[test]
+    fn an_unavailable_root_is_drawn_through_its_children() {
+        let mut tables = Tables::default();
+        tables.unavailable.insert(tile(0, 0, 0));
+        tables
+            .resident
+            .extend(level_one().into_iter().map(|t| (t, table(1))));
+        let s = select(&tables, 3000.0);
+        let mut drawn = s.tiles.clone();
+        drawn.sort_by_key(|t| t.morton());
+        assert_eq!(drawn, level_one(), "the root's children stand in for it");
+        assert_eq!(s.stats.coarsest_level, Some(1));
+        assert_eq!(s.stats.missing, 0);
+        assert!(s.stats.max_rho.is_some_and(f64::is_finite));
+        assert!(
+            s.wanted.iter().any(|w| w.tile == tile(0, 0, 0)),
+            "the root is still asked for (the streamer decides when)"
+        );
+
+        // One child cannot be had either: the other three are drawn, the hole is
+        // missing, and so is the deficit.
+        tables.resident.remove(&tile(1, 1, 1));
+        tables.unavailable.insert(tile(1, 1, 1));
+        let s = select(&tables, 3000.0);
+        assert_eq!(s.tiles.len(), 3);
+        assert_eq!(s.stats.missing, 1);
+        assert_eq!(s.stats.max_rho, None);
+        assert!(s.wanted.iter().any(|w| w.tile == tile(1, 1, 1)));
+    }
+
+    #[test]
+    fn the_error_of_a_stand_in_around_the_eye_is_missing_not_huge() {
+        // The eye at 150 m is inside the root's box (100–200 m widened by 20 m).
+        let mut tables = Tables::default();
+        tables.resident.insert(tile(0, 0, 0), table(0));
+        let s = select(&tables, 150.0);
+        assert_eq!(s.tiles, [tile(0, 0, 0)]);
+        assert_eq!(s.stats.missing, 0);
+        assert_eq!(s.stats.max_rho, None, "{:?}", s.stats);
+        assert!(!s.wanted.is_empty());
+        // Everything resident: full resolution around the eye, a bounded error.
+        tables
+            .resident
+            .extend(level_one().into_iter().map(|t| (t, table(1))));
+        let s = select(&tables, 150.0);
+        assert_eq!(s.stats.coarsest_level, Some(1));
+        assert!(s.wanted.is_empty());
+        let rho = s.stats.max_rho.expect("bounded with everything resident");
+        assert!(rho <= SelectParams::default().tau, "{rho}");
+    }
+}
