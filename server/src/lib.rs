@@ -3,6 +3,7 @@
 //! HTTP serving arrives in the next issue.
 
 pub mod build;
+pub mod fuzzing;
 pub mod info;
 pub mod ingest;
 pub mod preview;

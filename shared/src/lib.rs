@@ -10,6 +10,7 @@
 pub mod codec;
 pub mod error_table;
 pub mod format;
+pub mod fuzzing;
 pub mod metadata;
 pub mod morton;
 pub mod reader;

@@ -486,11 +486,7 @@ fn read_georef(decoder: &mut Decoder<Reader>) -> Option<GeoRef> {
 }
 
 /// Reads an optional unsigned tag, with the tag named in the error.
-fn tag_u16(
-    decoder: &mut Decoder<Reader>,
-    tag: Tag,
-    name: &str,
-) -> anyhow::Result<Option<u16>> {
+fn tag_u16(decoder: &mut Decoder<Reader>, tag: Tag, name: &str) -> anyhow::Result<Option<u16>> {
     decoder
         .find_tag_unsigned_vec::<u16>(tag)
         .map(|v| v.and_then(|v| v.first().copied()))
@@ -645,7 +641,9 @@ impl GeoTiff {
         // chunk but one (the last strip may be short). Empty chunks are sparse tiles.
         let stored: u64 = chunk_bytes.iter().fold(0u64, |a, &b| a.saturating_add(b));
         let non_empty = chunk_bytes.iter().filter(|&&b| b > 0).count() as u64;
-        let claimed = non_empty.saturating_sub(1).saturating_mul(chunk_bytes_decoded);
+        let claimed = non_empty
+            .saturating_sub(1)
+            .saturating_mul(chunk_bytes_decoded);
         if claimed > stored.saturating_mul(compression.max_ratio()) {
             bail!(
                 "implausible TIFF header: {non_empty} {kind}s of {chunk_bytes_decoded} bytes \
@@ -1458,6 +1456,75 @@ mod tests {
             .collect()
     }
 
+    /// Writes the GeoTIFF seeds of the fuzz target (`fuzz/corpus/geotiff/`): tiny
+    /// files covering each layout, compression, predictor and the georeferencing
+    /// tags. Run by hand when the writer changes:
+    /// `cargo test -p tessera-server --lib write_fuzz_seeds -- --ignored`.
+    #[test]
+    #[ignore = "writes files into fuzz/corpus"]
+    fn write_fuzz_seeds() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/geotiff");
+        std::fs::create_dir_all(&dir).expect("corpus dir");
+        let (w, h) = (12, 9);
+        let seeds: Vec<(&str, Spec)> = vec![
+            (
+                "seed-int16-strips",
+                Spec::new(w, h, SampleType::Int16, surface(w, h, SampleType::Int16)),
+            ),
+            ("seed-uint16-lzw-pred2-tiled", {
+                let mut s = Spec::new(w, h, SampleType::UInt16, surface(w, h, SampleType::UInt16));
+                (s.compression, s.predictor, s.tiles) = (5, 2, Some((16, 16)));
+                s
+            }),
+            ("seed-float32-deflate-pred3", {
+                let mut s = Spec::new(
+                    w,
+                    h,
+                    SampleType::Float32,
+                    surface(w, h, SampleType::Float32),
+                );
+                (s.compression, s.predictor) = (8, 3);
+                s
+            }),
+            ("seed-int16-packbits-tiled-geo", {
+                let mut s = Spec::new(w, h, SampleType::Int16, surface(w, h, SampleType::Int16))
+                    .doubles(33550, &[10.0, 20.0, 0.0])
+                    .doubles(33922, &[0.0, 0.0, 0.0, 500_000.0, 4_000_000.0, 0.0])
+                    .shorts(
+                        34735,
+                        &[1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 2, 3072, 0, 1, 32632],
+                    )
+                    .ascii(42113, "-32768");
+                (s.compression, s.tiles) = (32773, Some((16, 16)));
+                s
+            }),
+            ("seed-float32-lzw-transform-ascii", {
+                let mut s = Spec::new(
+                    w,
+                    h,
+                    SampleType::Float32,
+                    surface(w, h, SampleType::Float32),
+                )
+                .doubles(
+                    34264,
+                    &[
+                        2.0, 0.0, 0.0, 100.0, 0.0, -2.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                        0.0, 1.0,
+                    ],
+                )
+                .shorts(34735, &[1, 1, 0, 2, 1024, 0, 1, 2, 2049, 34737, 7, 0])
+                .ascii(34737, "WGS 84|");
+                (s.compression, s.rows_per_strip) = (5, 4);
+                s
+            }),
+        ];
+        for (name, spec) in seeds {
+            let bytes = spec.encode();
+            GeoTiff::from_reader(std::io::Cursor::new(bytes.clone())).expect(name);
+            std::fs::write(dir.join(name), bytes).expect("write seed");
+        }
+    }
+
     #[test]
     fn every_supported_encoding_reads_back_exactly() {
         let (w, h) = (37, 23);
@@ -1687,7 +1754,9 @@ mod tests {
         assert!(GeoTiff::open(&honest.0).is_ok());
         s.byte_counts = Some(1);
         let liar = s.write("liar.tif");
-        let e = GeoTiff::open(&liar.0).expect_err("must be rejected").to_string();
+        let e = GeoTiff::open(&liar.0)
+            .expect_err("must be rejected")
+            .to_string();
         assert!(e.contains("implausible TIFF header"), "{e}");
         assert!(e.contains("64 strips"), "{e}");
     }

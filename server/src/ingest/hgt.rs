@@ -11,11 +11,19 @@ use tessera_shared::{GeoRef, RasterType};
 
 const VOID: f64 = -32768.0;
 
-#[derive(Debug)]
 pub struct Hgt {
     info: SourceInfo,
-    reader: BufReader<File>,
+    reader: Box<dyn Read + Send>,
     rows_read: u32,
+}
+
+impl std::fmt::Debug for Hgt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Hgt")
+            .field("info", &self.info)
+            .field("rows_read", &self.rows_read)
+            .finish_non_exhaustive()
+    }
 }
 
 /// Latitude and longitude of the south-west sample from a name like `N44W072`.
@@ -39,6 +47,19 @@ fn parse_name(stem: &str) -> Option<(i32, i32)> {
 impl Hgt {
     pub fn open(path: &Path) -> anyhow::Result<Self> {
         let len = std::fs::metadata(path).context("cannot read input")?.len();
+        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+        let file = File::open(path).context("cannot open")?;
+        Self::from_reader(stem, len, BufReader::with_capacity(1 << 16, file))
+    }
+
+    /// Reads an SRTM tile of `len` bytes from `reader`; `stem` is its file name
+    /// without the extension (e.g. `N44W072`), which names its corner. The side
+    /// (1201 or 3601) follows from `len`.
+    pub fn from_reader(
+        stem: &str,
+        len: u64,
+        reader: impl Read + Send + 'static,
+    ) -> anyhow::Result<Self> {
         let side: u32 = match len {
             2_884_802 => 1201,
             25_934_402 => 3601,
@@ -46,7 +67,6 @@ impl Hgt {
                 "SRTM .hgt file is {len} bytes; expected 2884802 (1201², 3″) or 25934402 (3601², 1″)"
             ),
         };
-        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
         let (lat, lon) = parse_name(stem).with_context(|| {
             format!("SRTM file name {stem:?} does not name its corner like N44W072")
         })?;
@@ -74,7 +94,7 @@ impl Hgt {
                 georef: Some(georef),
                 description: format!("SRTM .hgt {side}×{side} big-endian int16"),
             },
-            reader: BufReader::with_capacity(1 << 16, File::open(path).context("cannot open")?),
+            reader: Box::new(reader),
             rows_read: 0,
         })
     }
