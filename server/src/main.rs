@@ -51,7 +51,7 @@ enum Command {
         /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
         #[arg(long, default_value = "512MiB", value_parser = parse_bytes)]
         memory: u64,
-        /// No progress bars.
+        /// No progress bars, and only errors in the log.
         #[arg(short, long)]
         quiet: bool,
     },
@@ -59,7 +59,8 @@ enum Command {
     /// file with HTTP Range, PNG height tiles, TileJSON, /healthz and /metrics.
     ///
     /// Settings come from flags, then TESSERA_* environment variables, then --config FILE
-    /// (TOML), then defaults. Stops on SIGINT/SIGTERM after in-flight requests finish.
+    /// (TOML), then defaults. Stops on SIGINT/SIGTERM after in-flight requests finish;
+    /// SIGHUP reopens every dataset (deploy by renaming a new file over the old one).
     Serve(tessera_server::serve::config::ServeArgs),
     /// Check a pyramid's structure and every tile's checksum; exit 1 naming each bad tile.
     Verify {
@@ -122,14 +123,23 @@ fn parse_bytes(s: &str) -> Result<u64, String> {
 }
 
 fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let quiet = match &cli.command {
+        Command::Build { quiet, .. } => *quiet,
+        Command::Serve(args) => args.quiet,
+        _ => false,
+    };
+    // `-q` keeps only errors; an explicit RUST_LOG still wins. Colour codes only on a
+    // terminal: in a file or a pipe they are noise.
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+                tracing_subscriber::EnvFilter::new(if quiet { "error" } else { "info" })
+            }),
         )
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {

@@ -94,6 +94,25 @@ pub struct Metadata {
     pub content_hash: String,
 }
 
+impl Metadata {
+    /// Checks that `content_hash` has the form [`crate::format::content_hash`] writes:
+    /// exactly 16 lowercase hex digits. The hash goes into ETags and URLs, so anything
+    /// else (a control character, a quote, CRLF) must be refused when a file is read,
+    /// not discovered when a header is built. Says what is wrong, without echoing the
+    /// raw bytes.
+    pub fn check_content_hash(&self) -> Result<(), String> {
+        let h = &self.content_hash;
+        if h.len() == 16 && h.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')) {
+            return Ok(());
+        }
+        Err(format!(
+            "content_hash \"{}\" is not 16 lowercase hex digits ({} bytes)",
+            h.escape_default(),
+            h.len()
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -108,5 +127,44 @@ mod tests {
         };
         assert_eq!(g.extent(4, 8), [8.0, 45.0, 10.0, 47.0]);
         assert_eq!(g.crs().as_deref(), Some("EPSG:4326"));
+    }
+
+    #[test]
+    fn content_hash_must_be_16_lowercase_hex_digits() {
+        let mut m = Metadata {
+            width: 1,
+            height: 1,
+            tile_size: 64,
+            levels: 1,
+            quantization: Quantization {
+                offset: 0.0,
+                scale: 1.0,
+                max_error: 0.0,
+            },
+            min_height: 0.0,
+            max_height: 0.0,
+            nodata_count: 0,
+            nodata_fill: String::new(),
+            georef: None,
+            source: String::new(),
+            generator: String::new(),
+            content_hash: "0123456789abcdef".into(),
+        };
+        assert!(m.check_content_hash().is_ok());
+        for bad in [
+            "",
+            "0123456789abcde",
+            "0123456789abcdef0",
+            "0123456789ABCDEF",
+            "0123456789abcd\r\n",
+            "0123456789abcde\"",
+            "0123456789abcde\u{7}",
+            "0123456789abcdeg",
+        ] {
+            m.content_hash = bad.into();
+            let e = m.check_content_hash().unwrap_err();
+            assert!(e.contains("16 lowercase hex digits"), "{bad:?}: {e}");
+            assert!(!e.contains('\r') && !e.contains('\u{7}'), "{e}");
+        }
     }
 }

@@ -38,12 +38,18 @@ pub fn cache_control(pinned: bool, max_age: u64) -> HeaderValue {
 }
 
 /// Sets `ETag` and `Cache-Control` on a response's headers.
+///
+/// Datasets with a malformed content hash are refused at load, so an ETag is always
+/// a valid header value; should one ever not be, the response goes out uncacheable
+/// rather than panicking the handler.
 pub fn set_headers(h: &mut HeaderMap, etag: &str, pinned: bool, max_age: u64) {
-    h.insert(
-        header::ETAG,
-        HeaderValue::from_str(etag).expect("ETags are ASCII"),
-    );
-    h.insert(header::CACHE_CONTROL, cache_control(pinned, max_age));
+    if let Ok(v) = HeaderValue::from_str(etag) {
+        h.insert(header::ETAG, v);
+        h.insert(header::CACHE_CONTROL, cache_control(pinned, max_age));
+    } else {
+        tracing::error!(etag = %etag.escape_default(), "ETag is not a valid header value; sending no-store");
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    }
 }
 
 /// A `304 Not Modified` carrying the same `ETag` and `Cache-Control` as the full response.
@@ -56,6 +62,14 @@ pub fn not_modified_response(etag: &str, pinned: bool, max_age: u64) -> Response
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_bad_etag_never_panics() {
+        let mut h = HeaderMap::new();
+        set_headers(&mut h, "\"abc\r\nx\"", false, 60);
+        assert!(h.get(header::ETAG).is_none());
+        assert_eq!(h.get(header::CACHE_CONTROL).unwrap(), "no-store");
+    }
 
     #[test]
     fn if_none_match_compares_strongly() {

@@ -36,6 +36,31 @@ pub struct ServeArgs {
     /// Cache-Control max-age for responses whose URL does not pin the content [default: 3600].
     #[arg(long, env = "TESSERA_CACHE_MAX_AGE")]
     pub cache_max_age: Option<u64>,
+    /// Seconds a connection may take to send a complete request head, counted from
+    /// when it opens or its previous response ends; then it is closed [default: 10].
+    #[arg(long, env = "TESSERA_HEADER_TIMEOUT_SECS")]
+    pub header_timeout_secs: Option<u64>,
+    /// Seconds a connection may go without a byte moving either way while no request
+    /// is being handled (e.g. a client that stops reading its response); then it is
+    /// closed [default: 60].
+    #[arg(long, env = "TESSERA_IDLE_TIMEOUT_SECS")]
+    pub idle_timeout_secs: Option<u64>,
+    /// Most connections open at once; at the cap the least recently active idle one is
+    /// closed for a newcomer, or the newcomer gets 503. Never more than the open-file
+    /// limit allows [default: the open-file limit less a reserve].
+    #[arg(long, env = "TESSERA_MAX_CONNECTIONS")]
+    pub max_connections: Option<usize>,
+    /// Scheme and authority for absolute URLs in TileJSON, e.g. https://tiles.example.org
+    /// (the Host header is never used) [default: none: URLs are relative].
+    #[arg(long, env = "TESSERA_PUBLIC_URL")]
+    pub public_url: Option<String>,
+    /// Build absolute URLs from X-Forwarded-Host and X-Forwarded-Proto (only behind a
+    /// proxy that sets them) when --public-url is not given.
+    #[arg(long, env = "TESSERA_TRUST_FORWARDED")]
+    pub trust_forwarded: bool,
+    /// Log only errors (no request lines or warnings); RUST_LOG still overrides.
+    #[arg(short, long)]
+    pub quiet: bool,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -49,6 +74,11 @@ struct FileConfig {
     timeout_secs: Option<u64>,
     concurrency: Option<usize>,
     cache_max_age: Option<u64>,
+    header_timeout_secs: Option<u64>,
+    idle_timeout_secs: Option<u64>,
+    max_connections: Option<usize>,
+    public_url: Option<String>,
+    trust_forwarded: Option<bool>,
 }
 
 /// Resolved settings.
@@ -62,6 +92,13 @@ pub struct Settings {
     pub timeout: Duration,
     pub concurrency: usize,
     pub cache_max_age: u64,
+    pub header_timeout: Duration,
+    pub idle_timeout: Duration,
+    /// `None`: derive from the open-file limit.
+    pub max_connections: Option<usize>,
+    /// Scheme and authority without a trailing `/`.
+    pub public_url: Option<String>,
+    pub trust_forwarded: bool,
 }
 
 impl Default for Settings {
@@ -75,8 +112,50 @@ impl Default for Settings {
             timeout: Duration::from_secs(30),
             concurrency: 1024,
             cache_max_age: 3600,
+            header_timeout: Duration::from_secs(10),
+            idle_timeout: Duration::from_secs(60),
+            max_connections: None,
+            public_url: None,
+            trust_forwarded: false,
         }
     }
+}
+
+/// `value` unless it is zero, which no limit or timeout may be: the error names the
+/// flag, its variable and its TOML key, since any of them may have set it.
+fn positive<T: PartialEq + Default>(value: T, flag: &str) -> anyhow::Result<T> {
+    if value == T::default() {
+        let key = flag.replace('-', "_");
+        let env = format!("TESSERA_{}", key.to_ascii_uppercase());
+        anyhow::bail!("--{flag} ({env}, `{key}` in --config) must be at least 1, not 0");
+    }
+    Ok(value)
+}
+
+/// A `--public-url`: `http://` or `https://`, a valid host, no path beyond `/`, no
+/// query or fragment (the API's paths are appended to it).
+fn public_url(raw: &str) -> anyhow::Result<String> {
+    let bad = |why: &str| anyhow::anyhow!("--public-url {raw:?}: {why}");
+    let uri: axum::http::Uri = raw
+        .parse()
+        .map_err(|_| bad("not a URL like https://tiles.example.org"))?;
+    match uri.scheme_str() {
+        Some("http" | "https") => {}
+        _ => return Err(bad("the scheme must be http or https")),
+    }
+    let authority = uri.authority().ok_or_else(|| bad("no host"))?;
+    if authority.as_str().contains('@') {
+        return Err(bad("user information is not allowed"));
+    }
+    if uri.query().is_some() || raw.contains('#') {
+        return Err(bad("a query or fragment is not allowed"));
+    }
+    let path = uri.path().trim_end_matches('/');
+    Ok(format!(
+        "{}://{}{path}",
+        uri.scheme_str().unwrap_or("http"),
+        authority
+    ))
 }
 
 impl Settings {
@@ -99,32 +178,118 @@ impl Settings {
             !datasets.is_empty(),
             "no datasets: name .tess files or directories (or `datasets = [...]` in --config)"
         );
+        let secs = |v: Option<u64>, flag: &str, default: Duration| {
+            v.map_or(Ok(default), |n| positive(n, flag).map(Duration::from_secs))
+        };
         let s = Self {
             listen: args.listen.or(file.listen).unwrap_or(d.listen),
             datasets,
-            max_ranges: args.max_ranges.or(file.max_ranges).unwrap_or(d.max_ranges),
-            max_tiles: args.max_tiles.or(file.max_tiles).unwrap_or(d.max_tiles),
-            max_query_bytes: args
-                .max_query_bytes
-                .or(file.max_query_bytes)
-                .unwrap_or(d.max_query_bytes),
-            timeout: args
-                .timeout_secs
-                .or(file.timeout_secs)
-                .map_or(d.timeout, Duration::from_secs),
-            concurrency: args
-                .concurrency
-                .or(file.concurrency)
-                .unwrap_or(d.concurrency),
+            max_ranges: positive(
+                args.max_ranges.or(file.max_ranges).unwrap_or(d.max_ranges),
+                "max-ranges",
+            )?,
+            max_tiles: positive(
+                args.max_tiles.or(file.max_tiles).unwrap_or(d.max_tiles),
+                "max-tiles",
+            )?,
+            max_query_bytes: positive(
+                args.max_query_bytes
+                    .or(file.max_query_bytes)
+                    .unwrap_or(d.max_query_bytes),
+                "max-query-bytes",
+            )?,
+            timeout: secs(
+                args.timeout_secs.or(file.timeout_secs),
+                "timeout-secs",
+                d.timeout,
+            )?,
+            concurrency: positive(
+                args.concurrency
+                    .or(file.concurrency)
+                    .unwrap_or(d.concurrency),
+                "concurrency",
+            )?,
             cache_max_age: args
                 .cache_max_age
                 .or(file.cache_max_age)
                 .unwrap_or(d.cache_max_age),
+            header_timeout: secs(
+                args.header_timeout_secs.or(file.header_timeout_secs),
+                "header-timeout-secs",
+                d.header_timeout,
+            )?,
+            idle_timeout: secs(
+                args.idle_timeout_secs.or(file.idle_timeout_secs),
+                "idle-timeout-secs",
+                d.idle_timeout,
+            )?,
+            max_connections: args
+                .max_connections
+                .or(file.max_connections)
+                .map(|n| positive(n, "max-connections"))
+                .transpose()?,
+            public_url: args
+                .public_url
+                .as_deref()
+                .or(file.public_url.as_deref())
+                .map(public_url)
+                .transpose()?,
+            trust_forwarded: args.trust_forwarded || file.trust_forwarded.unwrap_or(false),
         };
-        anyhow::ensure!(
-            s.max_ranges > 0 && s.max_tiles > 0 && s.concurrency > 0,
-            "limits must be positive"
-        );
         Ok(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(extra: &[&str]) -> anyhow::Result<Settings> {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            serve: ServeArgs,
+        }
+        let mut argv = vec!["serve", "x.tess"];
+        argv.extend_from_slice(extra);
+        let cli = <Cli as clap::Parser>::try_parse_from(argv)?;
+        Settings::resolve(&cli.serve)
+    }
+
+    #[test]
+    fn zero_limits_name_their_flag() {
+        for flag in [
+            "max-ranges",
+            "max-tiles",
+            "max-query-bytes",
+            "timeout-secs",
+            "concurrency",
+            "header-timeout-secs",
+            "idle-timeout-secs",
+            "max-connections",
+        ] {
+            let e = args(&[&format!("--{flag}"), "0"]).unwrap_err().to_string();
+            assert!(e.contains(&format!("--{flag}")), "{flag}: {e}");
+            assert!(e.contains("at least 1"), "{flag}: {e}");
+        }
+        assert!(args(&["--timeout-secs", "1"]).is_ok());
+    }
+
+    #[test]
+    fn public_url_is_checked_and_normalised() {
+        let s = args(&["--public-url", "https://tiles.example.org/"]).unwrap();
+        assert_eq!(s.public_url.as_deref(), Some("https://tiles.example.org"));
+        let s = args(&["--public-url", "http://cdn.example:8080/dem"]).unwrap();
+        assert_eq!(s.public_url.as_deref(), Some("http://cdn.example:8080/dem"));
+        for bad in [
+            "tiles.example.org",
+            "ftp://tiles.example.org",
+            "https://u@tiles.example.org",
+            "https://tiles.example.org/?a=b",
+            "https://tiles.example.org/#x",
+        ] {
+            let e = args(&["--public-url", bad]).unwrap_err().to_string();
+            assert!(e.contains("--public-url"), "{bad}: {e}");
+        }
     }
 }

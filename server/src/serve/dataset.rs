@@ -1,6 +1,6 @@
 //! The datasets a server holds: one pyramid file each, named by its file stem.
 
-use super::storage::{MmapStorage, Storage, StorageSource};
+use super::storage::{FileStorage, Storage, StorageSource};
 use anyhow::{Context, bail};
 use bytes::Bytes;
 use std::collections::BTreeMap;
@@ -13,6 +13,8 @@ use tessera_shared::{Pyramid, TileId};
 const UNCHECKED: u8 = 0;
 const GOOD: u8 = 1;
 const CORRUPT: u8 = 2;
+/// Passes its checksum but does not decode (PNG tiles): served as stored, counted once.
+const UNDECODABLE: u8 = 3;
 
 /// One served pyramid.
 #[derive(Debug)]
@@ -31,14 +33,33 @@ pub struct Dataset {
 pub struct Corrupt {
     pub tile: TileId,
     pub entry: IndexEntry,
+    /// Whether this read is the one that found the damage (metrics count distinct
+    /// records as well as reads).
+    pub first: bool,
+}
+
+/// Why a present record could not be served.
+#[derive(Debug, Clone)]
+pub enum RecordError {
+    /// The record fails its checksum: that tile alone is bad.
+    Corrupt(Corrupt),
+    /// The file cannot be read as it was opened (truncated or changed under the
+    /// server): the whole dataset is unavailable until a reload.
+    Unavailable(String),
 }
 
 impl Dataset {
     pub fn open(name: String, path: &Path) -> anyhow::Result<Self> {
         let storage: Arc<dyn Storage> =
-            Arc::new(MmapStorage::open(path).with_context(|| path.display().to_string())?);
+            Arc::new(FileStorage::open(path).with_context(|| path.display().to_string())?);
         let pyramid = Pyramid::open(StorageSource(storage.clone()))
             .with_context(|| path.display().to_string())?;
+        // The hash goes verbatim into ETag headers and URLs: refuse the file now rather
+        // than fail (or worse, emit a broken header) on every request.
+        pyramid
+            .metadata()
+            .check_content_hash()
+            .map_err(|e| anyhow::anyhow!("{}: cannot serve: {e}", path.display()))?;
         let checked = pyramid
             .geometry()
             .levels()
@@ -61,32 +82,65 @@ impl Dataset {
         &self.pyramid.metadata().content_hash
     }
 
-    /// A present tile's index entry and stored record (zero-copy), checksum-checked.
+    /// `Err` with the reason when the file is no longer the one opened (truncated
+    /// or rewritten in place): the dataset then answers 503 until a reload.
+    pub fn available(&self) -> Result<(), String> {
+        self.storage
+            .check_unchanged()
+            .map_err(|e| format!("dataset {:?} ({}): {e}", self.name, self.path.display()))
+    }
+
+    fn state(&self, tile: TileId) -> &AtomicU8 {
+        &self.checked[usize::from(tile.level().get())][tile.morton().get() as usize]
+    }
+
+    /// A present tile's index entry and stored record, checksum-checked.
     /// `Ok(None)` for an absent tile.
-    pub fn record(&self, tile: TileId) -> Result<Option<(IndexEntry, Bytes)>, Corrupt> {
+    pub fn record(&self, tile: TileId) -> Result<Option<(IndexEntry, Bytes)>, RecordError> {
         let Some(&entry) = self.pyramid.entry(tile) else {
             return Ok(None);
         };
-        let corrupt = || Corrupt { tile, entry };
         let bytes = self
             .storage
             .slice(entry.offset, u64::from(entry.length))
-            .map_err(|_| corrupt())?;
-        let state = &self.checked[usize::from(tile.level().get())][tile.morton().get() as usize];
+            .map_err(|e| {
+                RecordError::Unavailable(format!(
+                    "dataset {:?} ({}): cannot read {tile}: {e}",
+                    self.name,
+                    self.path.display()
+                ))
+            })?;
+        let corrupt = |first| RecordError::Corrupt(Corrupt { tile, entry, first });
+        let state = self.state(tile);
         match state.load(Ordering::Relaxed) {
-            GOOD => Ok(Some((entry, bytes))),
-            CORRUPT => Err(corrupt()),
+            GOOD | UNDECODABLE => Ok(Some((entry, bytes))),
+            CORRUPT => Err(corrupt(false)),
             _ => {
                 let ok = format::checksum(&bytes) == entry.checksum;
-                state.store(if ok { GOOD } else { CORRUPT }, Ordering::Relaxed);
+                let new = if ok { GOOD } else { CORRUPT };
+                // Only the read that moves the record out of UNCHECKED reports it as
+                // newly found, so concurrent first reads count it once.
+                let first = state
+                    .compare_exchange(UNCHECKED, new, Ordering::Relaxed, Ordering::Relaxed)
+                    .is_ok();
                 if ok {
                     Ok(Some((entry, bytes)))
                 } else {
-                    tracing::error!(dataset = %self.name, %tile, "record fails its checksum; not serving it");
-                    Err(corrupt())
+                    if first {
+                        tracing::error!(dataset = %self.name, %tile, "record fails its checksum; not serving it");
+                    }
+                    Err(corrupt(first))
                 }
             }
         }
+    }
+
+    /// Marks a record that passed its checksum but does not decode; `true` the first
+    /// time (so it is counted once as a distinct corrupt record).
+    pub fn mark_undecodable(&self, tile: TileId) -> bool {
+        self.state(tile)
+            .compare_exchange(GOOD, UNDECODABLE, Ordering::Relaxed, Ordering::Relaxed)
+            .is_ok()
     }
 }
 

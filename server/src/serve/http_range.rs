@@ -3,8 +3,11 @@
 //! Only the `bytes` unit is understood. The outcome follows the RFC: a header that
 //! does not parse (or names another unit) is ignored and the whole representation
 //! is sent; a well-formed header none of whose ranges overlaps the representation
-//! is unsatisfiable (416). Ranges are returned in the order requested, clamped to
-//! the representation, and are neither sorted nor merged.
+//! is unsatisfiable (416). Ranges are clamped to the representation and returned in
+//! the order requested, unless two of them overlap or touch: then all are sorted and
+//! merged (as nginx does, and RFC 9110 §14.2 allows), so that no byte is sent twice
+//! and a response can never be larger than the representation plus part headers
+//! (64 ranges of `0-` were 64 copies of the file before).
 
 /// Most range-specs accepted in one `Range` header. A request for more is rejected
 /// with 416, which RFC 9110 §15.5.17 allows for "an excessive request of small or
@@ -129,8 +132,28 @@ pub fn parse(header: &str, size: u64) -> RangeRequest {
     } else if ranges.is_empty() {
         RangeRequest::Unsatisfiable
     } else {
-        RangeRequest::Partial(ranges)
+        RangeRequest::Partial(coalesce(ranges))
     }
+}
+
+/// `ranges` as given if no two overlap or touch; otherwise sorted and merged.
+fn coalesce(ranges: Vec<ByteRange>) -> Vec<ByteRange> {
+    let mut sorted = ranges.clone();
+    sorted.sort_by_key(|r| r.start);
+    let disjoint = sorted
+        .windows(2)
+        .all(|w| w[0].end.saturating_add(1) < w[1].start);
+    if disjoint {
+        return ranges;
+    }
+    let mut merged: Vec<ByteRange> = Vec::with_capacity(sorted.len());
+    for r in sorted {
+        match merged.last_mut() {
+            Some(last) if r.start <= last.end.saturating_add(1) => last.end = last.end.max(r.end),
+            _ => merged.push(r),
+        }
+    }
+    merged
 }
 
 #[cfg(test)]
@@ -187,11 +210,18 @@ mod tests {
     #[test]
     fn multiple_ranges_in_the_order_given() {
         assert_eq!(
-            parse("bytes=500-599, 0-9,-10 ,\t0-0", 1000),
-            partial(&[(500, 599), (0, 9), (990, 999), (0, 0)])
+            parse("bytes=500-599, 0-9,-10 ,\t20-20", 1000),
+            partial(&[(500, 599), (0, 9), (990, 999), (20, 20)])
         );
-        // Overlapping ranges are kept as they are.
-        assert_eq!(parse("bytes=0-10,5-15", 1000), partial(&[(0, 10), (5, 15)]));
+        // Overlapping or touching ranges are sorted and merged.
+        assert_eq!(parse("bytes=0-10,5-15", 1000), partial(&[(0, 15)]));
+        assert_eq!(
+            parse("bytes=20-29,0-9,10-12", 1000),
+            partial(&[(0, 12), (20, 29)])
+        );
+        assert_eq!(parse("bytes=-10,0-,5-6", 1000), partial(&[(0, 999)]));
+        // Disjoint ones keep the order they were asked in.
+        assert_eq!(parse("bytes=20-29,0-9", 1000), partial(&[(20, 29), (0, 9)]));
         // Empty list elements are skipped (RFC 9110 §5.6.1).
         assert_eq!(parse("bytes=,0-1,,2-3,", 1000), partial(&[(0, 1), (2, 3)]));
         // Unsatisfiable members are dropped when another one is satisfiable.
@@ -240,10 +270,18 @@ mod tests {
     }
 
     #[test]
+    fn repeated_whole_file_ranges_are_one_range() {
+        let h = format!("bytes={}", vec!["0-"; MAX_RANGES].join(","));
+        assert_eq!(parse(&h, 3_300_000), partial(&[(0, 3_299_999)]));
+    }
+
+    #[test]
     fn too_many_ranges() {
-        let at_cap = vec!["0-0"; MAX_RANGES].join(",");
+        let at_cap: Vec<String> = (0..MAX_RANGES)
+            .map(|i| format!("{}-{}", 2 * i, 2 * i))
+            .collect();
         assert!(matches!(
-            parse(&format!("bytes={at_cap}"), 10),
+            parse(&format!("bytes={}", at_cap.join(",")), 1000),
             RangeRequest::Partial(v) if v.len() == MAX_RANGES
         ));
         let over = vec!["0-0"; MAX_RANGES + 1].join(",");

@@ -12,7 +12,10 @@ pub struct Metrics {
     pub latency: HistogramVec,
     pub bytes: IntCounter,
     pub tiles: IntCounter,
+    /// Distinct records found corrupt (each counted once, when first found).
     pub corrupt: IntCounter,
+    /// Reads of corrupt records (a record read ten times counts ten).
+    pub corrupt_reads: IntCounter,
 }
 
 impl Metrics {
@@ -44,7 +47,12 @@ impl Metrics {
             .expect("valid metric");
         let corrupt = IntCounter::new(
             "tessera_corrupt_records_total",
-            "Tile records that failed their checksum when read",
+            "Distinct tile records found corrupt (failing their checksum or not decoding)",
+        )
+        .expect("valid metric");
+        let corrupt_reads = IntCounter::new(
+            "tessera_corrupt_record_reads_total",
+            "Reads of tile records that are corrupt",
         )
         .expect("valid metric");
         for c in [
@@ -53,6 +61,7 @@ impl Metrics {
             Box::new(bytes.clone()),
             Box::new(tiles.clone()),
             Box::new(corrupt.clone()),
+            Box::new(corrupt_reads.clone()),
         ] {
             registry.register(c).expect("metric names are unique");
         }
@@ -63,6 +72,15 @@ impl Metrics {
             bytes,
             tiles,
             corrupt,
+            corrupt_reads,
+        }
+    }
+
+    /// Counts one read of a corrupt record, and the record itself if this read found it.
+    pub fn corrupt_read(&self, first: bool) {
+        self.corrupt_reads.inc();
+        if first {
+            self.corrupt.inc();
         }
     }
 

@@ -2,6 +2,7 @@
 
 pub mod cache;
 pub mod config;
+pub mod conn;
 pub mod dataset;
 pub mod error;
 pub mod http_range;
@@ -21,7 +22,8 @@ use dataset::Registry;
 use error::ApiError;
 use metrics::Metrics;
 use ranges::RangeLimits;
-use std::sync::Arc;
+use std::path::PathBuf;
+use std::sync::{Arc, PoisonError, RwLock};
 use std::time::Instant;
 use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
@@ -30,11 +32,47 @@ use tower_http::timeout::TimeoutLayer;
 /// What every handler shares.
 #[derive(Debug)]
 pub struct AppState {
-    pub registry: Registry,
+    /// Swapped whole by [`AppState::reload`]; a request keeps the registry (and the
+    /// open files) it started with.
+    registry: RwLock<Arc<Registry>>,
+    /// What the registry is loaded from, for reloads.
+    pub paths: Vec<PathBuf>,
     pub metrics: Metrics,
     pub limits: RangeLimits,
     pub cache_max_age: u64,
     pub max_query_bytes: usize,
+    pub public_url: Option<String>,
+    pub trust_forwarded: bool,
+}
+
+impl AppState {
+    /// The datasets being served now.
+    pub fn registry(&self) -> Arc<Registry> {
+        self.registry
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    /// Reopens every dataset from the configured paths and swaps them in at once.
+    /// On any error the old datasets stay in service and the error says why.
+    pub fn reload(&self) -> anyhow::Result<usize> {
+        let fresh = Registry::load(&self.paths)?;
+        log_datasets(&fresh);
+        let n = fresh.datasets.len();
+        *self
+            .registry
+            .write()
+            .unwrap_or_else(PoisonError::into_inner) = Arc::new(fresh);
+        Ok(n)
+    }
+}
+
+fn log_datasets(registry: &Registry) {
+    for (name, ds) in &registry.datasets {
+        let m = ds.pyramid.metadata();
+        tracing::info!(dataset = %name, file = %ds.path.display(), width = m.width, height = m.height, levels = m.levels, "serving");
+    }
 }
 
 /// Tiles a response carried, for the request log and metrics (a response extension).
@@ -144,12 +182,19 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
     response
 }
 
-/// Gives the few responses the framework makes itself (405 wrong method, 408 timeout)
-/// a JSON reason like every other error.
+/// Gives the few responses the framework makes itself (405 wrong method, 408 timeout,
+/// any other error without a JSON body) a JSON reason like every other error.
 fn json_if_empty(response: Response) -> Response {
     let status = response.status();
-    let empty = axum::body::HttpBody::size_hint(response.body()).exact() == Some(0);
-    if !empty {
+    if !(status.is_client_error() || status.is_server_error()) {
+        return response;
+    }
+    let is_json = response
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|t| t.starts_with("application/json"));
+    if is_json {
         return response;
     }
     match status {
@@ -163,7 +208,16 @@ fn json_if_empty(response: Response) -> Response {
             r
         }
         StatusCode::REQUEST_TIMEOUT => ApiError::new(status, "request timed out").into_response(),
-        _ => response,
+        // The framework's own text may quote raw input or internals: say only what
+        // the status means.
+        _ => ApiError::new(
+            status,
+            status
+                .canonical_reason()
+                .unwrap_or("request failed")
+                .to_ascii_lowercase(),
+        )
+        .into_response(),
     }
 }
 
@@ -193,12 +247,10 @@ pub async fn shutdown_signal() {
 /// The shared state for `settings`' datasets and limits.
 pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
     let registry = Registry::load(&settings.datasets)?;
-    for (name, ds) in &registry.datasets {
-        let m = ds.pyramid.metadata();
-        tracing::info!(dataset = %name, file = %ds.path.display(), width = m.width, height = m.height, levels = m.levels, "serving");
-    }
+    log_datasets(&registry);
     Ok(Arc::new(AppState {
-        registry,
+        registry: RwLock::new(Arc::new(registry)),
+        paths: settings.datasets.clone(),
         metrics: Metrics::new(),
         limits: RangeLimits {
             max_ranges: settings.max_ranges,
@@ -206,6 +258,8 @@ pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
         },
         cache_max_age: settings.cache_max_age,
         max_query_bytes: settings.max_query_bytes,
+        public_url: settings.public_url.clone(),
+        trust_forwarded: settings.trust_forwarded,
     }))
 }
 
@@ -217,15 +271,41 @@ pub async fn serve_until(
     settings: &Settings,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
-    axum::serve(listener, app(state, settings))
-        .with_graceful_shutdown(shutdown)
-        .await?;
+    let limits = conn::ConnLimits::from_settings(settings, state.registry().datasets.len())?;
+    conn::serve(listener, app(state, settings), limits, shutdown).await;
     Ok(())
 }
 
-/// Loads the datasets and serves until SIGINT/SIGTERM, letting in-flight responses finish.
+/// Reloads the datasets on every SIGHUP (the safe deploy: rename a new file over the
+/// old one, then signal). Installed before the server says it is listening, so a
+/// SIGHUP can never fall on the default action, which would kill the process.
+#[cfg(unix)]
+fn reload_on_sighup(state: Arc<AppState>) -> anyhow::Result<()> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut hup = signal(SignalKind::hangup())
+        .map_err(|e| anyhow::anyhow!("cannot install the SIGHUP handler: {e}"))?;
+    tokio::spawn(async move {
+        while hup.recv().await.is_some() {
+            let s = state.clone();
+            // Opening pyramids reads files: keep it off the async workers.
+            match tokio::task::spawn_blocking(move || s.reload()).await {
+                Ok(Ok(n)) => tracing::info!(datasets = n, "SIGHUP: datasets reloaded"),
+                Ok(Err(e)) => {
+                    tracing::error!("SIGHUP: reload failed, still serving the old datasets: {e:#}");
+                }
+                Err(e) => tracing::error!("SIGHUP: reload task failed: {e}"),
+            }
+        }
+    });
+    Ok(())
+}
+
+/// Loads the datasets and serves until SIGINT/SIGTERM, letting in-flight responses
+/// finish; SIGHUP reloads the datasets.
 pub async fn run(settings: Settings) -> anyhow::Result<()> {
     let state = state(&settings)?;
+    #[cfg(unix)]
+    reload_on_sighup(state.clone())?;
     let listener = tokio::net::TcpListener::bind(settings.listen)
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", settings.listen))?;

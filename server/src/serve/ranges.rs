@@ -38,12 +38,19 @@ pub fn parse_ranges(
             Some((a, b)) => (a, b),
             None => (p, p),
         };
+        // Digits only: `u64::from_str` would also take a sign (`+5`), and trimming
+        // would take a decoded space (`%205`), so one range could be spelled many
+        // ways and caches would see different URLs for the same request.
         let parse = |s: &str| {
-            s.trim().parse::<u64>().map_err(|_| {
+            let malformed = || {
                 ApiError::bad_request(format!(
-                    "malformed range {p:?}: want START-END or CODE with whole numbers"
+                    "malformed range {p:?}: want START-END or CODE, decimal digits only"
                 ))
-            })
+            };
+            if s.is_empty() || !s.bytes().all(|b| b.is_ascii_digit()) {
+                return Err(malformed());
+            }
+            s.parse::<u64>().map_err(|_| malformed())
         };
         let (a, b) = (parse(a)?, parse(b)?);
         let r = MortonRange::new(Morton::from_raw(a), Morton::from_raw(b))
@@ -100,6 +107,13 @@ mod tests {
         assert!(parse("5-2").unwrap_err().contains("reversed"));
         assert!(parse("a-b").unwrap_err().contains("malformed"));
         assert!(parse("1-2-3").unwrap_err().contains("malformed"));
+        for sloppy in ["+5", " 5", "5 ", "0-+3", "1- 2", "-3", "3-", "0x1", "1_0"] {
+            let e = parse(sloppy).unwrap_err();
+            assert!(
+                e.contains("malformed") && e.contains("digits only"),
+                "{sloppy:?}: {e}"
+            );
+        }
         assert!(parse("0-64").unwrap_err().contains("outside level 3"));
         assert!(parse("0-10,5-6").unwrap_err().contains("overlap"));
         assert!(parse("1,2,3,4,5").unwrap_err().contains("at most 4"));

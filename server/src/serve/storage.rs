@@ -5,55 +5,119 @@ use bytes::Bytes;
 use std::io;
 use std::path::Path;
 use std::sync::Arc;
+use std::time::SystemTime;
 use tessera_shared::ByteSource;
 
 /// A pyramid file's bytes, answered by range.
 pub trait Storage: Send + Sync + std::fmt::Debug + 'static {
-    /// Total length in bytes.
+    /// Total length in bytes, as it was when the storage was opened.
     fn size(&self) -> u64;
-    /// Bytes `offset..offset + len`; zero-copy where the backend allows.
+    /// Bytes `offset..offset + len`; an error if they cannot all be read.
     fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes>;
+    /// `Err` naming what changed if the bytes may no longer be the ones opened
+    /// (a file truncated or rewritten in place). Cheap: called on every request.
+    fn check_unchanged(&self) -> Result<(), String>;
 }
 
-/// A local file, memory-mapped: slices are views into the page cache, never copies.
+/// A local file read with positional reads (`pread`) on the descriptor opened at
+/// start-up.
+///
+/// Not a memory map: a mapped file that is truncated under the server turns the next
+/// read of a vanished page into SIGBUS, which kills the whole process. A `pread` past
+/// the new end is an ordinary short read, so only that dataset fails. Holding the
+/// descriptor also keeps the old inode readable when a new file is renamed over the
+/// path (the safe deploy), until a reload opens the new one.
 #[derive(Debug)]
-pub struct MmapStorage {
-    bytes: Bytes,
+pub struct FileStorage {
+    file: std::fs::File,
+    size: u64,
+    modified: Option<SystemTime>,
 }
 
-impl MmapStorage {
+impl FileStorage {
     pub fn open(path: &Path) -> io::Result<Self> {
         let file = std::fs::File::open(path)?;
-        // SAFETY: the mapping is read-only and pyramid files are immutable once
-        // written (builds write a temporary file and rename it into place, so a
-        // rebuild replaces the directory entry, not the mapped inode). Truncating a
-        // served file in place would be an operator error that could fault reads.
-        #[allow(unsafe_code)]
-        let map = unsafe { memmap2::Mmap::map(&file)? };
+        let meta = file.metadata()?;
         Ok(Self {
-            bytes: Bytes::from_owner(map),
+            size: meta.len(),
+            modified: meta.modified().ok(),
+            file,
         })
     }
 }
 
-impl Storage for MmapStorage {
+impl Storage for FileStorage {
     fn size(&self) -> u64 {
-        self.bytes.len() as u64
+        self.size
     }
 
     fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes> {
-        let end = offset.checked_add(len).filter(|e| *e <= self.size());
-        match end {
-            Some(end) => Ok(self.bytes.slice(offset as usize..end as usize)),
-            None => Err(io::Error::new(
+        let past_end = || {
+            io::Error::new(
                 io::ErrorKind::UnexpectedEof,
                 format!(
-                    "range {offset}+{len} is past the end ({} bytes)",
-                    self.size()
+                    "bytes {offset}+{len} are past the end ({} bytes)",
+                    self.size
                 ),
-            )),
+            )
+        };
+        let end = offset.checked_add(len).ok_or_else(past_end)?;
+        if end > self.size {
+            return Err(past_end());
+        }
+        let mut buf = vec![0; usize::try_from(len).map_err(|_| past_end())?];
+        read_exact_at(&self.file, &mut buf, offset).map_err(|e| {
+            if e.kind() == io::ErrorKind::UnexpectedEof {
+                io::Error::new(
+                    io::ErrorKind::UnexpectedEof,
+                    format!(
+                        "the file ends before byte {end}: it was truncated after it was opened"
+                    ),
+                )
+            } else {
+                e
+            }
+        })?;
+        Ok(Bytes::from(buf))
+    }
+
+    fn check_unchanged(&self) -> Result<(), String> {
+        let meta = self
+            .file
+            .metadata()
+            .map_err(|e| format!("cannot stat the open file: {e}"))?;
+        if meta.len() != self.size {
+            return Err(format!(
+                "the file changed size under the server ({} bytes when opened, {} now)",
+                self.size,
+                meta.len()
+            ));
+        }
+        if meta.modified().ok() != self.modified {
+            return Err("the file was modified in place after it was opened".to_string());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(unix)]
+fn read_exact_at(file: &std::fs::File, buf: &mut [u8], offset: u64) -> io::Result<()> {
+    std::os::unix::fs::FileExt::read_exact_at(file, buf, offset)
+}
+
+#[cfg(windows)]
+fn read_exact_at(file: &std::fs::File, mut buf: &mut [u8], mut offset: u64) -> io::Result<()> {
+    use std::os::windows::fs::FileExt;
+    while !buf.is_empty() {
+        match file.seek_read(buf, offset)? {
+            0 => return Err(io::ErrorKind::UnexpectedEof.into()),
+            n => {
+                buf = &mut buf[n..];
+                offset += n as u64;
+            }
         }
     }
+    Ok(())
 }
 
 /// Lets the shared pyramid reader parse headers and indices from any [`Storage`].

@@ -48,7 +48,7 @@ pub fn fixtures() -> &'static Fixtures {
     F.get_or_init(build_fixtures)
 }
 
-fn build_pyramid(input: &str, out: &Path, tile_size: u32) {
+pub fn build_pyramid(input: &str, out: &Path, tile_size: u32) {
     let o = bin()
         .arg("build")
         .arg(input)
@@ -170,6 +170,11 @@ const ENV_VARS: &[&str] = &[
     "TESSERA_TIMEOUT_SECS",
     "TESSERA_CONCURRENCY",
     "TESSERA_CACHE_MAX_AGE",
+    "TESSERA_HEADER_TIMEOUT_SECS",
+    "TESSERA_IDLE_TIMEOUT_SECS",
+    "TESSERA_MAX_CONNECTIONS",
+    "TESSERA_PUBLIC_URL",
+    "TESSERA_TRUST_FORWARDED",
 ];
 
 impl Server {
@@ -181,7 +186,22 @@ impl Server {
     /// Serves `files` with extra flags and environment variables, and waits for the
     /// `listening on http://ADDR` line.
     pub fn start_with(files: &[&Path], flags: &[&str], env: &[(&str, &str)]) -> Self {
-        let mut cmd = bin();
+        Self::spawn(bin(), files, flags, env)
+    }
+
+    // Only some of the test binaries that share this module use it.
+    #[allow(dead_code)]
+    /// Serves `files` with the process's open-file limit set to `nofile` (through the
+    /// shell's `ulimit`, so the limit is the server's own, as an operator would set it).
+    pub fn start_with_fd_limit(files: &[&Path], flags: &[&str], nofile: u32) -> Self {
+        let mut cmd = Command::new("sh");
+        cmd.arg("-c")
+            .arg(format!("ulimit -n {nofile} && exec \"$0\" \"$@\""))
+            .arg(env!("CARGO_BIN_EXE_tessera-server"));
+        Self::spawn(cmd, files, flags, &[])
+    }
+
+    fn spawn(mut cmd: Command, files: &[&Path], flags: &[&str], env: &[(&str, &str)]) -> Self {
         cmd.arg("serve")
             .args(files.iter().map(|f| OsString::from(f.as_os_str())))
             .args(["--listen", "127.0.0.1:0"])
@@ -312,11 +332,16 @@ impl Server {
 
     /// Sends SIGTERM.
     pub fn terminate(&self) {
+        self.signal("TERM");
+    }
+
+    /// Sends the signal `name` (e.g. `HUP`).
+    pub fn signal(&self, name: &str) {
         let s = Command::new("kill")
-            .args(["-TERM", &self.pid().to_string()])
+            .args([&format!("-{name}"), &self.pid().to_string()])
             .status()
             .unwrap();
-        assert!(s.success(), "kill -TERM failed");
+        assert!(s.success(), "kill -{name} failed");
     }
 
     pub fn log(&self) -> String {
@@ -443,11 +468,17 @@ pub fn parse_head(head: &str) -> (u16, BTreeMap<String, String>) {
 /// Sends `GET target` exactly as written (no normalisation) with `Connection: close`
 /// and reads the whole response.
 pub fn raw_get(addr: SocketAddr, target: &str) -> RawResp {
+    raw_request(addr, target, &format!("Host: {addr}\r\n"))
+}
+
+/// Sends `GET target` with exactly the header lines `headers` (each ending in CRLF,
+/// `Host` included or not) plus `Connection: close`, and reads the whole response.
+pub fn raw_request(addr: SocketAddr, target: &str, headers: &str) -> RawResp {
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
     write!(
         s,
-        "GET {target} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+        "GET {target} HTTP/1.1\r\n{headers}Connection: close\r\n\r\n"
     )
     .unwrap();
     let mut all = Vec::new();

@@ -1,11 +1,11 @@
 //! `/v1/datasets` and `/v1/datasets/{name}`: metadata as JSON.
 
-use super::dataset;
+use super::{Segments, dataset};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::ApiResult;
 use crate::serve::{AppState, cache};
 use axum::Json;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::{IntoResponse, Response};
 use std::sync::Arc;
@@ -45,10 +45,13 @@ pub fn describe(ds: &Dataset) -> serde_json::Value {
 }
 
 pub async fn list(State(state): State<Arc<AppState>>) -> impl IntoResponse {
+    // A dataset whose file changed under the server is left out of the list (its own
+    // URL answers 503 with the reason) rather than failing the whole list.
     let all: Vec<serde_json::Value> = state
-        .registry
+        .registry()
         .datasets
         .values()
+        .filter(|d| d.available().is_ok())
         .map(|d| describe(d))
         .collect();
     Json(serde_json::json!({ "datasets": all }))
@@ -56,7 +59,7 @@ pub async fn list(State(state): State<Arc<AppState>>) -> impl IntoResponse {
 
 pub async fn get_one(
     State(state): State<Arc<AppState>>,
-    Path(name): Path<String>,
+    Segments(name): Segments<String>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
@@ -68,7 +71,7 @@ pub async fn get_one(
             state.cache_max_age,
         ));
     }
-    let mut r = Json(describe(ds)).into_response();
+    let mut r = Json(describe(&ds)).into_response();
     cache::set_headers(r.headers_mut(), &etag, false, state.cache_max_age);
     Ok(r)
 }

@@ -9,7 +9,7 @@ use std::sync::Arc;
 pub async fn healthz(State(state): State<Arc<AppState>>) -> impl IntoResponse {
     axum::Json(serde_json::json!({
         "status": "ok",
-        "datasets": state.registry.datasets.len(),
+        "datasets": state.registry().datasets.len(),
     }))
 }
 

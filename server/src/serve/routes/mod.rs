@@ -7,9 +7,9 @@ pub mod tiles;
 pub mod web_tiles;
 
 use super::AppState;
-use super::dataset::{Dataset, valid_name};
+use super::dataset::{Dataset, RecordError, valid_name};
 use super::error::{ApiError, ApiResult};
-use axum::extract::{FromRequestParts, Query};
+use axum::extract::{FromRequestParts, Path, Query};
 use axum::http::request::Parts;
 use bytes::Bytes;
 use std::collections::HashMap;
@@ -17,8 +17,9 @@ use std::sync::Arc;
 use tessera_shared::format::IndexEntry;
 use tessera_shared::{Level, TileId};
 
-/// The query string as a map; an unparseable one is a 400 with a JSON reason
-/// (axum's own `Query` rejection would answer in plain text).
+/// The query string as a map; an unparseable one, or one that names a parameter
+/// twice (which one would win is up to each cache and proxy), is a 400 with a JSON
+/// reason (axum's own `Query` rejection would answer in plain text).
 #[derive(Debug, Clone, Default)]
 pub struct Params(pub HashMap<String, String>);
 
@@ -26,25 +27,78 @@ impl<S: Send + Sync> FromRequestParts<S> for Params {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, _state: &S) -> Result<Self, ApiError> {
-        Query::<HashMap<String, String>>::try_from_uri(&parts.uri)
-            .map(|Query(q)| Params(q))
-            .map_err(|e| {
-                ApiError::bad_request(format!("malformed query string: {}", e.body_text()))
-            })
+        let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(&parts.uri).map_err(
+            |_| {
+                ApiError::bad_request(
+                    "malformed query string: want name=value pairs joined by '&', percent-encoded UTF-8",
+                )
+            },
+        )?;
+        let mut map = HashMap::with_capacity(pairs.len());
+        for (k, v) in pairs {
+            if map.contains_key(&k) {
+                return Err(ApiError::bad_request(format!(
+                    "query parameter {k:?} is given more than once; give it once"
+                )));
+            }
+            map.insert(k, v);
+        }
+        Ok(Params(map))
     }
 }
 
-/// The dataset `name`, or 400 for a name that could never exist, 404 for an unknown one.
-pub fn dataset<'a>(state: &'a AppState, name: &str) -> ApiResult<&'a Arc<Dataset>> {
+/// Path parameters, with a JSON 400 naming the problem when a segment does not
+/// decode (axum's own `Path` rejection is plain text and quotes the raw bytes).
+#[derive(Debug)]
+pub struct Segments<T>(pub T);
+
+impl<S: Send + Sync, T> FromRequestParts<S> for Segments<T>
+where
+    T: serde::de::DeserializeOwned + Send,
+{
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        use axum::extract::path::ErrorKind;
+        use axum::extract::rejection::PathRejection;
+        match Path::<T>::from_request_parts(parts, state).await {
+            Ok(Path(t)) => Ok(Segments(t)),
+            Err(PathRejection::FailedToDeserializePathParams(e)) => {
+                Err(ApiError::bad_request(match e.kind() {
+                    ErrorKind::InvalidUtf8InPathParam { key } => {
+                        format!("path segment {{{key}}} is not UTF-8 once percent-decoded")
+                    }
+                    _ => "malformed path: a segment does not decode".to_string(),
+                }))
+            }
+            Err(_) => Err(ApiError::bad_request("malformed path")),
+        }
+    }
+}
+
+/// The dataset `name`, or 400 for a name that could never exist, 404 for an unknown
+/// one, 503 for one whose file changed under the server.
+pub fn dataset(state: &AppState, name: &str) -> ApiResult<Arc<Dataset>> {
     if !valid_name(name) {
         return Err(ApiError::bad_request(format!(
             "invalid dataset name {name:?}: names are letters, digits, '_', '-' or '.'"
         )));
     }
-    state
-        .registry
+    let ds = state
+        .registry()
         .get(name)
-        .ok_or_else(|| ApiError::not_found(format!("unknown dataset {name:?}")))
+        .cloned()
+        .ok_or_else(|| ApiError::not_found(format!("unknown dataset {name:?}")))?;
+    ds.available().map_err(|r| unavailable(&r))?;
+    Ok(ds)
+}
+
+/// 503 for a dataset whose file can no longer be read as opened.
+pub fn unavailable(reason: &str) -> ApiError {
+    tracing::warn!(%reason, "dataset unavailable");
+    ApiError::unavailable(format!(
+        "{reason}; replace pyramid files by renaming a complete new file over the old one, then send SIGHUP (API.md)"
+    ))
 }
 
 /// A level of `ds`, or 404 naming the valid range.
@@ -86,13 +140,14 @@ pub fn stored_record(
     match ds.record(tile) {
         Ok(Some(found)) => Ok(found),
         Ok(None) => Err(ApiError::not_found(format!("{tile} lies outside the DEM"))),
-        Err(c) => {
-            state.metrics.corrupt.inc();
+        Err(RecordError::Corrupt(c)) => {
+            state.metrics.corrupt_read(c.first);
             Err(ApiError::internal(format!(
                 "{}: record fails its checksum",
                 c.tile
             )))
         }
+        Err(RecordError::Unavailable(reason)) => Err(unavailable(&reason)),
     }
 }
 

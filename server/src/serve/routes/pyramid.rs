@@ -10,9 +10,11 @@
 //!   method other than GET, or is outvoted by `If-Range`): 200 with the whole file.
 //! - One satisfiable range: 206 with `Content-Range`.
 //! - Several satisfiable ranges: 206 `multipart/byteranges`, the parts in the order
-//!   requested (overlapping or unsorted ranges are served as given; ranges that lie
-//!   wholly past the end are dropped, and if only one range is left it is sent as a
-//!   single-part 206).
+//!   requested (overlapping or touching ranges are first sorted and merged; ranges
+//!   that lie wholly past the end are dropped; if only one range is left it is sent
+//!   as a single-part 206). A multipart body that would be larger than the file
+//!   (many tiny ranges: part headers outweigh the bytes) is replaced by a 200 with
+//!   the whole file, so no request gets more bytes than the file has.
 //! - No satisfiable range, or more than [`MAX_RANGES`] range-specs in the header:
 //!   416 with `Content-Range: bytes */size` and a JSON reason.
 //! - `If-Range` honours the `Range` only when it carries our strong ETag; any other
@@ -20,13 +22,13 @@
 //!   `Last-Modified`) gets the full 200.
 //! - `If-None-Match` matching our ETag: 304 (checked before any range).
 
-use super::{Params, dataset, pinned};
+use super::{Params, Segments, dataset, pinned};
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::http_range::{self, ByteRange, MAX_RANGES, RangeRequest};
 use crate::serve::storage::Storage;
 use crate::serve::{AppState, cache};
 use axum::body::Body;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
@@ -66,7 +68,8 @@ fn common_headers(h: &mut HeaderMap, etag: &str, pin: bool, max_age: u64) {
 fn slice(storage: &dyn Storage, r: ByteRange) -> ApiResult<Bytes> {
     storage
         .slice(r.start, r.byte_count())
-        .map_err(|e| ApiError::internal(format!("cannot read the pyramid file: {e}")))
+        // The file changed under the server (503 for the dataset), never a crash.
+        .map_err(|e| super::unavailable(&format!("cannot read the pyramid file: {e}")))
 }
 
 fn unsatisfiable(size: u64, message: String) -> Response {
@@ -109,16 +112,30 @@ fn multipart(storage: &dyn Storage, ranges: &[ByteRange], boundary: &str) -> Api
     Ok(chunks)
 }
 
+/// The length of [`multipart`]'s body, computed without reading the file.
+fn multipart_len(size: u64, ranges: &[ByteRange], boundary: &str) -> u64 {
+    let mut len = 0u64;
+    for (i, &r) in ranges.iter().enumerate() {
+        let sep = if i == 0 { 0 } else { 2 };
+        let head = format!(
+            "--{boundary}\r\nContent-Type: {CONTENT_TYPE}\r\nContent-Range: {}\r\n\r\n",
+            r.content_range(size)
+        );
+        len += sep + head.len() as u64 + r.byte_count();
+    }
+    len + format!("\r\n--{boundary}--\r\n").len() as u64
+}
+
 /// `GET /v1/datasets/{name}/pyramid`: see the module documentation.
 pub async fn raw(
     State(state): State<Arc<AppState>>,
-    Path(name): Path<String>,
+    Segments(name): Segments<String>,
     Params(query): Params,
     method: Method,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
-    let pin = pinned(ds, &query);
+    let pin = pinned(&ds, &query);
     let etag = cache::etag(ds.content_hash(), "pyramid");
     let max_age = state.cache_max_age;
     if cache::not_modified(&headers, &etag) {
@@ -157,6 +174,21 @@ pub async fn raw(
                 r.byte_count(),
                 None,
                 Some(r.content_range(size)),
+            )
+        }
+        RangeRequest::Partial(ranges)
+            if multipart_len(size, &ranges, &boundary(&etag, &ranges)) > size =>
+        {
+            let whole = ByteRange {
+                start: 0,
+                end: size.saturating_sub(1),
+            };
+            (
+                StatusCode::OK,
+                Body::from(slice(storage, whole)?),
+                size,
+                None,
+                None,
             )
         }
         RangeRequest::Partial(ranges) => {
@@ -221,6 +253,10 @@ mod tests {
         fn slice(&self, offset: u64, len: u64) -> std::io::Result<Bytes> {
             Ok(self.0.slice(offset as usize..(offset + len) as usize))
         }
+
+        fn check_unchanged(&self) -> Result<(), String> {
+            Ok(())
+        }
     }
 
     #[test]
@@ -233,6 +269,7 @@ mod tests {
         let b = boundary("\"e\"", &ranges);
         assert_ne!(b, boundary("\"e\"", &ranges[..1]));
         let body: Vec<u8> = multipart(&s, &ranges, &b).unwrap().concat();
+        assert_eq!(multipart_len(10, &ranges, &b), body.len() as u64);
         let want = format!(
             "--{b}\r\nContent-Type: {CONTENT_TYPE}\r\nContent-Range: bytes 8-9/10\r\n\r\n89\r\n\
              --{b}\r\nContent-Type: {CONTENT_TYPE}\r\nContent-Range: bytes 0-2/10\r\n\r\n012\r\n\

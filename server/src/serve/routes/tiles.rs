@@ -4,12 +4,13 @@
 //! stored records, never re-encoded) interleaved with 32-byte frame headers, so its
 //! exact length is known up front and sent as `Content-Length`.
 
-use super::{Params, dataset, level, pinned, stored_record, tile};
+use super::{Params, Segments, dataset, level, pinned, stored_record, tile, unavailable};
+use crate::serve::dataset::RecordError;
 use crate::serve::error::ApiResult;
 use crate::serve::ranges::parse_ranges;
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::Response;
 use bytes::Bytes;
@@ -66,9 +67,9 @@ fn stream(
     payload: Payload,
 ) -> ApiResult<Response> {
     let ds = dataset(state, name)?;
-    let level: Level = level(ds, level_raw)?;
+    let level: Level = level(&ds, level_raw)?;
     let ranges = parse_ranges(query.get("ranges").map(String::as_str), level, state.limits)?;
-    let pin = pinned(ds, query);
+    let pin = pinned(&ds, query);
     let canonical: Vec<String> = ranges.iter().map(ToString::to_string).collect();
     let kind = if payload == Payload::Records {
         "tiles"
@@ -116,9 +117,10 @@ fn stream(
                     tiles += 1;
                 }
                 Ok(None) => outside.absent(m.get()),
-                Err(c) => {
+                Err(RecordError::Unavailable(reason)) => return Err(unavailable(&reason)),
+                Err(RecordError::Corrupt(c)) => {
                     outside.close();
-                    state.metrics.corrupt.inc();
+                    state.metrics.corrupt_read(c.first);
                     let msg = format!("{}: record fails its checksum; not sent", c.tile);
                     chunks.push(Bytes::from(wire::error_frame(
                         level,
@@ -162,7 +164,7 @@ fn stream(
 /// `GET /v1/datasets/{name}/levels/{level}/tiles?ranges=…`
 pub async fn ranges(
     State(state): State<Arc<AppState>>,
-    Path((name, level)): Path<(String, String)>,
+    Segments((name, level)): Segments<(String, String)>,
     Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
@@ -172,7 +174,7 @@ pub async fn ranges(
 /// `GET /v1/datasets/{name}/levels/{level}/errors?ranges=…`
 pub async fn errors(
     State(state): State<Arc<AppState>>,
-    Path((name, level)): Path<(String, String)>,
+    Segments((name, level)): Segments<(String, String)>,
     Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
@@ -189,15 +191,15 @@ pub async fn errors(
 /// `GET /v1/datasets/{name}/tiles/{level}/{x}/{y}`: one stored record.
 pub async fn single(
     State(state): State<Arc<AppState>>,
-    Path((name, level_raw, x, y)): Path<(String, String, String, String)>,
+    Segments((name, level_raw, x, y)): Segments<(String, String, String, String)>,
     Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
-    let level = level(ds, &level_raw)?;
+    let level = level(&ds, &level_raw)?;
     let tile = tile(level, &x, &y)?;
-    let (entry, bytes) = stored_record(&state, ds, tile)?;
-    let pin = pinned(ds, &query);
+    let (entry, bytes) = stored_record(&state, &ds, tile)?;
+    let pin = pinned(&ds, &query);
     // The record's own checksum identifies its bytes: the strongest possible ETag.
     let etag = format!("\"{:016x}\"", entry.checksum);
     if cache::not_modified(&headers, &etag) {

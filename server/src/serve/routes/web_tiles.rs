@@ -8,13 +8,13 @@
 //! with the next tile east and south, are dropped, as web tiles do not overlap.
 //! Tiles line up with a Web Mercator map only when the DEM itself is in that grid.
 
-use super::{Params, dataset, level, pinned, stored_record, tile};
+use super::{Params, Segments, dataset, level, pinned, stored_record, tile};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::Json;
 use axum::body::Body;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use std::sync::Arc;
@@ -121,7 +121,7 @@ enum PngFailure {
 /// heights as a PNG (see the module documentation).
 pub async fn png(
     State(state): State<Arc<AppState>>,
-    Path((name, z, x, y)): Path<(String, String, String, String)>,
+    Segments((name, z, x, y)): Segments<(String, String, String, String)>,
     Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
@@ -132,10 +132,10 @@ pub async fn png(
     };
     let ds = dataset(&state, &name)?;
     let encoding = Encoding::from_query(query.get("encoding").map(String::as_str))?;
-    let level = level(ds, &z)?;
+    let level = level(&ds, &z)?;
     let tile = tile(level, &x, y)?;
-    let (_, record) = stored_record(&state, ds, tile)?;
-    let pin = pinned(ds, &query);
+    let (_, record) = stored_record(&state, &ds, tile)?;
+    let pin = pinned(&ds, &query);
     let etag = cache::etag(
         ds.content_hash(),
         &format!(
@@ -168,16 +168,16 @@ pub async fn png(
     let png = match made {
         Ok(png) => png,
         Err(PngFailure::Corrupt(e)) => {
-            state.metrics.corrupt.inc();
+            state.metrics.corrupt_read(ds.mark_undecodable(tile));
+            // The codec's detail goes to the log; the body says what it means.
             tracing::error!(dataset = %ds.name, %tile, error = %e, "record does not decode");
             return Err(ApiError::internal(format!(
-                "{tile}: record does not decode: {e}"
+                "{tile}: record passes its checksum but its height data does not decode"
             )));
         }
         Err(PngFailure::Encode(e)) => {
-            return Err(ApiError::internal(format!(
-                "{tile}: cannot encode the PNG: {e}"
-            )));
+            tracing::error!(dataset = %ds.name, %tile, error = %e, "PNG encoding failed");
+            return Err(ApiError::internal(format!("{tile}: cannot encode the PNG")));
         }
     };
     let len = png.len();
@@ -190,24 +190,60 @@ pub async fn png(
     Ok(r)
 }
 
-/// The request's `Host` (`localhost` when it sends none), or 400 for several or an
-/// invalid one (RFC 9112 §3.2): only host names, IPv4 and bracketed IPv6 addresses
-/// and ports get into the tile URLs.
-fn host(headers: &HeaderMap) -> ApiResult<String> {
-    let mut all = headers.get_all(header::HOST).iter();
+/// Whether `s` is a plain `host[:port]`: host names, IPv4 and bracketed IPv6
+/// addresses and ports only (RFC 9110 §7.2), nothing that could change a URL's meaning.
+fn valid_host(s: &str) -> bool {
+    !s.is_empty()
+        && s.len() <= 255
+        && s.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b".-_:[]".contains(&b))
+}
+
+/// The first element of the only `name` header, if there is exactly one such header.
+fn forwarded<'a>(headers: &'a HeaderMap, name: &str) -> ApiResult<Option<&'a str>> {
+    let mut all = headers.get_all(name).iter();
     let Some(v) = all.next() else {
-        return Ok("localhost".to_string());
+        return Ok(None);
     };
-    let bad = || ApiError::bad_request("invalid Host header");
+    let bad = || ApiError::bad_request(format!("invalid {name} header"));
     if all.next().is_some() {
         return Err(bad());
     }
     let s = v.to_str().map_err(|_| bad())?;
-    let ok = !s.is_empty()
-        && s.len() <= 255
-        && s.bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b".-_:[]".contains(&b));
-    if ok { Ok(s.to_string()) } else { Err(bad()) }
+    // A chain of proxies appends; the first element is what the client used.
+    Ok(Some(s.split(',').next().unwrap_or("").trim()))
+}
+
+/// Scheme and authority for absolute URLs, or `""` for URLs relative to the server.
+///
+/// The `Host` header is never used: it is whatever the client sent, and a CDN that
+/// caches the document would hand one client's `Host` to everyone. The configured
+/// `--public-url` wins; `X-Forwarded-Host`/`X-Forwarded-Proto` count only with
+/// `--trust-forwarded` (a proxy in front sets them); otherwise the URLs are relative.
+pub fn base_url(state: &AppState, headers: &HeaderMap) -> ApiResult<String> {
+    if let Some(u) = &state.public_url {
+        return Ok(u.clone());
+    }
+    if !state.trust_forwarded {
+        return Ok(String::new());
+    }
+    let Some(host) = forwarded(headers, "x-forwarded-host")? else {
+        return Ok(String::new());
+    };
+    if !valid_host(host) {
+        return Err(ApiError::bad_request("invalid X-Forwarded-Host header"));
+    }
+    let proto = match forwarded(headers, "x-forwarded-proto")? {
+        None => "http",
+        Some(p) if p.eq_ignore_ascii_case("http") => "http",
+        Some(p) if p.eq_ignore_ascii_case("https") => "https",
+        Some(_) => {
+            return Err(ApiError::bad_request(
+                "invalid X-Forwarded-Proto header: want http or https",
+            ));
+        }
+    };
+    Ok(format!("{proto}://{host}"))
 }
 
 /// `&`, `<`, `>` and `"` as HTML entities (TileJSON attributions are shown as HTML).
@@ -225,19 +261,20 @@ fn html_escape(s: &str) -> String {
     out
 }
 
-/// The TileJSON 3.0.0 document of a dataset, its tile URLs on `host`.
+/// The TileJSON 3.0.0 document of a dataset, its tile URLs under `base` (scheme
+/// and authority, or `""` for server-relative URLs).
 ///
 /// TileJSON `bounds` are WGS84 longitudes and latitudes, so they are given only for
 /// datasets georeferenced in EPSG:4326 (clamped to ±180°, ±90°). A dataset in any
 /// other CRS gets no `bounds` but a `crs` field (e.g. `"EPSG:32632"`) instead; one
 /// with no georeferencing, or no EPSG code, gets neither.
-pub fn tilejson_doc(ds: &Dataset, host: &str, encoding: Encoding) -> serde_json::Value {
+pub fn tilejson_doc(ds: &Dataset, base: &str, encoding: Encoding) -> serde_json::Value {
     let m = ds.pyramid.metadata();
     let mut doc = serde_json::json!({
         "tilejson": "3.0.0",
         "name": ds.name,
         "tiles": [format!(
-            "http://{host}/v1/datasets/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&v={}",
+            "{base}/v1/datasets/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&v={}",
             ds.name,
             encoding.name(),
             m.content_hash
@@ -268,18 +305,18 @@ pub fn tilejson_doc(ds: &Dataset, host: &str, encoding: Encoding) -> serde_json:
 /// `GET /v1/datasets/{name}/tilejson.json`: see [`tilejson_doc`].
 pub async fn tilejson(
     State(state): State<Arc<AppState>>,
-    Path(name): Path<String>,
+    Segments(name): Segments<String>,
     Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
-    let host = host(&headers)?;
+    let base = base_url(&state, &headers)?;
     let encoding = Encoding::from_query(query.get("encoding").map(String::as_str))?;
-    let pin = pinned(ds, &query);
-    // The document names the host and the encoding, so the ETag does too.
+    let pin = pinned(&ds, &query);
+    // The document names the base URL and the encoding, so the ETag does too.
     let etag = cache::etag(
         ds.content_hash(),
-        &format!("tilejson {host} {}", encoding.name()),
+        &format!("tilejson {base} {}", encoding.name()),
     );
     if cache::not_modified(&headers, &etag) {
         return Ok(cache::not_modified_response(
@@ -288,7 +325,7 @@ pub async fn tilejson(
             state.cache_max_age,
         ));
     }
-    let mut r = Json(tilejson_doc(ds, &host, encoding)).into_response();
+    let mut r = Json(tilejson_doc(&ds, &base, encoding)).into_response();
     cache::set_headers(r.headers_mut(), &etag, pin, state.cache_max_age);
     Ok(r)
 }
@@ -397,16 +434,12 @@ mod tests {
     }
 
     #[test]
-    fn host_header_is_checked() {
-        let mut h = HeaderMap::new();
-        assert_eq!(host(&h).unwrap(), "localhost");
-        h.insert(header::HOST, HeaderValue::from_static("tiles.example:8080"));
-        assert_eq!(host(&h).unwrap(), "tiles.example:8080");
-        h.insert(header::HOST, HeaderValue::from_static("[::1]:80"));
-        assert_eq!(host(&h).unwrap(), "[::1]:80");
-        for bad in ["evil/path", "a b", "x@y", ""] {
-            h.insert(header::HOST, HeaderValue::from_static(bad));
-            assert!(host(&h).is_err(), "{bad:?}");
+    fn hosts_are_checked() {
+        for good in ["tiles.example:8080", "[::1]:80", "127.0.0.1"] {
+            assert!(valid_host(good), "{good:?}");
+        }
+        for bad in ["evil/path", "a b", "x@y", "", "a\"b"] {
+            assert!(!valid_host(bad), "{bad:?}");
         }
         assert_eq!(html_escape("a<b>&\"c\""), "a&lt;b&gt;&amp;&quot;c&quot;");
     }
