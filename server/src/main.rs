@@ -4,6 +4,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use tessera_server::build::interrupt::{Interrupt, Interrupted};
 use tessera_server::build::{BuildOptions, build};
 use tessera_server::{info, preview, verify};
 
@@ -168,8 +169,19 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 memory_budget: memory,
                 nodata,
                 progress: !quiet,
+                interrupt: Interrupt::install().context("cannot watch SIGINT/SIGTERM")?,
             };
-            let r = build(&input, &output, &opts)?;
+            let r = match build(&input, &output, &opts) {
+                Ok(r) => r,
+                Err(e) => {
+                    if let Some(Interrupted(sig)) = e.downcast_ref::<Interrupted>() {
+                        eprintln!("error: {e:#}");
+                        // The shell convention for death by signal N.
+                        return Ok(ExitCode::from(128 + *sig as u8));
+                    }
+                    return Err(e);
+                }
+            };
             let m = &r.metadata;
             println!(
                 "built {}: {}×{} samples, {} levels, {} tiles, {:.1} MB ({:.3} bytes/sample) in {:.2} s ({:.1} M samples/s)",
@@ -196,10 +208,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Verify { file } => {
             let r = verify::verify(&file).with_context(|| file.display().to_string())?;
+            for problem in &r.problems {
+                println!("bad file: {problem}");
+            }
             for (tile, problem) in &r.bad {
                 println!("bad {tile}: {problem}");
             }
-            if r.bad.is_empty() {
+            if r.is_ok() {
                 println!(
                     "ok {}: {} tiles, {} record bytes, every checksum matches",
                     file.display(),
@@ -208,11 +223,18 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 );
                 Ok(ExitCode::SUCCESS)
             } else {
+                let bad_tiles = r
+                    .bad
+                    .iter()
+                    .map(|(t, _)| *t)
+                    .collect::<std::collections::BTreeSet<_>>()
+                    .len();
                 eprintln!(
-                    "error: {}: {} of {} tiles are bad",
+                    "error: {}: {} of {} tiles are bad, {} problems with the file as a whole",
                     file.display(),
-                    r.bad.len(),
-                    r.tiles
+                    bad_tiles,
+                    r.tiles,
+                    r.problems.len()
                 );
                 Ok(ExitCode::FAILURE)
             }

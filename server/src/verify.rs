@@ -88,7 +88,9 @@ fn record_problems(record: &TileRecord, e: &IndexEntry) -> Vec<String> {
     }
     let (tmin, tmax) = table.tile_range();
     if tmin > tmax {
-        out.push(format!("error table's height range is empty ({tmin} > {tmax})"));
+        out.push(format!(
+            "error table's height range is empty ({tmin} > {tmax})"
+        ));
     }
     let (hmin, hmax) = record
         .heights
@@ -165,7 +167,12 @@ fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
             q.max_error
         ));
     }
-    if !(meta.min_height <= meta.max_height) {
+    // NaN compares as neither: it is a problem too.
+    if meta
+        .min_height
+        .partial_cmp(&meta.max_height)
+        .is_none_or(std::cmp::Ordering::is_gt)
+    {
         out.push(format!(
             "min_height {} is above max_height {}",
             meta.min_height, meta.max_height
@@ -176,7 +183,9 @@ fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
         let (lo, hi) = index
             .iter()
             .filter(|e| e.is_present())
-            .fold((u16::MAX, 0u16), |(lo, hi), e| (lo.min(e.min), hi.max(e.max)));
+            .fold((u16::MAX, 0u16), |(lo, hi), e| {
+                (lo.min(e.min), hi.max(e.max))
+            });
         let (want_lo, want_hi) = (q.height(lo), q.height(hi));
         if meta.min_height != want_lo || meta.max_height != want_hi {
             out.push(format!(

@@ -369,7 +369,10 @@ fn damaged_png_is_an_error_not_a_pyramid() {
     assert_clean_failure(&build(&bad_crc, &out, &[]), "flipped.png", "png", &out);
     let bad_adler = damaged_png(&d, "adler.png", true).unwrap();
     let line = assert_clean_failure(&build(&bad_adler, &out, &[]), "adler.png", "corrupt", &out);
-    assert!(line.to_lowercase().contains("adler") || line.contains("checksum"), "{line}");
+    assert!(
+        line.to_lowercase().contains("adler") || line.contains("checksum"),
+        "{line}"
+    );
 }
 
 /// Starts a long build and returns it once its partial file exists.
@@ -387,7 +390,10 @@ fn start_long_build(d: &Path, out: &Path) -> std::process::Child {
         .any(|e| e.file_name().to_string_lossy().contains(".partial-"))
     {
         assert!(child.try_wait().unwrap().is_none(), "the build ended early");
-        assert!(started.elapsed().as_secs() < 120, "no partial file appeared");
+        assert!(
+            started.elapsed().as_secs() < 120,
+            "no partial file appeared"
+        );
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
     child
@@ -446,6 +452,7 @@ fn preview_writes_an_ordinary_file() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let mode = std::os::unix::fs::PermissionsExt::mode(&std::fs::metadata(&png).unwrap().permissions());
+    let mode =
+        std::os::unix::fs::PermissionsExt::mode(&std::fs::metadata(&png).unwrap().permissions());
     assert_eq!(mode & 0o777, 0o644, "preview wrote mode {:o}", mode & 0o777);
 }

@@ -3,6 +3,8 @@
 //!
 //! Each test holds `SERIAL` so only one build is counted at a time.
 
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
 use std::sync::Mutex;
@@ -83,7 +85,12 @@ fn leftovers(dir: &Path) -> Vec<String> {
     std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n.contains(".partial-") || n.ends_with(".tess"))
+        .filter(|n| {
+            n.contains(".partial-")
+                || Path::new(n)
+                    .extension()
+                    .is_some_and(|e| e.eq_ignore_ascii_case("tess"))
+        })
         .collect()
 }
 
@@ -93,7 +100,9 @@ fn leftovers(dir: &Path) -> Vec<String> {
 /// whole build, index included, must now stay inside the budget.
 #[test]
 fn a_sparse_tile_grid_builds_inside_the_memory_budget() {
-    let _one = SERIAL.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _one = SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("wide.png");
     write_png(&input, 131_073, 65);
@@ -106,7 +115,10 @@ fn a_sparse_tile_grid_builds_inside_the_memory_budget() {
     };
     let (report, peak) = peak_during(|| build(input.to_str().unwrap(), &out, &opts));
     let report = report.unwrap();
-    assert_eq!((report.metadata.width, report.metadata.height), (131_073, 65));
+    assert_eq!(
+        (report.metadata.width, report.metadata.height),
+        (131_073, 65)
+    );
     assert!(
         peak as u64 <= budget,
         "the build allocated {peak} bytes at its peak, over the {budget}-byte budget"
@@ -122,7 +134,9 @@ fn a_sparse_tile_grid_builds_inside_the_memory_budget() {
 /// header's word; the error names the file and says the size is implausible.
 #[test]
 fn a_png_header_that_lies_about_its_size_is_refused_before_allocating() {
-    let _one = SERIAL.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _one = SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tempfile::tempdir().unwrap();
     let honest = dir.path().join("honest.png");
     write_png(&honest, 120, 4000);
@@ -143,6 +157,13 @@ fn a_png_header_that_lies_about_its_size_is_refused_before_allocating() {
     let err = format!("{:#}", result.unwrap_err());
     assert!(err.contains("liar.png"), "{err}");
     assert!(err.contains("implausible"), "{err}");
-    assert!(peak as u64 <= budget, "allocated {peak} bytes on a lying header");
-    assert!(leftovers(dir.path()).is_empty(), "{:?}", leftovers(dir.path()));
+    assert!(
+        peak as u64 <= budget,
+        "allocated {peak} bytes on a lying header"
+    );
+    assert!(
+        leftovers(dir.path()).is_empty(),
+        "{:?}",
+        leftovers(dir.path())
+    );
 }

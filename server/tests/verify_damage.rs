@@ -80,8 +80,15 @@ fn verify(dir: &Path, name: &str, bytes: &[u8]) -> (Option<i32>, String) {
 
 fn assert_named(dir: &Path, name: &str, bytes: &[u8], want: &str) {
     let (code, text) = verify(dir, name, bytes);
-    assert_eq!(code, Some(1), "{name}: verify passed damaged content:\n{text}");
-    assert!(text.contains(want), "{name}: verify does not say {want:?}:\n{text}");
+    assert_eq!(
+        code,
+        Some(1),
+        "{name}: verify passed damaged content:\n{text}"
+    );
+    assert!(
+        text.contains(want),
+        "{name}: verify does not say {want:?}:\n{text}"
+    );
 }
 
 #[test]
@@ -105,8 +112,15 @@ fn index_summaries_that_disagree_with_their_records_are_named() {
     };
     // min above max (`info` then showed min 6191.9 > max −2000).
     let mut b = bytes.clone();
-    edit_entry(&mut b, tile, |e| (e.min, e.max) = (hi.saturating_add(500), lo));
-    assert_named(dir.path(), "minmax.tess", &b, &format!("bad {tile}: index says heights"));
+    edit_entry(&mut b, tile, |e| {
+        (e.min, e.max) = (hi.saturating_add(500), lo)
+    });
+    assert_named(
+        dir.path(),
+        "minmax.tess",
+        &b,
+        &format!("bad {tile}: index says heights"),
+    );
     // A NaN and an infinity as the index's error.
     for (name, v) in [("nan.tess", f32::NAN), ("inf.tess", f32::INFINITY)] {
         let mut b = bytes.clone();
@@ -131,7 +145,12 @@ fn a_nan_in_an_error_table_under_a_recomputed_checksum_is_named() {
     bytes[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
     let checksum = format::checksum(&bytes[e.offset as usize..e.end() as usize]);
     edit_entry(&mut bytes, tile, |e| e.checksum = checksum);
-    assert_named(dir.path(), "table.tess", &bytes, &format!("bad {tile}: error table holds 1"));
+    assert_named(
+        dir.path(),
+        "table.tess",
+        &bytes,
+        &format!("bad {tile}: error table holds 1"),
+    );
 }
 
 #[test]
@@ -141,7 +160,12 @@ fn metadata_damage_is_named() {
     // The quantization offset moved by 512 m: every height moves.
     let mut b = bytes.clone();
     edit_metadata(&mut b, |m| m.quantization.offset -= 512.0);
-    assert_named(dir.path(), "offset.tess", &b, "does not match the file's content");
+    assert_named(
+        dir.path(),
+        "offset.tess",
+        &b,
+        "does not match the file's content",
+    );
     // ... even when the content hash is recomputed to match.
     let mut b = bytes.clone();
     edit_metadata(&mut b, |m| {
@@ -155,9 +179,17 @@ fn metadata_damage_is_named() {
             .collect();
         m.content_hash = format::content_hash(m, sums.iter());
     });
-    assert_named(dir.path(), "offset-rehashed.tess", &b, "disagree with the quantized records");
+    assert_named(
+        dir.path(),
+        "offset-rehashed.tess",
+        &b,
+        "disagree with the quantized records",
+    );
     // A content hash with a control character, and one that is not hex.
-    for (name, hash) in [("ctl.tess", "0123456789ab\r\ncd"), ("hex.tess", "zzzzzzzzzzzzzzzz")] {
+    for (name, hash) in [
+        ("ctl.tess", "0123456789ab\r\ncd"),
+        ("hex.tess", "zzzzzzzzzzzzzzzz"),
+    ] {
         let mut b = bytes.clone();
         edit_metadata(&mut b, |m| m.content_hash = hash.into());
         assert_named(dir.path(), name, &b, "not 16 lowercase hex digits");

@@ -103,7 +103,6 @@ impl ContentHasher {
     }
 }
 
-
 fn u32_at(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
 }

@@ -145,7 +145,9 @@ impl<S: ByteSource> Pyramid<S> {
                     ReadError::Structure(format!("{what} lies outside the header region"))
                 })
         };
-        let layout = Layout::read(header, file_len, |o, l, w| slice(o, l, w).map(<[u8]>::to_vec))?;
+        let layout = Layout::read(header, file_len, |o, l, w| {
+            slice(o, l, w).map(<[u8]>::to_vec)
+        })?;
         let mut index = Vec::new();
         for (level, entry) in layout.geometry.levels().zip(&layout.levels) {
             let bytes = slice(
@@ -438,8 +440,10 @@ pub fn check_streaming<S: ByteSource>(
         let mut m = 0u64;
         while m < slots {
             let n = (slots - m).min(INDEX_CHUNK);
-            let bytes =
-                source.read_vec(entry.index_offset + m * INDEX_ENTRY_LEN as u64, (n as usize) * INDEX_ENTRY_LEN)?;
+            let bytes = source.read_vec(
+                entry.index_offset + m * INDEX_ENTRY_LEN as u64,
+                (n as usize) * INDEX_ENTRY_LEN,
+            )?;
             for e in bytes.chunks_exact(INDEX_ENTRY_LEN).map(IndexEntry::parse) {
                 let tile = check.entry(m, &e)?;
                 if e.is_present() {

@@ -50,9 +50,9 @@ impl Plan {
         // the codec's buffers (about two tiles' worth).
         let threads = rayon::current_num_threads() as u64;
         let worker = side * side * 6;
-        // Per level: up to three waiting siblings, plus the tile being assembled
-        // and its four children at the level where a parent is made.
-        let pending = (3 * levels + 5) * node;
+        // Up to three waiting siblings at every level but the root, plus, where a
+        // parent is being made, its four children and itself.
+        let pending = (3 * levels + 2) * node;
         let writer = levels * (SINK_BUFFER as u64 + INDEX_RUN_BYTES as u64);
         let fixed_bytes = OVERHEAD + input_bytes + pending + writer + threads * worker;
         let at_least = fixed_bytes + 3 * in_flight;
@@ -99,7 +99,10 @@ mod tests {
     fn a_budget_too_small_for_big_tiles_is_refused_with_what_it_needs() {
         let g = TileGeometry::new(65_537, 65_537, 4096).unwrap();
         let err = Plan::new(&g, 0, 256 << 20).unwrap_err().to_string();
-        assert!(err.contains("--memory 256 MiB is too small for --tile-size 4096"), "{err}");
+        assert!(
+            err.contains("--memory 256 MiB is too small for --tile-size 4096"),
+            "{err}"
+        );
         let needed: u64 = err
             .split("at least ")
             .nth(1)

@@ -316,9 +316,9 @@ fn coarse_corners(
         let s = 1u64 << k;
         let (cx, cy) = (gx0 / s * s, gy0 / s * s);
         let mut cell = [0u16; 4];
-        for (c, (x, y)) in cell
-            .iter_mut()
-            .zip([(cx, cy), (cx + s, cy), (cx, cy + s), (cx + s, cy + s)])
+        for (c, (x, y)) in
+            cell.iter_mut()
+                .zip([(cx, cy), (cx + s, cy), (cx, cy + s), (cx + s, cy + s)])
         {
             let (x, y) = (x.min(last_x) as u32, y.min(last_y) as u32);
             raster.read_window(x, y, 1, 1, std::slice::from_mut(c))?;

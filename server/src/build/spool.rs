@@ -190,7 +190,8 @@ impl SpooledRaster {
                 have_prev = true;
             } else {
                 for _ in 0..n * w {
-                    out.write_all(&f32::NAN.to_le_bytes()).context(SPOOL_WRITE)?;
+                    out.write_all(&f32::NAN.to_le_bytes())
+                        .context(SPOOL_WRITE)?;
                 }
                 leading_void_rows += n as u32;
             }

@@ -53,7 +53,8 @@ impl LevelSink {
             self.flush_index(file)?;
             self.run_start = m;
         } else {
-            self.run.resize(self.run.len() + (m - next) as usize, IndexEntry::default());
+            self.run
+                .resize(self.run.len() + (m - next) as usize, IndexEntry::default());
         }
         self.run.push(entry);
         Ok(())
