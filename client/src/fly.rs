@@ -301,6 +301,14 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         if settle && let Some(h) = &mut headless {
             let started = Instant::now();
             while !sel.wanted.is_empty() {
+                // A written-off tile never arrives: say so now, not after the timeout.
+                if let Some(w) = sel.wanted.iter().find(|w| streamer.written_off(w.tile)) {
+                    anyhow::bail!(
+                        "frame {frame}: {} was written off as corrupt; a settled frame cannot be drawn (last error: {})",
+                        w.tile,
+                        streamer.last_error.as_deref().unwrap_or("none")
+                    );
+                }
                 anyhow::ensure!(
                     started.elapsed() < SETTLE_TIMEOUT,
                     "frame {frame}: the selection still wants {} tiles after {SETTLE_TIMEOUT:?}{}",

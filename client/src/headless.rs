@@ -331,6 +331,17 @@ pub fn fetch_tiles(
             pool.touch(tiles);
             return Ok(());
         }
+        if let Some(w) = missing.iter().find(|w| streamer.written_off(w.tile)) {
+            anyhow::bail!(
+                "{} was written off as corrupt{}",
+                w.tile,
+                streamer
+                    .last_error
+                    .as_ref()
+                    .map(|e| format!(" (last error: {e})"))
+                    .unwrap_or_default()
+            );
+        }
         anyhow::ensure!(
             started.elapsed() < timeout,
             "{} tiles still missing after {timeout:?}{}",

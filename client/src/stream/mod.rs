@@ -249,6 +249,12 @@ impl Streamer {
         &self.client
     }
 
+    /// Whether `tile` was written off as corrupt (it will not be asked for again):
+    /// waiting for it is waiting forever.
+    pub fn written_off(&self, tile: TileId) -> bool {
+        self.written_off.contains(&tile)
+    }
+
     fn pending(&self, tile: TileId) -> bool {
         self.flights.values().any(|f| f.tiles.contains(&tile))
     }
