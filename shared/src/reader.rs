@@ -309,7 +309,11 @@ impl Layout {
         }
         let mut levels = Vec::new();
         for level in geometry.levels() {
-            let off = header.level_table_offset + u64::from(level.get()) * LEVEL_ENTRY_LEN as u64;
+            // Checked: the offset is the file's claim (`read` bounds-checks the rest).
+            let off = header
+                .level_table_offset
+                .checked_add(u64::from(level.get()) * LEVEL_ENTRY_LEN as u64)
+                .ok_or_else(|| ReadError::Structure("level table lies outside the file".into()))?;
             let entry = LevelEntry::parse(&read(off, LEVEL_ENTRY_LEN as u64, "level table")?);
             let slots = level.tile_slots();
             if entry.level != level.get()
