@@ -800,3 +800,97 @@ fn logs_have_no_colour_codes_off_a_terminal_and_quiet_keeps_only_errors() {
         "{quiet}"
     );
 }
+
+/// Reads one whole HTTP/1.1 response (head and `Content-Length` body) from a
+/// keep-alive connection; returns its status.
+fn read_keep_alive_response(s: &mut TcpStream) -> u16 {
+    let mut head = Vec::new();
+    let mut byte = [0u8; 1];
+    while serve_support::find(&head, b"\r\n\r\n").is_none() {
+        s.read_exact(&mut byte).unwrap();
+        head.push(byte[0]);
+    }
+    let (status, headers) = serve_support::parse_head(std::str::from_utf8(&head).unwrap());
+    let len: usize = headers["content-length"].parse().unwrap();
+    let mut body = vec![0u8; len];
+    s.read_exact(&mut body).unwrap();
+    status
+}
+
+/// Kilobytes of the process's resident memory (`VmRSS` or `VmHWM`).
+fn rss_kib(pid: u32, field: &str) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix(field)?.trim().strip_suffix("kB"))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap()
+}
+
+const CONNECTIONS: usize = 1024;
+
+/// 1024 keep-alive connections open at once, each served twice (so each is really
+/// kept alive): every request gets a 200, and the server's resident memory stays
+/// bounded. RSS is reported, and checked against a generous bound (64 KiB of
+/// buffers per connection over the idle server's), never timed.
+///
+/// The test process needs more descriptors than the usual soft limit of 1024, so
+/// the body runs in a copy of this test binary started with a raised limit.
+#[test]
+fn a_thousand_keep_alive_connections_are_served_with_bounded_memory() {
+    if std::env::var_os("TESSERA_KEEP_ALIVE_CHILD").is_none() {
+        let me = std::env::current_exe().unwrap();
+        let o = std::process::Command::new("sh")
+            .arg("-c")
+            .arg("ulimit -n 4096 && exec \"$0\" --exact \"$1\" --nocapture --test-threads 1")
+            .arg(me)
+            .arg("a_thousand_keep_alive_connections_are_served_with_bounded_memory")
+            .env("TESSERA_KEEP_ALIVE_CHILD", "1")
+            .output()
+            .unwrap();
+        let out = String::from_utf8_lossy(&o.stdout);
+        let err = String::from_utf8_lossy(&o.stderr);
+        eprintln!("{err}");
+        assert!(o.status.success(), "the child run failed:\n{out}\n{err}");
+        assert!(out.contains("1 passed"), "the child ran no test:\n{out}");
+        return;
+    }
+    let f = fixtures();
+    let srv = Server::start_with_fd_limit(&[&f.synth], &[], 4096);
+    let idle = rss_kib(srv.pid(), "VmRSS:");
+    let g = *Pyramid::open_file(&f.synth).unwrap().geometry();
+    let tiles: Vec<_> = g.present_tiles(g.finest()).collect();
+    let mut socks: Vec<TcpStream> = (0..CONNECTIONS)
+        .map(|_| {
+            let s = TcpStream::connect(srv.addr).unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+            s
+        })
+        .collect();
+    for round in 0..2 {
+        // Every connection has a request in flight before any answer is read.
+        for (i, s) in socks.iter_mut().enumerate() {
+            let t = tiles[(i + round) % tiles.len()];
+            write!(
+                s,
+                "GET /v1/datasets/synth/tiles/{}/{}/{} HTTP/1.1\r\nHost: t\r\n\r\n",
+                t.level().get(),
+                t.x(),
+                t.y()
+            )
+            .unwrap();
+        }
+        for s in &mut socks {
+            assert_eq!(read_keep_alive_response(s), 200, "round {round}");
+        }
+    }
+    let busy = rss_kib(srv.pid(), "VmRSS:");
+    let peak = rss_kib(srv.pid(), "VmHWM:");
+    drop(socks);
+    eprintln!(
+        "{CONNECTIONS} keep-alive connections: server RSS {idle} KiB idle, {busy} KiB with all \
+         open, peak {peak} KiB"
+    );
+    let bound = idle + 64 * CONNECTIONS as u64 + 32 * 1024;
+    assert!(peak <= bound, "peak RSS {peak} KiB over {bound} KiB");
+}
