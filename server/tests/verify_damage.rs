@@ -113,7 +113,7 @@ fn index_summaries_that_disagree_with_their_records_are_named() {
     // min above max (`info` then showed min 6191.9 > max −2000).
     let mut b = bytes.clone();
     edit_entry(&mut b, tile, |e| {
-        (e.min, e.max) = (hi.saturating_add(500), lo)
+        (e.min, e.max) = (hi.saturating_add(500), lo);
     });
     assert_named(
         dir.path(),
