@@ -223,7 +223,7 @@ mod tests {
         // Disjoint ones keep the order they were asked in.
         assert_eq!(parse("bytes=20-29,0-9", 1000), partial(&[(20, 29), (0, 9)]));
         // Empty list elements are skipped (RFC 9110 §5.6.1).
-        assert_eq!(parse("bytes=,0-1,,2-3,", 1000), partial(&[(0, 1), (2, 3)]));
+        assert_eq!(parse("bytes=,0-1,,4-5,", 1000), partial(&[(0, 1), (4, 5)]));
         // Unsatisfiable members are dropped when another one is satisfiable.
         assert_eq!(parse("bytes=2000-2001,0-1", 1000), partial(&[(0, 1)]));
     }
