@@ -8,6 +8,7 @@
 //! - [`stream`]: fetching, decoding and the CPU tile pool;
 //! - [`render`]: the wgpu renderer (emulated tessellation, ≤ 7 terrain draws);
 //! - [`fly`], [`headless`], [`load`]: flights, headless rendering, load tests;
+//! - [`paths`]: the built-in camera paths and path files, and where they put the eye;
 //! - [`report`]: contact sheets and plots of a flight;
 //! - [`window`]: the interactive winit client.
 

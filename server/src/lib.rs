@@ -1,6 +1,7 @@
 //! The Tessera server: builds tile pyramids from DEMs ([`build`], reading inputs
-//! through [`ingest`]), checks them ([`verify`]), describes them ([`info`]) and draws them ([`preview`]).
-//! HTTP serving arrives in the next issue.
+//! through [`ingest`]), checks them ([`verify`]), describes them ([`info`]), draws
+//! them ([`preview`]) and serves them over HTTP ([`serve`], API.md). [`fuzzing`]
+//! holds the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
 
 pub mod build;
 pub mod fuzzing;

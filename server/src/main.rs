@@ -27,7 +27,7 @@ struct Cli {
 enum Command {
     /// Build a pyramid from a DEM (out of core: memory stays under --memory).
     ///
-    /// INPUT is a GeoTIFF (int16/uint16/float32; striped or tiled; none/deflate/LZW),
+    /// INPUT is a GeoTIFF (int16/uint16/float32; striped or tiled; none/deflate/LZW/PackBits),
     /// a 16-bit grayscale PNG, an SRTM .hgt file, or synthetic:SIZE[:SEED] for a
     /// deterministic fractal terrain of SIZE×SIZE samples.
     Build {

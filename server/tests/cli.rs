@@ -263,33 +263,16 @@ fn verify_names_a_corrupted_tile() {
 fn killed_build_leaves_no_output() {
     let d = tmpdir("kill");
     let out = d.join("big.tess");
-    let mut child = bin()
-        .args(["build", "synthetic:8193", "--quiet", "-o"])
-        .arg(&out)
-        .spawn()
-        .unwrap();
-    // Wait until the build has started writing its partial file, then kill it.
-    let started = std::time::Instant::now();
-    loop {
-        let partial = std::fs::read_dir(&d)
-            .unwrap()
-            .flatten()
-            .any(|e| e.file_name().to_string_lossy().contains(".partial-"));
-        if partial || started.elapsed().as_secs() > 60 {
-            break;
-        }
-        if child.try_wait().unwrap().is_some() {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
-    let _ = child.kill(); // SIGKILL
+    // A build far too long to finish before the kill (minutes), killed once its
+    // partial file exists: the test never passes by default.
+    let mut child = start_long_build(&d, &out);
+    child.kill().unwrap(); // SIGKILL
     let status = child.wait().unwrap();
-    if status.success() {
-        // The machine finished the whole build before the kill landed: nothing to test.
-        eprintln!("SKIPPED: build finished before it could be killed");
-        return;
-    }
+    assert_eq!(
+        std::os::unix::process::ExitStatusExt::signal(&status),
+        Some(9),
+        "the build was not killed: {status:?}"
+    );
     assert!(!out.exists(), "a killed build left {}", out.display());
     // The next build of the same output removes the dead build's partial file and
     // leaves no partial of its own.

@@ -1,26 +1,10 @@
 //! The tile stream (`application/vnd.tessera.tiles`): what the range endpoint
 //! sends and what clients decode (DESIGN §4).
 //!
-//! A stream is a sequence of frames, the last of which is the one trailer frame.
-//! Every frame is a fixed 32-byte little-endian header followed by a payload:
-//!
-//! | offset | type | field |
-//! |---|---|---|
-//! | 0 | u32 | payload length |
-//! | 4 | u8 | kind: 0 tile, 1 error, 2 trailer, 3 error table |
-//! | 5 | u8 | level |
-//! | 6 | u16 | zero |
-//! | 8 | u64 | Morton code (tile, error); number of tile frames (trailer) |
-//! | 16 | u64 | XXH3-64 of the payload (tile, error table); the record's checksum (error); number of error frames (trailer) |
-//! | 24 | u16 | min quantized height (tile, error table) |
-//! | 26 | u16 | max quantized height (tile, error table) |
-//! | 28 | u32 | zero |
-//!
-//! Payloads: a tile frame carries the stored record unchanged (FORMAT.md); an
-//! error-table frame only the record's leading error table (the `/errors`
-//! endpoint's cheap planning data); an error frame a UTF-8 message (a record whose checksum failed on the server); the
-//! trailer `n` pairs of u64 `(start, end)`: the inclusive Morton sub-ranges of the
-//! request that hold no tile because they lie outside the DEM.
+//! A stream is a sequence of frames, the last of which is the one trailer frame;
+//! every frame is a fixed 32-byte little-endian header and a payload. The byte
+//! layout is specified once, in API.md ("Frame stream", under the Morton-range
+//! tiles endpoint); this module is its implementation, and its tests pin the layout.
 
 use crate::format;
 use crate::morton::{Morton, MortonRange};

@@ -2,7 +2,8 @@
 //!
 //! Each frame:
 //! 1. [`tiles`]: walk the pyramid from the root; refine a tile into its children
-//!    when its own full resolution misses `τ` and its children are resident,
+//!    when its within-tile level `t − 1` misses `τ` (DECISIONS.md: drawing a coarse
+//!    tile at full density costs more than its children) and they are resident,
 //!    otherwise draw it and ask for the children. Then balance, so that drawn
 //!    tiles sharing an edge are at most one level apart.
 //! 2. [`quadtree`]: inside each drawn tile, Kang's quadtree (depth ≤ t − 6): the
