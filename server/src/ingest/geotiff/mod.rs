@@ -20,6 +20,7 @@
 //! unchanged.
 
 mod georef;
+mod layout;
 #[cfg(test)]
 mod test_tiff;
 #[cfg(test)]
@@ -28,6 +29,7 @@ mod tests;
 use super::{RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
 use georef::read_georef;
+use layout::{Compression, Layout};
 use std::fmt;
 use std::fs::File;
 use std::io::{BufReader, ErrorKind, Read, Seek, SeekFrom};
@@ -42,108 +44,6 @@ const MAX_CHUNK_BYTES: u64 = 256 * 1024 * 1024;
 
 /// Longest ASCII tag value read (GeoAsciiParams may hold a whole ESRI WKT string).
 const MAX_ASCII_TAG: usize = 1 << 16;
-
-/// A TIFF compression the reader accepts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Compression {
-    None,
-    Lzw,
-    Deflate,
-    PackBits,
-}
-
-impl Compression {
-    fn from_code(code: u16) -> anyhow::Result<Self> {
-        Ok(match code {
-            1 => Self::None,
-            5 => Self::Lzw,
-            8 | 32946 => Self::Deflate,
-            32773 => Self::PackBits,
-            _ => bail!(
-                "unsupported TIFF compression {} ({code}); supported: none, deflate, LZW, PackBits",
-                compression_name(code)
-            ),
-        })
-    }
-
-    const fn name(self) -> &'static str {
-        match self {
-            Self::None => "uncompressed",
-            Self::Lzw => "LZW",
-            Self::Deflate => "deflate",
-            Self::PackBits => "PackBits",
-        }
-    }
-
-    /// The best ratio of decoded to stored bytes the compression can reach, so a
-    /// header's claimed size can be checked against the bytes the file really holds.
-    const fn max_ratio(self) -> u64 {
-        match self {
-            Self::None => 1,
-            // A 2-byte run header and byte expand to at most 128 bytes.
-            Self::PackBits => 64,
-            // A 258-byte match per code of as little as ~2 bits.
-            Self::Deflate => 1032,
-            // 12-bit codes whose strings grow by one byte per code until the table
-            // (4096 entries) is cleared: ~7.4 MB from ~5.7 KB of codes, about 1300:1.
-            Self::Lzw => 1400,
-        }
-    }
-}
-
-/// Names of the TIFF compression codes one meets in the wild, for error messages.
-fn compression_name(code: u16) -> &'static str {
-    match code {
-        1 => "none",
-        2 => "CCITT RLE",
-        3 => "CCITT Group 3 fax",
-        4 => "CCITT Group 4 fax",
-        5 => "LZW",
-        6 => "old-style JPEG",
-        7 => "JPEG",
-        8 | 32946 => "deflate",
-        9 | 10 | 34661 => "JBIG",
-        32773 => "PackBits",
-        34676 | 34677 => "SGI LogLuv",
-        34712 => "JPEG 2000",
-        34887 => "LERC",
-        34925 => "LZMA",
-        50000 => "Zstandard",
-        50001 => "WebP",
-        50002 | 52546 => "JPEG XL",
-        _ => "unknown",
-    }
-}
-
-/// How the samples are cut into separately compressed chunks.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Layout {
-    Strips {
-        rows_per_strip: u32,
-    },
-    Tiles {
-        tile_width: u32,
-        tile_height: u32,
-        tiles_across: u32,
-    },
-}
-
-impl Layout {
-    /// Rows decoded together: one strip, or one row of tiles.
-    const fn band_height(self) -> u32 {
-        match self {
-            Self::Strips { rows_per_strip } => rows_per_strip,
-            Self::Tiles { tile_height, .. } => tile_height,
-        }
-    }
-
-    const fn chunk_kind(self) -> &'static str {
-        match self {
-            Self::Strips { .. } => "strip",
-            Self::Tiles { .. } => "tile",
-        }
-    }
-}
 
 /// What a GeoTIFF is read from: a buffered file, or any seekable reader
 /// ([`GeoTiff::from_reader`], e.g. bytes in memory for the fuzz targets).
