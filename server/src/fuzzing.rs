@@ -15,9 +15,9 @@ use crate::ingest::geotiff::GeoTiff;
 use crate::ingest::hgt::Hgt;
 use crate::ingest::png16::Png16;
 use crate::serve::http_range::{self, RangeRequest};
-use crate::serve::ranges::{RangeLimits, parse_ranges};
 use anyhow::bail;
 use std::io::Cursor;
+use tessera_shared::range_query::{self, RangeLimits};
 use tessera_shared::tile::MAX_LEVEL;
 use tessera_shared::{Level, fuzzing as shared};
 
@@ -162,7 +162,7 @@ pub fn ranges(data: &[u8]) -> Result<usize, String> {
     };
     let level = Level::new(l % (MAX_LEVEL + 1)).expect("a level up to MAX_LEVEL");
     let spec = String::from_utf8_lossy(spec);
-    let ranges = parse_ranges(Some(&spec), level, LIMITS).map_err(|e| e.message)?;
+    let ranges = range_query::parse(Some(&spec), level, LIMITS).map_err(|e| e.to_string())?;
     assert!(!ranges.is_empty() && ranges.len() <= LIMITS.max_ranges);
     assert!(ranges.iter().map(|r| r.len()).sum::<u64>() <= LIMITS.max_tiles);
     assert!(

@@ -13,6 +13,7 @@ pub mod format;
 pub mod fuzzing;
 pub mod metadata;
 pub mod morton;
+pub mod range_query;
 pub mod reader;
 pub mod tile;
 pub mod triangulation;

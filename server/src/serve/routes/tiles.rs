@@ -6,8 +6,7 @@
 
 use super::{Params, Segments, dataset, level, pinned, stored_record, tile, unavailable};
 use crate::serve::dataset::RecordError;
-use crate::serve::error::ApiResult;
-use crate::serve::ranges::parse_ranges;
+use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
 use axum::extract::State;
@@ -17,6 +16,7 @@ use bytes::Bytes;
 use std::collections::HashMap;
 use std::convert::Infallible;
 use std::sync::Arc;
+use tessera_shared::range_query;
 use tessera_shared::wire::{self, CONTENT_TYPE};
 use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId};
 
@@ -68,7 +68,8 @@ fn stream(
 ) -> ApiResult<Response> {
     let ds = dataset(state, name)?;
     let level: Level = level(&ds, level_raw)?;
-    let ranges = parse_ranges(query.get("ranges").map(String::as_str), level, state.limits)?;
+    let ranges = range_query::parse(query.get("ranges").map(String::as_str), level, state.limits)
+        .map_err(|e| ApiError::bad_request(e.to_string()))?;
     let pin = pinned(&ds, query);
     let canonical: Vec<String> = ranges.iter().map(ToString::to_string).collect();
     let kind = if payload == Payload::Records {
