@@ -10,6 +10,7 @@ use anyhow::Context;
 use glam::DVec2;
 use std::io::Write;
 use std::time::{Duration, Instant};
+use tessera_shared::api;
 use tessera_shared::{GeoRef, Quantization, TileGeometry};
 
 #[derive(Clone, Debug)]
@@ -185,29 +186,21 @@ pub fn spacing_from(georef: Option<&GeoRef>, height: u32, fallback: f64) -> f64 
 /// Reads `/v1/datasets/{name}` into a [`World`] and the height range.
 pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64, f64)> {
     let url = format!(
-        "{}/v1/datasets/{}",
+        "{}{}",
         opts.server.trim_end_matches('/'),
-        opts.dataset
+        api::fill(api::routes::DATASET, &[("name", &opts.dataset)])
     );
-    let j: serde_json::Value = streamer.block_on(async {
+    let info: api::DatasetInfo = streamer.block_on(async {
         let r = streamer.client().get(&url).send().await?;
         let status = r.status();
         let body = r.text().await?;
         anyhow::ensure!(status.is_success(), "{url}: HTTP {status}: {body}");
-        Ok::<_, anyhow::Error>(serde_json::from_str(&body)?)
+        serde_json::from_str(&body)
+            .with_context(|| format!("{url}: not the dataset description of API.md"))
     })?;
-    let num = |k: &str| {
-        j[k].as_f64()
-            .with_context(|| format!("{url}: no {k} in the metadata"))
-    };
-    let geometry = TileGeometry::new(
-        num("width")? as u32,
-        num("height")? as u32,
-        num("tile_size")? as u32,
-    )?;
-    let quant: Quantization =
-        serde_json::from_value(j["quantization"].clone()).context("quantization")?;
-    let georef: Option<GeoRef> = serde_json::from_value(j["georef"].clone()).unwrap_or(None);
+    let geometry = TileGeometry::new(info.width, info.height, info.tile_size)?;
+    let quant: Quantization = info.quantization;
+    let georef: Option<GeoRef> = info.georef.clone();
     let spacing = opts
         .spacing
         .unwrap_or_else(|| spacing_from(georef.as_ref(), geometry.height(), 100.0));
@@ -217,8 +210,8 @@ pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(W
             quant,
             spacing,
         },
-        num("min_height")?,
-        num("max_height")?,
+        info.min_height,
+        info.max_height,
     ))
 }
 

@@ -7,6 +7,7 @@
 //! a tile is triangulated into ([`triangulation`]) and a reader that works over
 //! any source of byte ranges ([`reader`]).
 
+pub mod api;
 pub mod codec;
 pub mod error_table;
 pub mod format;

@@ -23,6 +23,7 @@ use metrics::Metrics;
 use std::path::PathBuf;
 use std::sync::{Arc, PoisonError, RwLock};
 use std::time::Instant;
+use tessera_shared::api::routes as paths;
 use tessera_shared::range_query::RangeLimits;
 use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
@@ -83,29 +84,14 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
     let api = Router::new()
         .route("/healthz", get(routes::health::healthz))
         .route("/metrics", get(routes::health::metrics))
-        .route("/v1/datasets", get(routes::datasets::list))
-        .route("/v1/datasets/{name}", get(routes::datasets::get_one))
-        .route(
-            "/v1/datasets/{name}/tilejson.json",
-            get(routes::web_tiles::tilejson),
-        )
-        .route("/v1/datasets/{name}/pyramid", get(routes::pyramid::raw))
-        .route(
-            "/v1/datasets/{name}/levels/{level}/tiles",
-            get(routes::tiles::ranges),
-        )
-        .route(
-            "/v1/datasets/{name}/levels/{level}/errors",
-            get(routes::tiles::errors),
-        )
-        .route(
-            "/v1/datasets/{name}/tiles/{level}/{x}/{y}",
-            get(routes::tiles::single),
-        )
-        .route(
-            "/v1/datasets/{name}/{z}/{x}/{y}",
-            get(routes::web_tiles::png),
-        )
+        .route(paths::DATASETS, get(routes::datasets::list))
+        .route(paths::DATASET, get(routes::datasets::get_one))
+        .route(paths::TILEJSON, get(routes::web_tiles::tilejson))
+        .route(paths::PYRAMID, get(routes::pyramid::raw))
+        .route(paths::TILES, get(routes::tiles::ranges))
+        .route(paths::ERRORS, get(routes::tiles::errors))
+        .route(paths::TILE, get(routes::tiles::single))
+        .route(paths::WEB_TILE, get(routes::web_tiles::png))
         .fallback(|| async { ApiError::not_found("no such endpoint; see API.md") })
         .with_state(state.clone());
     api.layer(

@@ -9,52 +9,24 @@ use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::{IntoResponse, Response};
 use std::sync::Arc;
+use tessera_shared::api::{DatasetInfo, DatasetList};
 
-/// The JSON description of one dataset.
-pub fn describe(ds: &Dataset) -> serde_json::Value {
-    let m = ds.pyramid.metadata();
-    let base = format!("/v1/datasets/{}", ds.name);
-    serde_json::json!({
-        "name": ds.name,
-        "width": m.width,
-        "height": m.height,
-        "tile_size": m.tile_size,
-        "levels": m.levels,
-        "finest_level": m.levels - 1,
-        "min_height": m.min_height,
-        "max_height": m.max_height,
-        "quantization": m.quantization,
-        "nodata_count": m.nodata_count,
-        "nodata_fill": m.nodata_fill,
-        "crs": m.georef.as_ref().and_then(tessera_shared::GeoRef::crs),
-        "extent": m.georef.as_ref().map(|g| g.extent(m.width, m.height)),
-        "georef": m.georef,
-        "source": m.source,
-        "content_hash": m.content_hash,
-        "bytes": ds.storage.size(),
-        "links": {
-            "self": base,
-            "tilejson": format!("{base}/tilejson.json"),
-            "pyramid": format!("{base}/pyramid"),
-            "tiles": format!("{base}/levels/{{level}}/tiles?ranges={{ranges}}"),
-            "errors": format!("{base}/levels/{{level}}/errors?ranges={{ranges}}"),
-            "tile": format!("{base}/tiles/{{level}}/{{x}}/{{y}}"),
-            "png": format!("{base}/{{z}}/{{x}}/{{y}}.png?encoding=terrarium"),
-        },
-    })
+/// The JSON description of one dataset (the contract's [`DatasetInfo`]).
+pub fn describe(ds: &Dataset) -> DatasetInfo {
+    DatasetInfo::new(&ds.name, ds.pyramid.metadata(), ds.storage.size())
 }
 
 pub async fn list(State(state): State<Arc<AppState>>) -> impl IntoResponse {
     // A dataset whose file changed under the server is left out of the list (its own
     // URL answers 503 with the reason) rather than failing the whole list.
-    let all: Vec<serde_json::Value> = state
+    let datasets: Vec<DatasetInfo> = state
         .registry()
         .datasets
         .values()
         .filter(|d| d.available().is_ok())
         .map(|d| describe(d))
         .collect();
-    Json(serde_json::json!({ "datasets": all }))
+    Json(DatasetList { datasets })
 }
 
 pub async fn get_one(

@@ -1,0 +1,172 @@
+//! The HTTP API's paths and JSON documents (API.md), in the contract so that the
+//! server's router and responses and the client's requests and parsing cannot drift.
+//!
+//! ```
+//! use tessera_shared::api::{fill, routes};
+//!
+//! let url = fill(routes::TILES, &[("name", "moon"), ("level", "3")]);
+//! assert_eq!(url, "/v1/datasets/moon/levels/3/tiles");
+//! ```
+
+use crate::metadata::{GeoRef, Metadata, Quantization};
+use serde::{Deserialize, Serialize};
+
+/// Route templates in the router's `{param}` syntax (axum's), used by the server as
+/// they are and filled in by clients with [`fill`].
+pub mod routes {
+    pub const DATASETS: &str = "/v1/datasets";
+    pub const DATASET: &str = "/v1/datasets/{name}";
+    pub const TILEJSON: &str = "/v1/datasets/{name}/tilejson.json";
+    pub const PYRAMID: &str = "/v1/datasets/{name}/pyramid";
+    /// Morton-range tile stream; query `ranges=` ([`crate::range_query`]).
+    pub const TILES: &str = "/v1/datasets/{name}/levels/{level}/tiles";
+    /// Morton-range error tables; query `ranges=`.
+    pub const ERRORS: &str = "/v1/datasets/{name}/levels/{level}/errors";
+    pub const TILE: &str = "/v1/datasets/{name}/tiles/{level}/{x}/{y}";
+    /// PNG height tiles; the last segment is `{y}.png` (axum captures it whole).
+    pub const WEB_TILE: &str = "/v1/datasets/{name}/{z}/{x}/{y}";
+}
+
+/// `template` with each `{key}` of `params` replaced by its value. Placeholders not
+/// named stay as they are (the links in [`DatasetInfo`] keep `{level}` etc. for
+/// clients to fill).
+pub fn fill(template: &str, params: &[(&str, &str)]) -> String {
+    params.iter().fold(template.to_string(), |s, (k, v)| {
+        s.replace(&format!("{{{k}}}"), v)
+    })
+}
+
+/// `GET /v1/datasets/{name}`: one dataset's description.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetInfo {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    pub tile_size: u32,
+    pub levels: u8,
+    pub finest_level: u8,
+    pub min_height: f64,
+    pub max_height: f64,
+    pub quantization: Quantization,
+    pub nodata_count: u64,
+    pub nodata_fill: String,
+    /// `"EPSG:nnnn"` when the code is known.
+    pub crs: Option<String>,
+    /// `[west, south, east, north]` of the pixel areas, when georeferenced.
+    pub extent: Option<[f64; 4]>,
+    pub georef: Option<GeoRef>,
+    pub source: String,
+    pub content_hash: String,
+    /// Size of the pyramid file in bytes.
+    pub bytes: u64,
+    pub links: DatasetLinks,
+}
+
+/// Where a dataset's resources are, relative to the server; `{level}`, `{ranges}`,
+/// `{x}`, `{y}` and `{z}` are left for the client to fill.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DatasetLinks {
+    #[serde(rename = "self")]
+    pub self_: String,
+    pub tilejson: String,
+    pub pyramid: String,
+    pub tiles: String,
+    pub errors: String,
+    pub tile: String,
+    pub png: String,
+}
+
+/// `GET /v1/datasets`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetList {
+    pub datasets: Vec<DatasetInfo>,
+}
+
+impl DatasetInfo {
+    /// The description of dataset `name`, whose file of `bytes` bytes holds `meta`.
+    pub fn new(name: &str, meta: &Metadata, bytes: u64) -> Self {
+        let at = |template: &str| fill(template, &[("name", name)]);
+        Self {
+            name: name.to_string(),
+            width: meta.width,
+            height: meta.height,
+            tile_size: meta.tile_size,
+            levels: meta.levels,
+            finest_level: meta.levels.saturating_sub(1),
+            min_height: meta.min_height,
+            max_height: meta.max_height,
+            quantization: meta.quantization,
+            nodata_count: meta.nodata_count,
+            nodata_fill: meta.nodata_fill.clone(),
+            crs: meta.georef.as_ref().and_then(GeoRef::crs),
+            extent: meta
+                .georef
+                .as_ref()
+                .map(|g| g.extent(meta.width, meta.height)),
+            georef: meta.georef.clone(),
+            source: meta.source.clone(),
+            content_hash: meta.content_hash.clone(),
+            bytes,
+            links: DatasetLinks {
+                self_: at(routes::DATASET),
+                tilejson: at(routes::TILEJSON),
+                pyramid: at(routes::PYRAMID),
+                tiles: format!("{}?ranges={{ranges}}", at(routes::TILES)),
+                errors: format!("{}?ranges={{ranges}}", at(routes::ERRORS)),
+                tile: at(routes::TILE),
+                png: format!("{}.png?encoding=terrarium", at(routes::WEB_TILE)),
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fill_replaces_only_the_named_placeholders() {
+        assert_eq!(
+            fill(routes::TILE, &[("name", "a"), ("x", "3")]),
+            "/v1/datasets/a/tiles/{level}/3/{y}"
+        );
+    }
+
+    #[test]
+    fn links_are_the_routes_of_the_dataset() {
+        let meta = Metadata {
+            width: 8193,
+            height: 8193,
+            tile_size: 512,
+            levels: 5,
+            quantization: Quantization {
+                offset: -10_000.0,
+                scale: 0.5,
+                max_error: 0.0,
+            },
+            min_height: -9000.0,
+            max_height: 10_000.0,
+            nodata_count: 0,
+            nodata_fill: "nearest valid sample".into(),
+            georef: None,
+            source: "test".into(),
+            generator: "test".into(),
+            content_hash: "0123456789abcdef".into(),
+        };
+        let info = DatasetInfo::new("moon", &meta, 42);
+        assert_eq!(info.links.self_, "/v1/datasets/moon");
+        assert_eq!(
+            info.links.tiles,
+            "/v1/datasets/moon/levels/{level}/tiles?ranges={ranges}"
+        );
+        assert_eq!(
+            info.links.png,
+            "/v1/datasets/moon/{z}/{x}/{y}.png?encoding=terrarium"
+        );
+        let json = serde_json::to_value(&info).unwrap();
+        assert_eq!(json["links"]["self"], "/v1/datasets/moon");
+        assert_eq!(json["finest_level"], u64::from(meta.levels) - 1);
+        let back: DatasetInfo = serde_json::from_value(json).unwrap();
+        assert_eq!(back, info);
+    }
+}
