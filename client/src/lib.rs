@@ -6,6 +6,7 @@
 //!   quadtrees with power-of-two inner LODs, crack-free edge LODs;
 //! - [`tessellate`]: the exact vertex positions a patch produces;
 //! - [`stream`]: fetching, decoding and the CPU tile pool;
+//! - [`lru`]: the recency list behind the tile pool and the GPU slots;
 //! - [`render`]: the wgpu renderer (emulated tessellation, ≤ 7 terrain draws);
 //! - [`fly`], [`headless`], [`load`]: flights, headless rendering, load tests;
 //! - [`paths`]: the built-in camera paths and path files, and where they put the eye;
@@ -16,6 +17,7 @@ pub mod camera;
 pub mod fly;
 pub mod headless;
 pub mod load;
+pub mod lru;
 pub mod paths;
 pub mod render;
 pub mod report;

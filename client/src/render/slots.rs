@@ -1,25 +1,19 @@
 //! GPU slots: a fixed number of texture-array layers holding resident tiles,
-//! least-recently-used out, the root level pinned (DESIGN §5).
+//! least-recently-used out, the root level pinned (DESIGN §5, [`crate::lru`]).
 //!
 //! Selection only draws tiles that have a slot ([`OnGpu`]), so a tile that has
 //! been decoded but not yet uploaded is drawn through its ancestor, never as a hole.
 
+use crate::lru::TileLru;
 use crate::select::TileTables;
 use crate::stream::pool::TilePool;
-use std::collections::HashMap;
 use tessera_shared::{ErrorTable, TileId};
 
 #[derive(Debug)]
-struct Entry {
-    slot: u32,
-    last_used: u64,
-}
-
-#[derive(Debug)]
 pub struct SlotTable {
-    tiles: HashMap<TileId, Entry>,
+    /// Each resident tile's slot.
+    tiles: TileLru<u32>,
     free: Vec<u32>,
-    clock: u64,
     pub evictions: u64,
 }
 
@@ -27,9 +21,8 @@ impl SlotTable {
     /// `capacity` slots, numbered `0..capacity`.
     pub fn new(capacity: u32) -> Self {
         Self {
-            tiles: HashMap::new(),
+            tiles: TileLru::new(),
             free: (0..capacity).rev().collect(),
-            clock: 1,
             evictions: 0,
         }
     }
@@ -43,22 +36,13 @@ impl SlotTable {
     }
 
     pub fn get(&self, tile: TileId) -> Option<u32> {
-        self.tiles.get(&tile).map(|e| e.slot)
+        self.tiles.get(tile).copied()
     }
 
     /// Marks the tiles drawn this frame, and their ancestors, as used now; starts
     /// a new frame.
     pub fn touch(&mut self, tiles: &[TileId]) {
-        self.clock += 1;
-        for t in tiles {
-            let mut cur = Some(*t);
-            while let Some(c) = cur {
-                if let Some(e) = self.tiles.get_mut(&c) {
-                    e.last_used = self.clock;
-                }
-                cur = c.parent();
-            }
-        }
+        self.tiles.touch(tiles);
     }
 
     /// A slot for `tile`: a free one, else the least recently used one not used
@@ -70,28 +54,18 @@ impl SlotTable {
         let slot = if let Some(s) = self.free.pop() {
             s
         } else {
-            let (&victim, _) = self
-                .tiles
-                .iter()
-                .filter(|(t, e)| t.level().get() > 0 && e.last_used < self.clock)
-                .min_by_key(|(t, e)| (e.last_used, std::cmp::Reverse(t.level().get())))?;
+            let victim = self.tiles.victim(|t| !self.tiles.used_this_frame(t))?;
             self.evictions += 1;
-            self.tiles.remove(&victim)?.slot
+            self.tiles.remove(victim)?
         };
-        self.tiles.insert(
-            tile,
-            Entry {
-                slot,
-                last_used: self.clock,
-            },
-        );
+        self.tiles.insert(tile, slot);
         Some(slot)
     }
 
     /// Forgets a tile (its slot becomes free).
     pub fn release(&mut self, tile: TileId) {
-        if let Some(e) = self.tiles.remove(&tile) {
-            self.free.push(e.slot);
+        if let Some(slot) = self.tiles.remove(tile) {
+            self.free.push(slot);
         }
     }
 }

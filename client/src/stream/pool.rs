@@ -1,27 +1,27 @@
 //! The CPU tile pool: a fixed number of decoded tiles, least-recently-used out,
-//! the root level pinned so there is always an ancestor to draw (DESIGN §5).
+//! the root level pinned so there is always an ancestor to draw (DESIGN §5,
+//! [`crate::lru`]).
 //!
 //! It also knows which tiles cannot be had for now (their fetch failed, or their
 //! record was written off as corrupt; the streamer says so): the selection draws
 //! their children instead, and those children are pinned as the root is, since
 //! they stand in for it (DESIGN §8).
 
+use crate::lru::TileLru;
 use crate::select::{TileTables, World};
-use std::collections::{HashMap, HashSet};
+use std::collections::HashSet;
 use tessera_shared::{ErrorTable, TileId};
 
 #[derive(Debug)]
 pub struct Resident {
     pub errors: ErrorTable,
     pub heights: Vec<u16>,
-    last_used: u64,
 }
 
 #[derive(Debug)]
 pub struct TilePool {
-    tiles: HashMap<TileId, Resident>,
+    tiles: TileLru<Resident>,
     capacity: usize,
-    clock: u64,
     pub evictions: u64,
     /// Tiles that are not resident and cannot be had for now.
     unavailable: HashSet<TileId>,
@@ -31,9 +31,8 @@ impl TilePool {
     /// A pool of at most `capacity` tiles (at least the root and its children).
     pub fn new(capacity: usize) -> Self {
         Self {
-            tiles: HashMap::new(),
+            tiles: TileLru::new(),
             capacity: capacity.max(5),
-            clock: 0,
             evictions: 0,
             unavailable: HashSet::new(),
         }
@@ -48,16 +47,16 @@ impl TilePool {
     }
 
     pub fn contains(&self, tile: TileId) -> bool {
-        self.tiles.contains_key(&tile)
+        self.tiles.contains(tile)
     }
 
     pub fn get(&self, tile: TileId) -> Option<&Resident> {
-        self.tiles.get(&tile)
+        self.tiles.get(tile)
     }
 
     /// Records that `tile` cannot be had for now (until it is inserted).
     pub fn mark_unavailable(&mut self, tile: TileId) {
-        if !self.tiles.contains_key(&tile) {
+        if !self.tiles.contains(tile) {
             self.unavailable.insert(tile);
         }
     }
@@ -79,7 +78,7 @@ impl TilePool {
         }
         let mut cur = Some(parent);
         while let Some(c) = cur {
-            if self.tiles.contains_key(&c) {
+            if self.tiles.contains(c) {
                 return false;
             }
             cur = c.parent();
@@ -88,18 +87,9 @@ impl TilePool {
     }
 
     /// Marks tiles as used now (the ones drawn this frame).
+    /// Their ancestors are used too: selection walks through them.
     pub fn touch(&mut self, tiles: &[TileId]) {
-        self.clock += 1;
-        for t in tiles {
-            // Ancestors are used too: selection walks through them.
-            let mut cur = Some(*t);
-            while let Some(c) = cur {
-                if let Some(r) = self.tiles.get_mut(&c) {
-                    r.last_used = self.clock;
-                }
-                cur = c.parent();
-            }
-        }
+        self.tiles.touch(tiles);
     }
 
     /// Adds a decoded tile, evicting the least recently used tile that no resident
@@ -107,29 +97,17 @@ impl TilePool {
     /// not stand in for an unavailable parent.
     pub fn insert(&mut self, tile: TileId, errors: ErrorTable, heights: Vec<u16>) {
         self.unavailable.remove(&tile);
-        self.tiles.insert(
-            tile,
-            Resident {
-                errors,
-                heights,
-                last_used: self.clock,
-            },
-        );
+        self.tiles.insert(tile, Resident { errors, heights });
         while self.tiles.len() > self.capacity {
-            let victim = self
-                .tiles
-                .iter()
-                .filter(|(t, _)| t.level().get() > 0 && **t != tile)
-                .filter(|(t, _)| !self.stands_in(**t))
-                .filter(|(t, _)| {
-                    t.children()
-                        .is_none_or(|c| c.iter().all(|c| !self.tiles.contains_key(c)))
-                })
-                .min_by_key(|(t, r)| (r.last_used, std::cmp::Reverse(t.level())))
-                .map(|(t, _)| *t);
+            let victim = self.tiles.victim(|t| {
+                t != tile
+                    && !self.stands_in(t)
+                    && t.children()
+                        .is_none_or(|c| c.iter().all(|c| !self.tiles.contains(*c)))
+            });
             match victim {
                 Some(v) => {
-                    self.tiles.remove(&v);
+                    self.tiles.remove(v);
                     self.evictions += 1;
                 }
                 None => break,
@@ -153,7 +131,7 @@ impl TilePool {
             let n = u64::from(level.tiles_per_side());
             let (tx, ty) = ((fx / span).min(n - 1), (fy / span).min(n - 1));
             let tile = TileId::new(level, tx as u32, ty as u32)?;
-            if let Some(r) = self.tiles.get(&tile) {
+            if let Some(r) = self.tiles.get(tile) {
                 let s = g.spacing(level);
                 let (gx, gy) = g.origin(tile);
                 let (u, v) = (((fx - gx) / s) as usize, ((fy - gy) / s) as usize);
@@ -166,7 +144,7 @@ impl TilePool {
 
 impl TileTables for TilePool {
     fn table(&self, tile: TileId) -> Option<&ErrorTable> {
-        self.tiles.get(&tile).map(|r| &r.errors)
+        self.tiles.get(tile).map(|r| &r.errors)
     }
 
     fn unavailable(&self, tile: TileId) -> bool {

@@ -1,0 +1,438 @@
+//! The renderer's device objects and terrain pipeline (one bind group for the
+//! globals, the height and normal arrays and a sampler; one index buffer range per
+//! inner LOD), drawing a frame into the offscreen targets, and resizing them.
+
+use super::slots::SlotTable;
+use super::{DrawStats, RenderOptions, Renderer, capture, gpu::Gpu, instances};
+use crate::camera::Camera;
+use crate::select::{Patch, World};
+use anyhow::Context;
+use glam::DVec3;
+use instances::{Batches, Instance};
+use std::time::Instant;
+use wgpu::util::DeviceExt;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct Globals {
+    view_proj: [[f32; 4]; 4],
+    eye_cell: [i32; 4],
+    eye_frac: [f32; 4],
+    quant: [f32; 4],
+    sun: [f32; 4],
+    haze: [f32; 4],
+    mode: [u32; 4],
+}
+
+const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// Texture-array layer count for `slots` tiles. On GL, wgpu guesses a texture's
+/// view type from its layer count: one layer becomes a plain 2-D texture and a
+/// multiple of six a cube map, and viewing either as an array samples zeros
+/// (PLATFORM.md). Avoid both.
+fn layer_count(slots: u32) -> u32 {
+    let mut n = slots.max(2);
+    while n.is_multiple_of(6) {
+        n += 1;
+    }
+    n
+}
+
+impl Renderer {
+    /// A renderer for `world` with heights in `height_range` (metres, for the tint).
+    pub fn new(
+        world: World,
+        height_range: (f64, f64),
+        opts: RenderOptions,
+    ) -> anyhow::Result<Self> {
+        Self::with_gpu(Gpu::new(opts.backend)?, world, height_range, opts)
+    }
+
+    /// A renderer on an already opened device.
+    pub fn with_gpu(
+        gpu: Gpu,
+        world: World,
+        height_range: (f64, f64),
+        opts: RenderOptions,
+    ) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            opts.width > 0 && opts.height > 0,
+            "viewport {}x{} is empty",
+            opts.width,
+            opts.height
+        );
+        let dim = gpu.limits.max_texture_dimension_2d;
+        anyhow::ensure!(
+            opts.width <= dim && opts.height <= dim,
+            "viewport {}x{} exceeds this GPU's {dim}-pixel limit",
+            opts.width,
+            opts.height
+        );
+        let samples = world.geometry.tile_samples() as u32;
+        let layers = layer_count(opts.slots).min(gpu.limits.max_texture_array_layers);
+        anyhow::ensure!(
+            samples <= dim,
+            "{samples}-sample tiles exceed this GPU's {dim}-texel limit"
+        );
+        let device = &gpu.device;
+        let array = |label, format| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: samples,
+                    height: samples,
+                    depth_or_array_layers: layers,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            })
+        };
+        let heights = array("heights", wgpu::TextureFormat::R16Unorm);
+        let normals = array("normals", wgpu::TextureFormat::Rg8Snorm);
+        let globals = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("globals"),
+            size: size_of::<Globals>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("linear clamp"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
+        let all = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
+        let texture_entry = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: all,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                view_dimension: wgpu::TextureViewDimension::D2Array,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("terrain"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: all,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                texture_entry(1),
+                texture_entry(2),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: all,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let array_view = |t: &wgpu::Texture| {
+            t.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            })
+        };
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("terrain"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: globals.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&array_view(&heights)),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&array_view(&normals)),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: wgpu::BindingResource::Sampler(&sampler),
+                },
+            ],
+        });
+        let capture_layout = capture::bind_group_layout(device);
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("terrain.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("terrain.wgsl").into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("terrain"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let instance_layout = wgpu::VertexBufferLayout {
+            array_stride: size_of::<Instance>() as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &wgpu::vertex_attr_array![0 => Uint32x4, 1 => Uint32x4],
+        };
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("terrain"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_main"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                buffers: &[Some(instance_layout)],
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: wgpu::StencilState::default(),
+                bias: wgpu::DepthBiasState::default(),
+            }),
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: COLOUR_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let (index_data, lod_ranges) = instances::index_buffers();
+        let index = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lod indices"),
+            contents: bytemuck::cast_slice(&index_data),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        let (colour, depth) = targets(device, opts.width, opts.height);
+        gpu.check().context("creating the renderer")?;
+        Ok(Self {
+            slots: SlotTable::new(layers),
+            gpu,
+            world,
+            opts,
+            height_range,
+            heights,
+            normals,
+            globals,
+            bind_group,
+            layout,
+            capture_layout,
+            module,
+            pipeline,
+            index,
+            lod_ranges,
+            instances: None,
+            colour,
+            depth,
+        })
+    }
+
+    fn write_globals(&self, camera: &Camera) {
+        let s = self.world.spacing;
+        let p = camera.position;
+        let cell = (p.x / s).floor().max(0.0).min(f64::from(i32::MAX));
+        let cell_z = (p.z / s).floor().max(0.0).min(f64::from(i32::MAX));
+        let view = glam::DMat4::look_to_rh(DVec3::ZERO, camera.forward(), DVec3::Y);
+        let vp = (camera.projection() * view).as_mat4();
+        // A low sun from the north-west brings out relief.
+        let sun = DVec3::new(-0.7, 0.42, -0.58).normalize().as_vec3();
+        let extent = f64::from(
+            self.world
+                .geometry
+                .width()
+                .max(self.world.geometry.height()),
+        ) * s;
+        let q = self.world.quant;
+        let globals = Globals {
+            view_proj: vp.to_cols_array_2d(),
+            eye_cell: [cell as i32, cell_z as i32, 0, 0],
+            eye_frac: [
+                (p.x - cell * s) as f32,
+                p.y as f32,
+                (p.z - cell_z * s) as f32,
+                s as f32,
+            ],
+            quant: [
+                q.offset as f32,
+                q.scale as f32,
+                self.height_range.0 as f32,
+                self.height_range.1 as f32,
+            ],
+            sun: [sun.x, sun.y, sun.z, 0.0],
+            haze: [0.74, 0.80, 0.88, extent as f32],
+            mode: [
+                self.opts.view as u32,
+                self.opts.parallax as u32,
+                self.world.geometry.tile_size(),
+                0,
+            ],
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.globals, 0, bytemuck::bytes_of(&globals));
+    }
+
+    /// Draws `patches` seen from `camera` into the offscreen target and waits for
+    /// the GPU.
+    pub fn draw(&mut self, camera: &Camera, patches: &[Patch]) -> anyhow::Result<DrawStats> {
+        let started = Instant::now();
+        self.write_globals(camera);
+        let g = self.world.geometry;
+        let batches = Batches::build(&g, patches, |p| self.slots.get(p.tile));
+        let bytes = bytemuck::cast_slice::<Instance, u8>(&batches.instances);
+        let device = &self.gpu.device;
+        if !bytes.is_empty() {
+            let needed = bytes.len() as u64;
+            if self.instances.as_ref().is_none_or(|(_, cap)| *cap < needed) {
+                let cap = needed.next_power_of_two().max(4096);
+                let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("instances"),
+                    size: cap,
+                    usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                self.instances = Some((buffer, cap));
+            }
+            if let Some((buffer, _)) = &self.instances {
+                self.gpu.queue.write_buffer(buffer, 0, bytes);
+            }
+        }
+        let draws = batches.draws();
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("frame"),
+        });
+        {
+            let colour_view = self
+                .colour
+                .create_view(&wgpu::TextureViewDescriptor::default());
+            let depth_view = self
+                .depth
+                .create_view(&wgpu::TextureViewDescriptor::default());
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("terrain"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &colour_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color {
+                            r: 1.0,
+                            g: 0.0,
+                            b: 1.0,
+                            a: 1.0,
+                        }),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            if let Some((buffer, _)) = &self.instances
+                && !draws.is_empty()
+            {
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &self.bind_group, &[]);
+                pass.set_vertex_buffer(0, buffer.slice(..));
+                pass.set_index_buffer(self.index.slice(..), wgpu::IndexFormat::Uint16);
+                for &(n, first, count) in &draws {
+                    let k = n.trailing_zeros() as usize;
+                    pass.draw_indexed(self.lod_ranges[k].clone(), 0, first..first + count);
+                }
+            }
+        }
+        self.gpu.queue.submit([encoder.finish()]);
+        self.gpu.wait().context("rendering a frame")?;
+        Ok(DrawStats {
+            draw_calls: draws.len() as u32,
+            instances: batches.instances.len() as u32,
+            skipped: batches.skipped as u32,
+            render_ms: started.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// Resizes the offscreen targets (a window was resized).
+    pub fn resize(&mut self, width: u32, height: u32) {
+        if width == 0 || height == 0 || (width, height) == (self.opts.width, self.opts.height) {
+            return;
+        }
+        self.opts.width = width;
+        self.opts.height = height;
+        (self.colour, self.depth) = targets(&self.gpu.device, width, height);
+    }
+}
+
+fn targets(device: &wgpu::Device, width: u32, height: u32) -> (wgpu::Texture, wgpu::Texture) {
+    let make = |label, format, usage| {
+        device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    };
+    (
+        make(
+            "colour",
+            COLOUR_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
+        ),
+        make(
+            "depth",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        ),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layer_counts_avoid_what_gl_misreads() {
+        assert_eq!(layer_count(1), 2);
+        assert_eq!(layer_count(6), 7);
+        assert_eq!(layer_count(12), 13);
+        assert_eq!(layer_count(256), 256);
+    }
+}
