@@ -12,11 +12,12 @@ fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_tessera-server"))
 }
 
-fn tmpdir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("tessera-cli-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh directory for one test's files, removed when the test ends.
+fn tmpdir(tag: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("tessera-cli-{tag}-"))
+        .tempdir()
+        .unwrap()
 }
 
 fn build(input: &Path, out: &Path, extra: &[&str]) -> Output {
@@ -68,7 +69,8 @@ fn assert_clean_failure(o: &Output, names: &str, problem: &str, out: &Path) -> S
 
 #[test]
 fn empty_file() {
-    let d = tmpdir("empty");
+    let tmp = tmpdir("empty");
+    let d = tmp.path();
     let input = d.join("empty.tif");
     std::fs::write(&input, b"").unwrap();
     let out = d.join("out.tess");
@@ -77,7 +79,8 @@ fn empty_file() {
 
 #[test]
 fn missing_file() {
-    let d = tmpdir("missing");
+    let tmp = tmpdir("missing");
+    let d = tmp.path();
     let input = d.join("nope.png");
     let out = d.join("out.tess");
     assert_clean_failure(&build(&input, &out, &[]), "nope.png", "no such file", &out);
@@ -85,7 +88,8 @@ fn missing_file() {
 
 #[test]
 fn unknown_format() {
-    let d = tmpdir("unknown");
+    let tmp = tmpdir("unknown");
+    let d = tmp.path();
     let input = d.join("notes.txt");
     std::fs::write(&input, b"just some text, not a raster").unwrap();
     let out = d.join("out.tess");
@@ -100,7 +104,8 @@ fn unknown_format() {
 /// An 8-bit RGB image (a smooth colour photo-like gradient) is not a height map.
 #[test]
 fn eight_bit_rgb_png() {
-    let d = tmpdir("rgb");
+    let tmp = tmpdir("rgb");
+    let d = tmp.path();
     let input = d.join("photo.png");
     {
         let f = std::io::BufWriter::new(std::fs::File::create(&input).unwrap());
@@ -151,7 +156,8 @@ fn tiff_with_unsupported_compression() {
     let Some(src) = testdata::dem_or_skip("luxembourg_elev.tif") else {
         return;
     };
-    let d = tmpdir("jpeg");
+    let tmp = tmpdir("jpeg");
+    let d = tmp.path();
     let mut bytes = std::fs::read(src).unwrap();
     patch_tiff_tag(&mut bytes, 259, 7); // Compression = JPEG
     let input = d.join("jpeg.tif");
@@ -165,7 +171,8 @@ fn truncated_tiff() {
     let Some(src) = testdata::dem_or_skip("bigtujunga.tif") else {
         return;
     };
-    let d = tmpdir("trunc");
+    let tmp = tmpdir("trunc");
+    let d = tmp.path();
     let bytes = std::fs::read(src).unwrap();
     let input = d.join("cut.tif");
     std::fs::write(&input, &bytes[..bytes.len() * 6 / 10]).unwrap();
@@ -178,7 +185,8 @@ fn truncated_png() {
     let Some(src) = testdata::dem_or_skip("jacksboro_fault_dem.png") else {
         return;
     };
-    let d = tmpdir("truncpng");
+    let tmp = tmpdir("truncpng");
+    let d = tmp.path();
     let bytes = std::fs::read(src).unwrap();
     let input = d.join("cut.png");
     std::fs::write(&input, &bytes[..bytes.len() / 2]).unwrap();
@@ -206,8 +214,9 @@ fn unwritable_output_directory() {
     let Some(src) = testdata::dem_or_skip("jacksboro_fault_dem.png") else {
         return;
     };
-    let d = tmpdir("ro");
-    let dir = unwritable_dir(&d);
+    let tmp = tmpdir("ro");
+    let d = tmp.path();
+    let dir = unwritable_dir(d);
     let out = dir.join("out.tess");
     let line = assert_clean_failure(
         &build(&src, &out, &[]),
@@ -223,7 +232,8 @@ fn unwritable_output_directory() {
 
 #[test]
 fn bad_flags_are_refused() {
-    let d = tmpdir("flags");
+    let tmp = tmpdir("flags");
+    let d = tmp.path();
     let out = d.join("out.tess");
     let o = build(Path::new("synthetic:600"), &out, &["--tile-size", "500"]);
     assert_clean_failure(&o, "synthetic:600", "power of two", &out);
@@ -237,7 +247,8 @@ fn bad_flags_are_refused() {
 /// `verify` to exit 1 naming exactly that tile.
 #[test]
 fn verify_names_a_corrupted_tile() {
-    let d = tmpdir("corrupt");
+    let tmp = tmpdir("corrupt");
+    let d = tmp.path();
     let out = d.join("s.tess");
     let o = build(Path::new("synthetic:700:3"), &out, &["--tile-size", "128"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -261,11 +272,12 @@ fn verify_names_a_corrupted_tile() {
 /// `kill -9` during a build leaves nothing at the output path.
 #[test]
 fn killed_build_leaves_no_output() {
-    let d = tmpdir("kill");
+    let tmp = tmpdir("kill");
+    let d = tmp.path();
     let out = d.join("big.tess");
     // A build far too long to finish before the kill (minutes), killed once its
     // partial file exists: the test never passes by default.
-    let mut child = start_long_build(&d, &out);
+    let mut child = start_long_build(d, &out);
     child.kill().unwrap(); // SIGKILL
     let status = child.wait().unwrap();
     assert_eq!(
@@ -279,7 +291,7 @@ fn killed_build_leaves_no_output() {
     let o = build(Path::new("synthetic:300"), &out, &["--tile-size", "64"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.exists());
-    let partials: Vec<_> = std::fs::read_dir(&d)
+    let partials: Vec<_> = std::fs::read_dir(d)
         .unwrap()
         .flatten()
         .filter(|e| e.file_name().to_string_lossy().contains(".partial-"))
@@ -344,13 +356,14 @@ fn damaged_png(d: &Path, name: &str, fix_crc: bool) -> Option<PathBuf> {
 /// the chunk CRC and the zlib Adler-32 must both be checked.
 #[test]
 fn damaged_png_is_an_error_not_a_pyramid() {
-    let d = tmpdir("damaged-png");
+    let tmp = tmpdir("damaged-png");
+    let d = tmp.path();
     let out = d.join("out.tess");
-    let Some(bad_crc) = damaged_png(&d, "flipped.png", false) else {
+    let Some(bad_crc) = damaged_png(d, "flipped.png", false) else {
         return;
     };
     assert_clean_failure(&build(&bad_crc, &out, &[]), "flipped.png", "png", &out);
-    let bad_adler = damaged_png(&d, "adler.png", true).unwrap();
+    let bad_adler = damaged_png(d, "adler.png", true).unwrap();
     let line = assert_clean_failure(&build(&bad_adler, &out, &[]), "adler.png", "corrupt", &out);
     assert!(
         line.to_lowercase().contains("adler") || line.contains("checksum"),
@@ -387,9 +400,10 @@ fn start_long_build(d: &Path, out: &Path) -> std::process::Child {
 #[test]
 fn interrupted_build_removes_its_partial_file() {
     for (sig, code) in [("TERM", 143), ("INT", 130)] {
-        let d = tmpdir(&format!("sig{sig}"));
+        let tmp = tmpdir(&format!("sig{sig}"));
+        let d = tmp.path();
         let out = d.join("big.tess");
-        let child = start_long_build(&d, &out);
+        let child = start_long_build(d, &out);
         let kill = Command::new("kill")
             .arg(format!("-{sig}"))
             .arg(child.id().to_string())
@@ -406,7 +420,8 @@ fn interrupted_build_removes_its_partial_file() {
 /// and leave its partial file) is a clear error that leaves nothing.
 #[test]
 fn full_disk_is_a_clear_error_that_leaves_nothing() {
-    let d = tmpdir("fsize");
+    let tmp = tmpdir("fsize");
+    let d = tmp.path();
     let out = d.join("big.tess");
     let o = Command::new("sh")
         .arg("-c")
@@ -422,7 +437,8 @@ fn full_disk_is_a_clear_error_that_leaves_nothing() {
 /// `preview` used to leave its picture private (mode 0600, the temporary file's).
 #[test]
 fn preview_writes_an_ordinary_file() {
-    let d = tmpdir("preview");
+    let tmp = tmpdir("preview");
+    let d = tmp.path();
     let out = d.join("p.tess");
     let o = build(Path::new("synthetic:300"), &out, &["--tile-size", "64"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

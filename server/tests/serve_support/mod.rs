@@ -1,18 +1,30 @@
-//! Helpers for `serve.rs`: pyramids built once per test binary with the real
-//! `tessera-server build`, a real `tessera-server serve` child process per test
-//! (killed by a drop guard), and small HTTP helpers (reqwest on a private runtime,
-//! plus raw TCP for what a client library would normalise or hide).
+//! Helpers for the `serve_*` and `abuse_*` tests: pyramids built with the real
+//! `tessera-server build` and shared by every test, a real `tessera-server serve`
+//! child process per test (killed by a drop guard), and small HTTP helpers (reqwest
+//! on a private runtime, plus raw TCP for what a client library would normalise or
+//! hide; [`http`]), the Prometheus text format ([`metrics`]) and the readers of what
+//! the server sends ([`stream`]).
 
-use reqwest::header::HeaderMap;
-use std::collections::BTreeMap;
+mod http;
+mod metrics;
+mod stream;
+
+// Each test binary uses some of these.
+#[allow(unused_imports)]
+pub use http::{RawResp, Resp, find, parse_head, raw_get, raw_request};
+#[allow(unused_imports)]
+pub use metrics::{Sample, metric, parse_metrics};
+#[allow(unused_imports)]
+pub use stream::{decode_stream, etag_is_strong, level, open, split_trailer};
+
 use std::ffi::OsString;
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpStream};
+use std::io::{BufRead, BufReader, Read};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex, OnceLock};
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use tessera_shared::{Level, Morton, Pyramid, TileId, testdata};
 
 pub fn bin() -> Command {
@@ -22,7 +34,8 @@ pub fn bin() -> Command {
 // ---------------------------------------------------------------------------
 // Fixtures
 
-/// Pyramids shared by every test of the binary.
+/// Pyramids shared by every test. They are never written to: a test that changes a
+/// file works on a copy in its own `tempfile` directory.
 #[derive(Debug)]
 pub struct Fixtures {
     pub dir: PathBuf,
@@ -42,10 +55,10 @@ pub struct Fixtures {
     pub n44: Option<PathBuf>,
 }
 
-/// Builds the fixtures on first use (all tests of the binary share them).
+/// Finds or builds the fixtures on first use (all tests of the binary share them).
 pub fn fixtures() -> &'static Fixtures {
     static F: OnceLock<Fixtures> = OnceLock::new();
-    F.get_or_init(build_fixtures)
+    F.get_or_init(find_or_build_fixtures)
 }
 
 pub fn build_pyramid(input: &str, out: &Path, tile_size: u32) {
@@ -64,76 +77,117 @@ pub fn build_pyramid(input: &str, out: &Path, tile_size: u32) {
     );
 }
 
-/// Removes fixture directories left by earlier test runs whose process is gone.
-fn remove_stale_dirs(prefix: &str) {
-    let Ok(rd) = std::fs::read_dir(std::env::temp_dir()) else {
-        return;
-    };
-    for e in rd.flatten() {
-        let name = e.file_name().to_string_lossy().to_string();
-        let Some(pid) = name.strip_prefix(prefix) else {
-            continue;
-        };
-        let Ok(pid) = pid.parse::<u32>() else {
-            continue;
-        };
-        if pid != std::process::id() && !Path::new(&format!("/proc/{pid}")).exists() {
+/// `<size>-<mtime>` of a file, in hex.
+fn identity(path: &Path) -> String {
+    let m = std::fs::metadata(path).unwrap();
+    let t = m.modified().unwrap().duration_since(UNIX_EPOCH).unwrap();
+    format!("{:x}-{:x}", m.len(), t.as_nanos())
+}
+
+/// A fixture set unused for this long is removed by the next test binary to start.
+const UNUSED_FOR: Duration = Duration::from_secs(3600);
+
+/// Where the fixtures live. Building them is most of a test binary's work, and the
+/// serve and abuse tests are several binaries, so one set is built per
+/// `tessera-server` binary and set of DEMs (their sizes and modification times name
+/// its directory) under Cargo's scratch directory for integration tests, and shared
+/// by every test binary and every run with that server. A set is built in a
+/// `tempfile` directory beside it and renamed into place whole, so no test sees half
+/// a set and two binaries building at once end with one. Sets unused for an hour
+/// (older servers) and builds abandoned as long are removed.
+fn fixtures_dir(dems: &[Option<&Path>]) -> PathBuf {
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("serve-fixtures");
+    std::fs::create_dir_all(&root).unwrap();
+    let mut key = identity(Path::new(env!("CARGO_BIN_EXE_tessera-server")));
+    for d in dems {
+        key.push('_');
+        key.push_str(&d.map_or_else(|| "absent".to_string(), identity));
+    }
+    let dir = root.join(key);
+    if !dir.is_dir() {
+        let staging = tempfile::Builder::new()
+            .prefix(".building-")
+            .tempdir_in(&root)
+            .unwrap();
+        build_fixture_files(staging.path(), dems[0], dems[1]);
+        match std::fs::rename(staging.path(), &dir) {
+            Ok(()) => {
+                let _ = staging.keep();
+            }
+            // Another test binary renamed the same set into place first: use that one
+            // (ours is removed with `staging`).
+            Err(_) if dir.is_dir() => {}
+            Err(e) => panic!("moving the fixtures to {}: {e}", dir.display()),
+        }
+    }
+    // Mark the set as in use (creating an entry updates the directory's mtime).
+    let mark = dir.join(format!(".in-use-{}", std::process::id()));
+    std::fs::write(&mark, b"").unwrap();
+    let _ = std::fs::remove_file(&mark);
+    for e in std::fs::read_dir(&root).unwrap().flatten() {
+        let unused = e
+            .metadata()
+            .and_then(|m| m.modified())
+            .ok()
+            .and_then(|t| SystemTime::now().duration_since(t).ok())
+            .is_some_and(|age| age > UNUSED_FOR);
+        if e.path() != dir && unused {
             let _ = std::fs::remove_dir_all(e.path());
         }
     }
+    dir
 }
 
-fn build_fixtures() -> Fixtures {
-    const PREFIX: &str = "tessera-serve-test-";
-    if cfg!(target_os = "linux") {
-        remove_stale_dirs(PREFIX);
-    }
-    let dir = std::env::temp_dir().join(format!("{PREFIX}{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-
+/// Builds the fixture files into `dir`.
+fn build_fixture_files(dir: &Path, big_in: Option<&Path>, n44_in: Option<&Path>) {
     let synth = dir.join("synth.tess");
     let synth4k = dir.join("synth4k.tess");
-    let big_in = testdata::dem_or_skip("bigtujunga.tif");
-    let n44_in = testdata::dem_or_skip("N44W072.hgt");
-    let bigtujunga = big_in.as_ref().map(|_| dir.join("bigtujunga.tess"));
-    let n44 = n44_in.as_ref().map(|_| dir.join("N44W072.tess"));
     // The builds are independent: run them side by side.
     std::thread::scope(|s| {
         s.spawn(|| build_pyramid("synthetic:2049:7", &synth, 128));
         s.spawn(|| build_pyramid("synthetic:4097:7", &synth4k, 128));
-        if let (Some(i), Some(o)) = (&big_in, &bigtujunga) {
-            s.spawn(|| build_pyramid(i.to_str().unwrap(), o, 64));
+        if let Some(i) = big_in {
+            s.spawn(|| build_pyramid(i.to_str().unwrap(), &dir.join("bigtujunga.tess"), 64));
         }
-        if let (Some(i), Some(o)) = (&n44_in, &n44) {
-            s.spawn(|| build_pyramid(i.to_str().unwrap(), o, 64));
+        if let Some(i) = n44_in {
+            s.spawn(|| build_pyramid(i.to_str().unwrap(), &dir.join("N44W072.tess"), 64));
         }
     });
 
     // A copy of `synth` with one byte of one finest-level record flipped. The header
     // checksum covers only the header region, so the file still opens.
-    let p = Pyramid::open_file(&synth).unwrap();
-    let finest = p.geometry().finest();
-    let corrupt_tile = TileId::from_morton(finest, Morton::from_raw(37)).unwrap();
-    let e = *p.entry(corrupt_tile).unwrap();
+    let (_, e) = corrupt_tile(&synth);
     let mut bytes = std::fs::read(&synth).unwrap();
     let at = (e.offset + u64::from(e.length) / 2) as usize;
     bytes[at] ^= 0x5a;
-    let corrupt = dir.join("synth-corrupt.tess");
-    std::fs::write(&corrupt, &bytes).unwrap();
+    std::fs::write(dir.join("synth-corrupt.tess"), &bytes).unwrap();
     std::fs::create_dir_all(dir.join("repaired")).unwrap();
-    let repaired = dir.join("repaired").join("synth-corrupt.tess");
-    std::fs::copy(&synth, &repaired).unwrap();
+    std::fs::copy(&synth, dir.join("repaired").join("synth-corrupt.tess")).unwrap();
+}
 
+/// The tile whose record the corrupt copy of `synth` has damaged, and its index entry.
+fn corrupt_tile(synth: &Path) -> (TileId, tessera_shared::format::IndexEntry) {
+    let p = Pyramid::open_file(synth).unwrap();
+    let finest = p.geometry().finest();
+    let tile = TileId::from_morton(finest, Morton::from_raw(37)).unwrap();
+    (tile, *p.entry(tile).unwrap())
+}
+
+fn find_or_build_fixtures() -> Fixtures {
+    let big_in = testdata::dem_or_skip("bigtujunga.tif");
+    let n44_in = testdata::dem_or_skip("N44W072.hgt");
+    let dir = fixtures_dir(&[big_in.as_deref(), n44_in.as_deref()]);
+    let synth = dir.join("synth.tess");
+    let (corrupt_tile, _) = corrupt_tile(&synth);
     Fixtures {
-        dir,
-        synth,
-        corrupt,
+        corrupt: dir.join("synth-corrupt.tess"),
         corrupt_tile,
-        repaired,
-        synth4k,
-        bigtujunga,
-        n44,
+        repaired: dir.join("repaired").join("synth-corrupt.tess"),
+        synth4k: dir.join("synth4k.tess"),
+        bigtujunga: big_in.map(|_| dir.join("bigtujunga.tess")),
+        n44: n44_in.map(|_| dir.join("N44W072.tess")),
+        synth,
+        dir,
     }
 }
 
@@ -189,8 +243,6 @@ impl Server {
         Self::spawn(bin(), files, flags, env)
     }
 
-    // Only some of the test binaries that share this module use it.
-    #[allow(dead_code)]
     /// Serves `files` with the process's open-file limit set to `nofile` (through the
     /// shell's `ulimit`, so the limit is the server's own, as an operator would set it).
     pub fn start_with_fd_limit(files: &[&Path], flags: &[&str], nofile: u32) -> Self {
@@ -359,194 +411,37 @@ impl Drop for Server {
     }
 }
 
-// ---------------------------------------------------------------------------
-// Responses
-
-#[derive(Debug)]
-pub struct Resp {
-    pub path: String,
-    pub status: u16,
-    pub headers: HeaderMap,
-    pub body: Vec<u8>,
-}
-
-impl Resp {
-    pub fn header(&self, name: &str) -> Option<&str> {
-        self.headers.get(name).map(|v| v.to_str().unwrap())
-    }
-
-    /// A header that must be present.
-    pub fn must(&self, name: &str) -> &str {
-        self.header(name)
-            .unwrap_or_else(|| panic!("{}: no {name} header in {:?}", self.path, self.headers))
-    }
-
-    pub fn text(&self) -> String {
-        String::from_utf8_lossy(&self.body).to_string()
-    }
-
-    pub fn json(&self) -> serde_json::Value {
-        serde_json::from_slice(&self.body)
-            .unwrap_or_else(|e| panic!("{}: body is not JSON ({e}): {}", self.path, self.text()))
-    }
-
-    /// Asserts the status and returns the response.
-    pub fn expect(self, status: u16) -> Self {
-        assert_eq!(
-            self.status,
-            status,
-            "GET {}: body {}",
-            self.path,
-            &self.text().chars().take(500).collect::<String>()
-        );
-        self
-    }
-
-    /// Asserts an error response: `status`, a JSON content type, and a body
-    /// `{"error": "<message>"}`; returns the message.
-    pub fn error(&self, status: u16) -> String {
-        assert_eq!(
-            self.status,
-            status,
-            "GET {}: body {}",
-            self.path,
-            self.text()
-        );
-        self.json_error()
-    }
-
-    /// Asserts a JSON error body (whatever the status) and returns its message.
-    pub fn json_error(&self) -> String {
-        let ct = self.header("content-type").unwrap_or("");
-        assert!(
-            ct.starts_with("application/json"),
-            "GET {}: error content type {ct:?}",
-            self.path
-        );
-        let j = self.json();
-        let msg = j["error"]
-            .as_str()
-            .unwrap_or_else(|| panic!("GET {}: no \"error\" string in {j}", self.path))
-            .to_string();
-        assert!(!msg.is_empty(), "GET {}: empty error message", self.path);
-        msg
-    }
-}
-
-// ---------------------------------------------------------------------------
-// Raw HTTP/1.1 over TCP
-
-/// A raw response: status, head (lower-cased header names), body.
-#[derive(Debug)]
-pub struct RawResp {
-    pub status: u16,
-    pub headers: BTreeMap<String, String>,
-    pub body: Vec<u8>,
-}
-
-/// Position of `needle` in `hay`.
-pub fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
-    hay.windows(needle.len()).position(|w| w == needle)
-}
-
-/// Parses a response head (`HTTP/1.1 200 OK\r\nName: value\r\n…`).
-pub fn parse_head(head: &str) -> (u16, BTreeMap<String, String>) {
-    let mut lines = head.split("\r\n");
-    let status_line = lines.next().unwrap();
-    let status = status_line
-        .split(' ')
-        .nth(1)
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("bad status line {status_line:?}"));
-    let headers = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
-        .collect();
-    (status, headers)
-}
-
-/// Sends `GET target` exactly as written (no normalisation) with `Connection: close`
-/// and reads the whole response.
-pub fn raw_get(addr: SocketAddr, target: &str) -> RawResp {
-    raw_request(addr, target, &format!("Host: {addr}\r\n"))
-}
-
-/// Sends `GET target` with exactly the header lines `headers` (each ending in CRLF,
-/// `Host` included or not) plus `Connection: close`, and reads the whole response.
-pub fn raw_request(addr: SocketAddr, target: &str, headers: &str) -> RawResp {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-    write!(
-        s,
-        "GET {target} HTTP/1.1\r\n{headers}Connection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut all = Vec::new();
-    s.read_to_end(&mut all).unwrap();
-    let end = find(&all, b"\r\n\r\n").expect("a response head");
-    let (status, headers) = parse_head(std::str::from_utf8(&all[..end]).unwrap());
-    let body = all[end + 4..].to_vec();
-    if let Some(len) = headers.get("content-length") {
-        assert_eq!(body.len(), len.parse::<usize>().unwrap(), "GET {target}");
-    }
-    RawResp {
-        status,
-        headers,
-        body,
-    }
-}
-
-// ---------------------------------------------------------------------------
-// Prometheus text format
-
-/// One sample line: name, labels, value.
-#[derive(Debug, Clone)]
-pub struct Sample {
-    pub name: String,
-    pub labels: BTreeMap<String, String>,
-    pub value: f64,
-}
-
-/// Parses the sample lines of the text exposition format (label values without
-/// escaped quotes, which is all ours need).
-pub fn parse_metrics(text: &str) -> Vec<Sample> {
-    let mut out = Vec::new();
-    for line in text.lines() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
+/// Runs `serve ARGS` expecting it to refuse to start: returns its stderr. Fails if it
+/// prints its listening line instead (the old behaviour), without waiting for a
+/// timeout.
+pub fn serve_must_refuse(args: &[&str]) -> String {
+    let mut child = bin()
+        .arg("serve")
+        .args(args)
+        .args(["--listen", "127.0.0.1:0"])
+        .env("NO_COLOR", "1")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+        if line.starts_with("listening on") {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("serve {args:?} started instead of refusing");
         }
-        let (series, value) = line.rsplit_once(' ').unwrap();
-        let value: f64 = value.parse().unwrap();
-        let (name, labels) = match series.split_once('{') {
-            Some((n, rest)) => {
-                let rest = rest.strip_suffix('}').unwrap();
-                let labels = rest
-                    .split("\",")
-                    .filter(|kv| !kv.is_empty())
-                    .map(|kv| {
-                        let (k, v) = kv.split_once('=').unwrap();
-                        (k.trim().to_string(), v.trim().trim_matches('"').to_string())
-                    })
-                    .collect();
-                (n.to_string(), labels)
-            }
-            None => (series.to_string(), BTreeMap::new()),
-        };
-        out.push(Sample {
-            name,
-            labels,
-            value,
-        });
     }
-    out
-}
-
-/// The value of an unlabelled metric (0 when absent).
-pub fn metric(samples: &[Sample], name: &str) -> f64 {
-    samples
-        .iter()
-        .filter(|s| s.name == name && s.labels.is_empty())
-        .map(|s| s.value)
-        .sum()
+    let status = child.wait().unwrap();
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert!(!status.success(), "serve {args:?} exited 0: {err}");
+    assert!(!err.contains("panicked"), "serve {args:?} panicked: {err}");
+    err
 }

@@ -1,0 +1,293 @@
+//! Issue 11, serving: what a hostile or careless client or operator asks of a real
+//! `tessera-server serve` — range amplification, reflected Host headers, bytes that
+//! are not UTF-8, sloppy queries, corrupt records read again and again, zero limits,
+//! logs off a terminal — and what must survive.
+//!
+//! No test measures time: deadlines are generous bounds on "eventually", many times
+//! the configured timeout.
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+#[allow(dead_code)] // each test binary uses some of the shared helpers
+mod serve_support;
+
+use serve_support::{
+    Server, bin, fixtures, metric, parse_metrics, raw_get, raw_request, serve_must_refuse,
+};
+use std::io::{BufRead, BufReader, Read};
+use std::process::Stdio;
+use tessera_shared::Pyramid;
+
+// ---------------------------------------------------------------------------
+// 9. Range amplification
+
+#[test]
+fn overlapping_byte_ranges_never_send_more_than_the_file() {
+    let f = fixtures();
+    let file = std::fs::read(&f.synth).unwrap();
+    let size = file.len();
+    let srv = Server::start(&[&f.synth], &[]);
+    let url = "/v1/datasets/synth/pyramid";
+
+    let spec = format!("bytes={}", vec!["0-"; 64].join(","));
+    let r = srv.get_with(url, &[("range", &spec)]);
+    assert!(
+        r.body.len() <= size,
+        "{} bytes for a {size}-byte file",
+        r.body.len()
+    );
+    assert_eq!(r.status, 206);
+    assert_eq!(
+        r.must("content-range"),
+        format!("bytes 0-{}/{size}", size - 1)
+    );
+    assert!(r.body == file);
+
+    // Overlapping and touching ranges become one.
+    let r = srv.get_with(url, &[("range", "bytes=0-9,5-19,20-29")]);
+    assert_eq!(r.status, 206);
+    assert_eq!(r.must("content-range"), format!("bytes 0-29/{size}"));
+    assert!(r.body == file[..30]);
+
+    // Many small overlapping ranges: still at most the bytes they cover, plus parts.
+    let spec: Vec<String> = (0..64)
+        .map(|i| format!("{}-{}", i * 1000, i * 1000 + 1500))
+        .collect();
+    let r = srv.get_with(url, &[("range", &format!("bytes={}", spec.join(",")))]);
+    assert_eq!(r.status, 206);
+    assert_eq!(r.must("content-range"), format!("bytes 0-64500/{size}"));
+    assert!(r.body == file[..=64500]);
+}
+
+// ---------------------------------------------------------------------------
+// 10. Host header
+
+fn tiles_url(srv: &Server, headers: &str) -> String {
+    let r = raw_request(srv.addr, "/v1/datasets/synth/tilejson.json", headers);
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    let j: serde_json::Value = serde_json::from_slice(&r.body).unwrap();
+    j["tiles"][0].as_str().unwrap().to_string()
+}
+
+#[test]
+fn tilejson_urls_never_come_from_the_host_header() {
+    let f = fixtures();
+    let hash = Pyramid::open_file(&f.synth)
+        .unwrap()
+        .metadata()
+        .content_hash
+        .clone();
+    let path = format!("/v1/datasets/synth/{{z}}/{{x}}/{{y}}.png?encoding=terrarium&v={hash}");
+
+    // Default: relative URLs, whatever Host (or none) and forwarded headers say.
+    let srv = Server::start(&[&f.synth], &[]);
+    for headers in [
+        "Host: evil.example\r\n",
+        "",
+        "Host: evil.example\r\nX-Forwarded-Host: evil2.example\r\nX-Forwarded-Proto: https\r\n",
+    ] {
+        let url = tiles_url(&srv, headers);
+        assert_eq!(url, path, "{headers:?}");
+    }
+    // The relative template resolves on this server.
+    let png = srv.get(
+        &path
+            .replace("{z}", "1")
+            .replace("{x}", "0")
+            .replace("{y}", "1"),
+    );
+    assert_eq!(png.expect(200).must("content-type"), "image/png");
+    drop(srv);
+
+    // --public-url: exactly that, whatever the request says.
+    let srv = Server::start(&[&f.synth], &["--public-url", "https://tiles.example.org/"]);
+    for headers in [
+        "Host: evil.example\r\n",
+        "",
+        "X-Forwarded-Host: evil.example\r\n",
+    ] {
+        assert_eq!(
+            tiles_url(&srv, headers),
+            format!("https://tiles.example.org{path}"),
+            "{headers:?}"
+        );
+    }
+    drop(srv);
+
+    // --trust-forwarded: the proxy's headers, checked; never Host.
+    let srv = Server::start(&[&f.synth], &["--trust-forwarded"]);
+    assert_eq!(
+        tiles_url(
+            &srv,
+            "Host: evil.example\r\nX-Forwarded-Host: cdn.example\r\nX-Forwarded-Proto: https\r\n"
+        ),
+        format!("https://cdn.example{path}")
+    );
+    assert_eq!(
+        tiles_url(&srv, "Host: evil.example\r\n"),
+        path,
+        "no forwarded host: relative"
+    );
+    let r = raw_request(
+        srv.addr,
+        "/v1/datasets/synth/tilejson.json",
+        "X-Forwarded-Host: evil.example/x?\r\n",
+    );
+    assert_eq!(r.status, 400);
+    let r = raw_request(
+        srv.addr,
+        "/v1/datasets/synth/tilejson.json",
+        "X-Forwarded-Host: cdn.example\r\nX-Forwarded-Proto: javascript\r\n",
+    );
+    assert_eq!(r.status, 400);
+}
+
+// ---------------------------------------------------------------------------
+// 12. The smaller ones
+
+fn json_error(r: &serve_support::RawResp) -> String {
+    assert!(
+        r.headers
+            .get("content-type")
+            .is_some_and(|t| t.starts_with("application/json")),
+        "{:?}: {}",
+        r.headers,
+        String::from_utf8_lossy(&r.body)
+    );
+    let j: serde_json::Value = serde_json::from_slice(&r.body).unwrap();
+    j["error"].as_str().unwrap().to_string()
+}
+
+#[test]
+fn every_error_is_json_and_sloppy_queries_are_rejected() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    for target in [
+        "/v1/datasets/%ff%fe",
+        "/v1/datasets/%ff%fe/pyramid",
+        "/v1/datasets/synth/levels/%ff/tiles?ranges=0",
+        "/v1/datasets/synth/tiles/1/%c3%28/0",
+    ] {
+        let r = raw_get(srv.addr, target);
+        assert_eq!(r.status, 400, "{target}");
+        let msg = json_error(&r);
+        assert!(msg.contains("UTF-8"), "{target}: {msg}");
+        assert!(
+            !msg.contains('\u{fffd}') && !msg.contains("\\x"),
+            "{target}: {msg}"
+        );
+    }
+    for (query, want) in [
+        ("ranges=+5", "digits only"),
+        ("ranges=%205", "digits only"),
+        ("ranges=5%20", "digits only"),
+        ("ranges=0-%2B3", "digits only"),
+        ("ranges=0&ranges=1", "more than once"),
+        ("ranges=0&v=a&v=b", "more than once"),
+    ] {
+        let r = raw_get(
+            srv.addr,
+            &format!("/v1/datasets/synth/levels/1/tiles?{query}"),
+        );
+        assert_eq!(r.status, 400, "{query}");
+        let msg = json_error(&r);
+        assert!(msg.contains(want), "{query}: {msg}");
+    }
+    // Percent-encoded bytes that are not UTF-8 in the query: a JSON 400 too.
+    let r = raw_get(srv.addr, "/v1/datasets/synth/levels/1/tiles?ranges=%ff");
+    assert_eq!(r.status, 400);
+    assert!(json_error(&r).contains("malformed range"));
+}
+
+#[test]
+fn corrupt_records_are_counted_once_and_reads_every_time() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.corrupt], &[]);
+    let c = f.corrupt_tile;
+    let single = format!(
+        "/v1/datasets/synth-corrupt/tiles/{}/{}/{}",
+        c.level(),
+        c.x(),
+        c.y()
+    );
+    let stream = format!(
+        "/v1/datasets/synth-corrupt/levels/{}/tiles?ranges={}",
+        c.level(),
+        c.morton()
+    );
+    for _ in 0..3 {
+        srv.get(&single).error(500);
+    }
+    srv.get(&stream).expect(200);
+    let m = parse_metrics(&srv.get("/metrics").expect(200).text());
+    assert_eq!(metric(&m, "tessera_corrupt_records_total"), 1.0);
+    assert_eq!(metric(&m, "tessera_corrupt_record_reads_total"), 4.0);
+}
+
+#[test]
+fn zero_limits_are_refused_naming_the_flag() {
+    let f = fixtures();
+    let file = f.synth.to_str().unwrap();
+    for flag in [
+        "--max-ranges",
+        "--max-tiles",
+        "--timeout-secs",
+        "--concurrency",
+        "--header-timeout-secs",
+        "--idle-timeout-secs",
+        "--max-connections",
+    ] {
+        let err = serve_must_refuse(&[file, flag, "0"]);
+        assert!(err.contains(flag), "{flag}: {err}");
+    }
+}
+
+#[test]
+fn logs_have_no_colour_codes_off_a_terminal_and_quiet_keeps_only_errors() {
+    let f = fixtures();
+    let file = f.synth.to_str().unwrap();
+    // A warning at start-up: the cap asked for is above the fd limit.
+    let run = |extra: &[&str]| -> String {
+        let mut child = bin()
+            .arg("serve")
+            .arg(file)
+            .args(["--listen", "127.0.0.1:0", "--max-connections", "100000000"])
+            .args(extra)
+            .env_remove("NO_COLOR")
+            .env_remove("RUST_LOG")
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut out = BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        out.read_line(&mut line).unwrap();
+        let addr = line
+            .trim()
+            .strip_prefix("listening on http://")
+            .unwrap()
+            .to_string();
+        let r = raw_get(addr.parse().unwrap(), "/v1/datasets/nope");
+        assert_eq!(r.status, 404);
+        let _ = child.kill();
+        let _ = child.wait();
+        let mut err = String::new();
+        child
+            .stderr
+            .take()
+            .unwrap()
+            .read_to_string(&mut err)
+            .unwrap();
+        err
+    };
+    let loud = run(&[]);
+    assert!(loud.contains("WARN"), "{loud}");
+    assert!(loud.contains("request"), "{loud}");
+    assert!(!loud.contains('\x1b'), "ANSI codes in a pipe: {loud:?}");
+    let quiet = run(&["-q"]);
+    assert!(
+        !quiet.contains("WARN") && !quiet.contains("INFO"),
+        "{quiet}"
+    );
+}
