@@ -34,7 +34,7 @@ use pool::TilePool;
 use std::collections::{HashMap, HashSet};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
-use tessera_shared::{Level, Morton, TileId, morton};
+use tessera_shared::{Level, Morton, TileId, api, morton, range_query};
 
 /// How tiles are requested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -114,7 +114,9 @@ pub struct Streamer {
     _owned: Option<tokio::runtime::Runtime>,
     rt: tokio::runtime::Handle,
     client: reqwest::Client,
-    base: String,
+    /// The server's root URL, without a trailing `/`.
+    server: String,
+    dataset: String,
     tile_log2: u32,
     config: StreamConfig,
     tx: mpsc::Sender<Event>,
@@ -135,7 +137,8 @@ pub struct Streamer {
 impl std::fmt::Debug for Streamer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Streamer")
-            .field("base", &self.base)
+            .field("server", &self.server)
+            .field("dataset", &self.dataset)
             .field("in_flight", &self.flights.len())
             .field("stats", &self.stats)
             .finish_non_exhaustive()
@@ -186,7 +189,8 @@ impl Streamer {
             _owned: owned,
             rt,
             client,
-            base: format!("{}/v1/datasets/{name}", server.trim_end_matches('/')),
+            server: server.trim_end_matches('/').to_string(),
+            dataset: name.to_string(),
             tile_log2,
             config,
             tx,
@@ -401,17 +405,29 @@ impl Streamer {
                 let task = match self.config.mode {
                     RequestMode::Ranges => {
                         let ranges = morton::coalesce(chunk.iter().copied());
-                        let spec: Vec<String> = ranges.iter().map(ToString::to_string).collect();
+                        let path = api::fill(
+                            api::routes::TILES,
+                            &[("name", &self.dataset), ("level", &level.to_string())],
+                        );
                         let url = format!(
-                            "{}/levels/{level}/tiles?ranges={}",
-                            self.base,
-                            spec.join(",")
+                            "{}{path}?ranges={}",
+                            self.server,
+                            range_query::format(&ranges)
                         );
                         self.rt.spawn(fetch(client, url, id, log2, tx))
                     }
                     RequestMode::Single => {
                         let tile = *tiles.iter().next().expect("one tile per request");
-                        let url = format!("{}/tiles/{level}/{}/{}", self.base, tile.x(), tile.y());
+                        let path = api::fill(
+                            api::routes::TILE,
+                            &[
+                                ("name", &self.dataset),
+                                ("level", &level.to_string()),
+                                ("x", &tile.x().to_string()),
+                                ("y", &tile.y().to_string()),
+                            ],
+                        );
+                        let url = format!("{}{path}", self.server);
                         self.rt.spawn(fetch_one(client, url, tile, id, log2, tx))
                     }
                 };
