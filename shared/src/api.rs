@@ -168,5 +168,7 @@ mod tests {
         assert_eq!(json["finest_level"], u64::from(meta.levels) - 1);
         let back: DatasetInfo = serde_json::from_value(json).unwrap();
         assert_eq!(back, info);
+        // The document itself, as clients see it (API.md).
+        insta::assert_snapshot!(serde_json::to_string_pretty(&info).unwrap());
     }
 }

@@ -35,11 +35,47 @@ impl ApiError {
     }
 }
 
+impl ApiError {
+    /// The JSON body every error response carries.
+    pub fn body(&self) -> serde_json::Value {
+        serde_json::json!({ "error": self.message })
+    }
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let body = serde_json::json!({ "error": self.message });
+        let body = self.body();
         (self.status, Json(body)).into_response()
     }
 }
 
 pub type ApiResult<T> = Result<T, ApiError>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::Level;
+    use tessera_shared::range_query::{self, RangeLimits};
+
+    /// The error bodies clients see (API.md "Errors"): one key, a message naming the
+    /// input and the problem, no debug text.
+    #[test]
+    fn error_bodies_are_stable() {
+        let limits = RangeLimits {
+            max_ranges: 4,
+            max_tiles: 100,
+        };
+        let level = Level::new(3).unwrap();
+        let bodies: Vec<serde_json::Value> = [
+            range_query::parse(None, level, limits),
+            range_query::parse(Some("+5"), level, limits),
+            range_query::parse(Some("0-64"), level, limits),
+            range_query::parse(Some("0-10,5-6"), level, limits),
+        ]
+        .into_iter()
+        .map(|r| ApiError::bad_request(r.unwrap_err().to_string()).body())
+        .chain([ApiError::not_found("no such endpoint; see API.md").body()])
+        .collect();
+        insta::assert_snapshot!(serde_json::to_string_pretty(&bodies).unwrap());
+    }
+}

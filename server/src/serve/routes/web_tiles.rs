@@ -334,6 +334,24 @@ pub async fn tilejson(
 mod tests {
     use super::*;
 
+    /// TileJSON and the dataset description of a real (small) pyramid, as clients
+    /// see them. Builds are deterministic, so the content hash in them is too.
+    #[test]
+    fn tilejson_and_dataset_documents_are_stable() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("snap.tess");
+        let opts = crate::build::BuildOptions {
+            tile_size: 64,
+            ..crate::build::BuildOptions::default()
+        };
+        crate::build::build("synthetic:257:3", &file, &opts).unwrap();
+        let ds = Dataset::open("snap".into(), &file).unwrap();
+        let tilejson = tilejson_doc(&ds, "", Encoding::Terrarium);
+        insta::assert_snapshot!("tilejson", serde_json::to_string_pretty(&tilejson).unwrap());
+        let info = super::super::datasets::describe(&ds);
+        insta::assert_snapshot!("dataset", serde_json::to_string_pretty(&info).unwrap());
+    }
+
     fn terrarium_height([r, g, b]: [u8; 3]) -> f64 {
         f64::from(r) * 256.0 + f64::from(g) + f64::from(b) / 256.0 - 32768.0
     }
