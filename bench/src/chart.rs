@@ -15,9 +15,10 @@
 
 use anyhow::Context;
 use std::path::Path;
-use tessera_client::report::font::{GLYPH_HEIGHT, text_width};
-use tessera_client::report::format_compact;
-use tessera_client::report::plot::{AXIS, BACKGROUND, GRID, PALETTE, TEXT};
+use tessera_charts::font::{GLYPH_HEIGHT, text_width};
+use tessera_charts::format_compact;
+use tessera_charts::plot::{AXIS, BACKGROUND, GRID, PALETTE, TEXT};
+use tessera_charts::stats::nice_step;
 
 /// The report's chart size.
 pub const WIDTH: u32 = 900;
@@ -54,7 +55,7 @@ impl Image {
 
     /// Writes a PNG: to a temporary name beside `path`, then renamed into place.
     pub fn write(&self, path: &Path) -> anyhow::Result<()> {
-        tessera_client::render::png_out::write_png(path, &self.rgba, self.width, self.height)
+        tessera_charts::png::write_png(path, &self.rgba, self.width, self.height)
             .with_context(|| format!("{}: cannot write the chart", path.display()))
     }
 }
@@ -131,10 +132,10 @@ pub fn plain(text: &str) -> String {
     out
 }
 
-/// The client's report raster (`tessera_client::report::canvas`), with the marks
+/// The report raster (`tessera_charts::canvas`), with the marks
 /// charts add on top: lines stamped centred on their points, labels on boxes, markers.
 struct Canvas {
-    raster: tessera_client::report::canvas::Canvas,
+    raster: tessera_charts::canvas::Canvas,
     width: i64,
     height: i64,
 }
@@ -142,7 +143,7 @@ struct Canvas {
 impl Canvas {
     fn new(width: u32, height: u32) -> Self {
         Self {
-            raster: tessera_client::report::canvas::Canvas::new(width, height, BACKGROUND),
+            raster: tessera_charts::canvas::Canvas::new(width, height, BACKGROUND),
             width: i64::from(width),
             height: i64::from(height),
         }
@@ -236,19 +237,6 @@ impl Axis {
         };
         self.near + ((self.far - self.near) as f64 * t).round() as i64
     }
-}
-
-/// The smallest 1, 2 or 5 × 10^k at least `raw` (> 0).
-fn nice_step(raw: f64) -> f64 {
-    if !(raw.is_finite() && raw > 0.0) {
-        return 1.0;
-    }
-    let base = 10f64.powf(raw.log10().floor());
-    [1.0, 2.0, 5.0, 10.0]
-        .into_iter()
-        .map(|m| m * base)
-        .find(|&s| s >= raw * (1.0 - 1e-9))
-        .unwrap_or(10.0 * base)
 }
 
 /// A linear range covering `lo..hi` on multiples of a nice step, and the ticks.

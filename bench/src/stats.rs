@@ -8,18 +8,8 @@
 
 use std::collections::BTreeMap;
 
-/// The median of `values` (the mean of the two middle ones for an even count),
-/// or `None` for none. NaNs sort last and should not be passed.
-pub fn median(values: &[f64]) -> Option<f64> {
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    match n {
-        0 => None,
-        _ if n % 2 == 1 => Some(v[n / 2]),
-        _ => Some(f64::midpoint(v[n / 2 - 1], v[n / 2])),
-    }
-}
+/// The one median of the project (mean of the two middle values for an even count).
+pub use tessera_charts::stats::median;
 
 /// A median with the smallest and largest value it was taken over.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -136,12 +136,9 @@ impl FlySummary {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+/// The median (0 for no values).
+fn median(v: &[f64]) -> f64 {
+    tessera_charts::stats::median(v).unwrap_or(0.0)
 }
 
 impl RenderSummary {
@@ -158,12 +155,19 @@ impl RenderSummary {
             gpu,
             median_triangles: tris.get(tris.len() / 2).copied().unwrap_or(0),
             max_draw_calls: recs.iter().map(|(_, r)| r.draw_calls).max().unwrap_or(0),
-            median_select_ms: median(recs.iter().map(|(s, _)| s.select_us / 1e3).collect()),
-            median_upload_ms: median(recs.iter().map(|(_, r)| r.upload_ms).collect()),
-            median_render_ms: median(recs.iter().map(|(_, r)| r.render_ms).collect()),
+            median_select_ms: median(
+                &recs
+                    .iter()
+                    .map(|(s, _)| s.select_us / 1e3)
+                    .collect::<Vec<_>>(),
+            ),
+            median_upload_ms: median(&recs.iter().map(|(_, r)| r.upload_ms).collect::<Vec<_>>()),
+            median_render_ms: median(&recs.iter().map(|(_, r)| r.render_ms).collect::<Vec<_>>()),
             quality_frames: measured.then_some(quality.len()),
-            median_psnr: measured.then(|| median(quality.iter().filter_map(|r| r.psnr).collect())),
-            median_mse: measured.then(|| median(quality.iter().filter_map(|r| r.mse).collect())),
+            median_psnr: measured
+                .then(|| median(&quality.iter().filter_map(|r| r.psnr).collect::<Vec<_>>())),
+            median_mse: measured
+                .then(|| median(&quality.iter().filter_map(|r| r.mse).collect::<Vec<_>>())),
             total_crack_pixels: measured
                 .then(|| quality.iter().filter_map(|r| r.crack_pixels).sum()),
         }

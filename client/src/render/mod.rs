@@ -25,7 +25,8 @@ pub mod gpu;
 pub mod instances;
 pub mod normals;
 mod pipeline;
-pub mod png_out;
+/// PNG files (the charts crate writes them for the reports too).
+pub use tessera_charts::png as png_out;
 pub mod present;
 pub mod quality;
 mod readback;

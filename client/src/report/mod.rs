@@ -3,7 +3,7 @@
 //!
 //! Everything here is plain CPU raster code on RGBA8 buffers (no GPU, no
 //! dependencies): functions return `(rgba, width, height)` and the caller writes
-//! the PNG, normally with [`crate::render::png_out::write_png`].
+//! the PNG, normally with [`tessera_charts::png::write_png`].
 //!
 //! - [`contact_sheet`]: frames downscaled by area averaging and tiled in a grid,
 //!   each labelled with its frame number; [`pick_evenly`] chooses which frames.
@@ -15,7 +15,7 @@
 //!
 //! ```no_run
 //! use std::path::Path;
-//! use tessera_client::render::png_out::write_png;
+//! use tessera_charts::png::write_png;
 //! use tessera_client::report::{Series, contact_sheet_labelled, pick_evenly_indices, plot_panels};
 //!
 //! # fn main() -> anyhow::Result<()> {
@@ -40,11 +40,10 @@
 //! # }
 //! ```
 
-pub mod canvas;
 pub mod contact_sheet;
 pub mod flight;
-pub mod font;
-pub mod plot;
+// The raster, font and plots live in `tessera-charts`, shared with the benchmarks.
+pub use tessera_charts::{canvas, font, plot};
 
 pub use contact_sheet::{contact_sheet, contact_sheet_labelled, pick_evenly, pick_evenly_indices};
 pub use font::{draw_text, text_width};

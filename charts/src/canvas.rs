@@ -1,7 +1,7 @@
 //! A minimal RGBA8 raster for the report images: filled rectangles, thick lines
 //! and text, all clipped to the image.
 
-use super::font;
+use crate::font;
 
 /// An RGBA8 image, row-major, top row first.
 #[derive(Debug)]

@@ -1,8 +1,9 @@
 //! Line plots of per-frame statistics: one panel per series, stacked vertically,
 //! sharing an x axis of frame numbers.
 
-use super::canvas::Canvas;
-use super::font::{GLYPH_HEIGHT, text_width};
+use crate::canvas::Canvas;
+use crate::font::{GLYPH_HEIGHT, text_width};
+use crate::stats::nice_step;
 
 /// One plotted quantity: a value per frame (frame `i` is `values[i]`).
 /// Non-finite values (NaN, ±∞) are gaps in the line and do not affect the axes.
@@ -219,7 +220,7 @@ fn draw_panel(
     if frames > 0 {
         let widest = i64::from(text_width(&(frames - 1).to_string(), scale));
         let max_ticks = (aw / (widest + 8 * pad)).max(1) as usize;
-        let step = nice_step((frames - 1) as f64 / max_ticks as f64);
+        let step = frame_step((frames - 1) as f64 / max_ticks as f64);
         for f in (0..frames).step_by(step) {
             let x = area.x(f, frames) + LINE / 2;
             canvas.fill_rect(x, area.y0, 1, ah, GRID);
@@ -289,17 +290,10 @@ fn summary(values: &[f64]) -> Option<String> {
     ))
 }
 
-/// The smallest 1, 2 or 5 × 10^k at least `raw`, and at least 1.
-fn nice_step(raw: f64) -> usize {
-    if raw.is_nan() || raw <= 1.0 {
-        return 1;
-    }
-    let base = 10f64.powi(raw.log10().floor() as i32);
-    let m = [1.0, 2.0, 5.0, 10.0]
-        .into_iter()
-        .find(|&m| m * base >= raw)
-        .unwrap_or(10.0);
-    (m * base).round().min(usize::MAX as f64) as usize
+/// Frames between x ticks: a nice step (1, 2, 5 × 10^k) of at least one frame.
+fn frame_step(raw: f64) -> usize {
+    let raw = if raw.is_nan() { 1.0 } else { raw.max(1.0) };
+    (nice_step(raw).round()).min(usize::MAX as f64) as usize
 }
 
 /// `v` in at most three significant digits with an SI-style suffix: `0.25`, `12`,
@@ -598,14 +592,14 @@ mod tests {
 
     #[test]
     fn tick_steps_are_round() {
-        assert_eq!(nice_step(0.3), 1);
-        assert_eq!(nice_step(1.0), 1);
-        assert_eq!(nice_step(1.5), 2);
-        assert_eq!(nice_step(3.0), 5);
-        assert_eq!(nice_step(7.0), 10);
-        assert_eq!(nice_step(10.0), 10);
-        assert_eq!(nice_step(11.0), 20);
-        assert_eq!(nice_step(240.0), 500);
-        assert_eq!(nice_step(f64::NAN), 1);
+        assert_eq!(frame_step(0.3), 1);
+        assert_eq!(frame_step(1.0), 1);
+        assert_eq!(frame_step(1.5), 2);
+        assert_eq!(frame_step(3.0), 5);
+        assert_eq!(frame_step(7.0), 10);
+        assert_eq!(frame_step(10.0), 10);
+        assert_eq!(frame_step(11.0), 20);
+        assert_eq!(frame_step(240.0), 500);
+        assert_eq!(frame_step(f64::NAN), 1);
     }
 }
