@@ -257,14 +257,10 @@ fn settled_quality_frames_converge_and_reuse_cached_references() {
     assert!(close(&rest.0, &rest.1), "{third:?} against {m1:?}");
 }
 
-#[test]
-fn recovers_after_the_server_is_killed_and_restarted() {
-    // The server runs on its own runtime, so killing it (shutting the runtime down)
-    // drops every connection, as a crashed process would.
-    let server_rt = tokio::runtime::Runtime::new().unwrap();
-    let (addr, _task) = start_server(&server_rt, "127.0.0.1:0".parse().unwrap());
+/// A long fast leg that keeps needing new tiles, then a still view to settle on:
+/// the flight of the outage tests (its path file lives in the returned directory).
+fn outage_flight(addr: SocketAddr) -> (tempfile::TempDir, FlyOptions) {
     let dir = tempfile::tempdir().unwrap();
-    // A long fast leg that keeps needing new tiles, then a still view to settle on.
     let path = dir.path().join("leg.json");
     std::fs::write(
         &path,
@@ -272,6 +268,30 @@ fn recovers_after_the_server_is_killed_and_restarted() {
     )
     .unwrap();
     let opts = options(addr, path.to_string_lossy().into_owned(), 300);
+    (dir, opts)
+}
+
+/// After an outage: no holes, the outage noticed, and the last frame back within τ
+/// with nothing left to fetch.
+fn assert_recovered(frames: &[FrameRecord], summary: &tessera_client::fly::FlySummary) {
+    assert_no_holes(frames);
+    assert!(summary.stream.failures > 0, "the outage was not noticed");
+    let last = frames.last().unwrap();
+    assert!(
+        last.select.deficit.is_some_and(|d| d <= 1.0),
+        "no recovery after the restart: deficit {:?}",
+        last.select.deficit
+    );
+    assert_eq!(last.wanted, 0);
+}
+
+#[test]
+fn recovers_after_the_server_is_killed_and_restarted() {
+    // The server runs on its own runtime, so killing it (shutting the runtime down)
+    // drops every connection, as a crashed process would.
+    let server_rt = tokio::runtime::Runtime::new().unwrap();
+    let (addr, _task) = start_server(&server_rt, "127.0.0.1:0".parse().unwrap());
+    let (_dir, opts) = outage_flight(addr);
     let restarter = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(400));
         server_rt.shutdown_background();
@@ -283,15 +303,7 @@ fn recovers_after_the_server_is_killed_and_restarted() {
     });
     let (frames, summary) = run_flight(&opts);
     let _keep = restarter.join().unwrap();
-    assert_no_holes(&frames);
-    assert!(summary.stream.failures > 0, "the outage was not noticed");
-    let last = frames.last().unwrap();
-    assert!(
-        last.select.deficit.is_some_and(|d| d <= 1.0),
-        "no recovery after the restart: deficit {:?}",
-        last.select.deficit
-    );
-    assert_eq!(last.wanted, 0);
+    assert_recovered(&frames, &summary);
 }
 
 /// Set in a copy of this test binary that only serves: the address and the file.
@@ -347,14 +359,7 @@ fn recovers_after_the_server_process_is_killed_with_sigkill() {
         .local_addr()
         .unwrap();
     let mut first = spawn_server_process(addr);
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("leg.json");
-    std::fs::write(
-        &path,
-        r#"{"waypoints": [[0.1, 0.1], [0.6, 0.6]], "speed_mps": 40000, "altitude_agl_m": 400, "pitch_deg": -20}"#,
-    )
-    .unwrap();
-    let opts = options(addr, path.to_string_lossy().into_owned(), 300);
+    let (_dir, opts) = outage_flight(addr);
     let restarter = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(400));
         first.kill().unwrap(); // SIGKILL
@@ -371,15 +376,7 @@ fn recovers_after_the_server_process_is_killed_with_sigkill() {
         Some(9),
         "the first server was not killed by SIGKILL: {killed:?}"
     );
-    assert_no_holes(&frames);
-    assert!(summary.stream.failures > 0, "the outage was not noticed");
-    let last = frames.last().unwrap();
-    assert!(
-        last.select.deficit.is_some_and(|d| d <= 1.0),
-        "no recovery after the restart: deficit {:?}",
-        last.select.deficit
-    );
-    assert_eq!(last.wanted, 0);
+    assert_recovered(&frames, &summary);
 }
 
 /// A real TCP proxy in front of `upstream`, on a port of its own. Every accepted
