@@ -1,25 +1,14 @@
 //! `--help` of `tessera` (the client) and of every command, as snapshots (`insta`): a
 //! change to what users read is a reviewed change of `tests/snapshots/`.
 
-#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
-
-use std::process::Command;
-
-fn help(args: &[&str]) -> String {
-    let o = Command::new(env!("CARGO_BIN_EXE_tessera"))
-        .args(args)
-        .arg("--help")
-        .env("COLUMNS", "100")
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{args:?} --help failed");
-    String::from_utf8(o.stdout).unwrap()
-}
+use std::path::Path;
+use tessera_shared::cli_help::help_text;
 
 #[test]
 fn help_texts_are_stable() {
-    insta::assert_snapshot!("tessera", help(&[]));
+    let bin = Path::new(env!("CARGO_BIN_EXE_tessera"));
+    insta::assert_snapshot!("tessera", help_text(bin, &[]));
     for command in ["load", "fly", "bench-select", "report", "inspect"] {
-        insta::assert_snapshot!(format!("tessera-{command}"), help(&[command]));
+        insta::assert_snapshot!(format!("tessera-{command}"), help_text(bin, &[command]));
     }
 }

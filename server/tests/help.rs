@@ -1,25 +1,17 @@
 //! `--help` of `tessera-server` and of every command, as snapshots (`insta`): a
 //! change to what users read is a reviewed change of `tests/snapshots/`.
 
-#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
-
-use std::process::Command;
-
-fn help(args: &[&str]) -> String {
-    let o = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
-        .args(args)
-        .arg("--help")
-        .env("COLUMNS", "100")
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{args:?} --help failed");
-    String::from_utf8(o.stdout).unwrap()
-}
+use std::path::Path;
+use tessera_shared::cli_help::help_text;
 
 #[test]
 fn help_texts_are_stable() {
-    insta::assert_snapshot!("tessera-server", help(&[]));
+    let bin = Path::new(env!("CARGO_BIN_EXE_tessera-server"));
+    insta::assert_snapshot!("tessera-server", help_text(bin, &[]));
     for command in ["build", "serve", "verify", "preview", "info"] {
-        insta::assert_snapshot!(format!("tessera-server-{command}"), help(&[command]));
+        insta::assert_snapshot!(
+            format!("tessera-server-{command}"),
+            help_text(bin, &[command])
+        );
     }
 }

@@ -21,6 +21,8 @@ pub mod triangulation;
 pub mod wire;
 
 #[cfg(feature = "testdata")]
+pub mod cli_help;
+#[cfg(feature = "testdata")]
 pub mod testdata;
 
 pub use error_table::ErrorTable;
