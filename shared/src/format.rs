@@ -310,7 +310,7 @@ mod tests {
     /// (`UnexpectedEnd { additional: 3 }`) reaches users.
     #[test]
     fn damaged_metadata_says_what_is_wrong_in_words() {
-        let meta = crate::Metadata {
+        let meta = Metadata {
             width: 600,
             height: 600,
             tile_size: 64,
