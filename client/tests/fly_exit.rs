@@ -10,6 +10,31 @@ use std::io::{BufRead, BufReader, Write};
 use std::net::TcpListener;
 use std::process::Command;
 
+/// The contract's description of a 1025² dataset of 512-cell tiles, as the real
+/// server would send it.
+fn terrain_document() -> String {
+    let meta = tessera_shared::Metadata {
+        width: 1025,
+        height: 1025,
+        tile_size: 512,
+        levels: 2,
+        quantization: tessera_shared::Quantization {
+            offset: 0.0,
+            scale: 1.0,
+            max_error: 0.0,
+        },
+        min_height: 0.0,
+        max_height: 1000.0,
+        nodata_count: 0,
+        nodata_fill: "none".into(),
+        georef: None,
+        source: "stand-in".into(),
+        generator: "fly_exit test".into(),
+        content_hash: "0123456789abcdef".into(),
+    };
+    serde_json::to_string(&tessera_shared::api::DatasetInfo::new("terrain", &meta, 0)).unwrap()
+}
+
 /// Serves `/v1/datasets/terrain` (a 1025² dataset of 512-cell tiles) and a 503 with
 /// a JSON reason for everything else, one connection at a time, until the process
 /// ends. Returns the base URL and a counter of tile requests.
@@ -36,15 +61,12 @@ fn failing_server() -> (String, std::sync::Arc<std::sync::atomic::AtomicU32>) {
                     }
                     let target = request.split(' ').nth(1).unwrap_or_default();
                     let (status, body) = if target == "/v1/datasets/terrain" {
-                        (
-                            "200 OK",
-                            r#"{"name":"terrain","width":1025,"height":1025,"tile_size":512,"levels":2,"quantization":{"offset":0.0,"scale":1.0,"max_error":0.0},"min_height":0.0,"max_height":1000.0,"georef":null}"#,
-                        )
+                        ("200 OK", terrain_document())
                     } else {
                         count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         (
                             "503 Service Unavailable",
-                            r#"{"error":"storage unavailable"}"#,
+                            r#"{"error":"storage unavailable"}"#.to_string(),
                         )
                     };
                     let head = format!(
