@@ -301,7 +301,7 @@ mod tests {
             self, FileHeader, HEADER_LEN, INDEX_ENTRY_LEN, IndexEntry, LEVEL_ENTRY_LEN, LevelEntry,
             VERSION,
         };
-        use tessera_shared::{ErrorTable, Metadata, Quantization, TileGeometry, codec};
+        use tessera_shared::{ErrorTable, Metadata, TileGeometry, codec};
         let g = TileGeometry::new(width, height, 64).unwrap();
         let side = g.tile_samples();
         // Records level by level (relative offsets for now) and each level's index.
@@ -332,23 +332,8 @@ mod tests {
             levels.push((start, records.len() as u64 - start, index));
         }
         let meta = Metadata {
-            width,
-            height,
-            tile_size: g.tile_size(),
-            levels: g.level_count(),
-            quantization: Quantization {
-                offset: -1000.0,
-                scale: 0.5,
-                max_error: 0.0,
-            },
-            min_height: -1000.0,
-            max_height: 3500.0,
-            nodata_count: 0,
-            nodata_fill: String::new(),
-            georef: None,
-            source: "test".into(),
-            generator: "test".into(),
             content_hash: String::new(),
+            ..tessera_shared::fixtures::metadata(width, height, g.tile_size())
         };
         let meta_bytes = format::encode_metadata(&meta);
         let table_len = levels.len() * LEVEL_ENTRY_LEN;

@@ -14,23 +14,14 @@ use std::process::Command;
 /// server would send it.
 fn terrain_document() -> String {
     let meta = tessera_shared::Metadata {
-        width: 1025,
-        height: 1025,
-        tile_size: 512,
-        levels: 2,
+        min_height: 0.0,
+        max_height: 1000.0,
         quantization: tessera_shared::Quantization {
             offset: 0.0,
             scale: 1.0,
             max_error: 0.0,
         },
-        min_height: 0.0,
-        max_height: 1000.0,
-        nodata_count: 0,
-        nodata_fill: "none".into(),
-        georef: None,
-        source: "stand-in".into(),
-        generator: "fly_exit test".into(),
-        content_hash: "0123456789abcdef".into(),
+        ..tessera_shared::fixtures::metadata(1025, 1025, 512)
     };
     serde_json::to_string(&tessera_shared::api::DatasetInfo::new("terrain", &meta, 0)).unwrap()
 }

@@ -156,7 +156,7 @@ pub fn render(i: &Info) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tessera_shared::{GeoRef, Quantization, RasterType};
+    use tessera_shared::{GeoRef, RasterType};
 
     /// olinda_dem_utm25s.tif names its CRS ("WGS 84 / UTM zone 25S") without an EPSG
     /// code; `info` used to print "unknown CRS" for it.
@@ -169,23 +169,8 @@ mod tests {
             raster_type: RasterType::PixelIsArea,
         };
         let metadata = Metadata {
-            width: 111,
-            height: 111,
-            tile_size: 64,
-            levels: 2,
-            quantization: Quantization {
-                offset: 0.0,
-                scale: 0.01,
-                max_error: 0.005,
-            },
-            min_height: 0.0,
-            max_height: 300.0,
-            nodata_count: 0,
-            nodata_fill: "nearest valid sample".into(),
             georef: Some(georef.clone()),
-            source: "GeoTIFF float32".into(),
-            generator: "test".into(),
-            content_hash: "0123456789abcdef".into(),
+            ..tessera_shared::fixtures::metadata(111, 111, 64)
         };
         let info = Info {
             file: "olinda.tess".into(),

@@ -14,7 +14,7 @@ mod serve_support;
 use serve_support::{
     Server, bin, fixtures, metric, parse_metrics, raw_get, raw_request, serve_must_refuse,
 };
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 use tessera_shared::Pyramid;
 
@@ -272,14 +272,7 @@ fn logs_have_no_colour_codes_off_a_terminal_and_quiet_keeps_only_errors() {
         assert_eq!(r.status, 404);
         let _ = child.kill();
         let _ = child.wait();
-        let mut err = String::new();
-        child
-            .stderr
-            .take()
-            .unwrap()
-            .read_to_string(&mut err)
-            .unwrap();
-        err
+        serve_support::take_stderr(&mut child)
     };
     let loud = run(&[]);
     assert!(loud.contains("WARN"), "{loud}");

@@ -134,25 +134,7 @@ mod tests {
 
     #[test]
     fn links_are_the_routes_of_the_dataset() {
-        let meta = Metadata {
-            width: 8193,
-            height: 8193,
-            tile_size: 512,
-            levels: 5,
-            quantization: Quantization {
-                offset: -10_000.0,
-                scale: 0.5,
-                max_error: 0.0,
-            },
-            min_height: -9000.0,
-            max_height: 10_000.0,
-            nodata_count: 0,
-            nodata_fill: "nearest valid sample".into(),
-            georef: None,
-            source: "test".into(),
-            generator: "test".into(),
-            content_hash: "0123456789abcdef".into(),
-        };
+        let meta = crate::fixtures::metadata(8193, 8193, 512);
         let info = DatasetInfo::new("moon", &meta, 42);
         assert_eq!(info.links.self_, "/v1/datasets/moon");
         assert_eq!(

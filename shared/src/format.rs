@@ -310,25 +310,7 @@ mod tests {
     /// (`UnexpectedEnd { additional: 3 }`) reaches users.
     #[test]
     fn damaged_metadata_says_what_is_wrong_in_words() {
-        let meta = Metadata {
-            width: 600,
-            height: 600,
-            tile_size: 64,
-            levels: 5,
-            quantization: crate::Quantization {
-                offset: 0.0,
-                scale: 1.0,
-                max_error: 0.0,
-            },
-            min_height: 0.0,
-            max_height: 1.0,
-            nodata_count: 0,
-            nodata_fill: "none".into(),
-            georef: None,
-            source: "test".into(),
-            generator: "test".into(),
-            content_hash: "0123456789abcdef".into(),
-        };
+        let meta = crate::fixtures::metadata(600, 600, 64);
         let bytes = encode_metadata(&meta);
         let err = decode_metadata(&bytes[..bytes.len() - 3]).unwrap_err();
         assert!(err.starts_with("metadata is truncated"), "{err}");

@@ -23,6 +23,8 @@ pub mod wire;
 #[cfg(feature = "testdata")]
 pub mod cli_help;
 #[cfg(feature = "testdata")]
+pub mod fixtures;
+#[cfg(feature = "testdata")]
 pub mod testdata;
 
 pub use error_table::ErrorTable;

@@ -131,25 +131,7 @@ mod tests {
 
     #[test]
     fn content_hash_must_be_16_lowercase_hex_digits() {
-        let mut m = Metadata {
-            width: 1,
-            height: 1,
-            tile_size: 64,
-            levels: 1,
-            quantization: Quantization {
-                offset: 0.0,
-                scale: 1.0,
-                max_error: 0.0,
-            },
-            min_height: 0.0,
-            max_height: 0.0,
-            nodata_count: 0,
-            nodata_fill: String::new(),
-            georef: None,
-            source: String::new(),
-            generator: String::new(),
-            content_hash: "0123456789abcdef".into(),
-        };
+        let mut m = crate::fixtures::metadata(65, 65, 64);
         assert!(m.check_content_hash().is_ok());
         for bad in [
             "",

@@ -176,9 +176,9 @@ mod tests {
     use super::*;
     use tessera_shared::{Level, Quantization, TileGeometry};
 
-    #[test]
-    fn an_eye_inside_a_block_box_has_no_bound_except_at_zero_error() {
-        let world = World {
+    /// One 512-cell root tile of 10 m cells, heights stored exactly.
+    fn root_world() -> World {
+        World {
             geometry: TileGeometry::new(513, 513, 512).unwrap(),
             quant: Quantization {
                 offset: 0.0,
@@ -186,7 +186,12 @@ mod tests {
                 max_error: 0.0,
             },
             spacing: 10.0,
-        };
+        }
+    }
+
+    #[test]
+    fn an_eye_inside_a_block_box_has_no_bound_except_at_zero_error() {
+        let world = root_world();
         let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
         let mut table = ErrorTable::empty(9);
         for n in 0..=9 {
@@ -210,15 +215,7 @@ mod tests {
 
     #[test]
     fn the_distance_policy_ignores_roughness_and_the_error_policy_does_not() {
-        let world = World {
-            geometry: TileGeometry::new(513, 513, 512).unwrap(),
-            quant: Quantization {
-                offset: 0.0,
-                scale: 1.0,
-                max_error: 0.0,
-            },
-            spacing: 10.0,
-        };
+        let world = root_world();
         let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
         let table = |err: f32| {
             let mut t = ErrorTable::empty(9);

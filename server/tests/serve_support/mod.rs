@@ -434,14 +434,20 @@ pub fn serve_must_refuse(args: &[&str]) -> String {
         }
     }
     let status = child.wait().unwrap();
+    let err = take_stderr(&mut child);
+    assert!(!status.success(), "serve {args:?} exited 0: {err}");
+    assert!(!err.contains("panicked"), "serve {args:?} panicked: {err}");
+    err
+}
+
+/// Everything a (finished or killed) child wrote to its piped stderr.
+pub fn take_stderr(child: &mut Child) -> String {
     let mut err = String::new();
     child
         .stderr
         .take()
-        .unwrap()
+        .expect("stderr is piped")
         .read_to_string(&mut err)
         .unwrap();
-    assert!(!status.success(), "serve {args:?} exited 0: {err}");
-    assert!(!err.contains("panicked"), "serve {args:?} panicked: {err}");
     err
 }
