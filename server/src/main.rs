@@ -5,7 +5,8 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use tessera_server::build::interrupt::{Interrupt, Interrupted};
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::build::{BuildOptions, build_inputs};
+use tessera_server::ingest::{InputSpec, Overlap};
 use tessera_server::{info, preview, verify};
 
 #[derive(Debug, Parser)]
@@ -25,14 +26,32 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Build a pyramid from a DEM (out of core: memory stays under --memory).
+    /// Build a pyramid from a DEM or a mosaic of DEMs (out of core: memory stays under --memory).
     ///
     /// INPUT is a GeoTIFF (int16/uint16/float32; striped or tiled; none/deflate/LZW/PackBits),
-    /// a 16-bit grayscale PNG, an SRTM .hgt file, or synthetic:SIZE[:SEED] for a
-    /// deterministic fractal terrain of SIZE×SIZE samples.
+    /// a 16-bit grayscale PNG, an SRTM .hgt file, a GDAL .vrt (the sources gdalbuildvrt
+    /// writes, copied 1:1), or synthetic:SIZE[:SEED] for a deterministic fractal terrain of
+    /// SIZE×SIZE samples.
+    ///
+    /// Several inputs make one mosaic: `build A.tif B.tif`, `build DIR/` (its .tif, .tiff,
+    /// .hgt and .png files, sorted), `build 'tiles/*.hgt'` (a quoted glob, sorted), `build
+    /// --inputs LIST.txt`, or a VRT. Inputs must share a CRS and a grid (same spacing,
+    /// origins on one lattice); samples no input covers are no-data, and so is each
+    /// input's own no-data value. Inputs are opened only while the rows being read cross
+    /// them.
     Build {
-        /// The DEM to read, or synthetic:SIZE[:SEED].
-        input: String,
+        /// The DEMs to read (files, directories, quoted glob patterns, .vrt files), or
+        /// synthetic:SIZE[:SEED].
+        #[arg(value_name = "INPUT", required_unless_present = "inputs_list")]
+        input: Vec<String>,
+        /// A text file naming inputs, one per line (files, directories or patterns,
+        /// relative to the list's folder; blank lines and lines starting with # are skipped).
+        #[arg(long = "inputs", value_name = "LIST")]
+        inputs_list: Option<PathBuf>,
+        /// Where overlapping inputs disagree (two valid samples differ): the input given
+        /// first wins, the last wins, or the build stops naming the sample and both files.
+        #[arg(long, value_enum, default_value_t = Overlap::Error)]
+        overlap: Overlap,
         /// The pyramid file to write (e.g. dem.tess). Written to a temporary file beside
         /// it and renamed into place only when complete and verified.
         #[arg(short, long)]
@@ -46,7 +65,7 @@ enum Command {
         /// Add this after scaling to get metres (e.g. -10000 for the moon mosaics).
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         offset: f64,
-        /// Input value that means "no data", overriding the file's own (e.g. GDAL_NODATA).
+        /// Input value that means "no data", overriding each file's own (e.g. GDAL_NODATA).
         #[arg(long, allow_negative_numbers = true)]
         nodata: Option<f64>,
         /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
@@ -154,6 +173,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Build {
             input,
+            inputs_list,
+            overlap,
             output,
             tile_size,
             scale,
@@ -168,10 +189,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 offset,
                 memory_budget: memory,
                 nodata,
+                overlap,
                 progress: !quiet,
                 interrupt: Interrupt::install().context("cannot watch SIGINT/SIGTERM")?,
             };
-            let r = match build(&input, &output, &opts) {
+            let inputs = InputSpec {
+                args: input,
+                list: inputs_list,
+            };
+            let r = match build_inputs(&inputs, &output, &opts) {
                 Ok(r) => r,
                 Err(e) => {
                     if let Some(Interrupted(sig)) = e.downcast_ref::<Interrupted>() {

@@ -9,7 +9,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::build::{BuildOptions, build, build_inputs};
+use tessera_server::ingest::InputSpec;
 
 /// The system allocator, counting live bytes and their peak.
 struct Counting;
@@ -165,5 +166,67 @@ fn a_png_header_that_lies_about_its_size_is_refused_before_allocating() {
         leftovers(dir.path()).is_empty(),
         "{:?}",
         leftovers(dir.path())
+    );
+}
+
+/// Writes SRTM tile `N{lat}E010.hgt` (1201², big-endian int16) of a terrain defined
+/// on the whole column of tiles, so neighbours agree on their shared border row.
+fn write_hgt(dir: &Path, lat: u32, tiles: u32) -> std::path::PathBuf {
+    let path = dir.join(format!("N{lat:02}E010.hgt"));
+    let mut bytes = Vec::with_capacity(1201 * 1201 * 2);
+    for y in 0..1201u32 {
+        // Rows run north to south; the northernmost tile's first row is row 0.
+        let g = (tiles - 1 - lat) * 1200 + y;
+        for x in 0..1201u32 {
+            let v = 100 + ((x * 3 + g * 5) % 1000) as i16;
+            bytes.extend_from_slice(&v.to_be_bytes());
+        }
+    }
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
+/// A mosaic's inputs are opened only while the rows being read cross them, so its
+/// memory does not grow with their number: 8 SRTM tiles in a column (1201 × 9601
+/// samples, 23 MB of input), built from their directory within 64 MiB.
+#[test]
+fn a_mosaic_of_many_tiles_stays_inside_the_budget() {
+    let _serial = SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = tempfile::tempdir().unwrap();
+    let tiles = dir.path().join("tiles");
+    std::fs::create_dir(&tiles).unwrap();
+    for lat in 0..8 {
+        write_hgt(&tiles, lat, 8);
+    }
+    let out = dir.path().join("column.tess");
+    let budget = 64u64 << 20;
+    let opts = BuildOptions {
+        memory_budget: budget,
+        ..BuildOptions::default()
+    };
+    let inputs = InputSpec {
+        args: vec![tiles.to_string_lossy().into_owned()],
+        list: None,
+    };
+    let (report, peak) = peak_during(|| build_inputs(&inputs, &out, &opts));
+    let report = report.unwrap();
+    assert_eq!(
+        (report.metadata.width, report.metadata.height),
+        (1201, 9601)
+    );
+    assert_eq!(report.metadata.nodata_count, 0, "the tiles leave no gap");
+    assert!(
+        report
+            .metadata
+            .source
+            .starts_with("mosaic of 8 SRTM .hgt int16 inputs"),
+        "{}",
+        report.metadata.source
+    );
+    assert!(
+        peak as u64 <= budget,
+        "the mosaic build allocated {peak} bytes at its peak, over the {budget}-byte budget"
     );
 }

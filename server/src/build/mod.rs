@@ -45,8 +45,10 @@ pub struct BuildOptions {
     pub offset: f64,
     /// Bound on the memory the build uses, in bytes.
     pub memory_budget: u64,
-    /// Overrides the input's own no-data value.
+    /// Overrides the input's own no-data value (each input's, in a mosaic).
     pub nodata: Option<f64>,
+    /// Which input wins where a mosaic's inputs overlap and disagree.
+    pub overlap: ingest::Overlap,
     /// Show progress bars (on a terminal).
     pub progress: bool,
     /// Set by SIGINT/SIGTERM (when installed): the build stops and cleans up.
@@ -61,6 +63,7 @@ impl Default for BuildOptions {
             offset: 0.0,
             memory_budget: 512 << 20,
             nodata: None,
+            overlap: ingest::Overlap::Error,
             progress: false,
             interrupt: interrupt::Interrupt::default(),
         }
@@ -108,14 +111,28 @@ fn bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
     b
 }
 
-/// Builds `output` from `input` (a file path or `synthetic:SIZE[:SEED]`).
+/// Builds `output` from `input` (a file path, a VRT or `synthetic:SIZE[:SEED]`).
 pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<BuildReport> {
+    build_inputs(&ingest::InputSpec::one(input), output, opts)
+}
+
+/// Builds `output` from one input or a mosaic of many ([`ingest::open_inputs`]).
+pub fn build_inputs(
+    inputs: &ingest::InputSpec,
+    output: &Path,
+    opts: &BuildOptions,
+) -> anyhow::Result<BuildReport> {
     let started = Instant::now();
     anyhow::ensure!(
         opts.scale.is_finite() && opts.scale > 0.0 && opts.offset.is_finite(),
         "--scale must be a positive number and --offset a finite number"
     );
-    let source = ingest::open(input)?;
+    let ingest::Opened {
+        input: source,
+        label,
+        source_name,
+    } = ingest::open_inputs(inputs, opts.nodata, opts.overlap)?;
+    let input = label.as_str();
     let (width, height) = match &source {
         Input::Rows(r) => (r.info().width, r.info().height),
         Input::Synthetic(s) => (s.width(), s.height()),
@@ -147,7 +164,7 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
         nodata_count: 0,
         nodata_fill: "nearest valid sample".into(),
         georef,
-        source: format!("{description} ({})", file_name(input)),
+        source: format!("{description} ({source_name})"),
         generator: format!("tessera-server {}", env!("CARGO_PKG_VERSION")),
         content_hash: String::new(),
     };
@@ -191,12 +208,6 @@ pub fn build(input: &str, output: &Path, opts: &BuildOptions) -> anyhow::Result<
             build_tiles(&synth, geometry, &mut meta, writer, opts, &plan, started)
         }
     }
-}
-
-fn file_name(input: &str) -> String {
-    Path::new(input)
-        .file_name()
-        .map_or_else(|| input.to_string(), |n| n.to_string_lossy().into_owned())
 }
 
 /// Room for the metadata once its numbers are final (they are all fixed-size or small).

@@ -4,8 +4,14 @@
 
 pub mod geotiff;
 pub mod hgt;
+pub mod inputs;
+pub mod mosaic;
 pub mod png16;
 pub mod synthetic;
+pub mod vrt;
+
+pub use inputs::InputSpec;
+pub use mosaic::{Mosaic, Overlap};
 
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
@@ -72,8 +78,62 @@ pub enum Input {
     Synthetic(synthetic::Synthetic),
 }
 
-/// Opens an input by name: `synthetic:SIZE[:SEED]`, or a file whose format is found
-/// from its content (TIFF and PNG signatures) or, for SRTM, its `.hgt` name.
+/// An opened input and how to name it.
+#[derive(Debug)]
+pub struct Opened {
+    pub input: Input,
+    /// How build errors name it: the argument as given, or "mosaic of 16 inputs".
+    pub label: String,
+    /// What the metadata's `source` names: the file, or the first file and the count.
+    pub source_name: String,
+}
+
+/// Opens what `build` was asked to read: one file (read exactly as before mosaics),
+/// a synthetic terrain, or a [`Mosaic`] of several files or a VRT. `nodata` overrides
+/// each input's own no-data value; `overlap` settles overlapping inputs that disagree.
+pub fn open_inputs(
+    spec: &InputSpec,
+    nodata: Option<f64>,
+    overlap: Overlap,
+) -> anyhow::Result<Opened> {
+    let files = match inputs::expand(spec)? {
+        inputs::Expanded::Synthetic(s) => {
+            return Ok(Opened {
+                input: open(&s)?,
+                source_name: file_name(&s),
+                label: s,
+            });
+        }
+        inputs::Expanded::Files(files) => files,
+    };
+    if let [one] = files.as_slice()
+        && !vrt::is_vrt(one)
+    {
+        let label = one.display().to_string();
+        return Ok(Opened {
+            input: open(&label)?,
+            source_name: file_name(&label),
+            label,
+        });
+    }
+    let mosaic = Mosaic::open(&files, nodata, overlap, open_raster)?;
+    Ok(Opened {
+        label: mosaic.label().to_string(),
+        source_name: mosaic.source_name().to_string(),
+        input: Input::Rows(Box::new(mosaic)),
+    })
+}
+
+/// The file name of an input argument, for the metadata.
+pub fn file_name(input: &str) -> String {
+    Path::new(input)
+        .file_name()
+        .map_or_else(|| input.to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Opens an input by name: `synthetic:SIZE[:SEED]`, a GDAL VRT (as a [`Mosaic`] of its
+/// sources), or a file whose format is found from its content (TIFF and PNG
+/// signatures) or, for SRTM, its `.hgt` name.
 pub fn open(input: &str) -> anyhow::Result<Input> {
     if let Some(spec) = input.strip_prefix("synthetic:") {
         return Ok(Input::Synthetic(
@@ -83,10 +143,16 @@ pub fn open(input: &str) -> anyhow::Result<Input> {
         ));
     }
     let path = PathBuf::from(input);
-    open_file(&path).with_context(|| path.display().to_string())
+    if vrt::is_vrt(&path) {
+        let mosaic = Mosaic::open(&[path], None, Overlap::default(), open_raster)?;
+        return Ok(Input::Rows(Box::new(mosaic)));
+    }
+    let (source, _) = open_raster(&path).with_context(|| path.display().to_string())?;
+    Ok(Input::Rows(source))
 }
 
-fn open_file(path: &Path) -> anyhow::Result<Input> {
+/// Opens a raster file (not a VRT): its reader and its format's name.
+pub fn open_raster(path: &Path) -> anyhow::Result<(Box<dyn RowSource>, &'static str)> {
     let meta = std::fs::metadata(path).context("cannot read input")?;
     if !meta.is_file() {
         bail!("input is not a regular file");
@@ -100,20 +166,21 @@ fn open_file(path: &Path) -> anyhow::Result<Input> {
     let is_hgt = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("hgt"));
-    let source: Box<dyn RowSource> = if magic.starts_with(b"II*\0")
-        || magic.starts_with(b"MM\0*")
-        || magic.starts_with(b"II+\0")
-        || magic.starts_with(b"MM\0+")
-    {
-        Box::new(geotiff::GeoTiff::open(path)?)
-    } else if magic.starts_with(b"\x89PNG\r\n\x1a\n") {
-        Box::new(png16::Png16::open(path)?)
-    } else if is_hgt {
-        Box::new(hgt::Hgt::open(path)?)
-    } else {
-        bail!(
-            "unrecognised input format (expected a GeoTIFF, a 16-bit grayscale PNG, an SRTM .hgt file or synthetic:SIZE)"
-        );
-    };
-    Ok(Input::Rows(source))
+    Ok(
+        if magic.starts_with(b"II*\0")
+            || magic.starts_with(b"MM\0*")
+            || magic.starts_with(b"II+\0")
+            || magic.starts_with(b"MM\0+")
+        {
+            (Box::new(geotiff::GeoTiff::open(path)?), "GeoTIFF")
+        } else if magic.starts_with(b"\x89PNG\r\n\x1a\n") {
+            (Box::new(png16::Png16::open(path)?), "PNG")
+        } else if is_hgt {
+            (Box::new(hgt::Hgt::open(path)?), "SRTM .hgt")
+        } else {
+            bail!(
+                "unrecognised input format (expected a GeoTIFF, a 16-bit grayscale PNG, an SRTM .hgt file, a GDAL .vrt or synthetic:SIZE)"
+            );
+        },
+    )
 }
