@@ -15,6 +15,8 @@ RUNS=${RUNS:-3}
 QUICK=${QUICK:-0}
 SERVER_BIN=$ROOT/target/release/tessera-server
 CLIENT_BIN=$ROOT/target/release/tessera
+# The latency proxy of bench/stream.sh (which checks for it).
+PROXY_BIN=$ROOT/target/release/tessera-proxy
 mkdir -p "$RESULTS"
 [ -x "$SERVER_BIN" ] && [ -x "$CLIENT_BIN" ] || {
   echo "build first: cargo build --release --locked -p tessera-server -p tessera-client" >&2

@@ -2,10 +2,11 @@
 # Streaming under latency (issue 6 item 6): `tessera fly --no-render` over the moon
 # 8192² on loopback, `pass` and `canyon` paths, 1920×1080, τ = 1 px, 60 fps in real
 # time, 4 ms streaming budget per frame, at 0, 50 and 150 ms added latency
-# (bench/delay_proxy.py holds each response that long before its first byte), prefetch
-# on and off. Appends to $RESULTS/stream.jsonl {dataset, path, latency_ms, prefetch,
-# run, summary}.
+# (`tessera-proxy --delay-ms`, proxy/, holds each response that long before its first
+# byte), prefetch on and off. Appends to $RESULTS/stream.jsonl {dataset, path,
+# latency_ms, prefetch, run, summary}.
 source "$(dirname "$0")/common.sh"
+[ -x "$PROXY_BIN" ] || { echo "build first: cargo build --release --locked -p tessera-proxy" >&2; exit 1; }
 frames=300
 latencies=(0 50 150)
 paths=(pass canyon)
@@ -16,7 +17,7 @@ declare -A via
 for latency in "${latencies[@]}"; do
   if [ "$latency" = 0 ]; then via[$latency]=$direct; continue; fi
   spawn "$WORK/proxy$latency.out" "$WORK/proxy$latency.log" \
-    python3 "$ROOT/bench/delay_proxy.py" 0 "${direct#http://}" "$latency"
+    "$PROXY_BIN" --upstream "${direct#http://}" --delay-ms "$latency"
   via[$latency]="http://$(wait_listening "$WORK/proxy$latency.out")"
 done
 for run in $(seq "$RUNS"); do

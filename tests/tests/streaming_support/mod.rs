@@ -1,0 +1,125 @@
+//! Fixtures of the `streaming*` tests: the test pyramid (built once per test binary),
+//! a real server on a runtime of the test's choosing, the flight options and paths
+//! the tests fly, and invariant 5 (no holes once the root has arrived).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::time::Duration;
+use tessera_client::fly::{FlyOptions, FrameRecord, fly};
+use tessera_client::stream::StreamConfig;
+use tessera_server::build::{BuildOptions, build};
+use tessera_server::serve::config::Settings;
+
+/// The test pyramid: a synthetic 4097² terrain in 128-cell tiles, named `terrain`.
+pub fn pyramid() -> &'static Path {
+    static P: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &P.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("terrain.tess");
+        let opts = BuildOptions {
+            tile_size: 128,
+            ..BuildOptions::default()
+        };
+        build("synthetic:4097:11", &out, &opts).unwrap();
+        (dir, out)
+    })
+    .1
+}
+
+/// A server on `addr` (port 0 for any) in the background of `rt`; returns its address
+/// and a handle that kills it (abruptly: connections drop) when aborted.
+pub fn start_server(
+    rt: &tokio::runtime::Runtime,
+    addr: SocketAddr,
+) -> (SocketAddr, tokio::task::JoinHandle<()>) {
+    start_server_for(rt, addr, pyramid())
+}
+
+/// [`start_server`] serving `dataset` (named after its file stem).
+pub fn start_server_for(
+    rt: &tokio::runtime::Runtime,
+    addr: SocketAddr,
+    dataset: &Path,
+) -> (SocketAddr, tokio::task::JoinHandle<()>) {
+    let settings = Settings {
+        listen: addr,
+        datasets: vec![dataset.to_path_buf()],
+        ..Settings::default()
+    };
+    let state = tessera_server::serve::state(&settings).unwrap();
+    let listener = rt.block_on(tokio::net::TcpListener::bind(addr)).unwrap();
+    let bound = listener.local_addr().unwrap();
+    let task = rt.spawn(async move {
+        let _ =
+            tessera_server::serve::serve_until(listener, state, &settings, std::future::pending())
+                .await;
+    });
+    (bound, task)
+}
+
+/// A path JSON file: a short, slow glide that ends still, so the view can settle.
+pub fn glide(dir: &Path) -> String {
+    let p = dir.join("glide.json");
+    std::fs::write(
+        &p,
+        r#"{"waypoints": [[0.3, 0.3], [0.45, 0.4]], "speed_mps": 2000, "altitude_agl_m": 400, "pitch_deg": -20}"#,
+    )
+    .unwrap();
+    p.to_string_lossy().into_owned()
+}
+
+pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
+    FlyOptions {
+        server: format!("http://{server}"),
+        dataset: "terrain".into(),
+        path,
+        frames,
+        fps: 60.0,
+        tau: 2.0,
+        policy: tessera_client::select::Policy::ScreenError,
+        width: 960,
+        height: 540,
+        spacing: Some(30.0),
+        prefetch: true,
+        pool_tiles: 512,
+        stream: StreamConfig {
+            retry_base: Duration::from_millis(50),
+            retry_max: Duration::from_millis(400),
+            request_timeout: Duration::from_secs(5),
+            ..StreamConfig::default()
+        },
+        t_offset: 0.0,
+        runtime: None,
+        progress: None,
+        render: None,
+    }
+}
+
+pub fn run_flight(opts: &FlyOptions) -> (Vec<FrameRecord>, tessera_client::fly::FlySummary) {
+    let mut buf = Vec::new();
+    let summary = fly(opts, Some(&mut buf)).unwrap();
+    let frames = String::from_utf8(buf)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<FrameRecord>(l).unwrap())
+        .collect();
+    (frames, summary)
+}
+
+/// Invariant 5: once the root is resident, every frame draws something for the view
+/// (an ancestor at least), never a hole.
+pub fn assert_no_holes(frames: &[FrameRecord]) -> usize {
+    let first = frames
+        .iter()
+        .position(|f| f.select.tiles > 0)
+        .expect("the root never arrived");
+    for f in &frames[first..] {
+        assert!(
+            f.select.tiles > 0 && f.select.patches > 0,
+            "frame {} draws nothing",
+            f.frame
+        );
+    }
+    first
+}
