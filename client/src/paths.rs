@@ -320,7 +320,11 @@ mod tests {
                         })
                     })
                     .collect();
-                let rec = codec::encode_record(&ErrorTable::empty(g.tile_log2()), &heights);
+                let rec = codec::encode_record(
+                    &ErrorTable::empty(g.tile_log2()),
+                    &tessera_shared::CellMask::all_valid(g.tile_size()),
+                    &heights,
+                );
                 index[tile.morton().get() as usize] = IndexEntry {
                     offset: records.len() as u64,
                     length: rec.len() as u32,

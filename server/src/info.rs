@@ -17,6 +17,12 @@ pub struct LevelStats {
     pub max_height: f64,
     /// Largest error of any tile of this level drawn at its full resolution, in metres.
     pub max_full_res_error: f64,
+    /// Samples of this level's grid that hold input data, and that were no-data and
+    /// filled (format v2; `None` for v1 files, which did not count them).
+    pub valid_samples: Option<u64>,
+    pub filled_samples: Option<u64>,
+    /// Tiles stored with a partial validity mask.
+    pub partial_tiles: u64,
 }
 
 #[derive(Debug, Serialize)]
@@ -50,6 +56,11 @@ pub fn info(path: &Path) -> Result<Info, ReadError> {
                 .collect();
             let bytes: u64 = present.iter().map(|e| u64::from(e.length)).sum();
             let tiles = present.len() as u64;
+            let counts = m.level_counts.get(usize::from(l.get()));
+            let partial_tiles = present
+                .iter()
+                .filter(|e| e.flags & tessera_shared::format::FLAG_PARTIAL != 0)
+                .count() as u64;
             LevelStats {
                 level: l.get(),
                 tiles_per_side: l.tiles_per_side(),
@@ -62,6 +73,9 @@ pub fn info(path: &Path) -> Result<Info, ReadError> {
                     .iter()
                     .map(|e| f64::from(e.full_res_error))
                     .fold(0.0, f64::max),
+                valid_samples: counts.map(|c| c.valid),
+                filled_samples: counts.map(|c| c.filled),
+                partial_tiles,
             }
         })
         .collect();
@@ -127,6 +141,24 @@ pub fn render(i: &Info) -> String {
             let _ = writeln!(s, "georef      none");
         }
     }
+    if let Some(g) = &m.georef
+        && let Some(proj) = &g.proj
+    {
+        let _ = writeln!(s, "proj        {proj}");
+    }
+    match &m.ground_spacing {
+        Some(sp) => {
+            let _ = writeln!(
+                s,
+                "spacing     {:.3} m east–west × {:.3} m north–south at the centre",
+                sp.x, sp.y
+            );
+        }
+        None => {
+            let _ = writeln!(s, "spacing     not recorded (no CRS the projection library knows)");
+        }
+    }
+    let _ = writeln!(s, "heights ref {}", m.vertical_datum.name());
     let _ = writeln!(s, "content     {}", m.content_hash);
     let _ = writeln!(
         s,
@@ -135,19 +167,23 @@ pub fn render(i: &Info) -> String {
     );
     let _ = writeln!(
         s,
-        "level  tiles       bytes  bytes/sample   min (m)   max (m)  full-res error (m)"
+        "level  tiles partial       bytes  bytes/sample   min (m)   max (m)  full-res error (m)  valid samples  filled samples"
     );
+    let count = |c: Option<u64>| c.map_or_else(|| "-".to_string(), |v| v.to_string());
     for l in &i.levels {
         let _ = writeln!(
             s,
-            "{:>5} {:>6} {:>11} {:>13.3} {:>9.1} {:>9.1} {:>19.3}",
+            "{:>5} {:>6} {:>7} {:>11} {:>13.3} {:>9.1} {:>9.1} {:>19.3} {:>14} {:>15}",
             l.level,
             l.tiles,
+            l.partial_tiles,
             l.bytes,
             l.bytes_per_sample,
             l.min_height,
             l.max_height,
-            l.max_full_res_error
+            l.max_full_res_error,
+            count(l.valid_samples),
+            count(l.filled_samples)
         );
     }
     s
@@ -165,6 +201,8 @@ mod tests {
         let georef = GeoRef {
             epsg: None,
             crs_name: Some("WGS 84 / UTM zone 25S".into()),
+            proj: None,
+            wkt: None,
             geotransform: [288_000.0, 90.0, 0.0, 9_120_000.0, 0.0, -90.0],
             raster_type: RasterType::PixelIsArea,
         };

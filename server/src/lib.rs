@@ -4,6 +4,7 @@
 //! holds the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
 
 pub mod build;
+pub mod crs;
 pub mod fuzzing;
 pub mod info;
 pub mod ingest;

@@ -43,13 +43,16 @@ pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
             let entry = p.entry(tile).copied();
             match p.read_record(tile) {
                 Ok(Some(bytes)) => {
-                    let problems = match (codec::decode_record(&bytes, g.tile_log2()), entry) {
+                    let problems = match (codec::decode_record(&bytes, p.record_layout()), entry) {
                         (Ok(record), Some(e)) => record_problems(&record, &e),
                         (Err(e), _) => vec![format!("does not decode: {e}")],
                         (Ok(_), None) => vec!["missing from the index".into()],
                     };
                     (tile, bytes.len() as u64, problems)
                 }
+                // From format v2 a tile inside the DEM is absent when it is wholly
+                // no-data (FORMAT.md "Validity mask").
+                Ok(None) if p.record_layout().has_mask() => (tile, 0, Vec::new()),
                 Ok(None) => (tile, 0, vec!["missing from the index".into()]),
                 Err(ReadError::RecordChecksum { .. }) => {
                     (tile, 0, vec!["checksum mismatch".into()])
@@ -121,7 +124,19 @@ fn record_problems(record: &TileRecord, e: &IndexEntry) -> Vec<String> {
             table.full_resolution_error()
         ));
     }
-    if e.flags != 0 {
+    let partial = !record.mask.is_all_valid();
+    if record.mask.is_none_valid() {
+        out.push("record is stored but its mask has no terrain cell".into());
+    }
+    if (e.flags & format::FLAG_PARTIAL != 0) != partial {
+        out.push(format!(
+            "index flags {:#x} disagree with the mask ({} of {} cells are terrain)",
+            e.flags,
+            record.mask.valid_cells(),
+            u64::from(record.mask.side()).pow(2)
+        ));
+    }
+    if e.flags & !format::FLAG_PARTIAL != 0 {
         out.push(format!("reserved index flags are set ({:#x})", e.flags));
     }
     out
@@ -146,7 +161,7 @@ fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
             .filter_map(|l| p.index(l))
             .flat_map(|i| i.iter().filter(|e| e.is_present()).map(|e| e.checksum))
             .collect();
-        let recomputed = format::content_hash(meta, checksums.iter());
+        let recomputed = format::content_hash(meta, p.header().version, checksums.iter());
         if recomputed != meta.content_hash {
             out.push(format!(
                 "content_hash {} does not match the file's content ({recomputed})",

@@ -177,7 +177,7 @@ fn metadata_damage_is_named() {
             .flat_map(|l| p.index(l).unwrap().iter().filter(|e| e.is_present()))
             .map(|e| e.checksum)
             .collect();
-        m.content_hash = format::content_hash(m, sums.iter());
+        m.content_hash = format::content_hash(m, format::VERSION, sums.iter());
     });
     assert_named(
         dir.path(),

@@ -8,7 +8,7 @@
 //! assert_eq!(url, "/v1/datasets/moon/levels/3/tiles");
 //! ```
 
-use crate::metadata::{GeoRef, Metadata, Quantization};
+use crate::metadata::{GeoRef, GroundSpacing, LevelCounts, Metadata, Quantization, VerticalDatum};
 use serde::{Deserialize, Serialize};
 
 /// Route templates in the router's `{param}` syntax (axum's), used by the server as
@@ -45,6 +45,9 @@ pub struct DatasetInfo {
     pub tile_size: u32,
     pub levels: u8,
     pub finest_level: u8,
+    /// The pyramid file's format version: how its tile records are laid out
+    /// ([`crate::codec::RecordLayout`]), since the server sends them as stored.
+    pub format_version: u32,
     pub min_height: f64,
     pub max_height: f64,
     pub quantization: Quantization,
@@ -55,6 +58,12 @@ pub struct DatasetInfo {
     /// `[west, south, east, north]` of the pixel areas, when georeferenced.
     pub extent: Option<[f64; 4]>,
     pub georef: Option<GeoRef>,
+    /// Metres between samples east–west (`x`) and north–south (`y`) at the DEM's
+    /// centre; `null` without a known CRS (clients then use a stated spacing).
+    pub ground_spacing: Option<GroundSpacing>,
+    pub vertical_datum: VerticalDatum,
+    /// Valid and filled samples per level, level 0 first (empty for v1 files).
+    pub level_counts: Vec<LevelCounts>,
     pub source: String,
     pub content_hash: String,
     /// Size of the pyramid file in bytes.
@@ -84,7 +93,7 @@ pub struct DatasetList {
 
 impl DatasetInfo {
     /// The description of dataset `name`, whose file of `bytes` bytes holds `meta`.
-    pub fn new(name: &str, meta: &Metadata, bytes: u64) -> Self {
+    pub fn new(name: &str, meta: &Metadata, format_version: u32, bytes: u64) -> Self {
         let at = |template: &str| fill(template, &[("name", name)]);
         Self {
             name: name.to_string(),
@@ -93,6 +102,7 @@ impl DatasetInfo {
             tile_size: meta.tile_size,
             levels: meta.levels,
             finest_level: meta.levels.saturating_sub(1),
+            format_version,
             min_height: meta.min_height,
             max_height: meta.max_height,
             quantization: meta.quantization,
@@ -104,6 +114,9 @@ impl DatasetInfo {
                 .as_ref()
                 .map(|g| g.extent(meta.width, meta.height)),
             georef: meta.georef.clone(),
+            ground_spacing: meta.ground_spacing,
+            vertical_datum: meta.vertical_datum,
+            level_counts: meta.level_counts.clone(),
             source: meta.source.clone(),
             content_hash: meta.content_hash.clone(),
             bytes,
@@ -135,7 +148,7 @@ mod tests {
     #[test]
     fn links_are_the_routes_of_the_dataset() {
         let meta = crate::fixtures::metadata(8193, 8193, 512);
-        let info = DatasetInfo::new("moon", &meta, 42);
+        let info = DatasetInfo::new("moon", &meta, crate::format::VERSION, 42);
         assert_eq!(info.links.self_, "/v1/datasets/moon");
         assert_eq!(
             info.links.tiles,

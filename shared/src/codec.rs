@@ -7,8 +7,14 @@
 //! of low bytes and a plane of high bytes (terrain residuals leave the high plane
 //! almost all zero), and compressed with `lz4_flex`'s block format.
 //! A record is served exactly as stored; only clients decode it.
+//!
+//! Format v2 puts the tile's validity mask ([`crate::mask`]) between the error
+//! table and the heights: a `u32` length, then that many bytes of
+//! [`CellMask::encode`]; length 0 means every cell is terrain (the common case costs
+//! 4 bytes). Version 1 records have no mask section; every cell reads as valid.
 
 use crate::error_table::ErrorTable;
+use crate::mask::{CellMask, MaskError};
 
 /// Why a record could not be decoded.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -19,6 +25,41 @@ pub enum CodecError {
     Lz4(String),
     #[error("height data decompresses to {got} bytes, expected {want}")]
     WrongSize { got: usize, want: usize },
+    #[error("mask section claims {claimed} bytes but only {left} follow the error table")]
+    MaskTruncated { claimed: usize, left: usize },
+    #[error(transparent)]
+    Mask(#[from] MaskError),
+}
+
+/// How to read a record: the tile size and the file's format version.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RecordLayout {
+    tile_log2: u32,
+    has_mask: bool,
+}
+
+impl RecordLayout {
+    /// The layout of `version` files (1 or 2; the reader refuses others first).
+    pub const fn new(tile_log2: u32, version: u32) -> Self {
+        Self {
+            tile_log2,
+            has_mask: version >= 2,
+        }
+    }
+
+    /// The layout this build writes.
+    pub const fn current(tile_log2: u32) -> Self {
+        Self::new(tile_log2, crate::format::VERSION)
+    }
+
+    pub const fn tile_log2(&self) -> u32 {
+        self.tile_log2
+    }
+
+    /// Whether records carry a mask section (format v2 and later).
+    pub const fn has_mask(&self) -> bool {
+        self.has_mask
+    }
 }
 
 /// A decoded tile record.
@@ -27,6 +68,8 @@ pub struct TileRecord {
     pub errors: ErrorTable,
     /// `(T+1)²` quantized heights, row-major, north row first.
     pub heights: Vec<u16>,
+    /// Which cells are terrain (all of them in version 1 files).
+    pub mask: CellMask,
 }
 
 const fn zigzag(v: u16) -> u16 {
@@ -89,16 +132,24 @@ pub fn decode_heights(bytes: &[u8], side: usize) -> Result<Vec<u16>, CodecError>
     Ok(h)
 }
 
-/// Serializes a tile record: the error table, then the compressed heights.
-pub fn encode_record(errors: &ErrorTable, heights: &[u16]) -> Vec<u8> {
+/// A current-format record: error table, mask section, then heights.
+pub fn encode_record(errors: &ErrorTable, mask: &CellMask, heights: &[u16]) -> Vec<u8> {
     let side = (1usize << errors.tile_log2()) + 1;
+    debug_assert_eq!(mask.side() as usize, side - 1);
     let mut out = Vec::with_capacity(ErrorTable::byte_len(errors.tile_log2()) + heights.len());
     errors.write_to(&mut out);
+    let m = if mask.is_all_valid() {
+        Vec::new()
+    } else {
+        mask.encode()
+    };
+    out.extend_from_slice(&(m.len() as u32).to_le_bytes());
+    out.extend_from_slice(&m);
     out.extend_from_slice(&encode_heights(heights, side));
     out
 }
 
-/// Reads only the error table of a record (cheap planning data).
+/// Only the error table (the first part of every record version).
 pub fn decode_error_table(record: &[u8], tile_log2: u32) -> Result<ErrorTable, CodecError> {
     ErrorTable::read_from(record, tile_log2).ok_or(CodecError::Truncated {
         got: record.len(),
@@ -106,12 +157,43 @@ pub fn decode_error_table(record: &[u8], tile_log2: u32) -> Result<ErrorTable, C
     })
 }
 
-/// Decodes a whole record.
-pub fn decode_record(record: &[u8], tile_log2: u32) -> Result<TileRecord, CodecError> {
-    let errors = decode_error_table(record, tile_log2)?;
-    let side = (1usize << tile_log2) + 1;
-    let heights = decode_heights(&record[ErrorTable::byte_len(tile_log2)..], side)?;
-    Ok(TileRecord { errors, heights })
+/// Decodes a whole record laid out as `layout` says.
+pub fn decode_record(record: &[u8], layout: RecordLayout) -> Result<TileRecord, CodecError> {
+    let t = layout.tile_log2;
+    let errors = decode_error_table(record, t)?;
+    let cells = 1u32 << t;
+    let side = cells as usize + 1;
+    let mut rest = &record[ErrorTable::byte_len(t)..];
+    let mask = if layout.has_mask {
+        let Some((len, after)) = rest.split_first_chunk::<4>() else {
+            return Err(CodecError::Truncated {
+                got: record.len(),
+                need: ErrorTable::byte_len(t) + 4,
+            });
+        };
+        let len = u32::from_le_bytes(*len) as usize;
+        if len > after.len() {
+            return Err(CodecError::MaskTruncated {
+                claimed: len,
+                left: after.len(),
+            });
+        }
+        let (bytes, heights) = after.split_at(len);
+        rest = heights;
+        if len == 0 {
+            CellMask::all_valid(cells)
+        } else {
+            CellMask::decode(bytes, cells)?
+        }
+    } else {
+        CellMask::all_valid(cells)
+    };
+    let heights = decode_heights(rest, side)?;
+    Ok(TileRecord {
+        errors,
+        heights,
+        mask,
+    })
 }
 
 #[cfg(test)]
@@ -192,15 +274,46 @@ mod tests {
         let mut t = ErrorTable::empty(6);
         t.set_error(6, 1, 1, 3.0);
         let heights: Vec<u16> = (0..65 * 65).map(|i| (i * 7 % 1000) as u16).collect();
-        let rec = encode_record(&t, &heights);
-        let back = decode_record(&rec, 6).unwrap();
+        let layout = RecordLayout::current(6);
+        let mut mask = CellMask::all_valid(64);
+        let rec = encode_record(&t, &mask, &heights);
+        let back = decode_record(&rec, layout).unwrap();
         assert_eq!(back.errors, t);
         assert_eq!(back.heights, heights);
+        assert!(back.mask.is_all_valid());
         assert!(matches!(
-            decode_record(&rec[..100], 6),
+            decode_record(&rec[..100], layout),
             Err(CodecError::Truncated { .. })
         ));
         let cut = &rec[..rec.len() - 3];
-        assert!(decode_record(cut, 6).is_err());
+        assert!(decode_record(cut, layout).is_err());
+
+        mask.set(10, 20, false);
+        let rec = encode_record(&t, &mask, &heights);
+        let back = decode_record(&rec, layout).unwrap();
+        assert_eq!(back.mask, mask);
+        assert_eq!(back.heights, heights);
+        // A mask length running past the record is named as such.
+        let mut lying = rec.clone();
+        let at = ErrorTable::byte_len(6);
+        lying[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(
+            decode_record(&lying, layout),
+            Err(CodecError::MaskTruncated { .. })
+        ));
+    }
+
+    #[test]
+    fn version_1_records_have_no_mask_section_and_read_as_all_valid() {
+        let t = ErrorTable::empty(6);
+        let heights: Vec<u16> = (0..65 * 65).map(|i| (i % 300) as u16).collect();
+        let mut v1 = Vec::new();
+        t.write_to(&mut v1);
+        v1.extend_from_slice(&encode_heights(&heights, 65));
+        let back = decode_record(&v1, RecordLayout::new(6, 1)).unwrap();
+        assert_eq!(back.heights, heights);
+        assert!(back.mask.is_all_valid());
+        // Read as v2, the first height bytes would be taken for a mask length.
+        assert!(decode_record(&v1, RecordLayout::new(6, 2)).is_err());
     }
 }

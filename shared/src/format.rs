@@ -1,4 +1,5 @@
-//! The pyramid file format, version 1 (see `FORMAT.md` for the byte-level description).
+//! The pyramid file format, version 2 (see `FORMAT.md` for the byte-level description;
+//! version 1 files still read: their metadata has its own shape, their records no mask).
 //!
 //! ```text
 //! header (64 B) · metadata (bincode 2) · level table (40 B per level)
@@ -12,7 +13,13 @@ use crate::metadata::Metadata;
 use xxhash_rust::xxh3::Xxh3;
 
 pub const MAGIC: [u8; 8] = *b"TESSPYR\0";
-pub const VERSION: u32 = 1;
+/// The version this build writes.
+pub const VERSION: u32 = 2;
+/// The oldest version this build reads.
+pub const OLDEST_READABLE: u32 = 1;
+
+/// Index entry flag: the record's mask marks some cells as not terrain.
+pub const FLAG_PARTIAL: u32 = 1;
 pub const HEADER_LEN: usize = 64;
 pub const LEVEL_ENTRY_LEN: usize = 40;
 pub const INDEX_ENTRY_LEN: usize = 32;
@@ -39,9 +46,22 @@ pub fn encode_metadata(meta: &Metadata) -> Vec<u8> {
         .expect("metadata always serializes: it has no maps or unsized types")
 }
 
+/// Metadata as the current version writes it.
 pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, String> {
+    decode_metadata_of(bytes, VERSION)
+}
+
+/// Metadata of a `version` file (version 1 has fewer fields).
+pub fn decode_metadata_of(bytes: &[u8], version: u32) -> Result<Metadata, String> {
+    if version == 1 {
+        return decode_exact::<crate::metadata::v1::Metadata>(bytes).map(Metadata::from);
+    }
+    decode_exact(bytes)
+}
+
+fn decode_exact<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
     use bincode::error::DecodeError;
-    let (meta, used): (Metadata, usize) =
+    let (meta, used): (T, usize) =
         bincode::serde::decode_from_slice(bytes, bincode_config()).map_err(|e| match e {
             DecodeError::UnexpectedEnd { additional } => {
                 format!("metadata is truncated ({additional} more bytes expected)")
@@ -65,9 +85,10 @@ pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, String> {
 /// in file order.
 pub fn content_hash<'a>(
     meta: &Metadata,
+    version: u32,
     record_checksums: impl Iterator<Item = &'a u64>,
 ) -> String {
-    let mut h = ContentHasher::new(meta);
+    let mut h = ContentHasher::of_version(meta, version);
     for c in record_checksums {
         h.record(*c);
     }
@@ -86,11 +107,27 @@ impl std::fmt::Debug for ContentHasher {
 }
 
 impl ContentHasher {
+    /// For a file of the current version.
     pub fn new(meta: &Metadata) -> Self {
+        Self::of_version(meta, VERSION)
+    }
+
+    /// For a `version` file: the metadata is hashed in the shape that version
+    /// stores, so old files keep their identity.
+    pub fn of_version(meta: &Metadata, version: u32) -> Self {
         let mut unhashed = meta.clone();
         unhashed.content_hash.clear();
+        let bytes = if version == 1 {
+            bincode::serde::encode_to_vec(
+                crate::metadata::v1::Metadata::from(&unhashed),
+                bincode_config(),
+            )
+            .expect("metadata always serializes")
+        } else {
+            encode_metadata(&unhashed)
+        };
         let mut h = Xxh3::new();
-        h.update(&encode_metadata(&unhashed));
+        h.update(&bytes);
         Self(h)
     }
 
@@ -154,9 +191,9 @@ impl FileHeader {
             return Err("not a Tessera pyramid (bad magic)".into());
         }
         let version = u32_at(b, 8);
-        if version != VERSION {
+        if !(OLDEST_READABLE..=VERSION).contains(&version) {
             return Err(format!(
-                "format version {version} is not supported (this build reads version {VERSION})"
+                "format version {version} is not supported (this build reads versions {OLDEST_READABLE} to {VERSION})"
             ));
         }
         Ok(Self {

@@ -79,7 +79,7 @@ fn read_pyramid(data: Vec<u8>) -> Result<usize, ReadError> {
                         .is_some_and(|end| end <= size);
                     if inside && let Ok(bytes) = p.source().read_vec(e.offset, e.length as usize) {
                         let _ = codec::decode_error_table(&bytes, tile_log2);
-                        let _ = codec::decode_record(&bytes, tile_log2);
+                        let _ = codec::decode_record(&bytes, p.record_layout());
                     }
                     first_error.get_or_insert(err);
                 }

@@ -3,7 +3,7 @@
 //! Everything both sides must agree on lives here and nowhere else (DESIGN §1):
 //! tile ids and Morton codes ([`tile`], [`morton`]), the pyramid file format
 //! ([`format`](mod@format), written down in `FORMAT.md`), dataset metadata ([`metadata`]),
-//! the tile-record codec ([`codec`]), error tables ([`error_table`]), the surface
+//! the tile-record codec ([`codec`]), tile validity masks ([`mask`]), error tables ([`error_table`]), the surface
 //! a tile is triangulated into ([`triangulation`]) and a reader that works over
 //! any source of byte ranges ([`reader`]).
 
@@ -12,6 +12,7 @@ pub mod codec;
 pub mod error_table;
 pub mod format;
 pub mod fuzzing;
+pub mod mask;
 pub mod metadata;
 pub mod morton;
 pub mod range_query;
@@ -28,7 +29,8 @@ pub mod fixtures;
 pub mod testdata;
 
 pub use error_table::ErrorTable;
-pub use metadata::{GeoRef, Metadata, Quantization, RasterType};
+pub use mask::CellMask;
+pub use metadata::{GeoRef, GroundSpacing, LevelCounts, Metadata, Quantization, RasterType, VerticalDatum};
 pub use morton::{Morton, MortonRange};
 pub use reader::{ByteSource, FileSource, Pyramid};
 pub use tile::{Level, TileGeometry, TileId};

@@ -38,8 +38,13 @@ pub enum RasterType {
 pub struct GeoRef {
     /// EPSG code of the horizontal CRS, when the source names one.
     pub epsg: Option<u32>,
-    /// Human-readable CRS description (citation keys), when present.
+    /// Human-readable CRS description (citation keys, or the WKT's name), when present.
     pub crs_name: Option<String>,
+    /// The CRS as a PROJ string (`+proj=… +datum=…`), when known: what a projection
+    /// library needs, whether or not there is an EPSG code.
+    pub proj: Option<String>,
+    /// The CRS as OGC WKT 1, when known (GDAL and QGIS read it).
+    pub wkt: Option<String>,
     pub geotransform: [f64; 6],
     /// What the source declared (kept so exports can write the same convention back).
     pub raster_type: RasterType,
@@ -64,6 +69,67 @@ impl GeoRef {
     pub fn crs(&self) -> Option<String> {
         self.epsg.map(|c| format!("EPSG:{c}"))
     }
+
+    /// The CRS coordinates of the *centre* of sample `(col, row)`.
+    pub fn sample_centre(&self, col: f64, row: f64) -> [f64; 2] {
+        let gt = &self.geotransform;
+        let (c, r) = (col + 0.5, row + 0.5);
+        [gt[0] + c * gt[1] + r * gt[2], gt[3] + c * gt[4] + r * gt[5]]
+    }
+}
+
+/// The distance on the ground between neighbouring samples, in metres, measured at
+/// the DEM's centre (DESIGN §9). For a geographic CRS the two differ (a degree of
+/// longitude shrinks with latitude); for a projected one they are the pixel size in
+/// metres. The client lays samples out with these, so its world is in metres.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GroundSpacing {
+    /// East–west, between columns.
+    pub x: f64,
+    /// North–south, between rows.
+    pub y: f64,
+}
+
+impl GroundSpacing {
+    /// Both spacings are finite and positive.
+    pub fn is_plausible(&self) -> bool {
+        self.x.is_finite() && self.y.is_finite() && self.x > 0.0 && self.y > 0.0
+    }
+}
+
+/// What the heights are measured from (DESIGN §9), so that outputs that want another
+/// reference (Cesium wants heights above the WGS84 ellipsoid) can convert.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VerticalDatum {
+    /// Above the EGM96 geoid (SRTM, most 1″/3″ global DEMs).
+    Egm96,
+    /// Above the EGM2008 geoid (Copernicus DEM).
+    Egm2008,
+    /// Above the CRS's ellipsoid.
+    Ellipsoid,
+    /// Not stated by the input or the user.
+    #[default]
+    Unknown,
+}
+
+impl VerticalDatum {
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Egm96 => "egm96",
+            Self::Egm2008 => "egm2008",
+            Self::Ellipsoid => "ellipsoid",
+            Self::Unknown => "unknown",
+        }
+    }
+}
+
+/// Samples of one level's grid (the DEM's samples at that level's stride, inside the
+/// DEM) that hold input data, and those that were no-data and filled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LevelCounts {
+    pub valid: u64,
+    pub filled: u64,
 }
 
 /// Everything a client or tool needs to know about a dataset.
@@ -85,6 +151,12 @@ pub struct Metadata {
     /// How no-data was filled, e.g. "nearest valid sample".
     pub nodata_fill: String,
     pub georef: Option<GeoRef>,
+    /// Metres between samples at the DEM's centre; `None` when the input has no
+    /// georeferencing (a plain PNG), where clients fall back to a stated spacing.
+    pub ground_spacing: Option<GroundSpacing>,
+    pub vertical_datum: VerticalDatum,
+    /// Valid and filled sample counts, level 0 first (empty in version 1 files).
+    pub level_counts: Vec<LevelCounts>,
     /// Where the data came from: file name, sample type, compression.
     pub source: String,
     /// The software that wrote the file.
@@ -113,6 +185,95 @@ impl Metadata {
     }
 }
 
+/// The metadata of format version 1 files, field for field as they were written
+/// (bincode is not self-describing, so old files need their own shape).
+pub(crate) mod v1 {
+    use super::{Quantization, RasterType};
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Debug, Serialize, Deserialize)]
+    pub struct GeoRef {
+        pub epsg: Option<u32>,
+        pub crs_name: Option<String>,
+        pub geotransform: [f64; 6],
+        pub raster_type: RasterType,
+    }
+
+    #[derive(Debug, Serialize, Deserialize)]
+    pub struct Metadata {
+        pub width: u32,
+        pub height: u32,
+        pub tile_size: u32,
+        pub levels: u8,
+        pub quantization: Quantization,
+        pub min_height: f64,
+        pub max_height: f64,
+        pub nodata_count: u64,
+        pub nodata_fill: String,
+        pub georef: Option<GeoRef>,
+        pub source: String,
+        pub generator: String,
+        pub content_hash: String,
+    }
+
+    /// Back to the old shape, for hashing a version 1 file's metadata as it was
+    /// written (its new fields are empty by construction).
+    impl From<&super::Metadata> for Metadata {
+        fn from(m: &super::Metadata) -> Self {
+            Self {
+                width: m.width,
+                height: m.height,
+                tile_size: m.tile_size,
+                levels: m.levels,
+                quantization: m.quantization,
+                min_height: m.min_height,
+                max_height: m.max_height,
+                nodata_count: m.nodata_count,
+                nodata_fill: m.nodata_fill.clone(),
+                georef: m.georef.as_ref().map(|g| GeoRef {
+                    epsg: g.epsg,
+                    crs_name: g.crs_name.clone(),
+                    geotransform: g.geotransform,
+                    raster_type: g.raster_type,
+                }),
+                source: m.source.clone(),
+                generator: m.generator.clone(),
+                content_hash: m.content_hash.clone(),
+            }
+        }
+    }
+
+    impl From<Metadata> for super::Metadata {
+        fn from(m: Metadata) -> Self {
+            Self {
+                width: m.width,
+                height: m.height,
+                tile_size: m.tile_size,
+                levels: m.levels,
+                quantization: m.quantization,
+                min_height: m.min_height,
+                max_height: m.max_height,
+                nodata_count: m.nodata_count,
+                nodata_fill: m.nodata_fill,
+                georef: m.georef.map(|g| super::GeoRef {
+                    epsg: g.epsg,
+                    crs_name: g.crs_name,
+                    proj: None,
+                    wkt: None,
+                    geotransform: g.geotransform,
+                    raster_type: g.raster_type,
+                }),
+                ground_spacing: None,
+                vertical_datum: super::VerticalDatum::Unknown,
+                level_counts: Vec::new(),
+                source: m.source,
+                generator: m.generator,
+                content_hash: m.content_hash,
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -122,11 +283,15 @@ mod tests {
         let g = GeoRef {
             epsg: Some(4326),
             crs_name: None,
+            proj: None,
+            wkt: None,
             geotransform: [8.0, 0.5, 0.0, 47.0, 0.0, -0.25],
             raster_type: RasterType::PixelIsArea,
         };
         assert_eq!(g.extent(4, 8), [8.0, 45.0, 10.0, 47.0]);
         assert_eq!(g.crs().as_deref(), Some("EPSG:4326"));
+        assert_eq!(g.sample_centre(0.0, 0.0), [8.25, 46.875]);
+        assert_eq!(g.sample_centre(3.0, 7.0), [9.75, 45.125]);
     }
 
     #[test]

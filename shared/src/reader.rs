@@ -159,7 +159,7 @@ impl<S: ByteSource> Pyramid<S> {
                 .chunks_exact(INDEX_ENTRY_LEN)
                 .map(IndexEntry::parse)
                 .collect();
-            let mut check = IndexCheck::new(&layout.geometry, level, entry);
+            let mut check = IndexCheck::new(&layout.geometry, level, entry, layout.header.version);
             for (m, e) in entries.iter().enumerate() {
                 check.entry(m as u64, e)?;
             }
@@ -192,6 +192,11 @@ impl<S: ByteSource> Pyramid<S> {
 
     pub fn header(&self) -> &FileHeader {
         &self.header
+    }
+
+    /// How this file's records are laid out (its tile size and format version).
+    pub fn record_layout(&self) -> codec::RecordLayout {
+        codec::RecordLayout::new(self.geometry.tile_log2(), self.header.version)
     }
 
     pub fn source(&self) -> &S {
@@ -246,7 +251,7 @@ impl<S: ByteSource> Pyramid<S> {
         let Some(bytes) = self.read_record(tile)? else {
             return Ok(None);
         };
-        codec::decode_record(&bytes, self.geometry.tile_log2())
+        codec::decode_record(&bytes, self.record_layout())
             .map(Some)
             .map_err(|source| ReadError::Codec { tile, source })
     }
@@ -293,8 +298,11 @@ impl Layout {
         file_len: u64,
         read: impl Fn(u64, u64, &str) -> Result<Vec<u8>, ReadError>,
     ) -> Result<Self, ReadError> {
-        let meta = format::decode_metadata(&read(header.meta_offset, header.meta_len, "metadata")?)
-            .map_err(ReadError::Metadata)?;
+        let meta = format::decode_metadata_of(
+            &read(header.meta_offset, header.meta_len, "metadata")?,
+            header.version,
+        )
+        .map_err(ReadError::Metadata)?;
         let geometry = TileGeometry::new(meta.width, meta.height, meta.tile_size)?;
         if header.level_count != u32::from(geometry.level_count())
             || meta.levels != geometry.level_count()
@@ -345,15 +353,18 @@ impl Layout {
 struct IndexCheck<'g> {
     geometry: &'g TileGeometry,
     level: Level,
+    /// From version 2 a tile inside the DEM may be absent: it is wholly no-data.
+    no_data_absent: bool,
     next: u64,
     end: u64,
 }
 
 impl<'g> IndexCheck<'g> {
-    fn new(geometry: &'g TileGeometry, level: Level, entry: &LevelEntry) -> Self {
+    fn new(geometry: &'g TileGeometry, level: Level, entry: &LevelEntry, version: u32) -> Self {
         Self {
             geometry,
             level,
+            no_data_absent: version >= 2,
             next: entry.records_offset,
             end: entry.records_offset + entry.records_len,
         }
@@ -364,7 +375,8 @@ impl<'g> IndexCheck<'g> {
         let tile = TileId::from_morton(level, crate::Morton::from_raw(m))
             .ok_or_else(|| ReadError::Structure(format!("index slot {m} of level {level}")))?;
         let present = self.geometry.is_present(tile);
-        if e.is_present() != present {
+        let allowed = e.is_present() == present || (self.no_data_absent && !e.is_present());
+        if !allowed {
             return Err(ReadError::Structure(format!(
                 "{tile} is {} in the index but {} by the geometry",
                 if e.is_present() { "present" } else { "absent" },
@@ -439,7 +451,7 @@ pub fn check_streaming<S: ByteSource>(
             level.tile_slots() * INDEX_ENTRY_LEN as u64,
             &format!("index of level {level}"),
         )?;
-        let mut check = IndexCheck::new(&layout.geometry, level, entry);
+        let mut check = IndexCheck::new(&layout.geometry, level, entry, layout.header.version);
         let slots = level.tile_slots();
         let mut m = 0u64;
         while m < slots {
@@ -463,4 +475,44 @@ pub fn check_streaming<S: ByteSource>(
         check.finish()?;
     }
     Ok(layout.meta)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A file written by the version 1 writer (`tessera-server build synthetic:129
+    /// --tile-size 64`, before format v2) still opens, checks and decodes: its metadata
+    /// in the old shape, its records without mask sections, every cell valid.
+    #[test]
+    fn version_1_files_still_read() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/v1-synthetic-129-t64.tess");
+        let p = Pyramid::open_file(&path).unwrap();
+        assert_eq!(p.header().version, 1);
+        let m = p.metadata();
+        assert_eq!((m.width, m.height, m.tile_size, m.levels), (129, 129, 64, 2));
+        assert!(m.source.contains("synthetic:129"), "{}", m.source);
+        assert_eq!(m.vertical_datum, crate::VerticalDatum::Unknown);
+        assert!(m.level_counts.is_empty() && m.ground_spacing.is_none());
+        let mut tiles = 0;
+        for level in p.geometry().levels() {
+            for tile in p.geometry().present_tiles(level) {
+                let rec = p.read_tile(tile).unwrap().expect("every v1 tile in the DEM is present");
+                assert_eq!(rec.heights.len(), 65 * 65);
+                assert!(rec.mask.is_all_valid());
+                tiles += 1;
+            }
+        }
+        assert_eq!(tiles, 5);
+        // Its content hash is still its identity: hashed in the shape v1 stored.
+        let mut sums = Vec::new();
+        let meta = check_streaming(&FileSource::open(&path).unwrap(), |_, e, _| {
+            sums.push(e.checksum);
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(&meta, m);
+        assert_eq!(format::content_hash(m, 1, sums.iter()), m.content_hash);
+        assert_ne!(format::content_hash(m, 2, sums.iter()), m.content_hash);
+    }
 }

@@ -174,7 +174,7 @@ fn damaged_tiles_never_become_resident() {
     let mut streamer = Streamer::new(
         &format!("http://{}", proxy.addr()),
         "terrain",
-        g.tile_log2(),
+        tessera_shared::codec::RecordLayout::current(g.tile_log2()),
         config.clone(),
     )
     .unwrap();

@@ -7,6 +7,7 @@
 use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 use tessera_shared::wire::{Frame, FrameDecoder, WireError};
+use tessera_shared::codec::RecordLayout;
 use tessera_shared::{ErrorTable, Level, Morton, TileId, codec};
 
 /// A decoded tile on its way to the pool.
@@ -66,7 +67,7 @@ pub(super) async fn fetch(
     client: reqwest::Client,
     url: String,
     id: u64,
-    tile_log2: u32,
+    layout: RecordLayout,
     tx: mpsc::Sender<Event>,
 ) {
     let sent = Instant::now();
@@ -111,7 +112,7 @@ pub(super) async fn fetch(
                                 .await
                                 .map_err(|e| (e.to_string(), Blame::Request))?;
                             tokio::task::spawn_blocking(move || {
-                                let rec = codec::decode_record(&record, tile_log2)
+                                let rec = codec::decode_record(&record, layout)
                                     .map_err(|e| (format!("{tile}: {e}"), Blame::Tile(tile)))?;
                                 let _ = tx.send(Event::Tile(Box::new(Decoded {
                                     tile,
@@ -200,7 +201,7 @@ pub(super) async fn fetch_one(
     url: String,
     tile: TileId,
     id: u64,
-    tile_log2: u32,
+    layout: RecordLayout,
     tx: mpsc::Sender<Event>,
 ) {
     let sent = Instant::now();
@@ -231,7 +232,7 @@ pub(super) async fn fetch_one(
                 Blame::Tile(tile),
             ));
         }
-        let rec = codec::decode_record(&body, tile_log2)
+        let rec = codec::decode_record(&body, layout)
             .map_err(|e| (format!("{url}: {e}"), Blame::Tile(tile)))?;
         let _ = tx.send(Event::Tile(Box::new(Decoded {
             tile,

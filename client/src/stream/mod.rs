@@ -34,6 +34,7 @@ use pool::TilePool;
 use std::collections::{HashMap, HashSet};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
+use tessera_shared::codec::RecordLayout;
 use tessera_shared::{Level, Morton, TileId, api, morton, range_query};
 
 /// How tiles are requested.
@@ -117,7 +118,7 @@ pub struct Streamer {
     /// The server's root URL, without a trailing `/`.
     server: String,
     dataset: String,
-    tile_log2: u32,
+    layout: RecordLayout,
     config: StreamConfig,
     tx: mpsc::Sender<Event>,
     rx: mpsc::Receiver<Event>,
@@ -150,7 +151,7 @@ impl Streamer {
     pub fn new(
         server: &str,
         name: &str,
-        tile_log2: u32,
+        layout: RecordLayout,
         config: StreamConfig,
     ) -> anyhow::Result<Self> {
         let rt = tokio::runtime::Builder::new_multi_thread()
@@ -158,7 +159,7 @@ impl Streamer {
             .enable_all()
             .build()?;
         let handle = rt.handle().clone();
-        Self::with_runtime(Some(rt), handle, server, name, tile_log2, config)
+        Self::with_runtime(Some(rt), handle, server, name, layout, config)
     }
 
     /// A streamer whose fetches run on an existing runtime (the load generator runs
@@ -167,10 +168,10 @@ impl Streamer {
         handle: tokio::runtime::Handle,
         server: &str,
         name: &str,
-        tile_log2: u32,
+        layout: RecordLayout,
         config: StreamConfig,
     ) -> anyhow::Result<Self> {
-        Self::with_runtime(None, handle, server, name, tile_log2, config)
+        Self::with_runtime(None, handle, server, name, layout, config)
     }
 
     fn with_runtime(
@@ -178,7 +179,7 @@ impl Streamer {
         rt: tokio::runtime::Handle,
         server: &str,
         name: &str,
-        tile_log2: u32,
+        layout: RecordLayout,
         config: StreamConfig,
     ) -> anyhow::Result<Self> {
         let client = reqwest::Client::builder()
@@ -191,7 +192,7 @@ impl Streamer {
             client,
             server: server.trim_end_matches('/').to_string(),
             dataset: name.to_string(),
-            tile_log2,
+            layout,
             config,
             tx,
             rx,
@@ -401,7 +402,7 @@ impl Streamer {
                     .collect();
                 let id = self.next_id;
                 self.next_id += 1;
-                let (client, tx, log2) = (self.client.clone(), self.tx.clone(), self.tile_log2);
+                let (client, tx, layout) = (self.client.clone(), self.tx.clone(), self.layout);
                 let task = match self.config.mode {
                     RequestMode::Ranges => {
                         let ranges = morton::coalesce(chunk.iter().copied());
@@ -414,7 +415,7 @@ impl Streamer {
                             self.server,
                             range_query::format(&ranges)
                         );
-                        self.rt.spawn(fetch(client, url, id, log2, tx))
+                        self.rt.spawn(fetch(client, url, id, layout, tx))
                     }
                     RequestMode::Single => {
                         let tile = *tiles.iter().next().expect("one tile per request");
@@ -428,7 +429,7 @@ impl Streamer {
                             ],
                         );
                         let url = format!("{}{path}", self.server);
-                        self.rt.spawn(fetch_one(client, url, tile, id, log2, tx))
+                        self.rt.spawn(fetch_one(client, url, tile, id, layout, tx))
                     }
                 };
                 self.flights.insert(id, Flight { tiles, task });

@@ -7,7 +7,7 @@
 //! already-filled row above it. Rows that precede the first valid sample copy the
 //! first filled row (their nearest valid samples lie straight below).
 
-use super::raster::Raster;
+use super::raster::{DepthCounts, Raster, depth};
 use crate::ingest::{RowSource, SampleType};
 use anyhow::{Context, bail};
 use std::fs::File;
@@ -48,6 +48,10 @@ impl RawQuantizer {
 #[derive(Debug)]
 pub struct SpooledRaster {
     file: File,
+    /// One byte per sample (1 = input data, 0 = filled no-data), row-major; `None`
+    /// when the input had no no-data at all (the common case costs nothing).
+    validity: Option<File>,
+    depth_counts: DepthCounts,
     width: u32,
     height: u32,
     pub quantizer: RawQuantizer,
@@ -147,6 +151,9 @@ impl SpooledRaster {
         let mut valid = vec![false; (band_rows + 1) * w];
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         let mut nodata_count = 0u64;
+        let mut depth_counts: DepthCounts = [[0; 2]; 33];
+        // Created at the first no-data sample, with the rows before it marked valid.
+        let mut validity: Option<BufWriter<File>> = None;
         let mut have_prev = false;
         let mut leading_void_rows = 0u32;
         let mut row = 0u32;
@@ -161,14 +168,32 @@ impl SpooledRaster {
             src.read_rows(&mut rows[ctx * w..])?;
             let valid = &mut valid[..rows.len()];
             valid[..ctx * w].fill(true);
-            for (v, ok) in rows[ctx * w..].iter().zip(valid[ctx * w..].iter_mut()) {
+            let band_nodata = nodata_count;
+            for (i, (v, ok)) in rows[ctx * w..].iter().zip(valid[ctx * w..].iter_mut()).enumerate() {
                 *ok = !v.is_nan() && Some(*v) != nodata;
+                let (x, y) = ((i % w) as u32, row + (i / w) as u32);
+                depth_counts[depth(x, y)][usize::from(!*ok)] += 1;
                 if *ok {
                     lo = lo.min(*v);
                     hi = hi.max(*v);
                 } else {
                     nodata_count += 1;
                 }
+            }
+            if validity.is_none() && nodata_count > band_nodata {
+                let f = tempfile::tempfile_in(dir).with_context(|| {
+                    format!("cannot create a temporary file in {}", dir.display())
+                })?;
+                let mut b = BufWriter::with_capacity(SPOOL_BUFFER, f);
+                let before = vec![1u8; w];
+                for _ in 0..row {
+                    b.write_all(&before).context(SPOOL_WRITE)?;
+                }
+                validity = Some(b);
+            }
+            if let Some(b) = validity.as_mut() {
+                let flags: Vec<u8> = valid[ctx * w..].iter().map(|&v| u8::from(v)).collect();
+                b.write_all(&flags).context(SPOOL_WRITE)?;
             }
             if fill_band(rows, w, valid) {
                 let body = &rows[ctx * w..];
@@ -205,6 +230,10 @@ impl SpooledRaster {
             .into_inner()
             .map_err(std::io::IntoInnerError::into_error)
             .context(SPOOL_WRITE)?;
+        let validity = validity
+            .map(|b| b.into_inner().map_err(std::io::IntoInnerError::into_error))
+            .transpose()
+            .context(SPOOL_WRITE)?;
         let quantizer = if info.sample_type.is_integer() {
             RawQuantizer {
                 raw_offset: if info.sample_type == SampleType::Int16 {
@@ -227,6 +256,8 @@ impl SpooledRaster {
         };
         Ok(Self {
             file,
+            validity,
+            depth_counts,
             width: info.width,
             height: info.height,
             quantizer,
@@ -260,6 +291,31 @@ impl Raster for SpooledRaster {
             }
         }
         Ok(())
+    }
+
+    fn read_validity(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [bool]) -> anyhow::Result<()> {
+        let Some(file) = &self.validity else {
+            out.fill(true);
+            return Ok(());
+        };
+        let mut raw = vec![0u8; w as usize];
+        for r in 0..h {
+            let off = u64::from(y0 + r) * u64::from(self.width) + u64::from(x0);
+            file.read_exact_at(&mut raw, off)
+                .context("reading the spooled validity")?;
+            for (d, &v) in out[(r * w) as usize..((r + 1) * w) as usize].iter_mut().zip(&raw) {
+                *d = v != 0;
+            }
+        }
+        Ok(())
+    }
+
+    fn has_nodata(&self) -> bool {
+        self.validity.is_some()
+    }
+
+    fn depth_counts(&self) -> DepthCounts {
+        self.depth_counts
     }
 }
 

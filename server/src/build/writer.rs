@@ -215,15 +215,15 @@ impl PyramidWriter {
         &self.target
     }
 
-    /// Appends a record; records of a level must arrive in Morton order.
+    /// Appends a record; records of a level must arrive in Morton order. `summary`
+    /// gives the index entry's min, max, error and flags; the writer fills in where
+    /// the record lies and its checksum.
     pub fn push(
         &mut self,
         level: Level,
         m: Morton,
         record: &[u8],
-        min: u16,
-        max: u16,
-        full_res_error: f32,
+        summary: IndexEntry,
     ) -> anyhow::Result<()> {
         let sink = &mut self.levels[usize::from(level.get())];
         let target = &self.target;
@@ -233,11 +233,8 @@ impl PyramidWriter {
         let entry = IndexEntry {
             offset: sink.len,
             length: u32::try_from(record.len()).context("record over 4 GiB")?,
-            min,
-            max,
             checksum: format::checksum(record),
-            full_res_error,
-            flags: 0,
+            ..summary
         };
         sink.index(&self.file, m.get(), entry)
             .with_context(|| format!("cannot write {}", target.display()))?;

@@ -74,6 +74,8 @@ impl Hgt {
         let georef = GeoRef {
             epsg: Some(4326),
             crs_name: Some("WGS 84".into()),
+            proj: None,
+            wkt: None,
             // Samples are points: shift the corner of pixel (0, 0) half a sample north-west.
             geotransform: [
                 f64::from(lon) - step / 2.0,
@@ -103,6 +105,11 @@ impl Hgt {
 impl RowSource for Hgt {
     fn info(&self) -> &SourceInfo {
         &self.info
+    }
+
+    /// SRTM heights are above the EGM96 geoid (SRTM Data Products Description).
+    fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
+        Some(tessera_shared::VerticalDatum::Egm96)
     }
 
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {

@@ -186,6 +186,10 @@ impl Raster for Synthetic {
         self.size
     }
 
+    fn depth_counts(&self) -> crate::build::raster::DepthCounts {
+        crate::build::raster::all_valid_depth_counts(self.size, self.size)
+    }
+
     fn read_window(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [u16]) -> anyhow::Result<()> {
         debug_assert!(x0 + w <= self.padded && y0 + h <= self.padded);
         if w == 1 && h == 1 && x0.is_multiple_of(BLOCK) && y0.is_multiple_of(BLOCK) {

@@ -242,6 +242,8 @@ pub(super) fn read_georef(decoder: &mut Decoder<Reader>) -> Option<GeoRef> {
     Some(GeoRef {
         epsg: keys.epsg(),
         crs_name: keys.crs_name(),
+        proj: None,
+        wkt: None,
         geotransform: gt,
         raster_type,
     })

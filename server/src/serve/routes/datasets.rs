@@ -13,7 +13,12 @@ use tessera_shared::api::{DatasetInfo, DatasetList};
 
 /// The JSON description of one dataset (the contract's [`DatasetInfo`]).
 pub fn describe(ds: &Dataset) -> DatasetInfo {
-    DatasetInfo::new(&ds.name, ds.pyramid.metadata(), ds.storage.size())
+    DatasetInfo::new(
+        &ds.name,
+        ds.pyramid.metadata(),
+        ds.pyramid.header().version,
+        ds.storage.size(),
+    )
 }
 
 pub async fn list(State(state): State<Arc<AppState>>) -> impl IntoResponse {

@@ -1,0 +1,502 @@
+//! Reprojection at build time (`build --to EPSG:CODE`, issue 13 item 3): a
+//! [`RowSource`] that resamples another one onto a north-up grid in a new CRS.
+//!
+//! 1. The source is spooled once into a temporary file of raw `f32` samples, its
+//!    no-data as NaN, so any source row can be read back.
+//! 2. The output grid covers the source's footprint (its pixel-area border, sampled
+//!    densely, carried to the target CRS) with the spacing a source sample has at
+//!    the DEM's centre (or `--spacing`).
+//! 3. Each output row is inverse-transformed to source pixel coordinates: exactly
+//!    at span ends, linearly inside spans whose middle is within [`MAX_ERROR_PX`]
+//!    (GDAL's approximate transformer does the same with 1/8 pixel), then sampled
+//!    bilinearly (weights renormalised over valid neighbours, as `gdalwarp` does
+//!    with no-data) or by nearest neighbour. Outside the source, or where every
+//!    neighbour is no-data, the output is no-data.
+//!
+//! Memory: the band of source rows one output row touches, held as a sliding
+//! window (its size is estimated up front for the build's memory plan).
+
+use super::{RowSource, SampleType, SourceInfo};
+use crate::crs::Crs;
+use anyhow::{Context, anyhow, bail};
+use std::collections::VecDeque;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::os::unix::fs::FileExt;
+use std::path::Path;
+use tessera_shared::{GeoRef, RasterType};
+
+/// Longest span of output samples between exact transforms.
+pub const STEP: usize = 64;
+/// Largest error, in source pixels, of an interpolated source position.
+pub const MAX_ERROR_PX: f64 = 1e-3;
+
+/// Fills `out[i..=k]` between exact ends `a` (at `i`) and `b` (at `k`), splitting the
+/// span while its middle is off the line by more than [`MAX_ERROR_PX`]. A failed
+/// transform (beyond a projection's domain) splits too, down to single samples.
+fn fill_span(
+    exact: &impl Fn(usize) -> Option<[f64; 2]>,
+    out: &mut [[f64; 2]],
+    i: usize,
+    a: Option<[f64; 2]>,
+    k: usize,
+    b: Option<[f64; 2]>,
+) {
+    if let Some(p) = b {
+        out[k] = p;
+    }
+    if k - i <= 1 {
+        return;
+    }
+    let m = usize::midpoint(i, k);
+    let mid = exact(m);
+    if let (Some(pa), Some(pb), Some(pm)) = (a, b, mid) {
+        let t = (m - i) as f64 / (k - i) as f64;
+        let lin = [pa[0] + t * (pb[0] - pa[0]), pa[1] + t * (pb[1] - pa[1])];
+        if (lin[0] - pm[0]).abs() <= MAX_ERROR_PX && (lin[1] - pm[1]).abs() <= MAX_ERROR_PX {
+            for (n, o) in out[i + 1..k].iter_mut().enumerate() {
+                let t = (n + 1) as f64 / (k - i) as f64;
+                *o = [pa[0] + t * (pb[0] - pa[0]), pa[1] + t * (pb[1] - pa[1])];
+            }
+            return;
+        }
+    }
+    fill_span(exact, out, i, a, m, mid);
+    fill_span(exact, out, m, mid, k, b);
+}
+
+/// How output samples are computed from the source's.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Resampling {
+    /// Bilinear over the four nearest source samples.
+    #[default]
+    Bilinear,
+    /// The nearest source sample (keeps integer heights exact).
+    Nearest,
+}
+
+/// What `--to`, `--resampling` and `--spacing` asked for.
+#[derive(Clone, Debug)]
+pub struct ReprojectOptions {
+    /// `EPSG:CODE` or a PROJ string.
+    pub to: String,
+    pub resampling: Resampling,
+    /// Output spacing `[x, y]` in target CRS units; `None`: the source's resolution
+    /// at the DEM's centre.
+    pub spacing: Option<[f64; 2]>,
+}
+
+/// A source resampled onto a grid in another CRS.
+pub struct Reprojected {
+    info: SourceInfo,
+    spool: File,
+    src_w: usize,
+    src_h: usize,
+    /// Source geotransform (north-up: no rotation terms).
+    src_gt: [f64; 6],
+    out_gt: [f64; 6],
+    source: Crs,
+    target: Crs,
+    resampling: Resampling,
+    row: u32,
+    /// Source rows `band_start .. band_start + band.len()`.
+    band: VecDeque<Vec<f32>>,
+    band_start: usize,
+    band_rows_estimate: usize,
+}
+
+impl std::fmt::Debug for Reprojected {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reprojected")
+            .field("info", &self.info)
+            .field("target", &self.target)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Reprojected {
+    /// Spools `src` into a temporary file in `dir` and plans the output grid.
+    /// `nodata` (the user's override, else the source's own value) marks missing
+    /// source samples.
+    pub fn new(
+        mut src: Box<dyn RowSource>,
+        opts: &ReprojectOptions,
+        nodata: Option<f64>,
+        dir: &Path,
+    ) -> anyhow::Result<Self> {
+        let info = src.info().clone();
+        let georef = info
+            .georef
+            .clone()
+            .ok_or_else(|| anyhow!("--to needs a georeferenced input; this one has no CRS"))?;
+        let gt = georef.geotransform;
+        if gt[2] != 0.0 || gt[4] != 0.0 {
+            bail!("--to: rotated source grids are not supported (geotransform {gt:?})");
+        }
+        let source = Crs::of(&georef).ok_or_else(|| {
+            anyhow!(
+                "--to: the input's CRS ({}) is not known to the projection library",
+                georef.crs_name.as_deref().unwrap_or("unnamed")
+            )
+        })?;
+        let target = Crs::parse(&opts.to).with_context(|| format!("--to {}", opts.to))?;
+        let (w, h) = (info.width as usize, info.height as usize);
+        let out = plan_grid(&source, &target, &gt, w, h, opts.spacing)?;
+        // 1. Spool the source with no-data as NaN.
+        let nodata = nodata.or(info.nodata).map(|v| v as f32);
+        let file = tempfile::tempfile_in(dir)
+            .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
+        let mut writer = BufWriter::with_capacity(1 << 20, file);
+        let mut row = vec![0f32; w];
+        for _ in 0..h {
+            src.read_rows(&mut row)?;
+            for v in &mut row {
+                if Some(*v) == nodata {
+                    *v = f32::NAN;
+                }
+            }
+            let bytes: Vec<u8> = row.iter().flat_map(|v| v.to_le_bytes()).collect();
+            writer
+                .write_all(&bytes)
+                .context("cannot write the reprojection spool")?;
+        }
+        let spool = writer
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)
+            .context("cannot write the reprojection spool")?;
+        let mut out_georef = GeoRef {
+            epsg: target.epsg(),
+            crs_name: target.name(),
+            proj: None,
+            wkt: None,
+            geotransform: out.gt,
+            raster_type: RasterType::PixelIsArea,
+        };
+        target.describe(&mut out_georef);
+        let sample_type = match opts.resampling {
+            Resampling::Nearest => info.sample_type,
+            Resampling::Bilinear => SampleType::Float32,
+        };
+        let mut me = Self {
+            info: SourceInfo {
+                width: out.width,
+                height: out.height,
+                sample_type,
+                nodata: None,
+                georef: Some(out_georef),
+                description: format!(
+                    "{}, reprojected to {} ({})",
+                    info.description,
+                    target.epsg().map_or_else(|| target.proj_string().to_string(), |c| format!("EPSG:{c}")),
+                    match opts.resampling {
+                        Resampling::Bilinear => "bilinear",
+                        Resampling::Nearest => "nearest",
+                    }
+                ),
+            },
+            spool,
+            src_w: w,
+            src_h: h,
+            src_gt: gt,
+            out_gt: out.gt,
+            source,
+            target,
+            resampling: opts.resampling,
+            row: 0,
+            band: VecDeque::new(),
+            band_start: 0,
+            band_rows_estimate: 0,
+        };
+        me.band_rows_estimate = me.estimate_band_rows();
+        Ok(me)
+    }
+
+    /// Source pixel coordinates (`col`, `row` of sample centres, fractional) of each
+    /// output sample of output row `j`: exact at the ends of spans of up to
+    /// [`STEP`] samples, halved until the middle sample's linear estimate is within
+    /// [`MAX_ERROR_PX`] of its exact transform (GDAL's approximate transformer does
+    /// the same with 1/8 pixel), linear inside.
+    fn source_coords(&self, j: u32) -> Vec<[f64; 2]> {
+        let w = self.info.width as usize;
+        let y = self.out_gt[3] + (f64::from(j) + 0.5) * self.out_gt[5];
+        let exact = |i: usize| -> Option<[f64; 2]> {
+            let x = self.out_gt[0] + (i as f64 + 0.5) * self.out_gt[1];
+            let [sx, sy] = self.target.transform_to(&self.source, x, y).ok()?;
+            let c = [
+                (sx - self.src_gt[0]) / self.src_gt[1] - 0.5,
+                (sy - self.src_gt[3]) / self.src_gt[5] - 0.5,
+            ];
+            (c[0].is_finite() && c[1].is_finite()).then_some(c)
+        };
+        let mut out = vec![[f64::NAN; 2]; w];
+        let mut i = 0;
+        let mut a = exact(0);
+        if let Some(p) = a {
+            out[0] = p;
+        }
+        while i + 1 < w {
+            let k = (i + STEP).min(w - 1);
+            let b = exact(k);
+            fill_span(&exact, &mut out, i, a, k, b);
+            i = k;
+            a = b;
+        }
+        out
+    }
+
+    /// The widest band of source rows an output row needs, from every 64th row.
+    fn estimate_band_rows(&self) -> usize {
+        let mut most = 2usize;
+        let h = self.info.height;
+        for j in (0..h).step_by(64).chain(std::iter::once(h - 1)) {
+            if let Some((lo, hi)) = self.row_span(&self.source_coords(j)) {
+                most = most.max(hi - lo + 1);
+            }
+        }
+        most
+    }
+
+    /// Source rows `lo..=hi` that the samples at `coords` read.
+    fn row_span(&self, coords: &[[f64; 2]]) -> Option<(usize, usize)> {
+        let last = self.src_h as f64 - 1.0;
+        let rows = coords
+            .iter()
+            .map(|c| c[1])
+            .filter(|r| r.is_finite() && *r > -0.5 && *r < last + 0.5);
+        let (lo, hi) = rows.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| {
+            (lo.min(r), hi.max(r))
+        });
+        if lo > hi {
+            return None;
+        }
+        let lo = lo.floor().max(0.0) as usize;
+        let hi = (hi.floor() as usize + 1).min(self.src_h - 1);
+        Some((lo, hi))
+    }
+
+    /// Makes the band hold source rows `lo..=hi`.
+    fn load_band(&mut self, lo: usize, hi: usize) -> anyhow::Result<()> {
+        if lo < self.band_start || lo > self.band_start + self.band.len() {
+            self.band.clear();
+            self.band_start = lo;
+        }
+        while self.band_start < lo && !self.band.is_empty() {
+            self.band.pop_front();
+            self.band_start += 1;
+        }
+        if self.band.is_empty() {
+            self.band_start = lo;
+        }
+        let mut raw = vec![0u8; 4 * self.src_w];
+        while self.band_start + self.band.len() <= hi {
+            let r = self.band_start + self.band.len();
+            self.spool
+                .read_exact_at(&mut raw, (r * self.src_w * 4) as u64)
+                .context("reading the reprojection spool")?;
+            self.band.push_back(
+                raw.chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect(),
+            );
+        }
+        Ok(())
+    }
+
+    fn sample(&self, col: f64, row: f64) -> f32 {
+        let (w, h) = (self.src_w as f64, self.src_h as f64);
+        // Inside the source's pixel areas: centres −0.5 ..= size − 0.5.
+        if !(col >= -0.5 && col <= w - 0.5 && row >= -0.5 && row <= h - 0.5) {
+            return f32::NAN;
+        }
+        let at = |c: usize, r: usize| -> f32 {
+            r.checked_sub(self.band_start)
+                .and_then(|i| self.band.get(i))
+                .map_or(f32::NAN, |line| line[c])
+        };
+        let (c, r) = (col.clamp(0.0, w - 1.0), row.clamp(0.0, h - 1.0));
+        match self.resampling {
+            Resampling::Nearest => at(c.round() as usize, r.round() as usize),
+            Resampling::Bilinear => {
+                let (c0, r0) = (c.floor() as usize, r.floor() as usize);
+                let (c1, r1) = ((c0 + 1).min(self.src_w - 1), (r0 + 1).min(self.src_h - 1));
+                let (fx, fy) = (c - c0 as f64, r - r0 as f64);
+                let mut sum = 0.0f64;
+                let mut weight = 0.0f64;
+                for (v, wgt) in [
+                    (at(c0, r0), (1.0 - fx) * (1.0 - fy)),
+                    (at(c1, r0), fx * (1.0 - fy)),
+                    (at(c0, r1), (1.0 - fx) * fy),
+                    (at(c1, r1), fx * fy),
+                ] {
+                    if !v.is_nan() && wgt > 0.0 {
+                        sum += f64::from(v) * wgt;
+                        weight += wgt;
+                    }
+                }
+                if weight > 0.0 {
+                    (sum / weight) as f32
+                } else {
+                    f32::NAN
+                }
+            }
+        }
+    }
+}
+
+impl RowSource for Reprojected {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
+        let w = self.info.width as usize;
+        for line in out.chunks_exact_mut(w) {
+            if self.row >= self.info.height {
+                bail!("read past the last reprojected row");
+            }
+            let coords = self.source_coords(self.row);
+            match self.row_span(&coords) {
+                Some((lo, hi)) => {
+                    self.load_band(lo, hi)?;
+                    for (o, c) in line.iter_mut().zip(&coords) {
+                        *o = if c[0].is_finite() && c[1].is_finite() {
+                            self.sample(c[0], c[1])
+                        } else {
+                            f32::NAN
+                        };
+                    }
+                }
+                None => line.fill(f32::NAN),
+            }
+            self.row += 1;
+        }
+        Ok(())
+    }
+
+    fn buffer_bytes(&self) -> u64 {
+        // The band, the coordinates of one row, and the spool's read buffer.
+        (self.band_rows_estimate * self.src_w * 4 + self.info.width as usize * 16 + (1 << 20))
+            as u64
+    }
+}
+
+/// The output grid: size and geotransform.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Grid {
+    width: u32,
+    height: u32,
+    gt: [f64; 6],
+}
+
+/// Footprint and spacing of the source in the target CRS.
+fn plan_grid(
+    source: &Crs,
+    target: &Crs,
+    gt: &[f64; 6],
+    w: usize,
+    h: usize,
+    spacing: Option<[f64; 2]>,
+) -> anyhow::Result<Grid> {
+    let corner = |c: f64, r: f64| [gt[0] + c * gt[1], gt[3] + r * gt[5]];
+    let to = |p: [f64; 2]| source.transform_to(target, p[0], p[1]);
+    // The pixel-area border, 64 points per edge (straight lines bend under most
+    // projections, so corners alone would cut the footprint short).
+    let (mut x0, mut y0, mut x1, mut y1) = (
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    );
+    let n = 64;
+    for k in 0..=n {
+        let t = f64::from(k) / f64::from(n);
+        for (c, r) in [
+            (t * w as f64, 0.0),
+            (t * w as f64, h as f64),
+            (0.0, t * h as f64),
+            (w as f64, t * h as f64),
+        ] {
+            let [x, y] = to(corner(c, r)).context("--to: the source's border does not transform")?;
+            x0 = x0.min(x);
+            x1 = x1.max(x);
+            y0 = y0.min(y);
+            y1 = y1.max(y);
+        }
+    }
+    let [sx, sy] = if let Some(s) = spacing {
+        s
+    } else {
+        // One source sample's step at the centre, carried to the target.
+        let (c, r) = (w as f64 / 2.0, h as f64 / 2.0);
+        let p = to(corner(c, r))?;
+        let px = to(corner(c + 1.0, r))?;
+        let py = to(corner(c, r + 1.0))?;
+        [
+            (px[0] - p[0]).hypot(px[1] - p[1]),
+            (py[0] - p[0]).hypot(py[1] - p[1]),
+        ]
+    };
+    if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
+        bail!("--to: output spacing {sx} × {sy} is not positive");
+    }
+    let width = ((x1 - x0) / sx).ceil();
+    let height = ((y1 - y0) / sy).ceil();
+    if !(width >= 2.0 && height >= 2.0 && width * height <= 4.0e10) {
+        bail!("--to: the output grid would be {width} × {height} samples");
+    }
+    Ok(Grid {
+        width: width as u32,
+        height: height as u32,
+        gt: [x0, sx, 0.0, y1, 0.0, -sy],
+    })
+}
+
+/// Parses `--spacing X[,Y]`.
+pub fn parse_spacing(s: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let num = |p: &str| -> Result<f64, String> {
+        p.parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .ok_or_else(|| format!("{p:?} is not a positive number"))
+    };
+    match parts.as_slice() {
+        [x] => Ok([num(x)?, num(x)?]),
+        [x, y] => Ok([num(x)?, num(y)?]),
+        _ => Err(format!("{s:?}: want X or X,Y")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spacing_takes_one_or_two_positive_numbers() {
+        assert_eq!(parse_spacing("30").unwrap(), [30.0, 30.0]);
+        assert_eq!(parse_spacing("0.001, 0.002").unwrap(), [0.001, 0.002]);
+        assert!(parse_spacing("-1").is_err());
+        assert!(parse_spacing("1,2,3").is_err());
+        assert!(parse_spacing("x").is_err());
+    }
+
+    #[test]
+    fn the_grid_covers_the_footprint_at_the_source_resolution() {
+        // 1000 × 500 samples of 30 m in UTM 11N → WGS 84: ~0.00033° × 0.00027°.
+        let src = Crs::from_epsg(32611).unwrap();
+        let dst = Crs::from_epsg(4326).unwrap();
+        let gt = [400_000.0, 30.0, 0.0, 3_800_000.0, 0.0, -30.0];
+        let g = plan_grid(&src, &dst, &gt, 1000, 500, None).unwrap();
+        // Every source corner lies inside the output's pixel areas.
+        for (c, r) in [(0.0, 0.0), (1000.0, 0.0), (0.0, 500.0), (1000.0, 500.0)] {
+            let [x, y] = src
+                .transform_to(&dst, gt[0] + c * gt[1], gt[3] + r * gt[5])
+                .unwrap();
+            assert!(x >= g.gt[0] - 1e-12 && x <= g.gt[0] + f64::from(g.width) * g.gt[1] + 1e-12);
+            assert!(y <= g.gt[3] + 1e-12 && y >= g.gt[3] + f64::from(g.height) * g.gt[5] - 1e-12);
+        }
+        // 30 m is 1/3700° of latitude and 30 / (111.3 km · cos 34.3°) of longitude.
+        assert!((g.gt[1] - 30.0 / 92_000.0).abs() < 2e-5, "{}", g.gt[1]);
+        assert!((-g.gt[5] - 30.0 / 110_900.0).abs() < 1e-5, "{}", g.gt[5]);
+    }
+}

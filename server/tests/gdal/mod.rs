@@ -1,0 +1,67 @@
+//! GDAL's command-line tools as the reference in tests (Debian's `gdal-bin`, which
+//! `./run test` installs). Without them a test prints `SKIPPED`, or fails when `CI`
+//! is set, so CI can never pass by skipping.
+
+#![allow(dead_code)] // each test binary uses its own subset
+
+use std::path::Path;
+use std::process::Command;
+
+/// Whether GDAL's tools are here; `SKIPPED` when not, a failure when `CI` is set.
+pub fn gdal_or_skip() -> bool {
+    let ok = Command::new("gdalinfo")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "GDAL's tools are missing and CI is set (./run test installs gdal-bin)"
+        );
+        eprintln!("SKIPPED: GDAL's tools are absent (apt-get install gdal-bin)");
+    }
+    ok
+}
+
+/// Runs a GDAL tool; its stdout. Panics with its stderr when it fails.
+pub fn run(program: &str, args: &[&str]) -> String {
+    let o = Command::new(program).args(args).output().unwrap();
+    assert!(
+        o.status.success(),
+        "{program} {args:?} failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8(o.stdout).unwrap()
+}
+
+/// `gdaltransform`: points of `from` carried to `to` (both `EPSG:CODE`), exactly as
+/// PROJ computes them.
+pub fn transform(from: &str, to: &str, points: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let mut child = Command::new("gdaltransform")
+        .args(["-s_srs", from, "-t_srs", to, "-output_xy"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    {
+        use std::io::Write;
+        let stdin = child.stdin.as_mut().unwrap();
+        for p in points {
+            writeln!(stdin, "{:.10} {:.10}", p[0], p[1]).unwrap();
+        }
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().unwrap()).collect();
+            [v[0], v[1]]
+        })
+        .collect()
+}
+
+pub fn path_str(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
