@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use tessera_server::build::interrupt::{Interrupt, Interrupted};
 use tessera_server::build::{BuildOptions, build_inputs};
+use tessera_server::ingest::reproject::{ReprojectOptions, Resampling, parse_spacing};
 use tessera_server::ingest::{InputSpec, Overlap};
 use tessera_server::{info, preview, verify};
 
@@ -68,6 +69,22 @@ enum Command {
         /// Input value that means "no data", overriding each file's own (e.g. GDAL_NODATA).
         #[arg(long, allow_negative_numbers = true)]
         nodata: Option<f64>,
+        /// What the heights are measured from, recorded so outputs that need another
+        /// reference (Cesium: the ellipsoid) can convert. Default: what the input says
+        /// (SRTM .hgt: egm96), else unknown.
+        #[arg(long, value_enum)]
+        vertical_datum: Option<DatumArg>,
+        /// Reproject to this CRS first (EPSG:CODE, e.g. EPSG:4326, EPSG:3857, EPSG:32632,
+        /// or a PROJ string), resampling onto a north-up grid that covers the input.
+        #[arg(long, value_name = "CRS")]
+        to: Option<String>,
+        /// How --to computes output samples.
+        #[arg(long, value_enum, default_value_t = Resampling::Bilinear, requires = "to")]
+        resampling: Resampling,
+        /// Output spacing for --to in the target CRS's units, X or X,Y (default: the
+        /// input's resolution at its centre).
+        #[arg(long, value_name = "X[,Y]", value_parser = parse_spacing, requires = "to")]
+        spacing: Option<[f64; 2]>,
         /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
         #[arg(long, default_value = "512MiB", value_parser = parse_bytes)]
         memory: u64,
@@ -169,6 +186,31 @@ fn main() -> ExitCode {
     }
 }
 
+/// `--vertical-datum` values (shared/ does not link clap).
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum DatumArg {
+    /// Heights above the EGM96 geoid (SRTM).
+    Egm96,
+    /// Heights above the EGM2008 geoid (Copernicus DEM).
+    Egm2008,
+    /// Heights above the CRS's ellipsoid.
+    Ellipsoid,
+    /// Not known.
+    Unknown,
+}
+
+impl DatumArg {
+    const fn datum(self) -> tessera_shared::VerticalDatum {
+        use tessera_shared::VerticalDatum as V;
+        match self {
+            Self::Egm96 => V::Egm96,
+            Self::Egm2008 => V::Egm2008,
+            Self::Ellipsoid => V::Ellipsoid,
+            Self::Unknown => V::Unknown,
+        }
+    }
+}
+
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Build {
@@ -180,6 +222,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             scale,
             offset,
             nodata,
+            vertical_datum,
+            to,
+            resampling,
+            spacing,
             memory,
             quiet,
         } => {
@@ -189,6 +235,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 offset,
                 memory_budget: memory,
                 nodata,
+                vertical_datum: vertical_datum.map(DatumArg::datum),
+                reproject: to.map(|to| ReprojectOptions {
+                    to,
+                    resampling,
+                    spacing,
+                }),
                 overlap,
                 progress: !quiet,
                 interrupt: Interrupt::install().context("cannot watch SIGINT/SIGTERM")?,

@@ -30,9 +30,11 @@ use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;
 use tessera_shared::error_table::round_up_f32;
+use tessera_shared::format::{FLAG_PARTIAL, IndexEntry};
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{
-    ErrorTable, Level, Metadata, Morton, Quantization, TileGeometry, TileId, codec,
+    CellMask, ErrorTable, Level, LevelCounts, Metadata, Morton, Quantization, TileGeometry, TileId,
+    VerticalDatum, codec,
 };
 
 /// What `tessera-server build` was asked to do.
@@ -49,6 +51,10 @@ pub struct BuildOptions {
     pub nodata: Option<f64>,
     /// Which input wins where a mosaic's inputs overlap and disagree.
     pub overlap: ingest::Overlap,
+    /// What the heights are measured from; `None`: what the input says, else unknown.
+    pub vertical_datum: Option<VerticalDatum>,
+    /// Resample to another CRS first (`--to`).
+    pub reproject: Option<ingest::reproject::ReprojectOptions>,
     /// Show progress bars (on a terminal).
     pub progress: bool,
     /// Set by SIGINT/SIGTERM (when installed): the build stops and cleans up.
@@ -64,6 +70,8 @@ impl Default for BuildOptions {
             memory_budget: 512 << 20,
             nodata: None,
             overlap: ingest::Overlap::Error,
+            vertical_datum: None,
+            reproject: None,
             progress: false,
             interrupt: interrupt::Interrupt::default(),
         }
@@ -87,14 +95,16 @@ struct Node {
     errors: BlockErrors,
     min: [u16; 64],
     max: [u16; 64],
+    /// Which cells are terrain (FORMAT.md "Validity mask").
+    mask: CellMask,
 }
 
-/// An encoded record and its index summary.
+/// An encoded record and its index summary; `None` record for a tile inside the DEM
+/// that holds no terrain cell (it is absent from the file, but its node still feeds
+/// its parent's heights).
 struct Encoded {
-    record: Vec<u8>,
-    min: u16,
-    max: u16,
-    full_res_error: f32,
+    record: Option<Vec<u8>>,
+    summary: IndexEntry,
 }
 
 fn bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
@@ -132,6 +142,25 @@ pub fn build_inputs(
         label,
         source_name,
     } = ingest::open_inputs(inputs, opts.nodata, opts.overlap)?;
+    let dir = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    // Reprojection reads the source whole first; its output marks no-data as NaN,
+    // so the spool below needs no no-data value of its own.
+    let (source, spool_nodata) = match (source, &opts.reproject) {
+        (Input::Rows(rows), Some(r)) => (
+            Input::Rows(Box::new(
+                ingest::reproject::Reprojected::new(rows, r, opts.nodata, dir)
+                    .with_context(|| label.clone())?,
+            )),
+            None,
+        ),
+        (Input::Synthetic(_), Some(_)) => {
+            anyhow::bail!("{label}: --to needs a georeferenced input; synthetic terrain has no CRS")
+        }
+        (source, None) => (source, opts.nodata),
+    };
     let input = label.as_str();
     let (width, height) = match &source {
         Input::Rows(r) => (r.info().width, r.info().height),
@@ -145,10 +174,17 @@ pub fn build_inputs(
     };
     let plan = memory::Plan::new(&geometry, input_bytes, opts.memory_budget)
         .with_context(|| input.to_string())?;
-    let (description, georef) = match &source {
+    let (description, mut georef) = match &source {
         Input::Rows(r) => (r.info().description.clone(), r.info().georef.clone()),
         Input::Synthetic(s) => (s.description(), None),
     };
+    let ground_spacing = georef
+        .as_mut()
+        .and_then(|g| ground_geometry(g, width, height, input));
+    let vertical_datum = opts.vertical_datum.unwrap_or_else(|| match &source {
+        Input::Rows(r) => r.vertical_datum().unwrap_or_default(),
+        Input::Synthetic(_) => VerticalDatum::Unknown,
+    });
     let mut meta = Metadata {
         width,
         height,
@@ -163,6 +199,9 @@ pub fn build_inputs(
         max_height: 0.0,
         nodata_count: 0,
         nodata_fill: "nearest valid sample".into(),
+        ground_spacing,
+        vertical_datum,
+        level_counts: Vec::new(),
         georef,
         source: format!("{description} ({source_name})"),
         generator: format!("tessera-server {}", env!("CARGO_PKG_VERSION")),
@@ -170,17 +209,13 @@ pub fn build_inputs(
     };
     let writer = writer::PyramidWriter::create(output, geometry, meta_reserve(&meta))
         .with_context(|| output.display().to_string())?;
-    let dir = output
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
     match source {
         Input::Rows(mut rows) => {
             let spool_bar = bar(opts.progress, u64::from(height), "reading");
             let spooled = spool::SpooledRaster::spool(
                 rows.as_mut(),
                 dir,
-                opts.nodata,
+                spool_nodata,
                 plan.band_bytes,
                 |r| {
                     spool_bar.set_position(u64::from(r));
@@ -210,11 +245,45 @@ pub fn build_inputs(
     }
 }
 
+/// The CRS's PROJ string and WKT, and the ground spacing at the DEM's centre
+/// (DESIGN §9), from the projection library. A CRS it does not know leaves both
+/// out, with a warning: the pyramid is still right, clients fall back to a spacing.
+fn ground_geometry(
+    georef: &mut tessera_shared::GeoRef,
+    width: u32,
+    height: u32,
+    input: &str,
+) -> Option<tessera_shared::GroundSpacing> {
+    let Some(crs) = crate::crs::Crs::of(georef) else {
+        tracing::warn!(
+            input,
+            crs = georef.crs_name.as_deref().unwrap_or("unnamed"),
+            "the CRS has no EPSG code the projection library knows: no ground spacing recorded"
+        );
+        return None;
+    };
+    crs.describe(georef);
+    match crate::crs::ground_spacing(georef, width, height) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            tracing::warn!(input, "no ground spacing: {e:#}");
+            None
+        }
+    }
+}
+
 /// Room for the metadata once its numbers are final (they are all fixed-size or small).
 fn meta_reserve(meta: &Metadata) -> u64 {
     let mut m = meta.clone();
     m.nodata_count = u64::MAX;
     m.content_hash = "0".repeat(16);
+    m.level_counts = vec![
+        LevelCounts {
+            valid: u64::MAX,
+            filled: u64::MAX,
+        };
+        usize::from(m.levels)
+    ];
     tessera_shared::format::encode_metadata(&m).len() as u64 + 64
 }
 
@@ -293,6 +362,7 @@ fn build_tiles(
     tracing::debug!(seconds = started.elapsed().as_secs_f64(), "tiles built");
     meta.min_height = quant.height(agg.min_q);
     meta.max_height = quant.height(agg.max_q);
+    meta.level_counts = level_counts(&geometry, &raster.depth_counts());
     let verify_bar = bar(opts.progress, total_tiles, "verifying");
     let target = writer.target().to_path_buf();
     let (metadata, file_bytes) = writer
@@ -365,11 +435,21 @@ fn finest_node(
     let errors =
         mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, &corners, spacings);
     let (min, max) = block_ranges(&heights, side);
+    // Samples beyond the DEM's width and height are padding, never terrain.
+    let cells = side as u32 - 1;
+    let mask = if raster.has_nodata() {
+        let mut valid = vec![false; (w * h) as usize];
+        raster.read_validity(x0, y0, w, h, &mut valid)?;
+        CellMask::from_samples(cells, |x, y| x < w && y < h && valid[(y * w + x) as usize])
+    } else {
+        CellMask::from_samples(cells, |x, y| x < w && y < h)
+    };
     Ok(Node {
         heights,
         errors,
         min,
         max,
+        mask,
     })
 }
 
@@ -419,11 +499,17 @@ fn encode(node: &Node, g: &TileGeometry, level: Level, q: &Quantization) -> Enco
         }
     }
     let (min, max) = table.tile_range();
+    let partial = !node.mask.is_all_valid();
     Encoded {
-        record: codec::encode_record(&table, &node.heights),
-        min,
-        max,
-        full_res_error: table.full_resolution_error(),
+        record: (!node.mask.is_none_valid())
+            .then(|| codec::encode_record(&table, &node.mask, &node.heights)),
+        summary: IndexEntry {
+            min,
+            max,
+            full_res_error: table.full_resolution_error(),
+            flags: if partial { FLAG_PARTIAL } else { 0 },
+            ..IndexEntry::default()
+        },
     }
 }
 
@@ -449,10 +535,12 @@ impl Aggregator<'_> {
     ) -> anyhow::Result<()> {
         let node = match item {
             Some((node, enc)) => {
-                writer.push(level, m, &enc.record, enc.min, enc.max, enc.full_res_error)?;
-                if level == self.geometry.finest() {
-                    self.min_q = self.min_q.min(enc.min);
-                    self.max_q = self.max_q.max(enc.max);
+                if let Some(record) = &enc.record {
+                    writer.push(level, m, record, enc.summary)?;
+                    if level == self.geometry.finest() {
+                        self.min_q = self.min_q.min(enc.summary.min);
+                        self.max_q = self.max_q.max(enc.summary.max);
+                    }
                 }
                 self.bar.inc(1);
                 Some(node)
@@ -521,11 +609,34 @@ impl Aggregator<'_> {
                 row.copy_from_slice(edge);
             }
         }
+        let cells = side as u32 - 1;
+        let mask = CellMask::pooled(
+            cells,
+            [0, 1, 2, 3].map(|q| children[q].as_ref().map(|c| &c.mask)),
+        );
         Some(Node {
             heights,
             errors,
             min,
             max,
+            mask,
         })
     }
+}
+
+/// Valid and filled sample counts of each level (level 0 first) from the raster's
+/// depth counts: level `L` samples every `2^(L_max − L)`-th column and row.
+pub fn level_counts(geometry: &TileGeometry, depths: &raster::DepthCounts) -> Vec<LevelCounts> {
+    let finest = usize::from(geometry.finest().get());
+    (0..=finest)
+        .map(|level| {
+            let below = finest - level;
+            depths[below..]
+                .iter()
+                .fold(LevelCounts::default(), |acc, [v, f]| LevelCounts {
+                    valid: acc.valid + v,
+                    filled: acc.filled + f,
+                })
+        })
+        .collect()
 }

@@ -7,6 +7,7 @@ pub mod hgt;
 pub mod inputs;
 pub mod mosaic;
 pub mod png16;
+pub mod reproject;
 pub mod synthetic;
 pub mod vrt;
 
@@ -68,6 +69,11 @@ pub trait RowSource: Send + std::fmt::Debug {
     /// for the build's memory plan. Small row-at-a-time readers keep the default.
     fn buffer_bytes(&self) -> u64 {
         0
+    }
+
+    /// What the heights are measured from, when the format says (SRTM: EGM96).
+    fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
+        None
     }
 }
 
