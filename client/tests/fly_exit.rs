@@ -23,7 +23,13 @@ fn terrain_document() -> String {
         },
         ..tessera_shared::fixtures::metadata(1025, 1025, 512)
     };
-    serde_json::to_string(&tessera_shared::api::DatasetInfo::new("terrain", &meta, tessera_shared::format::VERSION, 0)).unwrap()
+    serde_json::to_string(&tessera_shared::api::DatasetInfo::new(
+        "terrain",
+        &meta,
+        tessera_shared::format::VERSION,
+        0,
+    ))
+    .unwrap()
 }
 
 /// Serves `/v1/datasets/terrain` (a 1025² dataset of 512-cell tiles) and a 503 with

@@ -65,10 +65,7 @@ impl Crs {
     /// `EPSG:CODE` or a PROJ string, as users write them on the command line.
     pub fn parse(s: &str) -> anyhow::Result<Self> {
         let t = s.trim();
-        if let Some(code) = t
-            .strip_prefix("EPSG:")
-            .or_else(|| t.strip_prefix("epsg:"))
-        {
+        if let Some(code) = t.strip_prefix("EPSG:").or_else(|| t.strip_prefix("epsg:")) {
             let code: u32 = code
                 .parse()
                 .with_context(|| format!("{s:?}: EPSG code is not a number"))?;
@@ -180,7 +177,8 @@ fn wgs84() -> Proj {
 /// transverse Mercator centred on the DEM (scale 1 on its central meridian and,
 /// over one cell, true to well under a millimetre).
 pub fn ground_spacing(georef: &GeoRef, width: u32, height: u32) -> anyhow::Result<GroundSpacing> {
-    let crs = Crs::of(georef).ok_or_else(|| anyhow!("the CRS is not known to the projection library"))?;
+    let crs =
+        Crs::of(georef).ok_or_else(|| anyhow!("the CRS is not known to the projection library"))?;
     let (c, r) = (f64::from(width) / 2.0 - 0.5, f64::from(height) / 2.0 - 0.5);
     let at = |dc: f64, dr: f64| {
         let [x, y] = georef.sample_centre(c + dc, r + dr);
@@ -237,8 +235,18 @@ mod tests {
         let w = 1.0 - e2 * phi.sin().powi(2);
         let deg_lon = std::f64::consts::PI / 180.0 * a * phi.cos() / w.sqrt();
         let deg_lat = std::f64::consts::PI / 180.0 * a * (1.0 - e2) / w.powf(1.5);
-        assert!((s.x - deg_lon * step).abs() < 1e-3, "{} vs {}", s.x, deg_lon * step);
-        assert!((s.y - deg_lat * step).abs() < 1e-3, "{} vs {}", s.y, deg_lat * step);
+        assert!(
+            (s.x - deg_lon * step).abs() < 1e-3,
+            "{} vs {}",
+            s.x,
+            deg_lon * step
+        );
+        assert!(
+            (s.y - deg_lat * step).abs() < 1e-3,
+            "{} vs {}",
+            s.y,
+            deg_lat * step
+        );
         // The figure: a footprint 0.689× as wide as tall, within 1 %.
         assert!((s.x / s.y / 0.689 - 1.0).abs() < 0.01, "{}", s.x / s.y);
     }
@@ -265,7 +273,12 @@ mod tests {
         assert!(!c.is_geographic() && Crs::parse("EPSG:4326").unwrap().is_geographic());
         let e = Crs::parse("EPSG:1").unwrap_err().to_string();
         assert!(e.contains("EPSG:1 "), "{e}");
-        assert!(Crs::parse("UTM11").unwrap_err().to_string().contains("UTM11"));
+        assert!(
+            Crs::parse("UTM11")
+                .unwrap_err()
+                .to_string()
+                .contains("UTM11")
+        );
     }
 
     #[test]
@@ -273,7 +286,10 @@ mod tests {
         let lv95 = Crs::from_epsg(2056).unwrap();
         // Bern's old observatory, the origin of the Swiss grid.
         let [lon, lat] = lv95.to_lon_lat(2_600_000.0, 1_200_000.0).unwrap();
-        assert!((lon - 7.4386).abs() < 1e-3 && (lat - 46.9511).abs() < 1e-3, "{lon} {lat}");
+        assert!(
+            (lon - 7.4386).abs() < 1e-3 && (lat - 46.9511).abs() < 1e-3,
+            "{lon} {lat}"
+        );
         // Back within a centimetre (the datum shift is inverted iteratively).
         let [x, y] = lv95.from_lon_lat(lon, lat).unwrap();
         assert!(

@@ -155,7 +155,10 @@ pub fn render(i: &Info) -> String {
             );
         }
         None => {
-            let _ = writeln!(s, "spacing     not recorded (no CRS the projection library knows)");
+            let _ = writeln!(
+                s,
+                "spacing     not recorded (no CRS the projection library knows)"
+            );
         }
     }
     let _ = writeln!(s, "heights ref {}", m.vertical_datum.name());

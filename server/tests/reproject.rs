@@ -99,7 +99,12 @@ fn check(src: &Path, from: &str, to: &str, dir: &Path) {
     let sgt = rows.info().georef.as_ref().unwrap().geotransform;
     let corners: Vec<[f64; 2]> = [(0, 0), (sw, 0), (0, sh), (sw, sh)]
         .iter()
-        .map(|&(c, r)| [sgt[0] + f64::from(c) * sgt[1], sgt[3] + f64::from(r) * sgt[5]])
+        .map(|&(c, r)| {
+            [
+                sgt[0] + f64::from(c) * sgt[1],
+                sgt[3] + f64::from(r) * sgt[5],
+            ]
+        })
         .collect();
     let theirs = gdal::transform(from, to, &corners);
     let (a, b) = (Crs::parse(from).unwrap(), Crs::parse(to).unwrap());
@@ -111,8 +116,14 @@ fn check(src: &Path, from: &str, to: &str, dir: &Path) {
             "{from} {c:?} → ours {ours:?}, gdaltransform {t:?}"
         );
         // The output grid covers the source's footprint.
-        assert!(t[0] >= gt[0] - tol && t[0] <= gt[0] + f64::from(w) * gt[1] + tol, "{t:?}");
-        assert!(t[1] <= gt[3] + tol && t[1] >= gt[3] + f64::from(h) * gt[5] - tol, "{t:?}");
+        assert!(
+            t[0] >= gt[0] - tol && t[0] <= gt[0] + f64::from(w) * gt[1] + tol,
+            "{t:?}"
+        );
+        assert!(
+            t[1] <= gt[3] + tol && t[1] >= gt[3] + f64::from(h) * gt[5] - tol,
+            "{t:?}"
+        );
     }
 
     // 2. Heights against gdalwarp on the same grid, with exact transforms.
@@ -124,8 +135,26 @@ fn check(src: &Path, from: &str, to: &str, dir: &Path) {
     gdal::run(
         "gdalwarp",
         &[
-            "-q", "-overwrite", "-t_srs", to, "-te", &te[0], &te[1], &te[2], &te[3], "-ts", &ws,
-            &hs, "-r", "bilinear", "-et", "0", "-ot", "Float32", "-dstnodata", "-99999",
+            "-q",
+            "-overwrite",
+            "-t_srs",
+            to,
+            "-te",
+            &te[0],
+            &te[1],
+            &te[2],
+            &te[3],
+            "-ts",
+            &ws,
+            &hs,
+            "-r",
+            "bilinear",
+            "-et",
+            "0",
+            "-ot",
+            "Float32",
+            "-dstnodata",
+            "-99999",
             gdal::path_str(src),
             gdal::path_str(&reference),
         ],
@@ -139,7 +168,16 @@ fn check(src: &Path, from: &str, to: &str, dir: &Path) {
     let steepest = |i: usize| -> f64 {
         let (x, y) = ((i % w as usize) as i64, (i / w as usize) as i64);
         let mut most = 0f64;
-        for (dx, dy) in [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+        for (dx, dy) in [
+            (-1, -1),
+            (0, -1),
+            (1, -1),
+            (-1, 0),
+            (1, 0),
+            (-1, 1),
+            (0, 1),
+            (1, 1),
+        ] {
             let (nx, ny) = (x + dx, y + dy);
             if nx >= 0 && ny >= 0 && nx < i64::from(w) && ny < i64::from(h) {
                 let v = want[(ny * i64::from(w) + nx) as usize];
@@ -160,9 +198,8 @@ fn check(src: &Path, from: &str, to: &str, dir: &Path) {
             continue;
         }
         compared += 1;
-        let bound = m.quantization.max_error
-            + 1e-3
-            + 2.0 * ingest::reproject::MAX_ERROR_PX * steepest(i);
+        let bound =
+            m.quantization.max_error + 1e-3 + 2.0 * ingest::reproject::MAX_ERROR_PX * steepest(i);
         worst_excess = worst_excess.max(f64::from(o - t).abs() - bound);
     }
     // Our terrain covers GDAL's but for the outermost samples (a sample counts as
@@ -193,7 +230,15 @@ fn aletsch_from_lv95_to_wgs84_and_back() {
     let geo = dir.path().join("aletsch-4326.tif");
     gdal::run(
         "gdalwarp",
-        &["-q", "-t_srs", "EPSG:4326", "-r", "bilinear", gdal::path_str(&src), gdal::path_str(&geo)],
+        &[
+            "-q",
+            "-t_srs",
+            "EPSG:4326",
+            "-r",
+            "bilinear",
+            gdal::path_str(&src),
+            gdal::path_str(&geo),
+        ],
     );
     let back = tempfile::tempdir().unwrap();
     check(&geo, "EPSG:4326", "EPSG:2056", back.path());
@@ -212,7 +257,15 @@ fn bigtujunga_from_utm_to_wgs84_and_back() {
     let geo = dir.path().join("bigtujunga-4326.tif");
     gdal::run(
         "gdalwarp",
-        &["-q", "-t_srs", "EPSG:4326", "-r", "bilinear", gdal::path_str(&src), gdal::path_str(&geo)],
+        &[
+            "-q",
+            "-t_srs",
+            "EPSG:4326",
+            "-r",
+            "bilinear",
+            gdal::path_str(&src),
+            gdal::path_str(&geo),
+        ],
     );
     let back = tempfile::tempdir().unwrap();
     check(&geo, "EPSG:4326", "EPSG:32611", back.path());
@@ -225,7 +278,10 @@ fn bad_targets_are_one_line_errors_and_leave_nothing() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.tess");
-    for (to, says) in [("EPSG:1", "EPSG:1 is not a CRS"), ("UTM32", "neither EPSG:CODE")] {
+    for (to, says) in [
+        ("EPSG:1", "EPSG:1 is not a CRS"),
+        ("UTM32", "neither EPSG:CODE"),
+    ] {
         let o = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
             .arg("build")
             .arg(&src)
@@ -237,6 +293,9 @@ fn bad_targets_are_one_line_errors_and_leave_nothing() {
         assert!(!o.status.success());
         assert_eq!(err.trim().lines().count(), 1, "{err}");
         assert!(err.contains(says), "{err}");
-        assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none(), "left files behind");
+        assert!(
+            std::fs::read_dir(dir.path()).unwrap().next().is_none(),
+            "left files behind"
+        );
     }
 }

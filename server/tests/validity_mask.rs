@@ -30,7 +30,10 @@ impl Truth {
         Self {
             width: info.width,
             height: info.height,
-            valid: v.iter().map(|s| !s.is_nan() && Some(*s) != nodata).collect(),
+            valid: v
+                .iter()
+                .map(|s| !s.is_nan() && Some(*s) != nodata)
+                .collect(),
         }
     }
 
@@ -48,7 +51,12 @@ impl Truth {
     }
 }
 
-fn build_to(dir: &Path, input: &Path, tile_size: u32, nodata: Option<f64>) -> Pyramid<tessera_shared::FileSource> {
+fn build_to(
+    dir: &Path,
+    input: &Path,
+    tile_size: u32,
+    nodata: Option<f64>,
+) -> Pyramid<tessera_shared::FileSource> {
     let out = dir.join("out.tess");
     let opts = BuildOptions {
         tile_size,
@@ -57,7 +65,12 @@ fn build_to(dir: &Path, input: &Path, tile_size: u32, nodata: Option<f64>) -> Py
     };
     build(input.to_str().unwrap(), &out, &opts).unwrap();
     let report = tessera_server::verify::verify(&out).unwrap();
-    assert!(report.is_ok(), "verify: {:?} {:?}", report.bad, report.problems);
+    assert!(
+        report.is_ok(),
+        "verify: {:?} {:?}",
+        report.bad,
+        report.problems
+    );
     Pyramid::open_file(&out).unwrap()
 }
 
@@ -140,10 +153,16 @@ fn luxembourgs_border_mask_holds_at_every_level() {
     let levels = check_masks(&p, &truth);
     for (level, (yes, no, _)) in levels.iter().enumerate() {
         assert!(*yes > 0, "level {level} has no terrain cell");
-        assert!(*no > 0, "level {level} has no masked cell: the border is lost");
+        assert!(
+            *no > 0,
+            "level {level} has no masked cell: the border is lost"
+        );
     }
     // Masked cells stay masked going up: the terrain share never grows.
-    let share: Vec<f64> = levels.iter().map(|(y, n, _)| *y as f64 / (*y + *n) as f64).collect();
+    let share: Vec<f64> = levels
+        .iter()
+        .map(|(y, n, _)| *y as f64 / (*y + *n) as f64)
+        .collect();
     assert!(share.windows(2).all(|w| w[0] <= w[1]), "{share:?}");
     check_counts(&p, &truth);
     // The index flags the tiles with a partial mask: here every one (the border and
@@ -168,7 +187,10 @@ fn srtm_voids_are_masked_and_counted() {
     check_masks(&p, &truth);
     check_counts(&p, &truth);
     let finest = p.metadata().level_counts.last().copied().unwrap();
-    assert_eq!((finest.valid, finest.filled), (1201 * 1201 - 103_743, 103_743));
+    assert_eq!(
+        (finest.valid, finest.filled),
+        (1201 * 1201 - 103_743, 103_743)
+    );
 }
 
 /// Writes a 16-bit grayscale PNG.
@@ -196,13 +218,20 @@ fn a_wholly_no_data_tile_is_absent_and_its_parent_masks_its_area() {
     // corners.
     let hole = |x: u32, y: u32| (65..=127).contains(&x) && y <= 64;
     write_png(&png, 200, 130, |x, y| {
-        if hole(x, y) { 0 } else { 1000 + ((x * 7 + y * 3) % 500) as u16 }
+        if hole(x, y) {
+            0
+        } else {
+            1000 + ((x * 7 + y * 3) % 500) as u16
+        }
     });
     let p = build_to(dir.path(), &png, 64, Some(0.0));
     let truth = Truth::read(&png, Some(0.0));
     let levels = check_masks(&p, &truth);
     let finest = usize::from(p.geometry().finest().get());
-    assert_eq!(levels[finest].2, 1, "exactly tile (1, 0) of the finest level is absent");
+    assert_eq!(
+        levels[finest].2, 1,
+        "exactly tile (1, 0) of the finest level is absent"
+    );
     let t = tessera_shared::TileId::new(p.geometry().finest(), 1, 0).unwrap();
     assert!(p.geometry().is_present(t) && p.entry(t).is_none());
     check_counts(&p, &truth);

@@ -61,8 +61,8 @@ pub fn decode_metadata_of(bytes: &[u8], version: u32) -> Result<Metadata, String
 
 fn decode_exact<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
     use bincode::error::DecodeError;
-    let (meta, used): (T, usize) =
-        bincode::serde::decode_from_slice(bytes, bincode_config()).map_err(|e| match e {
+    let (meta, used): (T, usize) = bincode::serde::decode_from_slice(bytes, bincode_config())
+        .map_err(|e| match e {
             DecodeError::UnexpectedEnd { additional } => {
                 format!("metadata is truncated ({additional} more bytes expected)")
             }

@@ -30,7 +30,9 @@ pub mod testdata;
 
 pub use error_table::ErrorTable;
 pub use mask::CellMask;
-pub use metadata::{GeoRef, GroundSpacing, LevelCounts, Metadata, Quantization, RasterType, VerticalDatum};
+pub use metadata::{
+    GeoRef, GroundSpacing, LevelCounts, Metadata, Quantization, RasterType, VerticalDatum,
+};
 pub use morton::{Morton, MortonRange};
 pub use reader::{ByteSource, FileSource, Pyramid};
 pub use tile::{Level, TileGeometry, TileId};

@@ -168,7 +168,8 @@ impl CellMask {
     pub fn decode(bytes: &[u8], side: u32) -> Result<Self, MaskError> {
         let mut m = Self::none_valid(side);
         let want = m.raw_len();
-        let raw = lz4_flex::block::decompress(bytes, want).map_err(|e| MaskError::Lz4(e.to_string()))?;
+        let raw =
+            lz4_flex::block::decompress(bytes, want).map_err(|e| MaskError::Lz4(e.to_string()))?;
         if raw.len() != want {
             return Err(MaskError::WrongSize {
                 got: raw.len(),
@@ -196,7 +197,13 @@ impl CellMask {
     pub fn to_bytes_per_cell(&self) -> Vec<u8> {
         let n = (self.side as usize) * (self.side as usize);
         (0..n)
-            .map(|i| if self.bits[i / 64] >> (i % 64) & 1 == 1 { 255 } else { 0 })
+            .map(|i| {
+                if self.bits[i / 64] >> (i % 64) & 1 == 1 {
+                    255
+                } else {
+                    0
+                }
+            })
             .collect()
     }
 }

@@ -490,14 +490,20 @@ mod tests {
         let p = Pyramid::open_file(&path).unwrap();
         assert_eq!(p.header().version, 1);
         let m = p.metadata();
-        assert_eq!((m.width, m.height, m.tile_size, m.levels), (129, 129, 64, 2));
+        assert_eq!(
+            (m.width, m.height, m.tile_size, m.levels),
+            (129, 129, 64, 2)
+        );
         assert!(m.source.contains("synthetic:129"), "{}", m.source);
         assert_eq!(m.vertical_datum, crate::VerticalDatum::Unknown);
         assert!(m.level_counts.is_empty() && m.ground_spacing.is_none());
         let mut tiles = 0;
         for level in p.geometry().levels() {
             for tile in p.geometry().present_tiles(level) {
-                let rec = p.read_tile(tile).unwrap().expect("every v1 tile in the DEM is present");
+                let rec = p
+                    .read_tile(tile)
+                    .unwrap()
+                    .expect("every v1 tile in the DEM is present");
                 assert_eq!(rec.heights.len(), 65 * 65);
                 assert!(rec.mask.is_all_valid());
                 tiles += 1;

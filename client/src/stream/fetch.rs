@@ -6,8 +6,8 @@
 
 use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
-use tessera_shared::wire::{Frame, FrameDecoder, WireError};
 use tessera_shared::codec::RecordLayout;
+use tessera_shared::wire::{Frame, FrameDecoder, WireError};
 use tessera_shared::{ErrorTable, Level, Morton, TileId, codec};
 
 /// A decoded tile on its way to the pool.

@@ -13,7 +13,14 @@ pub trait Raster: Sync {
     /// Whether each sample of the window held input data (`false`: it was no-data
     /// and [`Raster::read_window`] returns a filled value). Rasters without no-data
     /// keep the default.
-    fn read_validity(&self, _x0: u32, _y0: u32, _w: u32, _h: u32, out: &mut [bool]) -> anyhow::Result<()> {
+    fn read_validity(
+        &self,
+        _x0: u32,
+        _y0: u32,
+        _w: u32,
+        _h: u32,
+        out: &mut [bool],
+    ) -> anyhow::Result<()> {
         out.fill(true);
         Ok(())
     }

@@ -169,7 +169,11 @@ impl SpooledRaster {
             let valid = &mut valid[..rows.len()];
             valid[..ctx * w].fill(true);
             let band_nodata = nodata_count;
-            for (i, (v, ok)) in rows[ctx * w..].iter().zip(valid[ctx * w..].iter_mut()).enumerate() {
+            for (i, (v, ok)) in rows[ctx * w..]
+                .iter()
+                .zip(valid[ctx * w..].iter_mut())
+                .enumerate()
+            {
                 *ok = !v.is_nan() && Some(*v) != nodata;
                 let (x, y) = ((i % w) as u32, row + (i / w) as u32);
                 depth_counts[depth(x, y)][usize::from(!*ok)] += 1;
@@ -293,7 +297,14 @@ impl Raster for SpooledRaster {
         Ok(())
     }
 
-    fn read_validity(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [bool]) -> anyhow::Result<()> {
+    fn read_validity(
+        &self,
+        x0: u32,
+        y0: u32,
+        w: u32,
+        h: u32,
+        out: &mut [bool],
+    ) -> anyhow::Result<()> {
         let Some(file) = &self.validity else {
             out.fill(true);
             return Ok(());
@@ -303,7 +314,10 @@ impl Raster for SpooledRaster {
             let off = u64::from(y0 + r) * u64::from(self.width) + u64::from(x0);
             file.read_exact_at(&mut raw, off)
                 .context("reading the spooled validity")?;
-            for (d, &v) in out[(r * w) as usize..((r + 1) * w) as usize].iter_mut().zip(&raw) {
+            for (d, &v) in out[(r * w) as usize..((r + 1) * w) as usize]
+                .iter_mut()
+                .zip(&raw)
+            {
                 *d = v != 0;
             }
         }

@@ -187,7 +187,9 @@ impl Reprojected {
                 description: format!(
                     "{}, reprojected to {} ({})",
                     info.description,
-                    target.epsg().map_or_else(|| target.proj_string().to_string(), |c| format!("EPSG:{c}")),
+                    target
+                        .epsg()
+                        .map_or_else(|| target.proj_string().to_string(), |c| format!("EPSG:{c}")),
                     match opts.resampling {
                         Resampling::Bilinear => "bilinear",
                         Resampling::Nearest => "nearest",
@@ -416,7 +418,8 @@ fn plan_grid(
             (0.0, t * h as f64),
             (w as f64, t * h as f64),
         ] {
-            let [x, y] = to(corner(c, r)).context("--to: the source's border does not transform")?;
+            let [x, y] =
+                to(corner(c, r)).context("--to: the source's border does not transform")?;
             x0 = x0.min(x);
             x1 = x1.max(x);
             y0 = y0.min(y);

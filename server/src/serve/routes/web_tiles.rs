@@ -158,8 +158,7 @@ pub async fn png(
     let q = ds.pyramid.metadata().quantization;
     // Decoding and compressing a big tile takes milliseconds: keep it off the runtime.
     let made = tokio::task::spawn_blocking(move || {
-        let decoded =
-            codec::decode_record(&record, layout).map_err(PngFailure::Corrupt)?;
+        let decoded = codec::decode_record(&record, layout).map_err(PngFailure::Corrupt)?;
         let t = geometry.tile_size();
         let rgb = render(&decoded.heights, t as usize, &q, encoding);
         encode_png(&rgb, t).map_err(PngFailure::Encode)
