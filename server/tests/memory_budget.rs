@@ -217,6 +217,11 @@ fn a_mosaic_of_many_tiles_stays_inside_the_budget() {
         (1201, 9601)
     );
     assert_eq!(report.metadata.nodata_count, 0, "the tiles leave no gap");
+    assert_eq!(
+        report.metadata.vertical_datum,
+        tessera_shared::VerticalDatum::Egm96,
+        "SRTM tiles state EGM96, and so does their mosaic"
+    );
     assert!(
         report
             .metadata

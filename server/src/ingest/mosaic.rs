@@ -17,7 +17,7 @@ use super::vrt::{Rect, Vrt, is_vrt};
 use super::{RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
-use tessera_shared::{GeoRef, RasterType};
+use tessera_shared::{GeoRef, RasterType, VerticalDatum};
 
 /// What happens where two inputs overlap with different valid values.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -62,6 +62,8 @@ struct Piece {
     nodata: Vec<f32>,
     /// Memory while open.
     bytes: u64,
+    /// What its heights are measured from, when its format says.
+    vertical_datum: Option<VerticalDatum>,
 }
 
 /// An open piece: its reader and its current row (no-data already NaN).
@@ -97,6 +99,8 @@ pub struct Mosaic {
     overlap: Overlap,
     opener: Opener,
     buffer_bytes: u64,
+    /// The inputs' vertical datum, when they all state the same one.
+    vertical_datum: Option<VerticalDatum>,
     /// How build errors name the mosaic ("mosaic of 16 inputs", or the VRT).
     label: String,
     /// What the metadata's `source` names: the first file and the count.
@@ -172,6 +176,9 @@ impl Mosaic {
             formats.join("/"),
             types.join("/"),
         );
+        // The datum the inputs state, when those that state one agree.
+        let mut datums = pieces.iter().filter_map(|p| p.vertical_datum);
+        let vertical_datum = datums.next().filter(|d| datums.all(|e| e == *d));
         let mut by_top: Vec<usize> = (0..pieces.len()).collect();
         by_top.sort_by_key(|&i| (pieces[i].y, i));
         let buffer_bytes = peak_open_bytes(&pieces)
@@ -196,6 +203,7 @@ impl Mosaic {
             overlap,
             opener,
             buffer_bytes,
+            vertical_datum,
             label,
             source_name,
         })
@@ -332,6 +340,7 @@ fn file_group(path: &Path, nodata: Option<f64>, opener: Opener) -> anyhow::Resul
         src_height: info.height,
         nodata: nodata_values(nodata, &[info.nodata]),
         bytes: piece_bytes(reader.as_ref()),
+        vertical_datum: reader.vertical_datum(),
     };
     Ok(Group {
         name,
@@ -396,6 +405,7 @@ fn vrt_group(path: &Path, nodata: Option<f64>, opener: Opener) -> anyhow::Result
             src_height: info.height,
             nodata: nodata_values(nodata, &[info.nodata, s.nodata, vrt.nodata]),
             bytes: piece_bytes(reader.as_ref()),
+            vertical_datum: reader.vertical_datum(),
         });
     }
     if pieces.is_empty() {
@@ -652,6 +662,10 @@ impl RowSource for Mosaic {
 
     fn buffer_bytes(&self) -> u64 {
         self.buffer_bytes
+    }
+
+    fn vertical_datum(&self) -> Option<VerticalDatum> {
+        self.vertical_datum
     }
 }
 
