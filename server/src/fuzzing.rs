@@ -37,7 +37,16 @@ pub const TARGETS: &[(&str, Entry)] = &[
     }),
     ("ranges", |d| ranges(d).map(drop)),
     ("http_range", |d| http_range(d).map(drop)),
+    ("vrt", |d| vrt(d).map_err(|e| format!("{e:#}"))),
 ];
+
+/// A GDAL VRT's XML, parsed as `build` parses it (sources are only named, never
+/// opened: the base folder does not exist).
+pub fn vrt(data: &[u8]) -> anyhow::Result<()> {
+    let text = std::str::from_utf8(data)?;
+    crate::ingest::vrt::Vrt::parse(text, std::path::Path::new("/nonexistent-fuzz-base"))?;
+    Ok(())
+}
 
 /// The most samples a DEM entry asks of its reader at once (4 MiB of `f32`).
 const ROW_BUDGET: usize = 1 << 20;

@@ -187,6 +187,48 @@ fn write_fuzz_seeds() {
     );
     put("hgt", "default-name", b"\x01\x01\x02\x03\x04\x05\x06");
 
+    // GDAL VRTs: gdalbuildvrt's shape with a simple and a complex source, and a
+    // point-sampled single-source one.
+    let source = |kind: &str, file: &str, x: u32| {
+        format!(
+            "<{kind}><SourceFilename relativeToVRT=\"1\">{file}</SourceFilename><SourceBand>1</SourceBand>\
+             <SrcRect xOff=\"0\" yOff=\"0\" xSize=\"301\" ySize=\"301\"/>\
+             <DstRect xOff=\"{x}\" yOff=\"0\" xSize=\"301\" ySize=\"301\"/></{kind}>"
+        )
+    };
+    let vrt = |w: u32, sources: &str, extra: &str| {
+        format!(
+            "<VRTDataset rasterXSize=\"{w}\" rasterYSize=\"301\"><SRS dataAxisToSRSAxisMapping=\"2,1\">EPSG:4326</SRS>\
+             <GeoTransform>8.0, 0.000833, 0.0, 47.0, 0.0, -0.000833</GeoTransform>{extra}\
+             <VRTRasterBand dataType=\"Int16\" band=\"1\"><NoDataValue>-32767</NoDataValue>{sources}</VRTRasterBand></VRTDataset>"
+        )
+    };
+    put(
+        "vrt",
+        "two-pieces",
+        vrt(
+            601,
+            &(source("SimpleSource", "a.tif", 0) + &source("ComplexSource", "b.tif", 300)),
+            "",
+        )
+        .as_bytes(),
+    );
+    put(
+        "vrt",
+        "one-piece",
+        vrt(301, &source("SimpleSource", "a.tif", 0), "").as_bytes(),
+    );
+    put(
+        "vrt",
+        "point",
+        vrt(
+            301,
+            &source("SimpleSource", "sub/a.tif", 0),
+            "<Metadata><MDI key=\"AREA_OR_POINT\">Point</MDI></Metadata>",
+        )
+        .as_bytes(),
+    );
+
     // Range grammars.
     put("ranges", "single", b"\x030-63");
     put("ranges", "list", b"\x050-3,7,20-30,1000");
