@@ -104,6 +104,7 @@ fn report(results: &Path, template: &Path, out: &Path, plots: &Path) -> anyhow::
             sections::select::section(r.select.as_deref(), &ctx),
         ),
         ("gpu", sections::gpu::section(r.gpu.as_deref())),
+        ("ingest", sections::ingest::section(r.ingest.as_deref())),
     ];
     let aims: Vec<Aim> = parts.iter().flat_map(|(_, s)| s.aims.clone()).collect();
     let mut values: BTreeMap<&str, String> = BTreeMap::new();

@@ -205,6 +205,19 @@ pub struct Select {
     pub worst_deficit: f64,
 }
 
+/// `ingest.jsonl`: one timed command of `bench/ingest.sh` (`case` "mosaic" or
+/// "reproject"; `samples` are the input's).
+#[derive(Clone, Debug, Deserialize)]
+pub struct Ingest {
+    pub case: String,
+    pub tool: String,
+    pub run: u32,
+    pub samples: f64,
+    pub wall_s: f64,
+    pub cpu_s: f64,
+    pub rss_mib: f64,
+}
+
 /// `gpu.jsonl`: frames per second on a real GPU (only when one was lent).
 #[derive(Clone, Debug, Deserialize)]
 pub struct GpuRun {
@@ -235,6 +248,19 @@ impl Record for Build {
     }
     fn key(&self) -> String {
         format!("{} {}", self.tool, self.input)
+    }
+    fn check(&self) -> Result<(), String> {
+        positive(&[("wall_s", self.wall_s), ("samples", self.samples)])
+    }
+}
+
+impl Record for Ingest {
+    const FILE: &'static str = "ingest.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!("{} {}", self.case, self.tool)
     }
     fn check(&self) -> Result<(), String> {
         positive(&[("wall_s", self.wall_s), ("samples", self.samples)])
@@ -345,6 +371,7 @@ pub struct Results {
     pub stream: Option<Vec<Stream>>,
     pub select: Option<Vec<Select>>,
     pub gpu: Option<Vec<GpuRun>>,
+    pub ingest: Option<Vec<Ingest>>,
 }
 
 impl Results {
@@ -373,6 +400,7 @@ impl Results {
             stream: load_jsonl(dir)?,
             select: load_jsonl(dir)?,
             gpu: load_jsonl(dir)?,
+            ingest: load_jsonl(dir)?,
         })
     }
 }

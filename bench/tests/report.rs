@@ -72,6 +72,7 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
         "## Parallax: the González table",
         "## Streaming under latency",
         "## Selection time",
+        "## Real datasets",
         "## GPU",
     ] {
         assert!(doc.contains(&format!("\n{heading}\n")), "no {heading}");
@@ -90,6 +91,19 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
     let canyon = line_with(&doc, "| `synthetic:65537` | `canyon` |");
     assert!(canyon.contains("| 595 (571–619) |"), "{canyon}");
 
+    // The mosaic: medians 23 s against 21 s, 1.095× (≤ 1.1, met), per-run ratios
+    // 1.05–1.19; reprojection alone 4.0, 4.2, 4.1 s against gdalwarp's 3.0, 3.2,
+    // 3.1 s (0.76×, not met).
+    let mosaic = line_with(&doc, "| [Real datasets](#real-datasets): a 64-file mosaic");
+    assert!(mosaic.ends_with("| **met** |"), "{mosaic}");
+    assert!(mosaic.contains("1.10× (1.05–1.19×)"), "{mosaic}");
+    let warp = line_with(&doc, "| [Real datasets](#real-datasets): reprojection");
+    assert!(warp.ends_with("| **not met** |"), "{warp}");
+    assert!(
+        doc.contains("| reproject | `gdalwarp -r bilinear` | 3 | 3.1 (3.0–3.2) |"),
+        "{doc}"
+    );
+
     // Verdicts in the aims table.
     let faster = line_with(&doc, "| [Build](#build): build faster");
     assert!(faster.ends_with("| **met** |"), "{faster}");
@@ -103,7 +117,7 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
     );
     let select = line_with(&doc, "| [Selection time](#selection-time)");
     assert!(select.ends_with("| **not met** |"), "{select}");
-    assert!(doc.contains("4 of 9 aims met, 5 not met, 0 not measured."));
+    assert!(doc.contains("6 of 12 aims met, 6 not met, 0 not measured."));
 
     // Every link to a section lands on a heading.
     let headings: Vec<String> = doc
@@ -154,7 +168,7 @@ fn missing_results_say_not_run_and_aims_not_measured() {
     let doc = std::fs::read_to_string(&out).expect("written");
     assert!(doc.contains("*Not run: the results have no `serve.jsonl`.*"));
     assert!(
-        doc.contains("0 of 9 aims met, 0 not met, 9 not measured."),
+        doc.contains("0 of 12 aims met, 0 not met, 12 not measured."),
         "{doc}"
     );
 }

@@ -10,6 +10,7 @@ pub mod aims;
 pub mod build;
 pub mod gonzalez;
 pub mod gpu;
+pub mod ingest;
 pub mod load;
 pub mod meta;
 pub mod policy;
