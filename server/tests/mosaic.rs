@@ -11,6 +11,10 @@
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
+mod gdal;
+
+use gdal::gdal_or_skip;
+
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -25,22 +29,6 @@ const SIDE: u32 = STEP + 1;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_tessera-server"))
-}
-
-/// Whether GDAL's tools are here; `SKIPPED` when not, a failure when `CI` is set.
-fn gdal_or_skip() -> bool {
-    let ok = Command::new("gdal_translate")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !ok {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "gdal_translate is missing and CI is set (./run test installs gdal-bin)"
-        );
-        eprintln!("SKIPPED: gdal_translate is absent (apt-get install gdal-bin)");
-    }
-    ok
 }
 
 fn run(cmd: &mut Command) {
