@@ -14,6 +14,8 @@
 //! Memory stays bounded by the batch of finest tiles in flight and one pending
 //! quadruple of tiles per level, whatever the DEM's size.
 
+mod coarse;
+mod finest;
 pub mod interrupt;
 pub mod memory;
 pub mod mesh_error;
@@ -23,8 +25,10 @@ pub mod writer;
 
 use crate::ingest::{self, Input};
 use anyhow::Context;
+use coarse::Aggregator;
+use finest::finest_node;
 use indicatif::{ProgressBar, ProgressStyle};
-use mesh_error::{BlockErrors, CoarseCorners};
+use mesh_error::BlockErrors;
 use raster::Raster;
 use rayon::prelude::*;
 use std::path::Path;
@@ -382,95 +386,6 @@ fn build_tiles(
     })
 }
 
-/// Corner heights of the coarse cells (spacing > T) enclosing the finest tile at
-/// global `(gx0, gy0)`, on the padded grid (clamped to the DEM's edge).
-fn coarse_corners(
-    raster: &dyn Raster,
-    g: &TileGeometry,
-    gx0: u64,
-    gy0: u64,
-    spacings: u32,
-) -> anyhow::Result<CoarseCorners> {
-    let (last_x, last_y) = (u64::from(g.width() - 1), u64::from(g.height() - 1));
-    let mut cells = Vec::with_capacity(spacings.saturating_sub(g.tile_log2() + 1) as usize);
-    for k in g.tile_log2() + 1..spacings {
-        let s = 1u64 << k;
-        let (cx, cy) = (gx0 / s * s, gy0 / s * s);
-        let mut cell = [0u16; 4];
-        for (c, (x, y)) in
-            cell.iter_mut()
-                .zip([(cx, cy), (cx + s, cy), (cx, cy + s), (cx + s, cy + s)])
-        {
-            let (x, y) = (x.min(last_x) as u32, y.min(last_y) as u32);
-            raster.read_window(x, y, 1, 1, std::slice::from_mut(c))?;
-        }
-        cells.push(cell);
-    }
-    Ok(CoarseCorners { cells })
-}
-
-/// Reads a finest tile (clamping the padding to the DEM's edge) and measures it.
-fn finest_node(
-    raster: &dyn Raster,
-    g: &TileGeometry,
-    tile: TileId,
-    spacings: u32,
-) -> anyhow::Result<Node> {
-    let side = g.tile_samples();
-    let (gx0, gy0) = g.origin(tile);
-    let (x0, y0) = (gx0 as u32, gy0 as u32);
-    let w = (side as u32).min(g.width() - x0);
-    let h = (side as u32).min(g.height() - y0);
-    let mut window = vec![0u16; (w * h) as usize];
-    raster.read_window(x0, y0, w, h, &mut window)?;
-    let mut heights = vec![0u16; side * side];
-    for r in 0..side {
-        let src = r.min(h as usize - 1) * w as usize;
-        let dst = &mut heights[r * side..(r + 1) * side];
-        dst[..w as usize].copy_from_slice(&window[src..src + w as usize]);
-        let edge = dst[w as usize - 1];
-        dst[w as usize..].fill(edge);
-    }
-    let corners = coarse_corners(raster, g, gx0, gy0, spacings)?;
-    let errors =
-        mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, &corners, spacings);
-    let (min, max) = block_ranges(&heights, side);
-    // Samples beyond the DEM's width and height are padding, never terrain.
-    let cells = side as u32 - 1;
-    let mask = if raster.has_nodata() {
-        let mut valid = vec![false; (w * h) as usize];
-        raster.read_validity(x0, y0, w, h, &mut valid)?;
-        CellMask::from_samples(cells, |x, y| x < w && y < h && valid[(y * w + x) as usize])
-    } else {
-        CellMask::from_samples(cells, |x, y| x < w && y < h)
-    };
-    Ok(Node {
-        heights,
-        errors,
-        min,
-        max,
-        mask,
-    })
-}
-
-/// Min/max over each block's closed sample range.
-fn block_ranges(heights: &[u16], side: usize) -> ([u16; 64], [u16; 64]) {
-    let b = (side - 1) / BLOCKS as usize;
-    let (mut min, mut max) = ([u16::MAX; 64], [0u16; 64]);
-    for by in 0..BLOCKS as usize {
-        for bx in 0..BLOCKS as usize {
-            let i = by * BLOCKS as usize + bx;
-            for v in by * b..=(by + 1) * b {
-                for &q in &heights[v * side + bx * b..=v * side + (bx + 1) * b] {
-                    min[i] = min[i].min(q);
-                    max[i] = max[i].max(q);
-                }
-            }
-        }
-    }
-    (min, max)
-}
-
 /// Errors in quantization steps → metres, rounded up so the bound stays conservative.
 fn to_metres(steps: f64, q: &Quantization) -> f32 {
     if steps == 0.0 {
@@ -510,117 +425,6 @@ fn encode(node: &Node, g: &TileGeometry, level: Level, q: &Quantization) -> Enco
             flags: if partial { FLAG_PARTIAL } else { 0 },
             ..IndexEntry::default()
         },
-    }
-}
-
-/// Post-order assembly of coarse tiles as their children arrive in Morton order.
-struct Aggregator<'a> {
-    geometry: TileGeometry,
-    quant: Quantization,
-    spacings: u32,
-    /// Per level, the up-to-four siblings waiting for their parent.
-    pending: Vec<[Option<Node>; 4]>,
-    min_q: u16,
-    max_q: u16,
-    bar: &'a ProgressBar,
-}
-
-impl Aggregator<'_> {
-    fn push(
-        &mut self,
-        writer: &mut writer::PyramidWriter,
-        level: Level,
-        m: Morton,
-        item: Option<(Node, Encoded)>,
-    ) -> anyhow::Result<()> {
-        let node = match item {
-            Some((node, enc)) => {
-                if let Some(record) = &enc.record {
-                    writer.push(level, m, record, enc.summary)?;
-                    if level == self.geometry.finest() {
-                        self.min_q = self.min_q.min(enc.summary.min);
-                        self.max_q = self.max_q.max(enc.summary.max);
-                    }
-                }
-                self.bar.inc(1);
-                Some(node)
-            }
-            None => None,
-        };
-        let Some(parent_level) = level.coarser() else {
-            return Ok(());
-        };
-        let slot = &mut self.pending[usize::from(level.get())];
-        slot[usize::from(m.quadrant())] = node;
-        if m.quadrant() == 3 {
-            let children = std::mem::take(slot);
-            let parent = self.assemble(&children).map(|node| {
-                let enc = encode(&node, &self.geometry, parent_level, &self.quant);
-                (node, enc)
-            });
-            // Freed before the parent cascades upward, so each level holds at most
-            // three waiting siblings (memory::Plan counts on it).
-            drop(children);
-            self.push(writer, parent_level, m.parent(), parent)?;
-        }
-        Ok(())
-    }
-
-    /// A parent from its children; `None` when the parent is absent (its first child is).
-    fn assemble(&self, children: &[Option<Node>; 4]) -> Option<Node> {
-        children[0].as_ref()?;
-        let side = self.geometry.tile_samples();
-        let half = side / 2;
-        let mut heights = vec![0u16; side * side];
-        let mut errors = BlockErrors::zeros(self.spacings as usize);
-        let (mut min, mut max) = ([u16::MAX; 64], [0u16; 64]);
-        for (q, child) in children.iter().enumerate() {
-            let Some(c) = child else { continue };
-            let (qx, qy) = (q & 1, q >> 1);
-            for j in 0..=half {
-                let dst = (qy * half + j) * side + qx * half;
-                let src = 2 * j * side;
-                for i in 0..=half {
-                    heights[dst + i] = c.heights[src + 2 * i];
-                }
-            }
-            errors.pool_child(&c.errors, qx as u32, qy as u32);
-            for cby in 0..BLOCKS as usize {
-                for cbx in 0..BLOCKS as usize {
-                    let pi = (qy * 4 + cby / 2) * BLOCKS as usize + qx * 4 + cbx / 2;
-                    let ci = cby * BLOCKS as usize + cbx;
-                    min[pi] = min[pi].min(c.min[ci]);
-                    max[pi] = max[pi].max(c.max[ci]);
-                }
-            }
-        }
-        // Absent children lie wholly beyond the DEM's east or south edge, where the
-        // padded grid repeats the edge: copy the last present column / row.
-        if children[1].is_none() {
-            for r in 0..side {
-                let edge = heights[r * side + half];
-                heights[r * side + half + 1..(r + 1) * side].fill(edge);
-            }
-        }
-        if children[2].is_none() {
-            let (top, rest) = heights.split_at_mut((half + 1) * side);
-            let edge = &top[half * side..];
-            for row in rest.chunks_exact_mut(side) {
-                row.copy_from_slice(edge);
-            }
-        }
-        let cells = side as u32 - 1;
-        let mask = CellMask::pooled(
-            cells,
-            [0, 1, 2, 3].map(|q| children[q].as_ref().map(|c| &c.mask)),
-        );
-        Some(Node {
-            heights,
-            errors,
-            min,
-            max,
-            mask,
-        })
     }
 }
 

@@ -1,0 +1,406 @@
+//! Many same-grid inputs read as one raster (issue 13): a [`RowSource`] over files
+//! and GDAL VRTs ([`super::vrt`]) placed on one lattice.
+//!
+//! Every input's header is read once, up front, to check that it shares the first
+//! input's CRS and grid and to place it; then it is closed. While rows are read, an
+//! input is opened when the row cursor reaches its top row and dropped after its
+//! bottom row, so only the inputs crossing the current row are open, and the memory
+//! the mosaic holds is the largest sum of their buffers over the rows, whatever the
+//! number of inputs ([`RowSource::buffer_bytes`]).
+//!
+//! Samples that no input covers are NaN (missing), and so is every input's own
+//! no-data value (or `--nodata`), converted per input, so inputs with different
+//! no-data values mix. Where inputs overlap, a missing sample never conflicts with a
+//! valid one; two valid samples must be equal, or [`Overlap`] decides.
+
+use super::vrt::is_vrt;
+use super::{RowSource, SampleType, SourceInfo};
+use anyhow::{Context, bail};
+use place::{file_group, names, vrt_group};
+use std::path::{Path, PathBuf};
+use tessera_shared::{GeoRef, VerticalDatum};
+
+/// What happens where two inputs overlap with different valid values.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Overlap {
+    /// The input listed first wins.
+    First,
+    /// The input listed last wins (as GDAL draws VRT sources).
+    Last,
+    /// Stop with the sample, its coordinates and the two files.
+    #[default]
+    Error,
+}
+
+/// Opens a raster file for reading: its reader and its format's name ("GeoTIFF").
+pub type Opener = fn(&Path) -> anyhow::Result<(Box<dyn RowSource>, &'static str)>;
+
+/// Lattice origins (and spacings over an input's size) may differ by this fraction of a cell.
+const LATTICE_TOLERANCE: f64 = 1e-6;
+/// Memory an open input holds beyond its reader's `buffer_bytes()` and its row:
+/// the file's read buffer (64 KiB) and decoder state.
+const OPEN_INPUT_BYTES: u64 = 128 << 10;
+
+/// One input file and where its samples go.
+#[derive(Clone, Debug)]
+struct Piece {
+    path: PathBuf,
+    /// How messages name it.
+    name: String,
+    format: &'static str,
+    sample_type: SampleType,
+    /// Its window in the mosaic.
+    x: u32,
+    y: u32,
+    w: u32,
+    h: u32,
+    /// The window's first column and row in the source, and the source's size.
+    src_x: u32,
+    src_y: u32,
+    src_width: u32,
+    src_height: u32,
+    /// Raw values that are missing (besides NaN).
+    nodata: Vec<f32>,
+    /// Memory while open.
+    bytes: u64,
+    /// What its heights are measured from, when its format says.
+    vertical_datum: Option<VerticalDatum>,
+}
+
+/// An open piece: its reader and its current row (no-data already NaN).
+#[derive(Debug)]
+struct OpenPiece {
+    index: usize,
+    reader: Box<dyn RowSource>,
+    row: Vec<f32>,
+}
+
+/// An argument of the mosaic before placement: one file, or a VRT's sources.
+struct Group {
+    name: String,
+    georef: Option<GeoRef>,
+    width: u32,
+    height: u32,
+    /// Pieces with `x`/`y` relative to the group.
+    pieces: Vec<Piece>,
+    is_vrt: bool,
+}
+
+/// Many inputs as one raster.
+#[derive(Debug)]
+pub struct Mosaic {
+    info: SourceInfo,
+    pieces: Vec<Piece>,
+    /// Piece indices by top row.
+    by_top: Vec<usize>,
+    next_open: usize,
+    /// Open pieces in input order.
+    open: Vec<OpenPiece>,
+    row: u32,
+    overlap: Overlap,
+    opener: Opener,
+    buffer_bytes: u64,
+    /// The inputs' vertical datum, when they all state the same one.
+    vertical_datum: Option<VerticalDatum>,
+    /// How build errors name the mosaic ("mosaic of 16 inputs", or the VRT).
+    label: String,
+    /// What the metadata's `source` names: the first file and the count.
+    source_name: String,
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name().map_or_else(
+        || p.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}
+
+fn crs_text(g: &GeoRef) -> String {
+    g.crs()
+        .or_else(|| g.crs_name.clone())
+        .unwrap_or_else(|| "an unnamed CRS".into())
+}
+
+fn same_crs(a: &GeoRef, b: &GeoRef) -> bool {
+    match (a.epsg, b.epsg) {
+        (Some(x), Some(y)) => x == y,
+        (None, None) => a.crs_name == b.crs_name,
+        _ => false,
+    }
+}
+
+impl Mosaic {
+    /// Reads the headers of `inputs` (files or VRTs, in order), checks that they share
+    /// a CRS and a grid and places them. `nodata` overrides every input's own no-data.
+    pub fn open(
+        inputs: &[PathBuf],
+        nodata: Option<f64>,
+        overlap: Overlap,
+        opener: Opener,
+    ) -> anyhow::Result<Self> {
+        if inputs.is_empty() {
+            bail!("no input to build from");
+        }
+        let mut groups = Vec::with_capacity(inputs.len());
+        for path in inputs {
+            groups.push(if is_vrt(path) {
+                vrt_group(path, nodata, opener)?
+            } else {
+                file_group(path, nodata, opener)?
+            });
+        }
+        let (width, height, georef, pieces) = place::place(groups.as_slice())?;
+        let any_vrt = groups.iter().any(|g| g.is_vrt);
+        let (label, source_name) = names(&groups, &pieces);
+        drop(groups);
+
+        let first_type = pieces[0].sample_type;
+        let sample_type = if pieces.iter().all(|p| p.sample_type == first_type) {
+            first_type
+        } else {
+            SampleType::Float32
+        };
+        let mut formats: Vec<&str> = pieces.iter().map(|p| p.format).collect();
+        formats.sort_unstable();
+        formats.dedup();
+        let mut types: Vec<&str> = pieces.iter().map(|p| p.sample_type.name()).collect();
+        types.sort_unstable();
+        types.dedup();
+        let description = format!(
+            "{}mosaic of {} {} {} inputs",
+            if any_vrt && inputs.len() == 1 {
+                "VRT "
+            } else {
+                ""
+            },
+            pieces.len(),
+            formats.join("/"),
+            types.join("/"),
+        );
+        // The datum the inputs state, when those that state one agree.
+        let mut datums = pieces.iter().filter_map(|p| p.vertical_datum);
+        let vertical_datum = datums.next().filter(|d| datums.all(|e| e == *d));
+        let mut by_top: Vec<usize> = (0..pieces.len()).collect();
+        by_top.sort_by_key(|&i| (pieces[i].y, i));
+        let buffer_bytes = peak_open_bytes(&pieces)
+            + pieces
+                .iter()
+                .map(|p| (size_of::<Piece>() + p.path.as_os_str().len() + p.name.len()) as u64)
+                .sum::<u64>();
+        Ok(Self {
+            info: SourceInfo {
+                width,
+                height,
+                sample_type,
+                nodata: None,
+                georef,
+                description,
+            },
+            pieces,
+            by_top,
+            next_open: 0,
+            open: Vec::new(),
+            row: 0,
+            overlap,
+            opener,
+            buffer_bytes,
+            vertical_datum,
+            label,
+            source_name,
+        })
+    }
+
+    /// How build errors name the mosaic.
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The first file and the count, for the metadata's `source`.
+    pub fn source_name(&self) -> &str {
+        &self.source_name
+    }
+
+    /// Inputs (files) in the mosaic.
+    pub fn len(&self) -> usize {
+        self.pieces.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pieces.is_empty()
+    }
+
+    /// Inputs open now (for tests of the lazy opening).
+    pub fn open_count(&self) -> usize {
+        self.open.len()
+    }
+
+    fn open_piece(&self, index: usize) -> anyhow::Result<OpenPiece> {
+        let p = &self.pieces[index];
+        let (mut reader, _) = (self.opener)(&p.path).with_context(|| p.name.clone())?;
+        let i = reader.info();
+        if (i.width, i.height) != (p.src_width, p.src_height) {
+            bail!(
+                "{}: changed while the build ran (now {}×{}, was {}×{})",
+                p.name,
+                i.width,
+                i.height,
+                p.src_width,
+                p.src_height
+            );
+        }
+        let mut row = vec![0f32; p.src_width as usize];
+        for _ in 0..p.src_y {
+            reader.read_rows(&mut row).with_context(|| p.name.clone())?;
+        }
+        Ok(OpenPiece { index, reader, row })
+    }
+}
+
+/// The error for two inputs that disagree at mosaic sample `(col, row)`: `kept` came
+/// from one of the `earlier` open pieces, `new` from piece `later`.
+#[allow(clippy::too_many_arguments)]
+fn conflict(
+    pieces: &[Piece],
+    georef: Option<&GeoRef>,
+    earlier: &[OpenPiece],
+    later: usize,
+    (col, row): (u32, u32),
+    kept: f32,
+    new: f32,
+) -> anyhow::Error {
+    let other = earlier
+        .iter()
+        .find(|o| {
+            let p = &pieces[o.index];
+            (p.x..p.x + p.w).contains(&col) && o.row[(p.src_x + col - p.x) as usize] == kept
+        })
+        .map_or("an earlier input", |o| pieces[o.index].name.as_str());
+    let at = georef.map_or_else(String::new, |g| {
+        let gt = &g.geotransform;
+        let x = gt[0] + (f64::from(col) + 0.5) * gt[1];
+        let y = gt[3] + (f64::from(row) + 0.5) * gt[5];
+        format!(" ({} {x}, {y})", crs_text(g))
+    });
+    anyhow::anyhow!(
+        "{other} and {} disagree at sample (col {col}, row {row}){at}: {kept} vs {new} \
+         (choose with --overlap first|last)",
+        pieces[later].name
+    )
+}
+
+/// The largest sum of open pieces' memory over the rows: pieces are open from their
+/// top row to their bottom row.
+fn peak_open_bytes(pieces: &[Piece]) -> u64 {
+    let mut events: Vec<(u32, i64)> = Vec::with_capacity(2 * pieces.len());
+    for p in pieces {
+        events.push((p.y, p.bytes as i64));
+        events.push((p.y + p.h, -(p.bytes as i64)));
+    }
+    // Closing before opening at the same row: a piece is dropped after its last row,
+    // before the next piece's first.
+    events.sort_unstable_by_key(|&(row, delta)| (row, delta));
+    let (mut now, mut peak) = (0i64, 0i64);
+    for (_, delta) in events {
+        now += delta;
+        peak = peak.max(now);
+    }
+    peak as u64
+}
+
+fn nodata_values(nodata: Option<f64>, own: &[Option<f64>]) -> Vec<f32> {
+    let mut v: Vec<f32> = match nodata {
+        Some(n) => vec![n as f32],
+        None => own.iter().flatten().map(|&n| n as f32).collect(),
+    };
+    v.retain(|n| !n.is_nan());
+    v.sort_unstable_by(f32::total_cmp);
+    v.dedup();
+    v
+}
+
+impl RowSource for Mosaic {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
+        let w = self.info.width as usize;
+        for out_row in out.chunks_exact_mut(w) {
+            let r = self.row;
+            if r >= self.info.height {
+                bail!("read past the mosaic's last row");
+            }
+            // Open the inputs whose top row this is, keeping `open` in input order.
+            while let Some(&i) = self.by_top.get(self.next_open)
+                && self.pieces[i].y == r
+            {
+                let opened = self.open_piece(i)?;
+                let at = self.open.partition_point(|o| o.index < i);
+                self.open.insert(at, opened);
+                self.next_open += 1;
+            }
+            out_row.fill(f32::NAN);
+            for k in 0..self.open.len() {
+                let (earlier, rest) = self.open.split_at_mut(k);
+                let o = &mut rest[0];
+                let p = &self.pieces[o.index];
+                o.reader
+                    .read_rows(&mut o.row)
+                    .with_context(|| p.name.clone())?;
+                let window = &mut o.row[p.src_x as usize..(p.src_x + p.w) as usize];
+                if !p.nodata.is_empty() {
+                    for v in window.iter_mut() {
+                        if p.nodata.contains(v) {
+                            *v = f32::NAN;
+                        }
+                    }
+                }
+                let dst = &mut out_row[p.x as usize..(p.x + p.w) as usize];
+                for (j, (d, &v)) in dst.iter_mut().zip(window.iter()).enumerate() {
+                    if v.is_nan() || *d == v {
+                        continue;
+                    }
+                    if d.is_nan() {
+                        *d = v;
+                        continue;
+                    }
+                    match self.overlap {
+                        Overlap::First => {}
+                        Overlap::Last => *d = v,
+                        Overlap::Error => {
+                            let (kept, index) = (*d, o.index);
+                            let col = p.x + j as u32;
+                            return Err(conflict(
+                                &self.pieces,
+                                self.info.georef.as_ref(),
+                                earlier,
+                                index,
+                                (col, r),
+                                kept,
+                                v,
+                            ));
+                        }
+                    }
+                }
+            }
+            // Drop the inputs whose bottom row this was.
+            let pieces = &self.pieces;
+            self.open
+                .retain(|o| pieces[o.index].y + pieces[o.index].h > r + 1);
+            self.row += 1;
+        }
+        Ok(())
+    }
+
+    fn buffer_bytes(&self) -> u64 {
+        self.buffer_bytes
+    }
+
+    fn vertical_datum(&self) -> Option<VerticalDatum> {
+        self.vertical_datum
+    }
+}
+
+mod place;
+#[cfg(test)]
+mod tests;
