@@ -6,7 +6,7 @@
 //! - [`font`]: a built-in 5×7 bitmap font;
 //! - [`plot`]: stacked line plots of per-frame series, the palette and axis colours;
 //! - [`png`]: writing (atomically) and reading RGBA8 PNG files;
-//! - [`stats`]: the median and the "nice" axis steps both reports use.
+//! - [`stats`]: the median, axis ranges and the "nice" axis steps both reports use.
 
 pub mod canvas;
 pub mod font;

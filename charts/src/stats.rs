@@ -1,4 +1,5 @@
-//! The few statistics the reports print and the charts' axes use.
+//! The few statistics the reports print and the charts' axes use: the median, the
+//! finite range of a series, a constant's range widened, and "nice" tick steps.
 
 /// The median of `values` (the mean of the two middle ones for an even count), or
 /// `None` for none. NaNs sort last; callers filter them when they can occur.
@@ -40,6 +41,41 @@ pub fn nice_step(raw: f64) -> f64 {
         .map(|m| m * base)
         .find(|&s| s >= raw * (1.0 - 1e-9))
         .unwrap_or(10.0 * base)
+}
+
+/// The smallest and largest of the finite `values` (NaN and ±∞ left out), or
+/// `None` without any.
+///
+/// ```
+/// use tessera_charts::stats::min_max;
+/// assert_eq!(min_max([3.0, f64::NAN, -1.0, f64::INFINITY]), Some((-1.0, 3.0)));
+/// assert_eq!(min_max([f64::NAN]), None);
+/// ```
+pub fn min_max(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
+    values
+        .into_iter()
+        .filter(|v| v.is_finite())
+        .fold(None, |acc, v| {
+            Some(acc.map_or((v, v), |(lo, hi): (f64, f64)| (lo.min(v), hi.max(v))))
+        })
+}
+
+/// The axis range for values from `lo` to `hi`: as it is when `lo < hi`; around a
+/// constant, widened to ±10 % of it (±1 around 0), so that it has a height.
+///
+/// ```
+/// use tessera_charts::stats::widen_flat;
+/// assert_eq!(widen_flat(1.0, 3.0), (1.0, 3.0));
+/// assert_eq!(widen_flat(0.0, 0.0), (-1.0, 1.0));
+/// assert_eq!(widen_flat(-50.0, -50.0), (-55.0, -45.0));
+/// ```
+pub fn widen_flat(lo: f64, hi: f64) -> (f64, f64) {
+    if lo < hi {
+        (lo, hi)
+    } else {
+        let d = if lo == 0.0 { 1.0 } else { lo.abs() * 0.1 };
+        (lo - d, hi + d)
+    }
 }
 
 #[cfg(test)]

@@ -1,17 +1,17 @@
-//! `tessera`: the Tessera client. Selection, streaming and rendering arrive in later
-//! issues; for now it can describe a local pyramid, which proves the client reads the
-//! same contract (`tessera-shared`) the server writes.
+//! `tessera`: the Tessera client's command line — the clap definitions, and a
+//! dispatch of each command to its run mode in `tessera_client::app`.
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
-use tessera_client::fly::{self, FlyOptions};
-use tessera_client::headless::{Draws, RenderSetup};
-use tessera_client::paths;
+use tessera_client::app::bench_select::{BenchSelect, bench_select};
+use tessera_client::app::fly::{self, FlyOptions};
+use tessera_client::app::headless::{Draws, RenderSetup};
+use tessera_client::app::{load_test, window};
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
-use tessera_client::select::{self, Policy, SelectParams, Selector, World};
-use tessera_client::stream::StreamConfig;
+use tessera_client::select::Policy;
+use tessera_client::stream::{RequestMode, StreamConfig};
 use tessera_shared::Pyramid;
 
 #[derive(Debug, Parser)]
@@ -213,107 +213,6 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-/// What `tessera bench-select` times.
-#[derive(Debug)]
-struct BenchSelect<'a> {
-    file: &'a std::path::Path,
-    path: &'a str,
-    fps: f64,
-    tau: f64,
-    frames: u32,
-    width: u32,
-    height: u32,
-    spacing: Option<f64>,
-}
-
-/// What `tessera bench-select` reports (`--json`): the selector's own clock
-/// (`FrameStats::select_us`) over the timed frames.
-#[derive(Debug, serde::Serialize)]
-struct BenchSelectReport {
-    file: String,
-    /// Error tables resident (every present tile).
-    tiles: usize,
-    width: u32,
-    height: u32,
-    tau: f64,
-    path: String,
-    fps: f64,
-    /// Frames timed.
-    frames: u32,
-    median_us: f64,
-    mean_us: f64,
-    p90_us: f64,
-    max_us: f64,
-    median_triangles: u64,
-    worst_deficit: f64,
-}
-
-fn bench_select(b: &BenchSelect) -> anyhow::Result<BenchSelectReport> {
-    anyhow::ensure!(b.frames > 0, "--frames must be at least 1");
-    anyhow::ensure!(
-        b.fps.is_finite() && b.fps > 0.0 && b.tau > 0.0,
-        "--fps and --tau must be positive"
-    );
-    let p = Pyramid::open_file(b.file).with_context(|| b.file.display().to_string())?;
-    let meta = p.metadata().clone();
-    let tables = select::all_tables(&p)?;
-    let world = World {
-        geometry: *p.geometry(),
-        quant: meta.quantization,
-        spacing: b
-            .spacing
-            .unwrap_or_else(|| fly::spacing_from(meta.georef.as_ref(), meta.height, 100.0)),
-    };
-    let cameras = paths::path_cameras(&p, &world, b.path, b.fps, b.width, b.height)?;
-    // Forward and back, so consecutive frames are always neighbours on the path:
-    // frame k is camera `order[k % order.len()]`.
-    let n = cameras.len();
-    let order: Vec<usize> = (0..n).chain((1..n.saturating_sub(1)).rev()).collect();
-    let mut sel = Selector::new(
-        world,
-        SelectParams {
-            tau: b.tau,
-            ..SelectParams::default()
-        },
-    );
-    // The first frame builds every quadtree from nothing: not a steady-state frame.
-    sel.select(&cameras[order[0]], &tables);
-    let mut times = Vec::with_capacity(b.frames as usize);
-    let mut tris = Vec::with_capacity(b.frames as usize);
-    let mut worst_deficit = 0f64;
-    for k in 1..=b.frames as usize {
-        let s = sel.select(&cameras[order[k % order.len()]], &tables);
-        times.push(s.stats.select_us);
-        tris.push(s.stats.triangles);
-        // Everything is resident: an unbounded deficit would be a selection bug.
-        let deficit = s.stats.deficit.with_context(|| {
-            format!("frame {k}: the deficit is missing with every tile resident")
-        })?;
-        worst_deficit = worst_deficit.max(deficit);
-    }
-    times.sort_by(f64::total_cmp);
-    tris.sort_unstable();
-    // Microseconds to the nanosecond: the clock's own resolution, without float noise.
-    let ns = |us: f64| (us * 1e3).round() / 1e3;
-    let pct = |q: f64| ns(times[((times.len() - 1) as f64 * q).round() as usize]);
-    Ok(BenchSelectReport {
-        file: b.file.display().to_string(),
-        tiles: tables.len(),
-        width: b.width,
-        height: b.height,
-        tau: b.tau,
-        path: b.path.to_string(),
-        fps: b.fps,
-        frames: b.frames,
-        median_us: pct(0.5),
-        mean_us: ns(times.iter().sum::<f64>() / times.len() as f64),
-        p90_us: pct(0.9),
-        max_us: pct(1.0),
-        median_triangles: tris[tris.len() / 2],
-        worst_deficit,
-    })
-}
-
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum Mode {
     Ranges,
@@ -364,14 +263,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             json,
         } => {
             let (width, height) = parse_viewport(&viewport)?;
-            let opts = tessera_client::load::LoadOptions {
+            let opts = load_test::LoadOptions {
                 server,
                 dataset,
                 clients,
                 duration,
                 mode: match mode {
-                    Mode::Ranges => tessera_client::stream::RequestMode::Ranges,
-                    Mode::Single => tessera_client::stream::RequestMode::Single,
+                    Mode::Ranges => RequestMode::Ranges,
+                    Mode::Single => RequestMode::Single,
                 },
                 fps,
                 tau,
@@ -380,25 +279,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 spacing,
                 progress: !json,
             };
-            let r = tessera_client::load::load(&opts)?;
+            let r = load_test::load(&opts)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             } else {
-                println!(
-                    "{} clients, {} mode, {:.1} s: {:.0} tiles/s, {:.1} MB/s, {:.0} requests/s; latency p50 {:.1} ms, p90 {:.1} ms, p99 {:.1} ms, max {:.1} ms; {} errors; {:.1}% of frames within 2τ",
-                    r.clients,
-                    r.mode,
-                    r.seconds,
-                    r.tiles_per_s,
-                    r.mb_per_s,
-                    r.requests_per_s,
-                    r.latency_ms_p50,
-                    r.latency_ms_p90,
-                    r.latency_ms_p99,
-                    r.latency_ms_max,
-                    r.errors,
-                    100.0 * r.frames_within_2tau
-                );
+                println!("{r}");
             }
             Ok(())
         }
@@ -499,23 +384,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     parallax,
                     backend,
                 };
-                return tessera_client::window::run(&opts, render);
+                return window::run(&opts, render);
             }
-            if let Some(dir) = &out {
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("{}: cannot create", dir.display()))?;
-            }
-            let mut file = match &stats {
-                Some(p) => Some(std::io::BufWriter::new(
-                    std::fs::File::create(p)
-                        .with_context(|| format!("{}: cannot create", p.display()))?,
-                )),
-                None => None,
-            };
-            let summary = fly::fly(&opts, file.as_mut().map(|f| f as &mut dyn std::io::Write))?;
-            if let Some(mut f) = file {
-                std::io::Write::flush(&mut f)?;
-            }
+            let summary = fly::fly_to_file(&opts, stats.as_deref())?;
             println!("{}", serde_json::to_string_pretty(&summary)?);
             // A flight that drew nothing at all is a failure, whatever it fetched
             // (DESIGN §8): the summary above says what, this says why.
@@ -545,23 +416,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             if json {
                 println!("{}", serde_json::to_string(&r)?);
             } else {
-                println!(
-                    "{}: {} tiles resident, path `{}` at {} fps (forward and back), {}×{}, τ = {} px, {} frames: selection median {:.0} µs, mean {:.0} µs, p90 {:.0} µs, max {:.0} µs; median {} triangles, worst deficit {:.2}",
-                    r.file,
-                    r.tiles,
-                    r.path,
-                    r.fps,
-                    r.width,
-                    r.height,
-                    r.tau,
-                    r.frames,
-                    r.median_us,
-                    r.mean_us,
-                    r.p90_us,
-                    r.max_us,
-                    r.median_triangles,
-                    r.worst_deficit
-                );
+                println!("{r}");
             }
             Ok(())
         }

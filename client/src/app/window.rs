@@ -6,8 +6,8 @@
 //! Shift ×5 speed; `+`/`-` raise/lower τ; 1–4 shaded/LOD/level/wireframe;
 //! P cycles parallax; Escape quits.
 
+use super::fly::FlyOptions;
 use crate::camera::Camera;
-use crate::fly::FlyOptions;
 use crate::render::gpu::Gpu;
 use crate::render::present::Presenter;
 use crate::render::slots::OnGpu;
@@ -20,6 +20,7 @@ use glam::DVec3;
 use std::collections::HashSet;
 use std::sync::Arc;
 use std::time::Instant;
+use tessera_shared::codec::RecordLayout;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, EventLoop};
@@ -77,15 +78,20 @@ impl State {
         render: RenderOptions,
         display: Box<dyn wgpu::wgt::WgpuHasDisplayHandle>,
     ) -> anyhow::Result<Self> {
-        let probe = Streamer::new(&opts.server, &opts.dataset, 9, opts.stream.clone())?;
-        let (world, min_h, max_h) = crate::fly::world(&probe, opts)?;
-        drop(probe);
-        let streamer = Streamer::new(
+        let probe = Streamer::new(
             &opts.server,
             &opts.dataset,
-            world.geometry.tile_log2(),
+            RecordLayout::current(9),
             opts.stream.clone(),
         )?;
+        let super::fly::DatasetView {
+            world,
+            min_height: min_h,
+            max_height: max_h,
+            layout,
+        } = super::fly::world(&probe, opts)?;
+        drop(probe);
+        let streamer = Streamer::new(&opts.server, &opts.dataset, layout, opts.stream.clone())?;
         let window = Arc::new(
             event_loop
                 .create_window(

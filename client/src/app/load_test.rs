@@ -1,7 +1,7 @@
 //! `tessera load`: many simulated clients flying the built-in paths through the real
 //! selection and streaming code (no rendering), to load-test a server.
 
-use crate::fly::{FlyOptions, fly};
+use super::fly::{FlyOptions, fly};
 use crate::stream::{RequestMode, StreamConfig};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -42,6 +42,28 @@ pub struct LoadReport {
     pub latency_ms_p99: f64,
     pub latency_ms_max: f64,
     pub frames_within_2tau: f64,
+}
+
+/// The one-line summary `tessera load` prints without `--json`.
+impl std::fmt::Display for LoadReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} clients, {} mode, {:.1} s: {:.0} tiles/s, {:.1} MB/s, {:.0} requests/s; latency p50 {:.1} ms, p90 {:.1} ms, p99 {:.1} ms, max {:.1} ms; {} errors; {:.1}% of frames within 2τ",
+            self.clients,
+            self.mode,
+            self.seconds,
+            self.tiles_per_s,
+            self.mb_per_s,
+            self.requests_per_s,
+            self.latency_ms_p50,
+            self.latency_ms_p90,
+            self.latency_ms_p99,
+            self.latency_ms_max,
+            self.errors,
+            100.0 * self.frames_within_2tau
+        )
+    }
 }
 
 /// Runs the clients (staggered along the built-in paths) and sums their traffic.
@@ -124,7 +146,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
             .copied()
             .unwrap_or(0.0)
     };
-    let sum = |f: &dyn Fn(&crate::fly::FlySummary) -> u64| summaries.iter().map(f).sum::<u64>();
+    let sum = |f: &dyn Fn(&super::fly::FlySummary) -> u64| summaries.iter().map(f).sum::<u64>();
     let requests = sum(&|s| s.stream.requests);
     let responses = sum(&|s| s.stream.responses);
     let tiles_total = sum(&|s| s.stream.tiles);

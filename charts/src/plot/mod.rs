@@ -1,9 +1,18 @@
 //! Line plots of per-frame statistics: one panel per series, stacked vertically,
 //! sharing an x axis of frame numbers.
+//!
+//! This module lays the panels out ([`plot_panels`]) and holds the colours;
+//! `panel` draws one panel (its grid, ticks, frame and polyline) and `format`
+//! writes the numbers on the axes ([`format_compact`]).
+
+mod format;
+mod panel;
+
+pub use format::format_compact;
 
 use crate::canvas::Canvas;
 use crate::font::{GLYPH_HEIGHT, text_width};
-use crate::stats::nice_step;
+use panel::{Area, draw_panel, summary, y_range};
 
 /// One plotted quantity: a value per frame (frame `i` is `values[i]`).
 /// Non-finite values (NaN, ±∞) are gaps in the line and do not affect the axes.
@@ -45,8 +54,6 @@ pub const PALETTE: [[u8; 4]; 6] = [
 ];
 /// Line thickness in pixels.
 const LINE: i64 = 2;
-/// Horizontal grid intervals per panel.
-const Y_DIVISIONS: i64 = 4;
 
 /// Plots `series` as panels `panel_height` pixels tall stacked in a `width`-wide
 /// image, with `x_label` centred under the last one. Returns `(rgba, width, height)`;
@@ -154,206 +161,6 @@ pub fn plot_panels(
         canvas.text(x, panels * ph + pad, x_label, TEXT, scale);
     }
     canvas.into_parts()
-}
-
-/// A panel's plot area: the frame is drawn on its outer pixels, `x0..x1` × `y0..y1`.
-struct Area {
-    x0: i64,
-    x1: i64,
-    y0: i64,
-    y1: i64,
-}
-
-impl Area {
-    /// Where a line's stamps may go (top-left corners), inside the frame.
-    fn inner(&self) -> (i64, i64, i64, i64) {
-        (
-            self.x0 + 1,
-            self.x1 - 1 - LINE,
-            self.y0 + 1,
-            self.y1 - 1 - LINE,
-        )
-    }
-
-    /// The column of frame `i` of `frames`.
-    fn x(&self, i: usize, frames: usize) -> i64 {
-        let (l, r, _, _) = self.inner();
-        if frames <= 1 {
-            i64::midpoint(l, r)
-        } else {
-            l + ((r - l) as f64 * i as f64 / (frames - 1) as f64).round() as i64
-        }
-    }
-
-    /// The row of `v` in `lo..=hi`, or `None` if it is not finite.
-    fn y(&self, v: f64, (lo, hi): (f64, f64)) -> Option<i64> {
-        let (_, _, t, b) = self.inner();
-        // Halves, so that extreme ranges do not overflow to infinity.
-        let f = (v / 2.0 - lo / 2.0) / (hi / 2.0 - lo / 2.0);
-        f.is_finite()
-            .then(|| b - ((b - t) as f64 * f.clamp(0.0, 1.0)).round() as i64)
-    }
-}
-
-fn draw_panel(
-    canvas: &mut Canvas,
-    area: &Area,
-    s: &Series,
-    range: Option<(f64, f64)>,
-    frames: usize,
-    scale: u32,
-    colour: [u8; 4],
-) {
-    let ch = i64::from(GLYPH_HEIGHT * scale);
-    let pad = 4 * i64::from(scale);
-    let (aw, ah) = (area.x1 - area.x0, area.y1 - area.y0);
-    // Horizontal grid.
-    if let Some(range) = range {
-        for k in 1..Y_DIVISIONS {
-            let v = range.0 + (range.1 - range.0) * k as f64 / Y_DIVISIONS as f64;
-            if let Some(y) = area.y(v, range) {
-                canvas.fill_rect(area.x0, y + LINE / 2, aw, 1, GRID);
-            }
-        }
-    }
-    // Vertical grid and frame-number ticks.
-    if frames > 0 {
-        let widest = i64::from(text_width(&(frames - 1).to_string(), scale));
-        let max_ticks = (aw / (widest + 8 * pad)).max(1) as usize;
-        let step = frame_step((frames - 1) as f64 / max_ticks as f64);
-        for f in (0..frames).step_by(step) {
-            let x = area.x(f, frames) + LINE / 2;
-            canvas.fill_rect(x, area.y0, 1, ah, GRID);
-            canvas.fill_rect(x, area.y1, 1, pad / 2 + 1, AXIS);
-            let label = f.to_string();
-            let lw = i64::from(text_width(&label, scale));
-            let lx = (x - lw / 2).clamp(0, (i64::from(canvas.width) - lw).max(0));
-            canvas.text(lx, area.y1 + pad, &label, TEXT, scale);
-        }
-    }
-    // Frame.
-    canvas.fill_rect(area.x0, area.y0, aw, 1, AXIS);
-    canvas.fill_rect(area.x0, area.y1 - 1, aw, 1, AXIS);
-    canvas.fill_rect(area.x0, area.y0, 1, ah, AXIS);
-    canvas.fill_rect(area.x1 - 1, area.y0, 1, ah, AXIS);
-    // The values.
-    let Some(range) = range else {
-        let msg = "no data";
-        let mw = i64::from(text_width(msg, scale));
-        canvas.text(
-            area.x0 + (aw - mw) / 2,
-            area.y0 + (ah - ch) / 2,
-            msg,
-            TEXT,
-            scale,
-        );
-        return;
-    };
-    let mut prev = None;
-    for (i, &v) in s.values.iter().enumerate() {
-        prev = area.y(v, range).map(|y| {
-            let p = (area.x(i, frames), y);
-            canvas.line(prev.unwrap_or(p), p, LINE, colour);
-            p
-        });
-    }
-}
-
-/// The y range of a panel: the finite values' minimum and maximum, widened to
-/// ±10 % (±1 around 0) for a constant series; `None` without finite values.
-fn y_range(values: &[f64]) -> Option<(f64, f64)> {
-    let (lo, hi) = values
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold(None, |acc: Option<(f64, f64)>, &v| {
-            Some(acc.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))))
-        })?;
-    if lo < hi {
-        Some((lo, hi))
-    } else {
-        let d = if lo == 0.0 { 1.0 } else { lo.abs() * 0.1 };
-        Some((lo - d, hi + d))
-    }
-}
-
-/// "min … mean … max …" of the finite values.
-fn summary(values: &[f64]) -> Option<String> {
-    let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
-    let lo = finite.iter().copied().reduce(f64::min)?;
-    let hi = finite.iter().copied().reduce(f64::max)?;
-    let mean = finite.iter().map(|v| v / finite.len() as f64).sum::<f64>();
-    Some(format!(
-        "min {}  mean {}  max {}",
-        format_compact(lo),
-        format_compact(mean),
-        format_compact(hi)
-    ))
-}
-
-/// Frames between x ticks: a nice step (1, 2, 5 × 10^k) of at least one frame.
-fn frame_step(raw: f64) -> usize {
-    let raw = if raw.is_nan() { 1.0 } else { raw.max(1.0) };
-    (nice_step(raw).round()).min(usize::MAX as f64) as usize
-}
-
-/// `v` in at most three significant digits with an SI-style suffix: `0.25`, `12`,
-/// `1.23k`, `3.4M`, `5G`, `2T`; `1e-5` and `1.2e15` beyond those; `nan`, `inf`.
-pub fn format_compact(v: f64) -> String {
-    if v.is_nan() {
-        return "nan".into();
-    }
-    if v.is_infinite() {
-        return if v > 0.0 { "inf" } else { "-inf" }.into();
-    }
-    if v == 0.0 {
-        return "0".into();
-    }
-    let sign = if v < 0.0 { "-" } else { "" };
-    let a = v.abs();
-    let scientific = || {
-        let s = format!("{a:.2e}");
-        let (mantissa, exp) = s.split_once('e').unwrap_or((&s, "0"));
-        format!("{sign}{}e{exp}", trim_zeros(mantissa))
-    };
-    let mut e = a.log10().floor() as i32;
-    if !(-3..15).contains(&e) {
-        return scientific();
-    }
-    // Three significant digits: a ≈ m·10^(e−2), 100 ≤ m ≤ 999.
-    let digits = |e: i32| (a / 10f64.powi(e - 2)).round();
-    let mut m = digits(e);
-    for _ in 0..2 {
-        if m >= 1000.0 {
-            e += 1;
-        } else if m < 100.0 {
-            e -= 1;
-        } else {
-            break;
-        }
-        m = digits(e);
-    }
-    if !(-3..15).contains(&e) {
-        return scientific();
-    }
-    let (div, suffix) = match e {
-        12.. => (12, "T"),
-        9.. => (9, "G"),
-        6.. => (6, "M"),
-        3.. => (3, "k"),
-        _ => (0, ""),
-    };
-    let decimals = (div + 2 - e).max(0) as usize;
-    let x = m * 10f64.powi(e - 2 - div);
-    format!("{sign}{}{suffix}", trim_zeros(&format!("{x:.decimals$}")))
-}
-
-/// "1.50" → "1.5", "2.00" → "2", "120" → "120".
-fn trim_zeros(s: &str) -> &str {
-    if s.contains('.') {
-        s.trim_end_matches('0').trim_end_matches('.')
-    } else {
-        s
-    }
 }
 
 #[cfg(test)]
@@ -549,57 +356,5 @@ mod tests {
         let grid = rgba.chunks_exact(4).filter(|p| *p == GRID).count();
         assert!(white * 10 > total * 7, "{white} of {total} white");
         assert!(grid > 500, "only {grid} grid pixels");
-    }
-
-    #[test]
-    fn numbers_format_compactly() {
-        let cases = [
-            (0.0, "0"),
-            (-0.0, "0"),
-            (0.25, "0.25"),
-            (0.125, "0.125"),
-            (0.001, "0.001"),
-            (1.0, "1"),
-            (12.0, "12"),
-            (12.34, "12.3"),
-            (999.0, "999"),
-            (999.6, "1k"),
-            (1200.0, "1.2k"),
-            (1234.0, "1.23k"),
-            (12_345.0, "12.3k"),
-            (123_456.0, "123k"),
-            (999_999.0, "1M"),
-            (3.4e6, "3.4M"),
-            (-1500.0, "-1.5k"),
-            (5e9, "5G"),
-            (2.5e13, "25T"),
-            (1e-5, "1e-5"),
-            (1.234e-7, "1.23e-7"),
-            (1.2e15, "1.2e15"),
-            (f64::NAN, "nan"),
-            (f64::INFINITY, "inf"),
-            (f64::NEG_INFINITY, "-inf"),
-        ];
-        for (v, want) in cases {
-            assert_eq!(format_compact(v), want, "{v}");
-        }
-        for k in -300..300 {
-            let v = 10f64.powi(k);
-            assert!(!format_compact(v).is_empty());
-            assert!(!format_compact(v * 0.9999).is_empty());
-        }
-    }
-
-    #[test]
-    fn tick_steps_are_round() {
-        assert_eq!(frame_step(0.3), 1);
-        assert_eq!(frame_step(1.0), 1);
-        assert_eq!(frame_step(1.5), 2);
-        assert_eq!(frame_step(3.0), 5);
-        assert_eq!(frame_step(7.0), 10);
-        assert_eq!(frame_step(10.0), 10);
-        assert_eq!(frame_step(11.0), 20);
-        assert_eq!(frame_step(240.0), 500);
-        assert_eq!(frame_step(f64::NAN), 1);
     }
 }

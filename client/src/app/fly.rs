@@ -1,7 +1,7 @@
 //! `tessera fly --no-render`: selection and streaming along a path at a fixed frame
 //! rate, in real time against a real server, writing per-frame statistics.
 
-use crate::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles, fetch_tiles};
+use super::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles, fetch_tiles};
 use crate::paths::{FlyPath, pose_camera};
 use crate::select::{FrameStats, SelectParams, Selector, World};
 use crate::stream::pool::TilePool;
@@ -9,8 +9,10 @@ use crate::stream::{FrameWork, StreamConfig, StreamStats, Streamer};
 use anyhow::Context;
 use glam::DVec2;
 use std::io::Write;
+use std::path::Path;
 use std::time::{Duration, Instant};
 use tessera_shared::api;
+use tessera_shared::codec::RecordLayout;
 use tessera_shared::{GeoRef, Quantization, TileGeometry};
 
 #[derive(Clone, Debug)]
@@ -187,8 +189,17 @@ pub fn spacing_from(georef: Option<&GeoRef>, height: u32, fallback: f64) -> f64 
     }
 }
 
-/// Reads `/v1/datasets/{name}` into a [`World`] and the height range.
-pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(World, f64, f64)> {
+/// What the client learns from `/v1/datasets/{name}`.
+pub(crate) struct DatasetView {
+    pub world: World,
+    pub min_height: f64,
+    pub max_height: f64,
+    /// How the dataset's records are laid out (they arrive as stored).
+    pub layout: RecordLayout,
+}
+
+/// Reads `/v1/datasets/{name}` into a [`World`], the height range and record layout.
+pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<DatasetView> {
     let url = format!(
         "{}{}",
         opts.server.trim_end_matches('/'),
@@ -208,37 +219,65 @@ pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<(W
     let spacing = opts
         .spacing
         .unwrap_or_else(|| spacing_from(georef.as_ref(), geometry.height(), 100.0));
-    Ok((
-        World {
+    Ok(DatasetView {
+        layout: RecordLayout::new(geometry.tile_log2(), info.format_version),
+        world: World {
             geometry,
             quant,
             spacing,
         },
-        info.min_height,
-        info.max_height,
-    ))
+        min_height: info.min_height,
+        max_height: info.max_height,
+    })
 }
 
 /// How long a measured frame may wait for its tiles ([`RenderSetup::settle`], the
 /// reference's tiles).
 const SETTLE_TIMEOUT: Duration = Duration::from_secs(120);
 
+/// [`fly`] with its records written to the file `stats` (JSON Lines), if any,
+/// after creating the headless output directory ([`RenderSetup::out_dir`]).
+pub fn fly_to_file(opts: &FlyOptions, stats: Option<&Path>) -> anyhow::Result<FlySummary> {
+    if let Some(setup) = &opts.render {
+        let dir = &setup.out_dir;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+    }
+    let mut file = match stats {
+        Some(p) => Some(std::io::BufWriter::new(
+            std::fs::File::create(p).with_context(|| format!("{}: cannot create", p.display()))?,
+        )),
+        None => None,
+    };
+    let summary = fly(opts, file.as_mut().map(|f| f as &mut dyn Write))?;
+    if let Some(mut f) = file {
+        f.flush()?;
+    }
+    Ok(summary)
+}
+
 /// Flies the path, writing one [`FrameRecord`] per frame to `stats`.
 pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Result<FlySummary> {
-    let streamer_for = |tile_log2: u32| match &opts.runtime {
+    let streamer_for = |layout: RecordLayout| match &opts.runtime {
         Some(h) => Streamer::on_runtime(
             h.clone(),
             &opts.server,
             &opts.dataset,
-            tile_log2,
+            layout,
             opts.stream.clone(),
         ),
-        None => Streamer::new(&opts.server, &opts.dataset, tile_log2, opts.stream.clone()),
+        None => Streamer::new(&opts.server, &opts.dataset, layout, opts.stream.clone()),
     };
-    let probe = streamer_for(9)?;
-    let (world, min_height, max_height) = world(&probe, opts)?;
+    // The probe only reads the dataset document; it decodes no record.
+    let probe = streamer_for(RecordLayout::current(9))?;
+    let DatasetView {
+        world,
+        min_height,
+        max_height,
+        layout,
+    } = world(&probe, opts)?;
     drop(probe);
-    let mut streamer = streamer_for(world.geometry.tile_log2())?;
+    let mut streamer = streamer_for(layout)?;
     let size = DVec2::new(
         f64::from(world.geometry.width()),
         f64::from(world.geometry.height()),
