@@ -73,7 +73,8 @@ struct Dataset {
     /// `tessera-server build` input: a DEM file name in the DEM folder, or `synthetic:…`.
     input: &'static str,
     flags: &'static [&'static str],
-    /// Metres between samples (as in BENCHMARKS.md's `bench-select` runs).
+    /// Metres between samples on both axes (as in BENCHMARKS.md's `bench-select`
+    /// runs, which pass `--spacing`).
     spacing: f64,
 }
 
@@ -200,7 +201,7 @@ impl Terrain {
             world: World {
                 geometry: g,
                 quant: p.metadata().quantization,
-                spacing,
+                spacing: glam::DVec2::splat(spacing),
             },
             pyramid: p,
             tables,

@@ -1,8 +1,9 @@
 //! A perspective camera over the terrain and its view frustum.
 //!
 //! World coordinates are metres, right-handed and y-up: `x` east, `y` up, `z` south,
-//! so finest-grid sample `(X, Y)` with height `h` sits at `(X·s, h, Y·s)` for a
-//! horizontal sample spacing `s`.
+//! so finest-grid sample `(X, Y)` with height `h` sits at `(X·sx, h, Y·sy)` for the
+//! sample spacings `sx` east–west and `sy` north–south ([`crate::select::World`];
+//! they differ for a geographic DEM, whose cells are not square on the ground).
 
 use glam::{DMat4, DVec3, DVec4};
 

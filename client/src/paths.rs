@@ -217,7 +217,7 @@ pub fn path_cameras<S: ByteSource>(
         g == pyramid.geometry(),
         "the world's geometry is not the pyramid's"
     );
-    let size = DVec2::new(f64::from(g.width()), f64::from(g.height())) * world.spacing;
+    let size = world.size_m();
     let fly_path = FlyPath::load(path, size.max_element())?;
     let frames = (fly_path.length_m(size) / fly_path.speed_mps * fps).ceil() + 1.0;
     anyhow::ensure!(
@@ -229,12 +229,18 @@ pub fn path_cameras<S: ByteSource>(
     let mut cameras = Vec::with_capacity(frames as usize);
     for f in 0..frames as u32 {
         let pose = fly_path.pose(f64::from(f) / fps, size);
-        let under = world.finest_tile_at(pose.ground.x, pose.ground.y);
-        if !ground.contains(under) {
-            let rec = pyramid
-                .read_tile(under)?
-                .with_context(|| format!("{under} under the camera is absent"))?;
-            ground.insert(under, rec.errors, rec.heights);
+        // The finest tile under the eye, or its nearest ancestor with a record where
+        // it is absent (wholly no-data: its filled heights are in the ancestor).
+        let mut under = Some(world.finest_tile_at(pose.ground.x, pose.ground.y));
+        while let Some(t) = under {
+            if ground.contains(t) {
+                break;
+            }
+            if let Some(rec) = pyramid.read_tile(t)? {
+                ground.insert(t, rec.errors, rec.heights, rec.mask);
+                break;
+            }
+            under = t.parent();
         }
         let h = ground
             .ground_height(world, pose.ground.x, pose.ground.y)
@@ -394,7 +400,7 @@ mod tests {
         let world = World {
             geometry: *pyramid.geometry(),
             quant: pyramid.metadata().quantization,
-            spacing: 7.5,
+            spacing: DVec2::splat(7.5),
         };
         let size = DVec2::new(300.0, 200.0) * 7.5;
         let dir = tempfile::tempdir().unwrap();

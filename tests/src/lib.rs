@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use tessera_client::select::World;
 use tessera_client::stream::pool::TilePool;
 use tessera_server::build::{BuildOptions, build};
-use tessera_shared::{ErrorTable, FileSource, Pyramid, TileId, testdata};
+use tessera_shared::{CellMask, ErrorTable, FileSource, Pyramid, TileId, testdata};
 
 /// Metres between samples of the moon mosaics (the data README).
 pub const MOON_SPACING: f64 = 118.45;
@@ -17,6 +17,7 @@ pub struct Moon {
     pub pyramid: Pyramid<FileSource>,
     pub tables: HashMap<TileId, ErrorTable>,
     pub heights: HashMap<TileId, Vec<u16>>,
+    pub masks: HashMap<TileId, CellMask>,
     pub world: World,
     _dir: tempfile::TempDir,
 }
@@ -38,22 +39,25 @@ impl Moon {
         let g = *pyramid.geometry();
         let mut tables = HashMap::new();
         let mut heights = HashMap::new();
+        let mut masks = HashMap::new();
         for level in g.levels() {
             for tile in g.present_tiles(level) {
                 let rec = pyramid.read_tile(tile).unwrap().unwrap();
                 tables.insert(tile, rec.errors);
                 heights.insert(tile, rec.heights);
+                masks.insert(tile, rec.mask);
             }
         }
         let world = World {
             geometry: g,
             quant: pyramid.metadata().quantization,
-            spacing: MOON_SPACING,
+            spacing: glam::DVec2::splat(MOON_SPACING),
         };
         Some(Self {
             pyramid,
             tables,
             heights,
+            masks,
             world,
             _dir: dir,
         })
@@ -63,7 +67,12 @@ impl Moon {
     pub fn pool(&self) -> TilePool {
         let mut pool = TilePool::new(self.tables.len() + 1);
         for (&t, e) in &self.tables {
-            pool.insert(t, e.clone(), self.heights[&t].clone());
+            pool.insert(
+                t,
+                e.clone(),
+                self.heights[&t].clone(),
+                self.masks[&t].clone(),
+            );
         }
         pool
     }

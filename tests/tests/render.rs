@@ -60,7 +60,7 @@ fn random_cameras(
     pitch: (f64, f64),
 ) -> Vec<Camera> {
     let mut rng = Rng(seed);
-    let extent = f64::from(m.world.geometry.width()) * m.world.spacing;
+    let extent = f64::from(m.world.geometry.width()) * m.world.spacing.x;
     let meta = m.pyramid.metadata();
     (0..count)
         .map(|_| Camera {
@@ -346,7 +346,7 @@ fn golden_image_of_the_synthetic_terrain() {
     let world = tessera_client::select::World {
         geometry: g,
         quant: meta.quantization,
-        spacing: 30.0,
+        spacing: glam::DVec2::splat(30.0),
     };
     let mut pool = tessera_client::stream::pool::TilePool::new(64);
     let mut tables = std::collections::HashMap::new();
@@ -354,7 +354,7 @@ fn golden_image_of_the_synthetic_terrain() {
         for tile in g.present_tiles(level) {
             let rec = p.read_tile(tile).unwrap().unwrap();
             tables.insert(tile, rec.errors.clone());
-            pool.insert(tile, rec.errors, rec.heights);
+            pool.insert(tile, rec.errors, rec.heights, rec.mask);
         }
     }
     let (w, h) = (480, 270);
@@ -374,7 +374,7 @@ fn golden_image_of_the_synthetic_terrain() {
     for &t in tables.keys() {
         assert!(r.upload(&pool, t));
     }
-    let extent = 1024.0 * world.spacing;
+    let extent = 1024.0 * world.spacing.x;
     let cam = Camera {
         position: DVec3::new(0.15 * extent, meta.max_height + 2500.0, 0.9 * extent),
         yaw: 40f64.to_radians(),

@@ -28,7 +28,7 @@ fn fixture() -> Option<&'static Fixture> {
 
 /// A camera somewhere above the terrain, looking around and mostly down.
 fn random_camera(f: &Fixture, rng: &mut Rng) -> Camera {
-    let extent = f64::from(f.world.geometry.width()) * f.world.spacing;
+    let extent = f64::from(f.world.geometry.width()) * f.world.spacing.x;
     let m = f.pyramid.metadata();
     // From a few metres above the highest ground to well above it.
     let altitude = m.max_height + 50.0 + rng.uniform().powi(3) * 60_000.0;
@@ -127,7 +127,8 @@ fn check_patch_errors(f: &Fixture, camera: &Camera, patches: &[Patch], tau: f64)
         let depth = (w.geometry.tile_size() / p.size).trailing_zeros();
         let m = depth + p.inner.trailing_zeros();
         assert!(m <= t);
-        let (x0, z0, span) = w.tile_extent(p.tile);
+        let (origin, span) = w.tile_extent(p.tile);
+        let (x0, z0) = (origin.x, origin.y);
         let bsz = span / f64::from(BLOCKS);
         let cells = w.geometry.tile_size() / BLOCKS; // tile cells per block
         let (b0x, b0y) = (p.origin[0] / cells, p.origin[1] / cells);
@@ -140,11 +141,11 @@ fn check_patch_errors(f: &Fixture, camera: &Camera, patches: &[Patch], tau: f64)
                 }
                 let eps = f64::from(table.error(m, bx, by));
                 let min = DVec3::new(
-                    x0 + f64::from(bx) * bsz,
+                    x0 + f64::from(bx) * bsz.x,
                     w.quant.height(qmin) - eps,
-                    z0 + f64::from(by) * bsz,
+                    z0 + f64::from(by) * bsz.y,
                 );
-                let max = DVec3::new(min.x + bsz, w.quant.height(qmax) + eps, min.z + bsz);
+                let max = DVec3::new(min.x + bsz.x, w.quant.height(qmax) + eps, min.z + bsz.y);
                 let d = tessera_client::camera::distance_to_box(camera.position, min, max);
                 let rho = if eps == 0.0 { 0.0 } else { eps * lambda / d };
                 assert!(

@@ -1,7 +1,6 @@
 //! `tessera bench-select`: view-dependent selection alone, timed on a local
 //! pyramid with every error table resident, along a path flown forward and back.
 
-use super::fly::spacing_from;
 use crate::paths;
 use crate::select::{self, SelectParams, Selector, World};
 use anyhow::Context;
@@ -21,7 +20,8 @@ pub struct BenchSelect<'a> {
     pub frames: u32,
     pub width: u32,
     pub height: u32,
-    /// Metres between samples; default from the georeferencing, else 100.
+    /// Metres between samples on both axes (`--spacing`); default the pyramid's
+    /// `ground_spacing` (east–west and north–south), else 100.
     pub spacing: Option<f64>,
 }
 
@@ -85,9 +85,7 @@ pub fn bench_select(b: &BenchSelect) -> anyhow::Result<BenchSelectReport> {
     let world = World {
         geometry: *p.geometry(),
         quant: meta.quantization,
-        spacing: b
-            .spacing
-            .unwrap_or_else(|| spacing_from(meta.georef.as_ref(), meta.height, 100.0)),
+        spacing: World::spacing_from(b.spacing, meta.ground_spacing),
     };
     let cameras = paths::path_cameras(&p, &world, b.path, b.fps, b.width, b.height)?;
     // Forward and back, so consecutive frames are always neighbours on the path:

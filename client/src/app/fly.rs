@@ -7,13 +7,11 @@ use crate::select::{FrameStats, SelectParams, Selector, World};
 use crate::stream::pool::TilePool;
 use crate::stream::{FrameWork, StreamConfig, StreamStats, Streamer};
 use anyhow::Context;
-use glam::DVec2;
 use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
 use tessera_shared::api;
 use tessera_shared::codec::RecordLayout;
-use tessera_shared::{GeoRef, Quantization, TileGeometry};
 
 #[derive(Clone, Debug)]
 pub struct FlyOptions {
@@ -27,7 +25,8 @@ pub struct FlyOptions {
     pub policy: crate::select::Policy,
     pub width: u32,
     pub height: u32,
-    /// Metres between samples; default from the georeferencing, else 100.
+    /// Metres between samples on both axes (`--spacing`); default the dataset's
+    /// `ground_spacing` (east–west and north–south), else 100.
     pub spacing: Option<f64>,
     pub prefetch: bool,
     pub pool_tiles: usize,
@@ -176,19 +175,6 @@ impl RenderSummary {
     }
 }
 
-/// Metres between samples from the georeferencing, else `fallback`.
-pub fn spacing_from(georef: Option<&GeoRef>, height: u32, fallback: f64) -> f64 {
-    match georef {
-        Some(g) if g.epsg == Some(4326) => {
-            let lat =
-                (g.geotransform[3] + g.geotransform[5] * f64::from(height) / 2.0).to_radians();
-            g.geotransform[1].abs() * 111_320.0 * lat.cos()
-        }
-        Some(g) if g.epsg.is_some() => g.geotransform[1].abs(),
-        _ => fallback,
-    }
-}
-
 /// What the client learns from `/v1/datasets/{name}`.
 pub(crate) struct DatasetView {
     pub world: World,
@@ -213,19 +199,10 @@ pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<Da
         serde_json::from_str(&body)
             .with_context(|| format!("{url}: not the dataset description of API.md"))
     })?;
-    let geometry = TileGeometry::new(info.width, info.height, info.tile_size)?;
-    let quant: Quantization = info.quantization;
-    let georef: Option<GeoRef> = info.georef.clone();
-    let spacing = opts
-        .spacing
-        .unwrap_or_else(|| spacing_from(georef.as_ref(), geometry.height(), 100.0));
+    let world = World::from_dataset(&info, opts.spacing)?;
     Ok(DatasetView {
-        layout: RecordLayout::new(geometry.tile_log2(), info.format_version),
-        world: World {
-            geometry,
-            quant,
-            spacing,
-        },
+        layout: RecordLayout::new(world.geometry.tile_log2(), info.format_version),
+        world,
         min_height: info.min_height,
         max_height: info.max_height,
     })
@@ -278,10 +255,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     } = world(&probe, opts)?;
     drop(probe);
     let mut streamer = streamer_for(layout)?;
-    let size = DVec2::new(
-        f64::from(world.geometry.width()),
-        f64::from(world.geometry.height()),
-    ) * world.spacing;
+    let size = world.size_m();
     let path = FlyPath::load(&opts.path, size.max_element())?;
     let params = SelectParams {
         tau: opts.tau,

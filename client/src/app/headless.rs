@@ -240,7 +240,8 @@ impl Headless {
         let g = &w.geometry;
         (g.width(), g.height(), g.tile_size()).hash(&mut h);
         for v in [
-            w.spacing,
+            w.spacing.x,
+            w.spacing.y,
             w.quant.scale,
             w.quant.offset,
             self.heights.0,
@@ -267,7 +268,9 @@ impl Headless {
     fn draw_reference(&mut self, camera: &Camera, pool: &TilePool) -> anyhow::Result<(u32, u64)> {
         let world = self.renderer.world;
         let frustum = camera.frustum();
-        let tiles = finest_tiles_in_view(&world, &frustum, self.heights);
+        let mut tiles = finest_tiles_in_view(&world, &frustum, self.heights);
+        // Absent tiles (wholly no-data) have nothing to draw.
+        tiles.retain(|t| !pool.is_absent(*t));
         // The flight fetched these before the frame ([`fetch_reference_tiles`]).
         let missing = tiles.iter().filter(|t| !pool.contains(**t)).count();
         anyhow::ensure!(
@@ -313,7 +316,8 @@ pub fn fetch_reference_tiles(
     fetch_tiles(&tiles, pool, streamer, timeout)
 }
 
-/// Fetches `tiles` into the pool, waiting up to `timeout` for all of them.
+/// Fetches `tiles` into the pool, waiting up to `timeout` for all of them but
+/// those the server says are absent (no record: wholly no-data).
 pub fn fetch_tiles(
     tiles: &[TileId],
     pool: &mut TilePool,
@@ -324,7 +328,7 @@ pub fn fetch_tiles(
     loop {
         let missing: Vec<Wanted> = tiles
             .iter()
-            .filter(|t| !pool.contains(**t))
+            .filter(|t| !pool.contains(**t) && !pool.is_absent(**t))
             .map(|&tile| Wanted { tile, rho: 1.0 })
             .collect();
         if missing.is_empty() {

@@ -3,8 +3,8 @@
 //! the headless client, statistics in the title bar.
 //!
 //! Keys: mouse drag looks around; W/S forward/back, A/D sideways, E/Q up/down,
-//! Shift ×5 speed; `+`/`-` raise/lower τ; 1–4 shaded/LOD/level/wireframe;
-//! P cycles parallax; Escape quits.
+//! Shift ×5 speed; `+`/`-` raise/lower τ; 1–5 shaded/LOD/level/wireframe/mask
+//! (non-terrain cells in red instead of discarded); P cycles parallax; Escape quits.
 
 use super::fly::FlyOptions;
 use crate::camera::Camera;
@@ -140,7 +140,7 @@ impl State {
                 ..render
             },
         )?;
-        let extent = f64::from(world.geometry.width().max(world.geometry.height())) * world.spacing;
+        let extent = world.size_m().max_element();
         let camera = Camera {
             position: DVec3::new(0.1 * extent, max_h + extent / 20.0, 0.1 * extent),
             yaw: 135f64.to_radians(),
@@ -204,6 +204,7 @@ impl State {
             KeyCode::Digit2 => opts.view = DebugView::Lod,
             KeyCode::Digit3 => opts.view = DebugView::Level,
             KeyCode::Digit4 => opts.view = DebugView::Wireframe,
+            KeyCode::Digit5 => opts.view = DebugView::Mask,
             KeyCode::KeyP => {
                 opts.parallax = match opts.parallax {
                     Parallax::None => Parallax::Offset,

@@ -2,7 +2,11 @@
 //! terrain draws per frame.
 //!
 //! - Heights live in an `R16Unorm` 2-D texture array, one layer ("slot") per
-//!   resident tile ([`slots`]), with a normal map beside it ([`normals`]).
+//!   resident tile ([`slots`]), with a normal map ([`normals`]) and the tile's
+//!   cell mask (`R8Unorm`, `T × T`, 1 = terrain) beside it; the fragment shader
+//!   discards fragments of cells that are not terrain (no-data and the padding
+//!   beyond the DEM), or shows them in a colour of their own in
+//!   [`DebugView::Mask`].
 //! - One index buffer range per inner LOD `n ∈ {1, 2, …, 64}`; the vertex shader
 //!   derives grid coordinates from the vertex index and reads heights with integer
 //!   texel loads, snapping edge vertices as the reference tessellator does
@@ -51,6 +55,9 @@ pub enum DebugView {
     Level,
     /// Shaded, with the triangles drawn over it.
     Wireframe,
+    /// Shaded, with the cells that are not terrain (no-data, padding beyond the
+    /// DEM) drawn in red instead of discarded.
+    Mask,
 }
 
 /// Parallax mapping over the tessellated base surface (González §2.2–2.4).
@@ -111,6 +118,7 @@ pub struct Renderer {
     height_range: (f64, f64),
     heights: wgpu::Texture,
     normals: wgpu::Texture,
+    masks: wgpu::Texture,
     globals: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     layout: wgpu::BindGroupLayout,

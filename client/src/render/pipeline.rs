@@ -1,6 +1,7 @@
 //! The renderer's device objects and terrain pipeline (one bind group for the
-//! globals, the height and normal arrays and a sampler; one index buffer range per
-//! inner LOD), drawing a frame into the offscreen targets, and resizing them.
+//! globals, the height, normal and cell-mask arrays and a sampler; one index buffer
+//! range per inner LOD), drawing a frame into the offscreen targets, and resizing
+//! them.
 
 use super::slots::SlotTable;
 use super::{DrawStats, RenderOptions, Renderer, capture, gpu::Gpu, instances};
@@ -22,6 +23,7 @@ struct Globals {
     sun: [f32; 4],
     haze: [f32; 4],
     mode: [u32; 4],
+    spacing: [f32; 4],
 }
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
@@ -70,18 +72,19 @@ impl Renderer {
             opts.height
         );
         let samples = world.geometry.tile_samples() as u32;
+        let cells = world.geometry.tile_size();
         let layers = layer_count(opts.slots).min(gpu.limits.max_texture_array_layers);
         anyhow::ensure!(
             samples <= dim,
             "{samples}-sample tiles exceed this GPU's {dim}-texel limit"
         );
         let device = &gpu.device;
-        let array = |label, format| {
+        let array = |label, format, side| {
             device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size: wgpu::Extent3d {
-                    width: samples,
-                    height: samples,
+                    width: side,
+                    height: side,
                     depth_or_array_layers: layers,
                 },
                 mip_level_count: 1,
@@ -92,8 +95,10 @@ impl Renderer {
                 view_formats: &[],
             })
         };
-        let heights = array("heights", wgpu::TextureFormat::R16Unorm);
-        let normals = array("normals", wgpu::TextureFormat::Rg8Snorm);
+        let heights = array("heights", wgpu::TextureFormat::R16Unorm, samples);
+        let normals = array("normals", wgpu::TextureFormat::Rg8Snorm, samples);
+        // One texel per cell: 1.0 where the cell is terrain (FORMAT.md "Validity mask").
+        let masks = array("cell masks", wgpu::TextureFormat::R8Unorm, cells);
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("globals"),
             size: size_of::<Globals>() as u64,
@@ -138,6 +143,7 @@ impl Renderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
+                texture_entry(4),
             ],
         });
         let array_view = |t: &wgpu::Texture| {
@@ -165,6 +171,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 3,
                     resource: wgpu::BindingResource::Sampler(&sampler),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: wgpu::BindingResource::TextureView(&array_view(&masks)),
                 },
             ],
         });
@@ -234,6 +244,7 @@ impl Renderer {
             height_range,
             heights,
             normals,
+            masks,
             globals,
             bind_group,
             layout,
@@ -249,29 +260,25 @@ impl Renderer {
     }
 
     fn write_globals(&self, camera: &Camera) {
+        // Metres per finest sample east–west (x) and north–south (z).
         let s = self.world.spacing;
         let p = camera.position;
-        let cell = (p.x / s).floor().max(0.0).min(f64::from(i32::MAX));
-        let cell_z = (p.z / s).floor().max(0.0).min(f64::from(i32::MAX));
+        let cell = (p.x / s.x).floor().max(0.0).min(f64::from(i32::MAX));
+        let cell_z = (p.z / s.y).floor().max(0.0).min(f64::from(i32::MAX));
         let view = glam::DMat4::look_to_rh(DVec3::ZERO, camera.forward(), DVec3::Y);
         let vp = (camera.projection() * view).as_mat4();
         // A low sun from the north-west brings out relief.
         let sun = DVec3::new(-0.7, 0.42, -0.58).normalize().as_vec3();
-        let extent = f64::from(
-            self.world
-                .geometry
-                .width()
-                .max(self.world.geometry.height()),
-        ) * s;
+        let extent = self.world.size_m().max_element();
         let q = self.world.quant;
         let globals = Globals {
             view_proj: vp.to_cols_array_2d(),
             eye_cell: [cell as i32, cell_z as i32, 0, 0],
             eye_frac: [
-                (p.x - cell * s) as f32,
+                (p.x - cell * s.x) as f32,
                 p.y as f32,
-                (p.z - cell_z * s) as f32,
-                s as f32,
+                (p.z - cell_z * s.y) as f32,
+                0.0,
             ],
             quant: [
                 q.offset as f32,
@@ -287,6 +294,7 @@ impl Renderer {
                 self.world.geometry.tile_size(),
                 0,
             ],
+            spacing: [s.x as f32, s.y as f32, 0.0, 0.0],
         };
         self.gpu
             .queue

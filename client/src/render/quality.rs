@@ -21,11 +21,17 @@ pub fn paint_sky(rgba: &mut [u8], width: u32, height: u32) {
     let w = width as usize;
     for (i, px) in rgba.chunks_exact_mut(4).enumerate() {
         if is_sky(px) {
-            let t = (i / w.max(1)) as f64 / f64::from(height.max(1));
-            let mix = |a: f64, b: f64| (a + (b - a) * t).round() as u8;
-            px.copy_from_slice(&[mix(70.0, 190.0), mix(120.0, 205.0), mix(190.0, 225.0), 255]);
+            px.copy_from_slice(&painted_sky((i / w.max(1)) as u32, height));
         }
     }
+}
+
+/// The colour [`paint_sky`] gives sky pixels of row `row` of an image `height`
+/// rows high (so that written frames can still be told apart from the terrain).
+pub fn painted_sky(row: u32, height: u32) -> [u8; 4] {
+    let t = f64::from(row) / f64::from(height.max(1));
+    let mix = |a: f64, b: f64| (a + (b - a) * t).round() as u8;
+    [mix(70.0, 190.0), mix(120.0, 205.0), mix(190.0, 225.0), 255]
 }
 
 /// Mean squared error over the RGB channels (0–255 scale).

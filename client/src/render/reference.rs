@@ -9,15 +9,17 @@ use glam::DVec3;
 use tessera_shared::TileId;
 use tessera_shared::tile::BLOCKS;
 
-/// Finest tiles whose column (the dataset's whole height range) meets the frustum.
+/// Finest tiles whose column (the dataset's whole height range) meets the frustum:
+/// every one the geometry places inside the DEM, including those that turn out to
+/// be absent (wholly no-data), which callers skip once the server has said so.
 pub fn finest_tiles_in_view(world: &World, frustum: &Frustum, heights: (f64, f64)) -> Vec<TileId> {
     let g = world.geometry;
     g.present_tiles(g.finest())
         .filter(|&t| {
-            let (x0, z0, span) = world.tile_extent(t);
+            let (origin, size) = world.tile_extent(t);
             frustum.intersects_box(
-                DVec3::new(x0, heights.0, z0),
-                DVec3::new(x0 + span, heights.1, z0 + span),
+                DVec3::new(origin.x, heights.0, origin.y),
+                DVec3::new(origin.x + size.x, heights.1, origin.y + size.y),
             )
         })
         .collect()
@@ -45,8 +47,9 @@ pub fn full_resolution_patches(
         if !frustum.intersects_box(lo, hi) {
             continue;
         }
-        let (x0, z0, span) = world.tile_extent(tile);
-        let metres = span / f64::from(t);
+        let (origin, size_m) = world.tile_extent(tile);
+        // Metres per tile cell, east–west and north–south.
+        let metres = size_m / f64::from(t);
         for py in (0..t).step_by(size as usize) {
             for px in (0..t).step_by(size as usize) {
                 // Height range of the blocks under this patch.
@@ -63,14 +66,14 @@ pub fn full_resolution_patches(
                     continue;
                 }
                 let lo = DVec3::new(
-                    x0 + f64::from(px) * metres,
+                    origin.x + f64::from(px) * metres.x,
                     world.quant.height(qmin),
-                    z0 + f64::from(py) * metres,
+                    origin.y + f64::from(py) * metres.y,
                 );
                 let hi = DVec3::new(
-                    x0 + f64::from(px + size) * metres,
+                    origin.x + f64::from(px + size) * metres.x,
                     world.quant.height(qmax),
-                    z0 + f64::from(py + size) * metres,
+                    origin.y + f64::from(py + size) * metres.y,
                 );
                 if frustum.intersects_box(lo, hi) {
                     out.push(Patch {

@@ -86,6 +86,10 @@ impl TileTables for OnGpu<'_> {
     fn unavailable(&self, tile: TileId) -> bool {
         self.pool.unavailable(tile)
     }
+
+    fn absent(&self, tile: TileId) -> bool {
+        self.pool.absent(tile)
+    }
 }
 
 #[cfg(test)]

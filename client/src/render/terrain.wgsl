@@ -12,7 +12,7 @@ struct Globals {
     // The eye's finest-grid cell (x, y), so that vertex positions are computed from
     // small exact integer differences.
     eye_cell: vec4<i32>,
-    // (eye x − cell x·s, eye height, eye z − cell y·s, s = metres per finest sample).
+    // (eye x − cell x·sx, eye height, eye z − cell y·sy, unused).
     eye_frac: vec4<f32>,
     // (offset, scale) of the height quantization; (min, max) height for the tint.
     quant: vec4<f32>,
@@ -22,12 +22,18 @@ struct Globals {
     haze: vec4<f32>,
     // (debug view, parallax mode, tile size in cells, unused).
     mode: vec4<u32>,
+    // (sx, sy, unused, unused): metres per finest sample east–west (x) and
+    // north–south (z); they differ where cells are not square (geographic DEMs).
+    spacing: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> g: Globals;
 @group(0) @binding(1) var heights: texture_2d_array<f32>;
 @group(0) @binding(2) var normals: texture_2d_array<f32>;
 @group(0) @binding(3) var linear_clamp: sampler;
+// One texel per tile cell (T × T): 1 where the cell is terrain, 0 for no-data and
+// the padding beyond the DEM (FORMAT.md "Validity mask").
+@group(0) @binding(4) var masks: texture_2d_array<f32>;
 
 // Per-instance data, packed (see `render/instances.rs`):
 //   a = (slot | level << 16, origin x | origin y << 16, size in tile cells, inner LOD)
@@ -91,9 +97,8 @@ fn height_m(q: f32) -> f32 {
 // Camera-relative position of a finest-grid point: the same integers give the same
 // floats on both sides of a shared edge, so there are no cracks.
 fn relative(x: u32, y: u32, h: f32) -> vec3<f32> {
-    let s = g.eye_frac.w;
-    let dx = f32(i32(x) - g.eye_cell.x) * s - g.eye_frac.x;
-    let dz = f32(i32(y) - g.eye_cell.y) * s - g.eye_frac.z;
+    let dx = f32(i32(x) - g.eye_cell.x) * g.spacing.x - g.eye_frac.x;
+    let dz = f32(i32(y) - g.eye_cell.y) * g.spacing.y - g.eye_frac.z;
     return vec3<f32>(dx, h - g.eye_frac.y, dz);
 }
 
@@ -144,9 +149,10 @@ fn normal_at(uv: vec2<f32>, slot: u32) -> vec3<f32> {
 }
 
 // Parallax over the tessellated base surface (González §2.2–2.4). `d` is the unit
-// view direction (eye → point), `m` metres per tile sample, `tsize` the triangle
-// size in tile samples. Returns where to read the height and normal maps.
-fn parallax(uv0: vec2<f32>, base_h: f32, d: vec3<f32>, m: f32, tsize: f32, slot: u32) -> vec2<f32> {
+// view direction (eye → point), `m` metres per tile sample (east–west, north–south),
+// `tsize` the triangle size in tile samples. Returns where to read the height and
+// normal maps.
+fn parallax(uv0: vec2<f32>, base_h: f32, d: vec3<f32>, m: vec2<f32>, tsize: f32, slot: u32) -> vec2<f32> {
     let mode = g.mode.y;
     // View direction in (tile samples, metres) coordinates.
     let duv = d.xz / m;
@@ -227,20 +233,34 @@ fn palette(k: u32) -> vec3<f32> {
     return colours[k % 8u];
 }
 
+// Whether the tile cell under tile sample coordinates `uv` is terrain.
+fn is_terrain(uv: vec2<f32>, slot: u32) -> bool {
+    let last = i32(g.mode.z) - 1;
+    let cell = clamp(vec2<i32>(floor(uv)), vec2<i32>(0), vec2<i32>(last));
+    return textureLoad(masks, cell, i32(slot), 0).r > 0.5;
+}
+
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     // Derivatives first, in uniform control flow.
     let fw = max(fwidth(in.grid), vec2<f32>(1e-4));
     let slot = in.info.x;
+    let view = g.mode.x;
+    // Cells that are not terrain (no-data, padding beyond the DEM) are not drawn:
+    // the cell is the one under the drawn (base) mesh, before parallax moves the
+    // texture lookups.
+    let terrain = is_terrain(in.uv, slot);
+    if (!terrain && view != 4u) {
+        discard;
+    }
     let d = normalize(in.rel);
     // Metres per tile sample: finest spacing × finest samples per tile sample.
-    let m = g.eye_frac.w * f32(in.stride);
+    let m = g.spacing.xy * f32(in.stride);
     let uv = parallax(in.uv, in.base_h, d, m, f32(in.info.w), slot);
     let n = normal_at(uv, slot);
     let lambert = max(dot(n, g.sun.xyz), 0.0);
     let light = 0.25 + 0.75 * lambert;
     var colour = tint(fine_height(uv, slot)) * light;
-    let view = g.mode.x;
     if (view == 1u) {
         colour = palette(firstTrailingBit(in.info.z)) * light;
     } else if (view == 2u) {
@@ -252,6 +272,9 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
         let edge = min(min(f / fw, (1.0 - f) / fw), vec2<f32>(abs(f.x - f.y) / max(fw.x, fw.y)));
         let line = 1.0 - clamp(min(edge.x, edge.y), 0.0, 1.0);
         colour = mix(colour, vec3<f32>(0.05, 0.05, 0.05), line);
+    } else if (view == 4u && !terrain) {
+        // The mask view: what the other views discard, in red.
+        colour = vec3<f32>(0.9, 0.1, 0.1) * (0.5 + 0.5 * light);
     }
     if (view != 1u && view != 2u) {
         let fog = 1.0 - exp(-length(in.rel) / g.haze.w);

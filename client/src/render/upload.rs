@@ -1,5 +1,6 @@
-//! Uploading decoded tiles into their GPU slots: heights, and a normal map built
-//! with the tile's decoded neighbours.
+//! Uploading decoded tiles into their GPU slots: heights, a normal map built with
+//! the tile's decoded neighbours, and the tile's validity mask (one byte per cell,
+//! 255 = terrain), which the fragment shader reads to discard non-terrain cells.
 
 use super::{Renderer, normals};
 use crate::select::Wanted;
@@ -8,8 +9,9 @@ use std::time::{Duration, Instant};
 use tessera_shared::TileId;
 
 impl Renderer {
-    /// Uploads a decoded tile (heights and a normal map built with its decoded
-    /// neighbours) into a slot. `false` when every slot is in use this frame.
+    /// Uploads a decoded tile (heights, a normal map built with its decoded
+    /// neighbours, and its cell mask) into a slot. `false` when every slot is in
+    /// use this frame.
     pub fn upload(&mut self, pool: &TilePool, tile: TileId) -> bool {
         let Some(resident) = pool.get(tile) else {
             return false;
@@ -30,6 +32,7 @@ impl Renderer {
             same_level(0, 1),
             same_level(-1, 0),
         ];
+        // Metres between this level's samples, east–west and north–south.
         let metres = self.world.spacing * g.spacing(tile.level()) as f64;
         let normal_map = normals::normal_map(
             &resident.heights,
@@ -38,7 +41,7 @@ impl Renderer {
             metres,
             self.world.quant.scale,
         );
-        let write = |texture: &wgpu::Texture, data: &[u8], bytes_per_texel: u32| {
+        let write = |texture: &wgpu::Texture, data: &[u8], side: u32, bytes_per_texel: u32| {
             self.gpu.queue.write_texture(
                 wgpu::TexelCopyTextureInfo {
                     texture,
@@ -53,18 +56,32 @@ impl Renderer {
                 data,
                 wgpu::TexelCopyBufferLayout {
                     offset: 0,
-                    bytes_per_row: Some(samples as u32 * bytes_per_texel),
-                    rows_per_image: Some(samples as u32),
+                    bytes_per_row: Some(side * bytes_per_texel),
+                    rows_per_image: Some(side),
                 },
                 wgpu::Extent3d {
-                    width: samples as u32,
-                    height: samples as u32,
+                    width: side,
+                    height: side,
                     depth_or_array_layers: 1,
                 },
             );
         };
-        write(&self.heights, bytemuck::cast_slice(&resident.heights), 2);
-        write(&self.normals, bytemuck::cast_slice(&normal_map), 2);
+        let side = samples as u32;
+        write(
+            &self.heights,
+            bytemuck::cast_slice(&resident.heights),
+            side,
+            2,
+        );
+        write(&self.normals, bytemuck::cast_slice(&normal_map), side, 2);
+        // T × T cells (one fewer per side than samples).
+        debug_assert_eq!(resident.mask.side(), g.tile_size());
+        write(
+            &self.masks,
+            &resident.mask.to_bytes_per_cell(),
+            g.tile_size(),
+            1,
+        );
         true
     }
 

@@ -22,13 +22,17 @@ pub fn tile_box(world: &World, tile: TileId, table: &ErrorTable) -> Option<(DVec
     let eps = (0..=table.tile_log2())
         .flat_map(|n| table.level_errors(n).iter().copied())
         .fold(0f32, f32::max);
-    let (x0, y0, span) = world.tile_extent(tile);
+    let (origin, size) = world.tile_extent(tile);
     Some((
-        DVec3::new(x0, world.quant.height(qmin) - f64::from(eps), y0),
         DVec3::new(
-            x0 + span,
+            origin.x,
+            world.quant.height(qmin) - f64::from(eps),
+            origin.y,
+        ),
+        DVec3::new(
+            origin.x + size.x,
             world.quant.height(qmax) + f64::from(eps),
-            y0 + span,
+            origin.y + size.y,
         ),
     ))
 }
@@ -66,8 +70,9 @@ impl TileRho {
         let nodes = node_index(block_depth + 1, 0, 0);
         let levels = t as usize + 1;
         let mut rho = vec![0f64; levels * nodes];
-        let (x0, y0, span) = world.tile_extent(tile);
-        let bsz = span / f64::from(BLOCKS);
+        let (origin, size) = world.tile_extent(tile);
+        // A block's size east–west and north–south.
+        let bsz = size / f64::from(BLOCKS);
         // The cuboid of each block, widened by its largest error over all levels
         // (conservative: a nearer box can only raise ρ).
         let mut inv_d = [0f64; 64];
@@ -80,14 +85,14 @@ impl TileRho {
                 }
                 let eps = (0..=t).map(|n| table.error(n, bx, by)).fold(0f32, f32::max);
                 let min = DVec3::new(
-                    x0 + f64::from(bx) * bsz,
+                    origin.x + f64::from(bx) * bsz.x,
                     world.quant.height(qmin) - f64::from(eps),
-                    y0 + f64::from(by) * bsz,
+                    origin.y + f64::from(by) * bsz.y,
                 );
                 let max = DVec3::new(
-                    min.x + bsz,
+                    min.x + bsz.x,
                     world.quant.height(qmax) + f64::from(eps),
-                    min.z + bsz,
+                    min.z + bsz.y,
                 );
                 // With the eye inside the box, `ε·λ/d` has no bound: infinite, not the
                 // 1e12-odd a clamped distance would make of it (DESIGN §8: reported as
@@ -110,8 +115,9 @@ impl TileRho {
                 }
                 // The brute-force policy Kang compares against (González Fig. 2):
                 // detail from distance alone, as if every cell were off by its own
-                // size, whatever the terrain does.
-                Policy::Distance => suffix = [span / f64::from(1u32 << m); 64],
+                // size (its longer side where cells are not square), whatever the
+                // terrain does.
+                Policy::Distance => suffix = [size.max_element() / f64::from(1u32 << m); 64],
             }
             let base = m as usize * nodes;
             // Blocks at depth `fine`, then pool up to the root.
@@ -185,7 +191,7 @@ mod tests {
                 scale: 1.0,
                 max_error: 0.0,
             },
-            spacing: 10.0,
+            spacing: glam::DVec2::splat(10.0),
         }
     }
 

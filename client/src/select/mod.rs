@@ -19,38 +19,88 @@ pub mod tiles;
 
 use crate::camera::Camera;
 use anyhow::Context;
+use glam::DVec2;
 use std::collections::{HashMap, HashSet};
 use std::time::Instant;
-use tessera_shared::{ByteSource, ErrorTable, Pyramid, Quantization, TileGeometry, TileId};
+use tessera_shared::api::DatasetInfo;
+use tessera_shared::{
+    ByteSource, ErrorTable, GroundSpacing, Pyramid, Quantization, TileGeometry, TileId,
+};
 
 /// The terrain in world units.
+///
+/// World coordinates are metres (`x` east, `y` up, `z` south, [`crate::camera`]):
+/// finest sample `(X, Y)` sits at `(X·spacing.x, h, Y·spacing.y)`. The two spacings
+/// differ where cells are not square on the ground (a geographic DEM: N46E008's
+/// cells are 63.97 m east–west and 92.63 m north–south).
 #[derive(Clone, Copy, Debug)]
 pub struct World {
     pub geometry: TileGeometry,
     pub quant: Quantization,
-    /// Metres between neighbouring finest samples.
-    pub spacing: f64,
+    /// Metres between neighbouring finest samples: `x` east–west (between columns),
+    /// `y` north–south (between rows, along world `z`).
+    pub spacing: DVec2,
 }
 
+/// Metres between samples when neither the command line nor the dataset says.
+pub const FALLBACK_SPACING: f64 = 100.0;
+
 impl World {
-    /// `(x0, z0, span)` of a tile in metres.
-    pub fn tile_extent(&self, tile: TileId) -> (f64, f64, f64) {
+    /// The world of a dataset document (API.md): its geometry and quantization,
+    /// and the spacing from [`World::spacing_from`].
+    pub fn from_dataset(info: &DatasetInfo, stated: Option<f64>) -> anyhow::Result<Self> {
+        Ok(Self {
+            geometry: TileGeometry::new(info.width, info.height, info.tile_size)?,
+            quant: info.quantization,
+            spacing: Self::spacing_from(stated, info.ground_spacing),
+        })
+    }
+
+    /// Metres between samples: a stated spacing (`--spacing M`, for DEMs without
+    /// georeferencing) for both axes; else the dataset's measured ground spacing
+    /// (the server measures it with a projection library); else
+    /// [`FALLBACK_SPACING`] for both.
+    pub fn spacing_from(stated: Option<f64>, measured: Option<GroundSpacing>) -> DVec2 {
+        match (stated, measured) {
+            (Some(s), _) => DVec2::splat(s),
+            (None, Some(g)) if g.is_plausible() => DVec2::new(g.x, g.y),
+            _ => DVec2::splat(FALLBACK_SPACING),
+        }
+    }
+
+    /// World `(x, z)` in metres of finest-grid point `(X, Y)` (samples, fractional
+    /// allowed).
+    pub fn metres(&self, x: f64, y: f64) -> DVec2 {
+        DVec2::new(x, y) * self.spacing
+    }
+
+    /// The DEM's size in metres: `width·spacing.x × height·spacing.y` (what paths
+    /// are sized to).
+    pub fn size_m(&self) -> DVec2 {
+        self.metres(
+            f64::from(self.geometry.width()),
+            f64::from(self.geometry.height()),
+        )
+    }
+
+    /// A tile's north-west corner `(x, z)` and its size (east–west, north–south),
+    /// in metres.
+    pub fn tile_extent(&self, tile: TileId) -> (DVec2, DVec2) {
         let (gx, gy) = self.geometry.origin(tile);
         let span =
             (self.geometry.spacing(tile.level()) * u64::from(self.geometry.tile_size())) as f64;
-        (
-            gx as f64 * self.spacing,
-            gy as f64 * self.spacing,
-            span * self.spacing,
-        )
+        (self.metres(gx as f64, gy as f64), self.metres(span, span))
     }
 
     /// The finest-level tile holding the sample nearest to `(x, z)` metres (clamped
     /// to the DEM): where the ground under a camera is read from.
     pub fn finest_tile_at(&self, x: f64, z: f64) -> TileId {
         let g = &self.geometry;
-        let sample = |v: f64, len: u32| ((v / self.spacing).round().max(0.0) as u32).min(len - 1);
-        let (fx, fy) = (sample(x, g.width()), sample(z, g.height()));
+        let sample = |v: f64, s: f64, len: u32| ((v / s).round().max(0.0) as u32).min(len - 1);
+        let (fx, fy) = (
+            sample(x, self.spacing.x, g.width()),
+            sample(z, self.spacing.y, g.height()),
+        );
         let finest = g.finest();
         let n = finest.tiles_per_side() - 1;
         TileId::new(
@@ -80,10 +130,20 @@ pub trait TileTables {
     fn unavailable(&self, _tile: TileId) -> bool {
         false
     }
+
+    /// Whether a tile the geometry places inside the DEM is known to have no
+    /// record: it holds no terrain cell (format v2: wholly no-data tiles are absent;
+    /// the tile stream's trailer lists them among its outside ranges). Selection
+    /// neither waits for such a tile nor counts it as a hole, and refines its
+    /// parent into the siblings that are present.
+    fn absent(&self, _tile: TileId) -> bool {
+        false
+    }
 }
 
 /// Every error table of a local pyramid (benchmarks and tools: selection with
-/// everything resident).
+/// everything resident). Tiles the geometry places inside the DEM but that have no
+/// record (wholly no-data, format v2) are left out: the map calls them absent.
 pub fn all_tables<S: ByteSource>(
     pyramid: &Pyramid<S>,
 ) -> anyhow::Result<HashMap<TileId, ErrorTable>> {
@@ -91,18 +151,26 @@ pub fn all_tables<S: ByteSource>(
     let mut tables = HashMap::new();
     for level in g.levels() {
         for tile in g.present_tiles(level) {
-            let t = pyramid
-                .read_error_table(tile)?
-                .with_context(|| format!("present tile {tile} without a record"))?;
-            tables.insert(tile, t);
+            if let Some(t) = pyramid
+                .read_error_table(tile)
+                .with_context(|| format!("reading the error table of {tile}"))?
+            {
+                tables.insert(tile, t);
+            }
         }
     }
     Ok(tables)
 }
 
+/// A map of error tables is a whole local pyramid ([`all_tables`]): a tile it
+/// lacks has no record, i.e. is absent.
 impl TileTables for HashMap<TileId, ErrorTable> {
     fn table(&self, tile: TileId) -> Option<&ErrorTable> {
         self.get(&tile)
+    }
+
+    fn absent(&self, tile: TileId) -> bool {
+        !self.contains_key(&tile)
     }
 }
 
@@ -317,6 +385,7 @@ mod tests {
     struct Tables {
         resident: HashMap<TileId, ErrorTable>,
         unavailable: HashSet<TileId>,
+        absent: HashSet<TileId>,
     }
 
     impl TileTables for Tables {
@@ -325,6 +394,9 @@ mod tests {
         }
         fn unavailable(&self, tile: TileId) -> bool {
             self.unavailable.contains(&tile)
+        }
+        fn absent(&self, tile: TileId) -> bool {
+            self.absent.contains(&tile)
         }
     }
 
@@ -341,7 +413,7 @@ mod tests {
                 scale: 1.0,
                 max_error: 0.0,
             },
-            spacing: 10.0,
+            spacing: DVec2::splat(10.0),
         }
     }
 
@@ -441,5 +513,76 @@ mod tests {
         assert!(s.wanted.is_empty());
         let rho = s.stats.max_rho.expect("bounded with everything resident");
         assert!(rho <= SelectParams::default().tau, "{rho}");
+    }
+
+    #[test]
+    fn absent_tiles_are_neither_waited_for_nor_holes() {
+        // The root misses τ from 3 km; three children are resident and the fourth
+        // has no record (wholly no-data): the root is refined into the three, the
+        // fourth is not asked for, and nothing is missing.
+        let mut tables = Tables::default();
+        tables.resident.insert(tile(0, 0, 0), table(0));
+        let [a, b, c, d] = level_one().try_into().unwrap();
+        tables.resident.extend([a, b, c].map(|t| (t, table(1))));
+        tables.absent.insert(d);
+        let s = select(&tables, 3000.0);
+        let mut drawn = s.tiles.clone();
+        drawn.sort_by_key(|t| t.morton());
+        assert_eq!(drawn, [a, b, c], "refined into the present children");
+        assert!(s.wanted.is_empty(), "{:?}", s.wanted);
+        assert_eq!(s.stats.missing, 0);
+        assert!(s.stats.max_rho.is_some_and(f64::is_finite));
+
+        // Standing in for an unavailable root, an absent child is no hole either.
+        tables.resident.remove(&tile(0, 0, 0));
+        tables.unavailable.insert(tile(0, 0, 0));
+        let s = select(&tables, 3000.0);
+        assert_eq!(s.tiles.len(), 3);
+        assert_eq!(s.stats.missing, 0);
+        assert!(s.wanted.iter().all(|w| w.tile != d));
+        assert!(s.stats.max_rho.is_some());
+    }
+
+    #[test]
+    fn spacings_come_from_the_command_line_then_the_dataset_then_the_fallback() {
+        let measured = Some(GroundSpacing { x: 63.97, y: 92.63 });
+        assert_eq!(
+            World::spacing_from(Some(30.0), measured),
+            DVec2::splat(30.0),
+            "--spacing overrides both axes"
+        );
+        assert_eq!(
+            World::spacing_from(None, measured),
+            DVec2::new(63.97, 92.63)
+        );
+        assert_eq!(
+            World::spacing_from(None, None),
+            DVec2::splat(FALLBACK_SPACING)
+        );
+        let nonsense = Some(GroundSpacing {
+            x: 0.0,
+            y: f64::NAN,
+        });
+        assert_eq!(
+            World::spacing_from(None, nonsense),
+            DVec2::splat(FALLBACK_SPACING)
+        );
+    }
+
+    #[test]
+    fn tiles_and_samples_are_placed_with_each_axis_spacing() {
+        let w = World {
+            spacing: DVec2::new(60.0, 90.0),
+            ..world()
+        };
+        let (origin, size) = w.tile_extent(tile(1, 1, 1));
+        assert_eq!(origin, DVec2::new(512.0 * 60.0, 512.0 * 90.0));
+        assert_eq!(size, DVec2::new(512.0 * 60.0, 512.0 * 90.0));
+        assert_eq!(w.size_m(), DVec2::new(1025.0 * 60.0, 1025.0 * 90.0));
+        // 600 m east and 600 m south: sample (10, 7) of the finest grid, tile (1, 0)
+        // only east of sample 512.
+        assert_eq!(w.finest_tile_at(600.0, 600.0), tile(1, 0, 0));
+        assert_eq!(w.finest_tile_at(512.0 * 60.0, 511.0 * 90.0), tile(1, 1, 0));
+        assert_eq!(w.finest_tile_at(511.0 * 60.0, 512.0 * 90.0), tile(1, 0, 1));
     }
 }

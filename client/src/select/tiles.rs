@@ -19,14 +19,16 @@ pub struct TileChoice {
     pub missing: usize,
 }
 
-fn present_children(world: &World, tile: TileId) -> Vec<TileId> {
+/// The children of `tile` that may have a record: inside the DEM by the geometry
+/// and not known to be absent (wholly no-data, [`TileTables::absent`]).
+fn present_children(world: &World, tables: &dyn TileTables, tile: TileId) -> Vec<TileId> {
     if tile.level() >= world.geometry.finest() {
         return Vec::new();
     }
     tile.children()
         .map(|c| {
             c.into_iter()
-                .filter(|c| world.geometry.is_present(*c))
+                .filter(|c| world.geometry.is_present(*c) && !tables.absent(*c))
                 .collect()
         })
         .unwrap_or_default()
@@ -54,7 +56,7 @@ fn want_descendants(
     for _depth in 0..4 {
         let mut next = Vec::new();
         for t in frontier {
-            for c in present_children(world, t) {
+            for c in present_children(world, tables, t) {
                 if tables.table(c).is_none() {
                     wanted.push(Wanted { tile: c, rho });
                 }
@@ -79,11 +81,11 @@ const MAX_FALLBACK: usize = 64;
 /// every height the quantization can store (nothing tighter is known of a tile
 /// that is not resident).
 fn may_be_in_view(world: &World, frustum: &Frustum, tile: TileId) -> bool {
-    let (x0, z0, span) = world.tile_extent(tile);
+    let (origin, size) = world.tile_extent(tile);
     let (a, b) = (world.quant.height(0), world.quant.height(u16::MAX));
     frustum.intersects_box(
-        DVec3::new(x0, a.min(b), z0),
-        DVec3::new(x0 + span, a.max(b), z0 + span),
+        DVec3::new(origin.x, a.min(b), origin.y),
+        DVec3::new(origin.x + size.x, a.max(b), origin.y + size.y),
     )
 }
 
@@ -110,6 +112,10 @@ fn tops(
                 tops.push(tile);
                 continue;
             }
+            // No record, no terrain: nothing to draw there, and no hole.
+            if tables.absent(tile) {
+                continue;
+            }
             if tile != root && !may_be_in_view(world, frustum, tile) {
                 continue;
             }
@@ -121,7 +127,7 @@ fn tops(
                     f64::MAX
                 },
             });
-            let children = present_children(world, tile);
+            let children = present_children(world, tables, tile);
             if tables.unavailable(tile)
                 && !children.is_empty()
                 && next.len() + children.len() <= MAX_FALLBACK
@@ -166,7 +172,7 @@ pub fn choose(
             world.max_depth(),
             params.policy,
         );
-        let children = present_children(world, tile);
+        let children = present_children(world, tables, tile);
         // Refine once the tile would need its finest within-tile level somewhere
         // (level t − 1 misses τ): there its children do the same job with blocks a
         // quarter the size. Waiting until level t itself misses τ draws coarse tiles
@@ -225,7 +231,7 @@ fn balance(world: &World, tables: &dyn TileTables, choice: &mut TileChoice) {
             if coarse.level().get() + 1 >= fine.level().get() {
                 continue;
             }
-            let children = present_children(world, coarse);
+            let children = present_children(world, tables, coarse);
             if !frozen.contains(&coarse) && all_resident(tables, &children) {
                 drawn.remove(&coarse);
                 choice.refined.insert(coarse);

@@ -1,25 +1,44 @@
 //! The fetch tasks: one request each, run on the streamer's runtime. A task
 //! streams the response, decodes its records off the frame thread (no more decodes
 //! at once than there are cores) and sends the frame thread what came of it
-//! ([`Event`]): decoded tiles, records the server reports corrupt, and how the
-//! request ended, with whom to blame for a failure ([`Blame`]).
+//! ([`Event`]): decoded tiles, records the server reports corrupt, the requested
+//! tiles the server has no record of (absent), and how the request ended, with whom
+//! to blame for a failure ([`Blame`]).
 
 use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 use tessera_shared::codec::RecordLayout;
 use tessera_shared::wire::{Frame, FrameDecoder, WireError};
-use tessera_shared::{ErrorTable, Level, Morton, TileId, codec};
+use tessera_shared::{CellMask, ErrorTable, Level, Morton, MortonRange, TileId, codec};
 
 /// A decoded tile on its way to the pool.
 pub(super) struct Decoded {
     pub(super) tile: TileId,
     pub(super) errors: ErrorTable,
     pub(super) heights: Vec<u16>,
+    pub(super) mask: CellMask,
+}
+
+impl Decoded {
+    fn new(tile: TileId, rec: codec::TileRecord) -> Self {
+        Self {
+            tile,
+            errors: rec.errors,
+            heights: rec.heights,
+            mask: rec.mask,
+        }
+    }
 }
 
 /// What the fetch tasks tell the frame thread.
 pub(super) enum Event {
     Tile(Box<Decoded>),
+    /// Requested codes of `level` that hold no tile (the trailer's outside ranges,
+    /// or a 404 for a single tile): outside the DEM or wholly no-data.
+    Absent {
+        level: Level,
+        ranges: Vec<MortonRange>,
+    },
     Corrupt {
         tile: TileId,
         error: String,
@@ -61,11 +80,12 @@ fn decode_slots() -> Arc<tokio::sync::Semaphore> {
         .clone()
 }
 
-/// One range request: streams the body through the frame decoder and decodes each
-/// record as it completes, off the frame thread.
+/// One range request for tiles of `level`: streams the body through the frame
+/// decoder and decodes each record as it completes, off the frame thread.
 pub(super) async fn fetch(
     client: reqwest::Client,
     url: String,
+    level: Level,
     id: u64,
     layout: RecordLayout,
     tx: mpsc::Sender<Event>,
@@ -94,12 +114,12 @@ pub(super) async fn fetch(
             })? {
                 match frame {
                     Frame::Tile {
-                        level,
+                        level: frame_level,
                         morton,
                         record,
                         ..
                     } => {
-                        let tile = TileId::from_morton(level, morton)
+                        let tile = TileId::from_morton(frame_level, morton)
                             .ok_or_else(|| whole(&"tile outside its level"))?;
                         // Decoding is CPU work: keep it off the I/O threads, and run
                         // no more decodes at once than there are cores, so that many
@@ -114,11 +134,7 @@ pub(super) async fn fetch(
                             tokio::task::spawn_blocking(move || {
                                 let rec = codec::decode_record(&record, layout)
                                     .map_err(|e| (format!("{tile}: {e}"), Blame::Tile(tile)))?;
-                                let _ = tx.send(Event::Tile(Box::new(Decoded {
-                                    tile,
-                                    errors: rec.errors,
-                                    heights: rec.heights,
-                                })));
+                                let _ = tx.send(Event::Tile(Box::new(Decoded::new(tile, rec))));
                                 Ok::<(), Failure>(())
                             })
                             .await
@@ -137,7 +153,16 @@ pub(super) async fn fetch(
                             });
                         }
                     }
-                    Frame::ErrorTable { .. } | Frame::Trailer { .. } => {}
+                    Frame::Trailer { outside, .. } => {
+                        // The requested codes that hold no tile (one level per request).
+                        if !outside.is_empty() {
+                            let _ = tx.send(Event::Absent {
+                                level,
+                                ranges: outside,
+                            });
+                        }
+                    }
+                    Frame::ErrorTable { .. } => {}
                 }
             }
         }
@@ -218,6 +243,15 @@ pub(super) async fn fetch_one(
             });
             return Ok(0);
         }
+        if resp.status() == reqwest::StatusCode::NOT_FOUND {
+            // API.md: 404 for an absent tile (outside the DEM or wholly no-data); the
+            // dataset and level were known from its document.
+            let _ = tx.send(Event::Absent {
+                level: tile.level(),
+                ranges: vec![MortonRange::single(tile.morton())],
+            });
+            return Ok(0);
+        }
         if !resp.status().is_success() {
             return Err(whole(&format!("HTTP {}", resp.status())));
         }
@@ -234,11 +268,7 @@ pub(super) async fn fetch_one(
         }
         let rec = codec::decode_record(&body, layout)
             .map_err(|e| (format!("{url}: {e}"), Blame::Tile(tile)))?;
-        let _ = tx.send(Event::Tile(Box::new(Decoded {
-            tile,
-            errors: rec.errors,
-            heights: rec.heights,
-        })));
+        let _ = tx.send(Event::Tile(Box::new(Decoded::new(tile, rec))));
         Ok(body.len() as u64)
     }
     .await;

@@ -24,6 +24,11 @@
 //! Tiles that fail or are written off are marked unavailable in the pool, so that
 //! the selection draws their children in their place (DESIGN §8: the client never
 //! goes blind); [`Streamer::last_error`] says what happened.
+//!
+//! Requested tiles the server has no record of — the trailer's outside ranges, or a
+//! 404 for a single tile: outside the DEM or, in format v2, wholly no-data — are
+//! marked absent in the pool: they are never asked for again, and selection
+//! neither waits for them nor counts them as holes.
 
 mod fetch;
 pub mod pool;
@@ -36,6 +41,11 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use tessera_shared::codec::RecordLayout;
 use tessera_shared::{Level, Morton, TileId, api, morton, range_query};
+
+/// Most codes one trailer may mark absent: far more than one request names
+/// ([`StreamConfig::max_tiles_per_request`]), so a hostile trailer cannot make the
+/// frame thread walk a huge range.
+const MAX_ABSENT_PER_TRAILER: usize = 1 << 16;
 
 /// How tiles are requested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -244,15 +254,34 @@ impl Streamer {
                         tile,
                         errors,
                         heights,
+                        mask,
                     } = *d;
                     for f in self.flights.values_mut() {
                         f.tiles.remove(&tile);
                     }
                     self.backoff.remove(&tile);
                     self.corrupt_reports.remove(&tile);
-                    pool.insert(tile, errors, heights);
+                    pool.insert(tile, errors, heights, mask);
                     self.stats.tiles += 1;
                     work.accepted += 1;
+                }
+                Event::Absent { level, ranges } => {
+                    // At most the codes a request can name: a trailer is bounded by
+                    // what was asked for, whatever it claims.
+                    let codes = ranges
+                        .iter()
+                        .flat_map(|r| r.iter())
+                        .take(MAX_ABSENT_PER_TRAILER);
+                    for code in codes {
+                        let Some(tile) = TileId::from_morton(level, code) else {
+                            continue;
+                        };
+                        for f in self.flights.values_mut() {
+                            f.tiles.remove(&tile);
+                        }
+                        self.backoff.remove(&tile);
+                        pool.mark_absent(tile);
+                    }
                 }
                 Event::Corrupt { tile, error } => {
                     self.stats.corrupt += 1;
@@ -374,6 +403,7 @@ impl Streamer {
         for w in sorted {
             let t = w.tile;
             if pool.contains(t)
+                || pool.is_absent(t)
                 || self.written_off.contains(&t)
                 || self.pending(t)
                 || self.backoff.get(&t).is_some_and(|(_, at)| *at > now)
@@ -415,7 +445,7 @@ impl Streamer {
                             self.server,
                             range_query::format(&ranges)
                         );
-                        self.rt.spawn(fetch(client, url, id, layout, tx))
+                        self.rt.spawn(fetch(client, url, level, id, layout, tx))
                     }
                     RequestMode::Single => {
                         let tile = *tiles.iter().next().expect("one tile per request");

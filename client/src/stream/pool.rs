@@ -6,16 +6,23 @@
 //! record was written off as corrupt; the streamer says so): the selection draws
 //! their children instead, and those children are pinned as the root is, since
 //! they stand in for it (DESIGN §8).
+//!
+//! And it remembers which tiles are absent: inside the DEM by the geometry but
+//! without a record, because they hold no terrain cell (format v2; the tile stream's
+//! trailer lists them among its outside ranges). Nothing is drawn or asked for
+//! there again, and selection refines their parents into the siblings that exist.
 
 use crate::lru::TileLru;
 use crate::select::{TileTables, World};
 use std::collections::HashSet;
-use tessera_shared::{ErrorTable, TileId};
+use tessera_shared::{CellMask, ErrorTable, TileId};
 
 #[derive(Debug)]
 pub struct Resident {
     pub errors: ErrorTable,
     pub heights: Vec<u16>,
+    /// Which of the tile's cells are terrain (the renderer draws only those).
+    pub mask: CellMask,
 }
 
 #[derive(Debug)]
@@ -25,6 +32,8 @@ pub struct TilePool {
     pub evictions: u64,
     /// Tiles that are not resident and cannot be had for now.
     unavailable: HashSet<TileId>,
+    /// Tiles known to have no record (no terrain): never resident, never wanted.
+    absent: HashSet<TileId>,
 }
 
 impl TilePool {
@@ -35,6 +44,7 @@ impl TilePool {
             capacity: capacity.max(5),
             evictions: 0,
             unavailable: HashSet::new(),
+            absent: HashSet::new(),
         }
     }
 
@@ -66,6 +76,20 @@ impl TilePool {
         self.unavailable.contains(&tile)
     }
 
+    /// Records that `tile` has no record: it holds no terrain cell (the server
+    /// listed it among a tile stream's outside ranges, or answered 404 for it).
+    pub fn mark_absent(&mut self, tile: TileId) {
+        if !self.tiles.contains(tile) {
+            self.unavailable.remove(&tile);
+            self.absent.insert(tile);
+        }
+    }
+
+    /// Whether `tile` is known to have no record ([`TileTables::absent`]).
+    pub fn is_absent(&self, tile: TileId) -> bool {
+        self.absent.contains(&tile)
+    }
+
     /// Whether `tile` stands in for an unavailable parent at the top of what the
     /// selection can reach: its parent cannot be had and no ancestor is resident.
     /// Such tiles are pinned, as the root is.
@@ -95,9 +119,17 @@ impl TilePool {
     /// Adds a decoded tile, evicting the least recently used tile that no resident
     /// tile depends on (no resident children), is not on the root level and does
     /// not stand in for an unavailable parent.
-    pub fn insert(&mut self, tile: TileId, errors: ErrorTable, heights: Vec<u16>) {
+    pub fn insert(&mut self, tile: TileId, errors: ErrorTable, heights: Vec<u16>, mask: CellMask) {
         self.unavailable.remove(&tile);
-        self.tiles.insert(tile, Resident { errors, heights });
+        self.absent.remove(&tile);
+        self.tiles.insert(
+            tile,
+            Resident {
+                errors,
+                heights,
+                mask,
+            },
+        );
         while self.tiles.len() > self.capacity {
             let victim = self.tiles.victim(|t| {
                 t != tile
@@ -118,7 +150,7 @@ impl TilePool {
     /// Height in metres under world point `(x, z)`, from the finest resident tile there.
     pub fn ground_height(&self, world: &World, x: f64, z: f64) -> Option<f64> {
         let g = &world.geometry;
-        let (fx, fy) = ((x / world.spacing).round(), (z / world.spacing).round());
+        let (fx, fy) = ((x / world.spacing.x).round(), (z / world.spacing.y).round());
         if fx < 0.0 || fy < 0.0 {
             return None;
         }
@@ -150,6 +182,10 @@ impl TileTables for TilePool {
     fn unavailable(&self, tile: TileId) -> bool {
         self.is_unavailable(tile)
     }
+
+    fn absent(&self, tile: TileId) -> bool {
+        self.is_absent(tile)
+    }
 }
 
 #[cfg(test)]
@@ -165,13 +201,14 @@ mod tests {
     fn evicts_least_recently_used_leaves_and_never_the_root() {
         let mut p = TilePool::new(5);
         let e = || ErrorTable::empty(6);
-        p.insert(t(0, 0, 0), e(), vec![]);
+        let m = || CellMask::all_valid(64);
+        p.insert(t(0, 0, 0), e(), vec![], m());
         for (x, y) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            p.insert(t(1, x, y), e(), vec![]);
+            p.insert(t(1, x, y), e(), vec![], m());
         }
         p.touch(&[t(1, 0, 0), t(1, 1, 0), t(1, 0, 1)]);
         // Over capacity: (1,1) is the least recently used leaf.
-        p.insert(t(2, 0, 0), e(), vec![]);
+        p.insert(t(2, 0, 0), e(), vec![], m());
         assert!(p.contains(t(0, 0, 0)));
         assert!(!p.contains(t(1, 1, 1)));
         assert!(
@@ -186,22 +223,23 @@ mod tests {
     fn children_standing_in_for_an_unavailable_root_are_pinned() {
         let mut p = TilePool::new(5);
         let e = || ErrorTable::empty(6);
+        let m = || CellMask::all_valid(64);
         let root = t(0, 0, 0);
         p.mark_unavailable(root);
         assert!(p.unavailable(root));
         for (x, y) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            p.insert(t(1, x, y), e(), vec![]);
+            p.insert(t(1, x, y), e(), vec![], m());
         }
         p.touch(&[t(1, 0, 0), t(1, 1, 0), t(1, 0, 1)]);
         // Over capacity, but every level-1 tile stands in for the root: the only
         // tile that may go is a level-2 one, and the new one stays.
-        p.insert(t(2, 0, 0), e(), vec![]);
-        p.insert(t(2, 1, 0), e(), vec![]);
+        p.insert(t(2, 0, 0), e(), vec![], m());
+        p.insert(t(2, 1, 0), e(), vec![], m());
         assert!((0..2).all(|x| (0..2).all(|y| p.contains(t(1, x, y)))));
         assert!(p.contains(t(2, 1, 0)) && !p.contains(t(2, 0, 0)));
         // Once the root arrives it is available again and pins only its own level:
         // over capacity, the least recently used leaf of level 1 goes.
-        p.insert(root, e(), vec![]);
+        p.insert(root, e(), vec![], m());
         assert!(!p.unavailable(root));
         assert!(p.contains(root) && !p.contains(t(1, 1, 1)));
     }
