@@ -23,9 +23,3 @@ pub mod report;
 pub mod select;
 pub mod stream;
 pub mod tessellate;
-
-// The run modes' old paths, for the streaming tests (tests/tests/streaming*.rs)
-// alone until they import them from `app` (they were being edited when the modes
-// moved).
-#[doc(hidden)]
-pub use app::{fly, headless, load_test as load};

@@ -14,7 +14,7 @@ mod streaming_support;
 
 use std::time::Duration;
 use streaming_support::{assert_no_holes, glide, options, run_flight, start_server};
-use tessera_client::fly::{FrameRecord, fly};
+use tessera_client::app::fly::{FrameRecord, fly};
 use tessera_proxy::Delay;
 
 #[test]
@@ -40,7 +40,7 @@ fn flight_converges_and_never_draws_a_hole() {
 /// cameras and selections, and the second run takes its references from the cache.
 #[test]
 fn settled_quality_frames_converge_and_reuse_cached_references() {
-    use tessera_client::headless::{Draws, RenderSetup};
+    use tessera_client::app::headless::{Draws, RenderSetup};
     use tessera_client::render::RenderOptions;
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
@@ -172,7 +172,7 @@ fn keeps_drawing_through_150_ms_of_latency() {
 /// request, in range mode tiles come in batches, and neither sees errors.
 #[test]
 fn load_generator_batches_in_range_mode_only() {
-    use tessera_client::load::{LoadOptions, load};
+    use tessera_client::app::load_test::{LoadOptions, load};
     use tessera_client::stream::RequestMode;
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use streaming_support::{
     assert_no_holes, glide, options, pyramid, run_flight, start_server, start_server_for,
 };
-use tessera_client::fly::FrameRecord;
+use tessera_client::app::fly::FrameRecord;
 use tessera_client::stream::StreamConfig;
 use tessera_proxy::{Damage, Faults, Recurrence, RequestLog};
 use tessera_shared::{Level, TileId};
@@ -27,7 +27,7 @@ use tessera_shared::{Level, TileId};
 /// and the flight goes on drawing what is resident, then recovers.
 fn assert_survived_transient(
     frames: &[FrameRecord],
-    summary: &tessera_client::fly::FlySummary,
+    summary: &tessera_client::app::fly::FlySummary,
     faults: &Faults,
     why: &str,
 ) {

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use streaming_support::{
     assert_no_holes, options, pyramid, run_flight, start_server, start_server_for,
 };
-use tessera_client::fly::{FlyOptions, FrameRecord};
+use tessera_client::app::fly::{FlyOptions, FrameRecord};
 
 /// A long fast leg that keeps needing new tiles, then a still view to settle on:
 /// the flight of the outage tests (its path file lives in the returned directory).
@@ -35,7 +35,7 @@ fn outage_flight(addr: SocketAddr) -> (tempfile::TempDir, FlyOptions) {
 
 /// After an outage: no holes, the outage noticed, and the last frame back within τ
 /// with nothing left to fetch.
-fn assert_recovered(frames: &[FrameRecord], summary: &tessera_client::fly::FlySummary) {
+fn assert_recovered(frames: &[FrameRecord], summary: &tessera_client::app::fly::FlySummary) {
     assert_no_holes(frames);
     assert!(summary.stream.failures > 0, "the outage was not noticed");
     let last = frames.last().unwrap();

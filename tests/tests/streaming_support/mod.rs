@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Duration;
-use tessera_client::fly::{FlyOptions, FrameRecord, fly};
+use tessera_client::app::fly::{FlyOptions, FrameRecord, fly};
 use tessera_client::stream::StreamConfig;
 use tessera_server::build::{BuildOptions, build};
 use tessera_server::serve::config::Settings;
@@ -96,7 +96,7 @@ pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
     }
 }
 
-pub fn run_flight(opts: &FlyOptions) -> (Vec<FrameRecord>, tessera_client::fly::FlySummary) {
+pub fn run_flight(opts: &FlyOptions) -> (Vec<FrameRecord>, tessera_client::app::fly::FlySummary) {
     let mut buf = Vec::new();
     let summary = fly(opts, Some(&mut buf)).unwrap();
     let frames = String::from_utf8(buf)
