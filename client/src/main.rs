@@ -51,7 +51,8 @@ enum Command {
         tau: f64,
         #[arg(long, default_value = "1280x720")]
         viewport: String,
-        /// Metres between samples (default: from the georeferencing, else 100).
+        /// Metres between samples, east–west and north–south alike (default: the dataset's
+        /// ground spacing, measured by the server for each axis; else 100).
         #[arg(long)]
         spacing: Option<f64>,
         /// Print the report as JSON.
@@ -79,7 +80,8 @@ enum Command {
         tau: f64,
         #[arg(long, default_value = "1920x1080")]
         viewport: String,
-        /// Metres between samples (default: from the georeferencing, else 100).
+        /// Metres between samples, east–west and north–south alike (default: the dataset's
+        /// ground spacing, measured by the server for each axis; else 100).
         #[arg(long)]
         spacing: Option<f64>,
         /// Viewport width (overrides --viewport).
@@ -90,7 +92,7 @@ enum Command {
         height: Option<u32>,
         /// Selection and streaming only: no GPU, no window, no images. Without
         /// this or --out, a window opens (mouse drag looks, WASD/QE move, Shift
-        /// faster, +/- τ, 1–4 debug views, P parallax, Esc quits).
+        /// faster, +/- τ, 1–5 debug views (5: cells that are not terrain), P parallax, Esc quits).
         #[arg(long, conflicts_with = "out")]
         no_render: bool,
         /// Render headless into DIR: frame_NNNNN.png and stats.jsonl.
@@ -174,7 +176,8 @@ enum Command {
         /// Viewport, e.g. 1920x1080.
         #[arg(long, default_value = "1920x1080")]
         viewport: String,
-        /// Metres between neighbouring samples (default: from the georeferencing, else 100).
+        /// Metres between neighbouring samples, both axes (default: the dataset's ground
+        /// spacing, measured by the server for each axis; else 100).
         #[arg(long)]
         spacing: Option<f64>,
         /// Print one JSON object: file, tiles, width, height, tau, path, fps,
