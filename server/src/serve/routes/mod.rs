@@ -130,8 +130,8 @@ pub fn tile(level: Level, x: &str, y: &str) -> ApiResult<TileId> {
     })
 }
 
-/// A present tile's checked record: 404 when the tile lies outside the DEM, 500 (and
-/// counted) when its checksum fails.
+/// A present tile's checked record: 404 when the tile is absent (outside the DEM, or
+/// wholly no-data), 500 (and counted) when its checksum fails.
 pub fn stored_record(
     state: &AppState,
     ds: &Dataset,
@@ -139,7 +139,9 @@ pub fn stored_record(
 ) -> ApiResult<(IndexEntry, Bytes)> {
     match ds.record(tile) {
         Ok(Some(found)) => Ok(found),
-        Ok(None) => Err(ApiError::not_found(format!("{tile} lies outside the DEM"))),
+        Ok(None) => Err(ApiError::not_found(format!(
+            "{tile} is absent: it lies outside the DEM or holds no data"
+        ))),
         Err(RecordError::Corrupt(c)) => {
             state.metrics.corrupt_read(c.first);
             Err(ApiError::internal(format!(
