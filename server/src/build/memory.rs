@@ -42,14 +42,16 @@ impl Plan {
         let side = geometry.tile_samples() as u64;
         let levels = u64::from(geometry.level_count());
         let spacings = u64::from(geometry.tile_log2()) + levels;
-        // A tile in memory: heights, block errors for every spacing, block ranges.
-        let node = side * side * 2 + spacings * 64 * 8 + 64 * 4;
+        // A tile in memory: heights, block errors for every spacing, block ranges,
+        // and its validity mask (one bit per cell).
+        let node = side * side * 2 + spacings * 64 * 8 + 64 * 4 + (side - 1) * (side - 1) / 8 + 8;
         // One in flight: its node and its encoded record (at most the raw heights).
         let in_flight = node + side * side * 2 + 1024;
         // Per worker thread while making a tile: the read window, scratch rows, and
-        // the codec's buffers (about two tiles' worth).
+        // the codec's buffers (about two tiles' worth), and the window's validity
+        // flags (one byte per sample) where the input had no-data.
         let threads = rayon::current_num_threads() as u64;
-        let worker = side * side * 6;
+        let worker = side * side * 7;
         // Up to three waiting siblings at every level but the root, plus, where a
         // parent is being made, its four children and itself.
         let pending = (3 * levels + 2) * node;
