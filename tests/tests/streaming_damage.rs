@@ -59,32 +59,30 @@ fn assert_survived_transient(
     assert_eq!(last.wanted, 0, "every tile arrived whole in the end");
 }
 
-#[test]
-fn flipped_bytes_in_tile_frames_are_rejected_and_retried() {
+/// A glide behind a proxy that damages every tile's first copy with `damage`: the
+/// client must reject each damaged copy (saying `why`) and recover.
+fn survives_transient(damage: Damage, why: &str) {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
-    // Every tile's first copy arrives with a flipped byte.
-    let faults = Faults::new(Damage::FlipByte, Recurrence::Once, |_, _| true);
+    let faults = Faults::new(damage, Recurrence::Once, |_, _| true);
     let proxy = rt
         .block_on(tessera_proxy::corrupting(server, faults.clone()))
         .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let (frames, summary) = run_flight(&options(proxy.addr(), glide(dir.path()), 180));
-    assert_survived_transient(&frames, &summary, &faults, "checksum");
+    assert_survived_transient(&frames, &summary, &faults, why);
+}
+
+#[test]
+fn flipped_bytes_in_tile_frames_are_rejected_and_retried() {
+    // Every tile's first copy arrives with a flipped byte.
+    survives_transient(Damage::FlipByte, "checksum");
 }
 
 #[test]
 fn streams_cut_short_mid_frame_are_rejected_and_retried() {
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
     // The first response carrying each tile ends in the middle of that tile's record.
-    let faults = Faults::new(Damage::CutShort, Recurrence::Once, |_, _| true);
-    let proxy = rt
-        .block_on(tessera_proxy::corrupting(server, faults.clone()))
-        .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let (frames, summary) = run_flight(&options(proxy.addr(), glide(dir.path()), 180));
-    assert_survived_transient(&frames, &summary, &faults, "truncated");
+    survives_transient(Damage::CutShort, "truncated");
 }
 
 /// Tiles that always arrive damaged: a few of levels 2 and 3, by Morton code.
