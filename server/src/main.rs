@@ -98,6 +98,8 @@ enum Command {
     /// Settings come from flags, then TESSERA_* environment variables, then --config FILE
     /// (TOML), then defaults. Stops on SIGINT/SIGTERM after in-flight requests finish;
     /// SIGHUP reopens every dataset (deploy by renaming a new file over the old one).
+    /// HTTP/1.1 and HTTP/2 (h2c) on one port, or HTTPS with --tls-cert and --tls-key;
+    /// CORS, gzip/br for JSON and text, ETag and Last-Modified on every endpoint.
     Serve(tessera_server::serve::config::ServeArgs),
     /// Check a pyramid's structure and every tile's checksum; exit 1 naming each bad tile.
     Verify {

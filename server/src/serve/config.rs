@@ -58,6 +58,23 @@ pub struct ServeArgs {
     /// proxy that sets them) when --public-url is not given.
     #[arg(long, env = "TESSERA_TRUST_FORWARDED")]
     pub trust_forwarded: bool,
+    /// Origins allowed to read responses from browsers (CORS): `*` for any, `none` to
+    /// send no CORS headers, or origins like https://map.example.org (repeat the flag or
+    /// separate with commas) [default: *].
+    #[arg(
+        long,
+        env = "TESSERA_CORS_ORIGIN",
+        value_name = "ORIGIN",
+        value_delimiter = ','
+    )]
+    pub cors_origin: Vec<String>,
+    /// PEM file of the TLS certificate chain: serve HTTPS (HTTP/2 and HTTP/1.1 by ALPN);
+    /// needs --tls-key.
+    #[arg(long, env = "TESSERA_TLS_CERT", value_name = "PEM")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM file of the TLS private key (PKCS#8, PKCS#1 or SEC1); needs --tls-cert.
+    #[arg(long, env = "TESSERA_TLS_KEY", value_name = "PEM")]
+    pub tls_key: Option<PathBuf>,
     /// Log only errors (no request lines or warnings); RUST_LOG still overrides.
     #[arg(short, long)]
     pub quiet: bool,
@@ -79,6 +96,35 @@ struct FileConfig {
     max_connections: Option<usize>,
     public_url: Option<String>,
     trust_forwarded: Option<bool>,
+    cors_origin: Option<OneOrMany>,
+    tls_cert: Option<PathBuf>,
+    tls_key: Option<PathBuf>,
+}
+
+/// `cors_origin = "*"` or `cors_origin = ["https://a.example", "https://b.example"]`.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum OneOrMany {
+    One(String),
+    Many(Vec<String>),
+}
+
+/// Which browser origins may read responses (`Access-Control-Allow-Origin`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CorsOrigins {
+    /// `*`: any origin (no credentials are ever involved: the API is public and read-only).
+    Any,
+    /// No CORS headers at all (`--cors-origin none`).
+    Disabled,
+    /// Exactly these origins (`scheme://host[:port]`, lower-cased); responses vary by `Origin`.
+    List(Vec<String>),
+}
+
+/// The PEM files of `--tls-cert` and `--tls-key`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsFiles {
+    pub cert: PathBuf,
+    pub key: PathBuf,
 }
 
 /// Resolved settings.
@@ -99,6 +145,9 @@ pub struct Settings {
     /// Scheme and authority without a trailing `/`.
     pub public_url: Option<String>,
     pub trust_forwarded: bool,
+    pub cors: CorsOrigins,
+    /// `None`: plain HTTP (HTTP/1.1 and h2c).
+    pub tls: Option<TlsFiles>,
 }
 
 impl Default for Settings {
@@ -117,6 +166,8 @@ impl Default for Settings {
             max_connections: None,
             public_url: None,
             trust_forwarded: false,
+            cors: CorsOrigins::Any,
+            tls: None,
         }
     }
 }
@@ -156,6 +207,48 @@ fn public_url(raw: &str) -> anyhow::Result<String> {
         uri.scheme_str().unwrap_or("http"),
         authority
     ))
+}
+
+/// `--cors-origin` values: `*`, `none`, or origins `scheme://host[:port]`.
+fn cors_origins(raw: &[String]) -> anyhow::Result<CorsOrigins> {
+    let values: Vec<&str> = raw
+        .iter()
+        .map(|v| v.trim())
+        .filter(|v| !v.is_empty())
+        .collect();
+    match values.as_slice() {
+        [] | ["*"] => return Ok(CorsOrigins::Any),
+        [v] if v.eq_ignore_ascii_case("none") => return Ok(CorsOrigins::Disabled),
+        _ => {}
+    }
+    let mut list = Vec::with_capacity(values.len());
+    for v in values {
+        let bad = |why: &str| anyhow::anyhow!("--cors-origin {v:?}: {why}");
+        if v == "*" || v.eq_ignore_ascii_case("none") {
+            return Err(bad("`*` and `none` must be given alone"));
+        }
+        let uri: axum::http::Uri = v
+            .parse()
+            .map_err(|_| bad("not an origin like https://map.example.org"))?;
+        let (Some(scheme), Some(authority)) = (uri.scheme_str(), uri.authority()) else {
+            return Err(bad("not an origin like https://map.example.org"));
+        };
+        if authority.as_str().contains('@')
+            || uri.query().is_some()
+            || !matches!(uri.path(), "" | "/")
+            || v.ends_with('/')
+        {
+            return Err(bad(
+                "an origin is scheme://host[:port] only, with no path, query or trailing /",
+            ));
+        }
+        let origin = format!("{scheme}://{authority}").to_ascii_lowercase();
+        axum::http::HeaderValue::from_str(&origin).map_err(|_| bad("not a valid header value"))?;
+        if !list.contains(&origin) {
+            list.push(origin);
+        }
+    }
+    Ok(CorsOrigins::List(list))
 }
 
 impl Settings {
@@ -235,6 +328,28 @@ impl Settings {
                 .map(public_url)
                 .transpose()?,
             trust_forwarded: args.trust_forwarded || file.trust_forwarded.unwrap_or(false),
+            cors: if args.cors_origin.is_empty() {
+                match file.cors_origin {
+                    None => d.cors,
+                    Some(OneOrMany::One(v)) => cors_origins(&[v])?,
+                    Some(OneOrMany::Many(v)) => cors_origins(&v)?,
+                }
+            } else {
+                cors_origins(&args.cors_origin)?
+            },
+            tls: match (
+                args.tls_cert.clone().or(file.tls_cert),
+                args.tls_key.clone().or(file.tls_key),
+            ) {
+                (Some(cert), Some(key)) => Some(TlsFiles { cert, key }),
+                (None, None) => None,
+                (Some(_), None) => anyhow::bail!(
+                    "--tls-cert needs --tls-key (TESSERA_TLS_KEY, `tls_key` in --config): the certificate's private key"
+                ),
+                (None, Some(_)) => anyhow::bail!(
+                    "--tls-key needs --tls-cert (TESSERA_TLS_CERT, `tls_cert` in --config): the certificate chain"
+                ),
+            },
         };
         Ok(s)
     }
@@ -291,5 +406,88 @@ mod tests {
             let e = args(&["--public-url", bad]).unwrap_err().to_string();
             assert!(e.contains("--public-url"), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn cors_origins_parse() {
+        assert_eq!(args(&[]).unwrap().cors, CorsOrigins::Any);
+        assert_eq!(
+            args(&["--cors-origin", "*"]).unwrap().cors,
+            CorsOrigins::Any
+        );
+        assert_eq!(
+            args(&["--cors-origin", "none"]).unwrap().cors,
+            CorsOrigins::Disabled
+        );
+        let want = CorsOrigins::List(vec![
+            "https://a.example".to_string(),
+            "http://b.example:8080".to_string(),
+        ]);
+        assert_eq!(
+            args(&["--cors-origin", "https://A.example,http://b.example:8080"])
+                .unwrap()
+                .cors,
+            want
+        );
+        assert_eq!(
+            args(&[
+                "--cors-origin",
+                "https://a.example",
+                "--cors-origin",
+                "http://b.example:8080"
+            ])
+            .unwrap()
+            .cors,
+            want
+        );
+        for bad in [
+            "a.example",
+            "https://a.example/",
+            "https://a.example/path",
+            "*,https://a.example",
+            "none,https://a.example",
+        ] {
+            let e = args(&["--cors-origin", bad]).unwrap_err().to_string();
+            assert!(e.contains("--cors-origin"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn tls_needs_both_files() {
+        let e = args(&["--tls-cert", "c.pem"]).unwrap_err().to_string();
+        assert!(e.contains("--tls-key"), "{e}");
+        let e = args(&["--tls-key", "k.pem"]).unwrap_err().to_string();
+        assert!(e.contains("--tls-cert"), "{e}");
+        let s = args(&["--tls-cert", "c.pem", "--tls-key", "k.pem"]).unwrap();
+        assert_eq!(
+            s.tls,
+            Some(TlsFiles {
+                cert: "c.pem".into(),
+                key: "k.pem".into()
+            })
+        );
+    }
+
+    #[test]
+    fn config_file_takes_cors_and_tls() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("t.toml");
+        std::fs::write(
+            &cfg,
+            "cors_origin = [\"https://a.example\"]\ntls_cert = \"c.pem\"\ntls_key = \"k.pem\"\n",
+        )
+        .unwrap();
+        let s = args(&["--config", cfg.to_str().unwrap()]).unwrap();
+        assert_eq!(
+            s.cors,
+            CorsOrigins::List(vec!["https://a.example".to_string()])
+        );
+        assert!(s.tls.is_some());
+        std::fs::write(&cfg, "cors_origin = \"none\"\n").unwrap();
+        let s = args(&["--config", cfg.to_str().unwrap()]).unwrap();
+        assert_eq!(s.cors, CorsOrigins::Disabled);
+        // The flag beats the file.
+        let s = args(&["--config", cfg.to_str().unwrap(), "--cors-origin", "*"]).unwrap();
+        assert_eq!(s.cors, CorsOrigins::Any);
     }
 }

@@ -1,10 +1,16 @@
-//! Connections: our own accept loop around hyper's HTTP/1.1 connection driver, so
-//! that no client can hold the server's resources for free (DESIGN §8).
+//! Connections: our own accept loop around hyper's connection driver (HTTP/1.1 and
+//! HTTP/2 on one port: h2c with prior knowledge in the clear, h2 or http/1.1 by ALPN
+//! under TLS), so that no client can hold the server's resources for free (DESIGN §8).
 //!
-//! - **Header timeout** (hyper's `header_read_timeout`): a connection must deliver a
-//!   complete request head within this time of opening, or of its previous response
-//!   ending; otherwise it is closed. This closes slowloris clients (who dribble a
-//!   header byte at a time) and idle keep-alive connections alike.
+//! - **Header timeout**: a connection must deliver a complete request head within
+//!   this time of opening, or of its previous response ending; otherwise it is
+//!   closed. This closes slowloris clients (who dribble a header byte at a time) and
+//!   idle keep-alive connections alike. For HTTP/1.1 hyper's `header_read_timeout`
+//!   does it; for every protocol (HTTP/2, and a connection that has not yet said
+//!   which it speaks) so does our loop: a connection with no request in progress
+//!   whose last request started or ended this long ago is closed (HTTP/2: with a
+//!   GOAWAY, so the client knows no request was lost; a second period later, hard).
+//!   A TLS handshake must also finish within it.
 //! - **Idle timeout**: a connection on which no byte has moved either way for this
 //!   long, while no handler is working on one of its requests, is closed (e.g. a
 //!   client that stopped reading a large response).
@@ -16,12 +22,18 @@
 //!   tries again.
 //! - **Graceful shutdown**: the listener is closed, idle connections are closed,
 //!   responses in progress are finished, then [`serve`] returns.
+//! - **HTTP/2 limits**: at most [`H2_MAX_STREAMS`] concurrent streams per connection
+//!   and [`H2_MAX_HEADER_LIST`] bytes of request headers. No keep-alive PINGs: their
+//!   answers would count as bytes moving and keep a stalled connection from ever
+//!   reaching the idle timeout; idle HTTP/2 connections are closed by the header
+//!   timeout rule above instead, like idle HTTP/1.1 ones.
 
 use super::config::Settings;
 use axum::Router;
 use axum::body::Body;
 use hyper::body::{Frame, Incoming, SizeHint};
-use hyper_util::rt::{TokioIo, TokioTimer};
+use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+use hyper_util::server::conn::auto;
 use std::collections::HashMap;
 use std::io;
 use std::pin::Pin;
@@ -33,6 +45,11 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Notify, mpsc, watch};
 use tower::ServiceExt;
+
+/// Concurrent streams one HTTP/2 connection may open.
+pub const H2_MAX_STREAMS: u32 = 256;
+/// Bytes of request headers (decoded, as HTTP/2 counts them) one HTTP/2 request may carry.
+pub const H2_MAX_HEADER_LIST: u32 = 256 * 1024;
 
 /// What the connection layer enforces.
 #[derive(Debug, Clone, Copy)]
@@ -111,6 +128,11 @@ struct Conn {
     busy: AtomicUsize,
     /// Requests whose handler has not produced a response head yet.
     handling: AtomicUsize,
+    /// Milliseconds since [`Table::epoch`] when a request last started or ended (or
+    /// the connection opened): the header timeout counts from here.
+    last_request: AtomicU64,
+    /// Whether a request came over HTTP/2 (then an idle close sends a GOAWAY).
+    h2: AtomicBool,
     /// Set once the connection has been told to close (so it is not picked twice).
     closing: AtomicBool,
     close: Notify,
@@ -126,6 +148,22 @@ impl Conn {
     fn idle_for(&self) -> Duration {
         let now = self.epoch.elapsed().as_millis() as u64;
         Duration::from_millis(now.saturating_sub(self.last_active.load(Ordering::Relaxed)))
+    }
+
+    fn request_event(&self) {
+        self.last_request
+            .store(self.epoch.elapsed().as_millis() as u64, Ordering::Relaxed);
+    }
+
+    /// Time since a request last started or ended, or `None` while one is in progress.
+    fn without_request_for(&self) -> Option<Duration> {
+        if self.busy.load(Ordering::Relaxed) > 0 {
+            return None;
+        }
+        let now = self.epoch.elapsed().as_millis() as u64;
+        Some(Duration::from_millis(
+            now.saturating_sub(self.last_request.load(Ordering::Relaxed)),
+        ))
     }
 }
 
@@ -179,6 +217,7 @@ impl Busy {
     fn new(conn: Arc<Conn>) -> Self {
         conn.busy.fetch_add(1, Ordering::Relaxed);
         conn.handling.fetch_add(1, Ordering::Relaxed);
+        conn.request_event();
         Self {
             conn,
             handling: true,
@@ -196,8 +235,9 @@ impl Drop for Busy {
     fn drop(&mut self) {
         self.head_ready();
         self.conn.busy.fetch_sub(1, Ordering::Relaxed);
-        // Idle time counts from the end of the response.
+        // Idle time and the header timeout count from the end of the response.
         self.conn.touch();
+        self.conn.request_event();
     }
 }
 
@@ -228,12 +268,12 @@ impl hyper::body::Body for TrackedBody {
 }
 
 /// A socket that notes on its [`Conn`] every time bytes move.
-struct Tracked {
-    inner: TcpStream,
+struct Tracked<S> {
+    inner: S,
     conn: Arc<Conn>,
 }
 
-impl AsyncRead for Tracked {
+impl<S: AsyncRead + Unpin> AsyncRead for Tracked<S> {
     fn poll_read(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -249,7 +289,7 @@ impl AsyncRead for Tracked {
     }
 }
 
-impl AsyncWrite for Tracked {
+impl<S: AsyncWrite + Unpin> AsyncWrite for Tracked<S> {
     fn poll_write(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -306,14 +346,17 @@ fn refuse(stream: &TcpStream) {
     let _ = stream.try_write(msg.as_bytes());
 }
 
-/// Accepts connections on `listener` and serves `router` on them until `shutdown`
-/// resolves, then closes the listener and waits for the responses in progress.
+/// Accepts connections on `listener` and serves `router` on them (over TLS with `tls`)
+/// until `shutdown` resolves, then closes the listener and waits for the responses in
+/// progress.
 pub async fn serve(
     listener: TcpListener,
     router: Router,
     limits: ConnLimits,
+    tls: Option<Arc<rustls::ServerConfig>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) {
+    let tls = tls.map(tokio_rustls::TlsAcceptor::from);
     let table = Arc::new(Table {
         conns: Mutex::new(HashMap::new()),
         epoch: Instant::now(),
@@ -352,11 +395,16 @@ pub async fn serve(
                 max_connections = limits.max_connections,
                 "connection cap reached and every connection is busy; refusing a new one"
             );
-            refuse(&stream);
+            // A TLS client would read a plain-text answer as garbage: just close.
+            if tls.is_none() {
+                refuse(&stream);
+            }
             continue;
         }
         let conn = Arc::new(Conn {
             last_active: AtomicU64::new(0),
+            last_request: AtomicU64::new(0),
+            h2: AtomicBool::new(false),
             busy: AtomicUsize::new(0),
             handling: AtomicUsize::new(0),
             closing: AtomicBool::new(false),
@@ -364,6 +412,7 @@ pub async fn serve(
             epoch: table.epoch,
         });
         conn.touch();
+        conn.request_event();
         let id = next_id;
         next_id += 1;
         table.lock().insert(id, conn.clone());
@@ -371,6 +420,7 @@ pub async fn serve(
             conn,
             router: router.clone(),
             limits,
+            tls: tls.clone(),
             stop: stop_rx.clone(),
             _done: done_tx.clone(),
         };
@@ -391,16 +441,49 @@ struct ConnTask {
     conn: Arc<Conn>,
     router: Router,
     limits: ConnLimits,
+    tls: Option<tokio_rustls::TlsAcceptor>,
     stop: watch::Receiver<bool>,
     _done: mpsc::Sender<()>,
 }
 
 impl ConnTask {
-    async fn run(mut self, stream: TcpStream) {
+    async fn run(self, stream: TcpStream) {
+        let tracked = Tracked {
+            inner: stream,
+            conn: self.conn.clone(),
+        };
+        let Some(acceptor) = self.tls.clone() else {
+            return self.drive(tracked).await;
+        };
+        // The handshake counts against the header timeout: a client that stalls in it
+        // holds the connection no longer than one that stalls in its request head.
+        let handshake = tokio::time::timeout(self.limits.header_timeout, acceptor.accept(tracked));
+        let tls = tokio::select! {
+            r = handshake => r,
+            () = self.conn.close.notified() => return,
+        };
+        match tls {
+            Ok(Ok(tls)) => self.drive(tls).await,
+            Ok(Err(e)) => tracing::debug!(error = %e, "TLS handshake failed"),
+            Err(_) => {
+                tracing::debug!("TLS handshake not finished within the header timeout; closing");
+            }
+        }
+    }
+
+    /// Serves HTTP on `io` (HTTP/1.1 or HTTP/2, whichever the client speaks) until the
+    /// connection ends, is evicted, goes idle, or the server shuts down.
+    async fn drive<I>(mut self, io: I)
+    where
+        I: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    {
         let conn = self.conn.clone();
         let router = self.router.clone();
         let service = hyper::service::service_fn(move |req: hyper::Request<Incoming>| {
             let router = router.clone();
+            if req.version() == hyper::Version::HTTP_2 {
+                conn.h2.store(true, Ordering::Relaxed);
+            }
             let mut busy = Busy::new(conn.clone());
             async move {
                 let response = router.oneshot(req).await;
@@ -408,14 +491,18 @@ impl ConnTask {
                 response.map(|r| r.map(|inner| TrackedBody { inner, _busy: busy }))
             }
         });
-        let io = TokioIo::new(Tracked {
-            inner: stream,
-            conn: self.conn.clone(),
-        });
-        let mut builder = hyper::server::conn::http1::Builder::new();
+        let io = TokioIo::new(io);
+        let mut builder = auto::Builder::new(TokioExecutor::new());
         builder
+            .http1()
             .timer(TokioTimer::new())
             .header_read_timeout(self.limits.header_timeout);
+        builder
+            .http2()
+            .timer(TokioTimer::new())
+            .max_concurrent_streams(H2_MAX_STREAMS)
+            .max_header_list_size(H2_MAX_HEADER_LIST)
+            .keep_alive_interval(None);
         let http = builder.serve_connection(io, service);
         tokio::pin!(http);
         let mut draining = false;
@@ -428,6 +515,12 @@ impl ConnTask {
                 .limits
                 .idle_timeout
                 .saturating_sub(self.conn.idle_for());
+            let header_left = self
+                .conn
+                .without_request_for()
+                .map_or(self.limits.header_timeout, |quiet| {
+                    self.limits.header_timeout.saturating_sub(quiet)
+                });
             tokio::select! {
                 r = http.as_mut() => {
                     if let Err(e) = r {
@@ -441,7 +534,22 @@ impl ConnTask {
                     draining = true;
                     http.as_mut().graceful_shutdown();
                 }
-                () = tokio::time::sleep(idle_left) => {
+                () = tokio::time::sleep(header_left), if header_left < idle_left => {
+                    let quiet = self.conn.without_request_for();
+                    if quiet.is_some_and(|q| q >= self.limits.header_timeout) {
+                        if self.conn.h2.load(Ordering::Relaxed) && !draining {
+                            tracing::debug!("closing an HTTP/2 connection with no request for the header timeout");
+                            draining = true;
+                            http.as_mut().graceful_shutdown();
+                            // The GOAWAY's own grace period counts from now.
+                            self.conn.request_event();
+                        } else {
+                            tracing::debug!("closing a connection with no request for the header timeout");
+                            return;
+                        }
+                    }
+                }
+                () = tokio::time::sleep(idle_left), if idle_left <= header_left => {
                     let idle = self.conn.idle_for() >= self.limits.idle_timeout;
                     if idle && self.conn.handling.load(Ordering::Relaxed) == 0 {
                         tracing::debug!("closing a connection idle for the idle timeout");

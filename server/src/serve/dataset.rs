@@ -1,5 +1,6 @@
 //! The datasets a server holds: one pyramid file each, named by its file stem.
 
+use super::cache::LastModified;
 use super::storage::{FileStorage, Storage, StorageSource};
 use anyhow::{Context, bail};
 use bytes::Bytes;
@@ -23,6 +24,9 @@ pub struct Dataset {
     pub path: PathBuf,
     pub storage: Arc<dyn Storage>,
     pub pyramid: Pyramid<StorageSource>,
+    /// The file's modification time when it was opened (fstat of the open descriptor),
+    /// sent as `Last-Modified` beside every ETag.
+    pub last_modified: LastModified,
     /// Per level and Morton code: whether the record's checksum has been checked.
     /// Records are immutable, so each is hashed once, on first use.
     checked: Vec<Vec<AtomicU8>>,
@@ -72,6 +76,7 @@ impl Dataset {
         Ok(Self {
             name,
             path: path.to_path_buf(),
+            last_modified: LastModified::new(storage.modified()),
             storage,
             pyramid,
             checked,

@@ -3,12 +3,14 @@
 pub mod cache;
 pub mod config;
 pub mod conn;
+pub mod conventions;
 pub mod dataset;
 pub mod error;
 pub mod http_range;
 pub mod metrics;
 pub mod routes;
 pub mod storage;
+pub mod tls;
 
 use axum::Router;
 use axum::extract::{MatchedPath, Request, State};
@@ -96,6 +98,11 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .with_state(state.clone());
     api.layer(
         ServiceBuilder::new()
+            // HTTP conventions for browsers and CDNs (conventions.rs; API.md "HTTP conventions").
+            .layer(middleware::from_fn(conventions::options))
+            .layer(conventions::cors(&settings.cors))
+            .layer(middleware::from_fn(conventions::representation))
+            .layer(conventions::compression())
             .layer(CatchPanicLayer::custom(|_| {
                 ApiError::internal("internal error").into_response()
             }))
@@ -256,8 +263,20 @@ pub async fn serve_until(
     settings: &Settings,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
+    let tls = settings.tls.as_ref().map(tls::server_config).transpose()?;
+    serve_on(listener, state, settings, tls, shutdown).await
+}
+
+/// [`serve_until`] with a TLS configuration already loaded (`None`: plain HTTP).
+pub async fn serve_on(
+    listener: tokio::net::TcpListener,
+    state: Arc<AppState>,
+    settings: &Settings,
+    tls: Option<Arc<rustls::ServerConfig>>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
     let limits = conn::ConnLimits::from_settings(settings, state.registry().datasets.len())?;
-    conn::serve(listener, app(state, settings), limits, shutdown).await;
+    conn::serve(listener, app(state, settings), limits, tls, shutdown).await;
     Ok(())
 }
 
@@ -288,6 +307,8 @@ fn reload_on_sighup(state: Arc<AppState>) -> anyhow::Result<()> {
 /// Loads the datasets and serves until SIGINT/SIGTERM, letting in-flight responses
 /// finish; SIGHUP reloads the datasets.
 pub async fn run(settings: Settings) -> anyhow::Result<()> {
+    // Certificate problems stop the server before it says it is listening.
+    let tls = settings.tls.as_ref().map(tls::server_config).transpose()?;
     let state = state(&settings)?;
     #[cfg(unix)]
     reload_on_sighup(state.clone())?;
@@ -296,7 +317,8 @@ pub async fn run(settings: Settings) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", settings.listen))?;
     let addr = listener.local_addr()?;
     // Tools and tests read this line to find an ephemeral port.
-    println!("listening on http://{addr}");
-    tracing::info!(%addr, "listening");
-    serve_until(listener, state, &settings, shutdown_signal()).await
+    let scheme = if tls.is_some() { "https" } else { "http" };
+    println!("listening on {scheme}://{addr}");
+    tracing::info!(%addr, tls = tls.is_some(), "listening");
+    serve_on(listener, state, &settings, tls, shutdown_signal()).await
 }

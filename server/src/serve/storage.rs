@@ -17,6 +17,11 @@ pub trait Storage: Send + Sync + std::fmt::Debug + 'static {
     /// `Err` naming what changed if the bytes may no longer be the ones opened
     /// (a file truncated or rewritten in place). Cheap: called on every request.
     fn check_unchanged(&self) -> Result<(), String>;
+    /// When the bytes were last modified, as it was when the storage was opened
+    /// (`Last-Modified`); `None` where unknown.
+    fn modified(&self) -> Option<SystemTime> {
+        None
+    }
 }
 
 /// A local file read with positional reads (`pread`) on the descriptor opened at
@@ -49,6 +54,10 @@ impl FileStorage {
 impl Storage for FileStorage {
     fn size(&self) -> u64 {
         self.size
+    }
+
+    fn modified(&self) -> Option<SystemTime> {
+        self.modified
     }
 
     fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes> {

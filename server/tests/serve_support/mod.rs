@@ -208,6 +208,8 @@ pub fn present(p: &Pyramid<tessera_shared::FileSource>, level: Level) -> Vec<boo
 pub struct Server {
     child: Child,
     pub addr: SocketAddr,
+    /// `https` when the server said `listening on https://…` (`--tls-cert`), else `http`.
+    pub scheme: &'static str,
     log: Arc<Mutex<Vec<String>>>,
     rt: tokio::runtime::Runtime,
     client: reqwest::Client,
@@ -229,6 +231,13 @@ const ENV_VARS: &[&str] = &[
     "TESSERA_MAX_CONNECTIONS",
     "TESSERA_PUBLIC_URL",
     "TESSERA_TRUST_FORWARDED",
+    "TESSERA_CORS_ORIGIN",
+    "TESSERA_TLS_CERT",
+    "TESSERA_TLS_KEY",
+    "TESSERA_EMPTY_TILES",
+    "TESSERA_ATTRIBUTION",
+    "TESSERA_SOURCE_CACHE_MIB",
+    "TESSERA_TILE_CACHE_MIB",
 ];
 
 impl Server {
@@ -285,7 +294,7 @@ impl Server {
         std::thread::spawn(move || {
             let mut sent = false;
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if !sent && let Some(a) = line.trim().strip_prefix("listening on http://") {
+                if !sent && let Some(a) = line.trim().strip_prefix("listening on ") {
                     let _ = tx.send(a.to_string());
                     sent = true;
                 }
@@ -301,6 +310,14 @@ impl Server {
                 log.lock().unwrap().join("\n")
             );
         };
+        let (scheme, addr) = addr
+            .split_once("://")
+            .unwrap_or_else(|| panic!("listening line without a scheme: {addr:?}"));
+        let scheme = match scheme {
+            "http" => "http",
+            "https" => "https",
+            other => panic!("listening on an unknown scheme {other:?}"),
+        };
         let addr: SocketAddr = addr.parse().unwrap();
         let rt = tokio::runtime::Builder::new_current_thread()
             .enable_all()
@@ -314,6 +331,7 @@ impl Server {
         Self {
             child,
             addr,
+            scheme,
             log,
             rt,
             client,
@@ -325,7 +343,7 @@ impl Server {
     }
 
     pub fn url(&self, path: &str) -> String {
-        format!("http://{}{path}", self.addr)
+        format!("{}://{}{path}", self.scheme, self.addr)
     }
 
     pub fn get(&self, path: &str) -> Resp {

@@ -41,14 +41,21 @@ pub async fn get_one(
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
     let etag = cache::etag(ds.content_hash(), "metadata");
-    if cache::not_modified(&headers, &etag) {
+    if cache::not_modified(&headers, &etag, ds.last_modified) {
         return Ok(cache::not_modified_response(
             &etag,
+            ds.last_modified,
             false,
             state.cache_max_age,
         ));
     }
     let mut r = Json(describe(&ds)).into_response();
-    cache::set_headers(r.headers_mut(), &etag, false, state.cache_max_age);
+    cache::set_headers(
+        r.headers_mut(),
+        &etag,
+        ds.last_modified,
+        false,
+        state.cache_max_age,
+    );
     Ok(r)
 }

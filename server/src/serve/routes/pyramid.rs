@@ -18,11 +18,12 @@
 //! - No satisfiable range, or more than [`MAX_RANGES`] range-specs in the header:
 //!   416 with `Content-Range: bytes */size` and a JSON reason.
 //! - `If-Range` honours the `Range` only when it carries our strong ETag; any other
-//!   value (another or weak ETag, or an HTTP date, since we send no
-//!   `Last-Modified`) gets the full 200.
+//!   value (another or weak ETag, or an HTTP date: our `Last-Modified` is a weak
+//!   validator, one-second resolution, RFC 9110 §8.8.2.2) gets the full 200.
 //! - `If-None-Match` matching our ETag: 304 (checked before any range).
 
 use super::{Params, Segments, dataset, pinned};
+use crate::serve::cache::LastModified;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::http_range::{self, ByteRange, MAX_RANGES, RangeRequest};
 use crate::serve::storage::Storage;
@@ -60,9 +61,9 @@ fn if_range_allows(headers: &HeaderMap, etag: &str) -> bool {
 }
 
 /// Headers every non-error response carries.
-fn common_headers(h: &mut HeaderMap, etag: &str, pin: bool, max_age: u64) {
+fn common_headers(h: &mut HeaderMap, etag: &str, lm: LastModified, pin: bool, max_age: u64) {
     h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
-    cache::set_headers(h, etag, pin, max_age);
+    cache::set_headers(h, etag, lm, pin, max_age);
 }
 
 fn slice(storage: &dyn Storage, r: ByteRange) -> ApiResult<Bytes> {
@@ -138,9 +139,9 @@ pub async fn raw(
     let pin = pinned(&ds, &query);
     let etag = cache::etag(ds.content_hash(), "pyramid");
     let max_age = state.cache_max_age;
-    if cache::not_modified(&headers, &etag) {
+    if cache::not_modified(&headers, &etag, ds.last_modified) {
         let mut r = StatusCode::NOT_MODIFIED.into_response();
-        common_headers(r.headers_mut(), &etag, pin, max_age);
+        common_headers(r.headers_mut(), &etag, ds.last_modified, pin, max_age);
         return Ok(r);
     }
     let storage = ds.storage.as_ref();
@@ -234,7 +235,7 @@ pub async fn raw(
             HeaderValue::from_str(&cr).expect("ASCII"),
         );
     }
-    common_headers(h, &etag, pin, max_age);
+    common_headers(h, &etag, ds.last_modified, pin, max_age);
     Ok(r)
 }
 

@@ -81,9 +81,10 @@ fn stream(
         ds.content_hash(),
         &format!("{kind} {level} {}", canonical.join(",")),
     );
-    if cache::not_modified(headers, &etag) {
+    if cache::not_modified(headers, &etag, ds.last_modified) {
         return Ok(cache::not_modified_response(
             &etag,
+            ds.last_modified,
             pin,
             state.cache_max_age,
         ));
@@ -150,7 +151,7 @@ fn stream(
     h.insert(header::CONTENT_TYPE, HeaderValue::from_static(CONTENT_TYPE));
     h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
     if errors == 0 {
-        cache::set_headers(h, &etag, pin, state.cache_max_age);
+        cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
     } else {
         // A body with Error frames is not the dataset's content (whose hash comes from
         // the checksums the records should have): no cache may keep it or revalidate it.
@@ -203,9 +204,10 @@ pub async fn single(
     let pin = pinned(&ds, &query);
     // The record's own checksum identifies its bytes: the strongest possible ETag.
     let etag = format!("\"{:016x}\"", entry.checksum);
-    if cache::not_modified(&headers, &etag) {
+    if cache::not_modified(&headers, &etag, ds.last_modified) {
         return Ok(cache::not_modified_response(
             &etag,
+            ds.last_modified,
             pin,
             state.cache_max_age,
         ));
@@ -223,7 +225,7 @@ pub async fn single(
     );
     h.insert("x-tessera-min", HeaderValue::from(entry.min));
     h.insert("x-tessera-max", HeaderValue::from(entry.max));
-    cache::set_headers(h, &etag, pin, state.cache_max_age);
+    cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
     r.extensions_mut().insert(TilesServed(1));
     Ok(r)
 }

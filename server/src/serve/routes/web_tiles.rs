@@ -146,9 +146,10 @@ pub async fn png(
             tile.y()
         ),
     );
-    if cache::not_modified(&headers, &etag) {
+    if cache::not_modified(&headers, &etag, ds.last_modified) {
         return Ok(cache::not_modified_response(
             &etag,
+            ds.last_modified,
             pin,
             state.cache_max_age,
         ));
@@ -185,7 +186,7 @@ pub async fn png(
     let h = r.headers_mut();
     h.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
     h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
-    cache::set_headers(h, &etag, pin, state.cache_max_age);
+    cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
     r.extensions_mut().insert(TilesServed(1));
     Ok(r)
 }
@@ -318,15 +319,22 @@ pub async fn tilejson(
         ds.content_hash(),
         &format!("tilejson {base} {}", encoding.name()),
     );
-    if cache::not_modified(&headers, &etag) {
+    if cache::not_modified(&headers, &etag, ds.last_modified) {
         return Ok(cache::not_modified_response(
             &etag,
+            ds.last_modified,
             pin,
             state.cache_max_age,
         ));
     }
     let mut r = Json(tilejson_doc(&ds, &base, encoding)).into_response();
-    cache::set_headers(r.headers_mut(), &etag, pin, state.cache_max_age);
+    cache::set_headers(
+        r.headers_mut(),
+        &etag,
+        ds.last_modified,
+        pin,
+        state.cache_max_age,
+    );
     Ok(r)
 }
 

@@ -1,0 +1,743 @@
+//! `tessera-server serve` end to end: what browsers and CDNs need of every endpoint
+//! (API.md "HTTP conventions") — CORS and preflights, gzip/br for text and never for
+//! binary, `Last-Modified` and `If-Modified-Since`, HTTP/2 in the clear (h2c with
+//! prior knowledge) and over TLS (ALPN), and clear errors for bad TLS files.
+//!
+//! Every test starts its own server (real process, real sockets) on the shared
+//! fixtures (`serve_support`).
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+#[allow(dead_code)] // each test binary uses some of the shared helpers
+mod serve_support;
+
+use reqwest::Method;
+use serve_support::{Resp, Server, fixtures, serve_must_refuse};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// One request of every kind of cacheable response, on dataset `synth`.
+const CACHEABLE: [&str; 6] = [
+    "/v1/datasets/synth",
+    "/v1/datasets/synth/tilejson.json",
+    "/v1/datasets/synth/levels/2/tiles?ranges=0-15",
+    "/v1/datasets/synth/tiles/2/1/1",
+    "/v1/datasets/synth/2/1/1.png",
+    "/v1/datasets/synth/pyramid",
+];
+
+/// What a browser sends before a cross-origin `Range` request.
+fn preflight(srv: &Server, path: &str, origin: &str) -> Resp {
+    srv.send(
+        Method::OPTIONS,
+        path,
+        &[
+            ("origin", origin),
+            ("access-control-request-method", "GET"),
+            ("access-control-request-headers", "range,if-none-match"),
+        ],
+    )
+}
+
+/// The comma-separated values of every `name` header, lower-cased.
+fn list(r: &Resp, name: &str) -> Vec<String> {
+    r.headers
+        .get_all(name)
+        .iter()
+        .flat_map(|v| v.to_str().unwrap().split(','))
+        .map(|t| t.trim().to_ascii_lowercase())
+        .filter(|t| !t.is_empty())
+        .collect()
+}
+
+fn has(r: &Resp, name: &str, value: &str) -> bool {
+    list(r, name).iter().any(|v| v == value)
+}
+
+// ---------------------------------------------------------------------------
+// CORS
+
+#[test]
+fn a_browser_preflight_gets_204_with_what_it_asked_for() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    for path in CACHEABLE.iter().copied().chain(["/healthz", "/nowhere"]) {
+        let r = preflight(&srv, path, "https://map.example.org");
+        assert_eq!(r.status, 204, "OPTIONS {path}: {:?}", r.headers);
+        assert!(r.body.is_empty(), "OPTIONS {path} has a body");
+        assert_eq!(r.must("access-control-allow-origin"), "*", "{path}");
+        for m in ["get", "head", "options"] {
+            assert!(has(&r, "access-control-allow-methods", m), "{path}: {m}");
+        }
+        for h in ["range", "if-none-match", "if-modified-since", "accept"] {
+            assert!(has(&r, "access-control-allow-headers", h), "{path}: {h}");
+        }
+        let max_age: u64 = r.must("access-control-max-age").parse().unwrap();
+        assert!(max_age >= 600, "{path}: preflight cached only {max_age} s");
+        for m in ["get", "head", "options"] {
+            assert!(has(&r, "allow", m), "{path}: Allow lacks {m}");
+        }
+        // `*` is the same answer for every origin: no per-origin copies in caches.
+        assert!(!has(&r, "vary", "origin"), "{path}: Vary: Origin with `*`");
+    }
+}
+
+#[test]
+fn responses_allow_any_origin_and_expose_the_cache_and_range_headers() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    for path in CACHEABLE
+        .iter()
+        .copied()
+        .chain(["/healthz", "/v1/datasets/nope"])
+    {
+        let r = srv.get_with(path, &[("origin", "https://map.example.org")]);
+        assert!(r.status == 200 || r.status == 404, "{path}: {}", r.status);
+        assert_eq!(r.must("access-control-allow-origin"), "*", "{path}");
+        for h in ["etag", "content-length", "content-range", "last-modified"] {
+            assert!(
+                has(&r, "access-control-expose-headers", h),
+                "{path}: {h} not exposed"
+            );
+        }
+        assert!(!has(&r, "vary", "origin"), "{path}: Vary: Origin with `*`");
+    }
+    // A range request from a page: the 206 too.
+    let r = srv.get_with(
+        "/v1/datasets/synth/pyramid",
+        &[
+            ("origin", "https://map.example.org"),
+            ("range", "bytes=0-63"),
+        ],
+    );
+    assert_eq!(r.status, 206);
+    assert_eq!(r.must("access-control-allow-origin"), "*");
+    assert_eq!(r.body.len(), 64);
+}
+
+#[test]
+fn a_list_of_origins_allows_only_those_and_varies_by_origin() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("tessera.toml");
+    std::fs::write(
+        &cfg,
+        "cors_origin = [\"https://a.example\", \"http://b.example:8080\"]\n",
+    )
+    .unwrap();
+    let by_flag = Server::start(
+        &[&f.synth],
+        &["--cors-origin", "https://a.example,http://b.example:8080"],
+    );
+    let by_file = Server::start(&[&f.synth], &["--config", cfg.to_str().unwrap()]);
+    let path = "/v1/datasets/synth";
+    for srv in [&by_flag, &by_file] {
+        for origin in ["https://a.example", "http://b.example:8080"] {
+            let r = srv.get_with(path, &[("origin", origin)]).expect(200);
+            assert_eq!(r.must("access-control-allow-origin"), origin);
+            assert!(has(&r, "vary", "origin"), "{:?}", r.headers);
+            let p = preflight(srv, path, origin);
+            assert_eq!(p.status, 204);
+            assert_eq!(p.must("access-control-allow-origin"), origin);
+            assert!(has(&p, "vary", "origin"));
+        }
+        for evil in ["https://evil.example", "https://a.example.evil", "null"] {
+            let r = srv.get_with(path, &[("origin", evil)]).expect(200);
+            assert_eq!(r.header("access-control-allow-origin"), None, "{evil}");
+            assert!(has(&r, "vary", "origin"), "a cache must not reuse it for a");
+            let p = preflight(srv, path, evil);
+            assert_eq!(p.header("access-control-allow-origin"), None, "{evil}");
+        }
+    }
+}
+
+#[test]
+fn cors_none_sends_no_cors_headers_but_options_still_gets_204() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &["--cors-origin", "none"]);
+    let r = srv
+        .get_with("/v1/datasets/synth", &[("origin", "https://a.example")])
+        .expect(200);
+    for h in [
+        "access-control-allow-origin",
+        "access-control-expose-headers",
+    ] {
+        assert_eq!(r.header(h), None, "{h}");
+    }
+    let p = preflight(&srv, "/v1/datasets/synth", "https://a.example");
+    assert_eq!(p.status, 204);
+    assert_eq!(p.header("access-control-allow-origin"), None);
+    assert_eq!(p.header("access-control-allow-methods"), None);
+    assert!(has(&p, "allow", "get"));
+}
+
+// ---------------------------------------------------------------------------
+// Compression
+
+fn gunzip(b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    flate2::read::GzDecoder::new(b)
+        .read_to_end(&mut out)
+        .unwrap();
+    out
+}
+
+fn unbrotli(b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    brotli::Decompressor::new(b, 4096)
+        .read_to_end(&mut out)
+        .unwrap();
+    out
+}
+
+#[test]
+fn text_is_compressed_with_gzip_or_br_and_decompresses_to_the_same_body() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    for path in [
+        "/v1/datasets/synth",
+        "/v1/datasets",
+        "/v1/datasets/synth/tilejson.json",
+        "/metrics",
+    ] {
+        let plain = srv.get(path).expect(200);
+        assert_eq!(plain.header("content-encoding"), None, "{path}");
+        // Caches must key on Accept-Encoding even for the uncompressed copy.
+        assert!(has(&plain, "vary", "accept-encoding"), "{path}");
+        for (coding, decode) in [("gzip", gunzip as fn(&[u8]) -> Vec<u8>), ("br", unbrotli)] {
+            let r = srv
+                .get_with(path, &[("accept-encoding", coding)])
+                .expect(200);
+            assert_eq!(r.header("content-encoding"), Some(coding), "{path}");
+            assert!(has(&r, "vary", "accept-encoding"), "{path}");
+            assert_eq!(
+                r.header("content-type"),
+                plain.header("content-type"),
+                "{path}"
+            );
+            assert!(
+                r.body.len() < plain.body.len(),
+                "{path}: {coding} {} bytes, plain {}",
+                r.body.len(),
+                plain.body.len()
+            );
+            let decoded = decode(&r.body);
+            if path == "/metrics" {
+                // Counters move between the two requests; the text is still the format.
+                assert!(
+                    String::from_utf8(decoded)
+                        .unwrap()
+                        .contains("tessera_http_requests_total")
+                );
+            } else {
+                assert_eq!(decoded, plain.body, "{path}: {coding} body differs");
+            }
+        }
+    }
+}
+
+#[test]
+fn binary_responses_are_never_compressed() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    let accept = ("accept-encoding", "gzip, br, deflate, zstd");
+    for path in [
+        "/v1/datasets/synth/levels/2/tiles?ranges=0-15",
+        "/v1/datasets/synth/levels/2/errors?ranges=0-15",
+        "/v1/datasets/synth/tiles/2/1/1",
+        "/v1/datasets/synth/2/1/1.png",
+        "/v1/datasets/synth/2/1/1.png?encoding=mapbox",
+        "/v1/datasets/synth/pyramid",
+    ] {
+        let plain = srv.get(path).expect(200);
+        let r = srv.get_with(path, &[accept]).expect(200);
+        assert_eq!(r.header("content-encoding"), None, "{path} was compressed");
+        assert_eq!(r.body, plain.body, "{path}");
+        assert_eq!(
+            r.must("content-length").parse::<usize>().unwrap(),
+            r.body.len(),
+            "{path}: exact Content-Length kept"
+        );
+        assert_eq!(r.must("etag"), plain.must("etag"), "{path}");
+    }
+    // Byte ranges of the raw pyramid stay byte ranges.
+    let r = srv
+        .get_with(
+            "/v1/datasets/synth/pyramid",
+            &[accept, ("range", "bytes=10-19")],
+        )
+        .expect(206);
+    assert_eq!(r.header("content-encoding"), None);
+    assert_eq!(r.must("accept-ranges"), "bytes");
+    assert_eq!(r.body, std::fs::read(&f.synth).unwrap()[10..20]);
+    // PNG tiles are made per request: no ranges (GDAL's /vsicurl/ then reads them whole).
+    let png = srv.get("/v1/datasets/synth/2/1/1.png").expect(200);
+    assert_eq!(png.must("accept-ranges"), "none");
+}
+
+#[test]
+fn compressed_responses_revalidate_and_head_matches_get() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    let path = "/v1/datasets/synth";
+    let plain = srv.get(path).expect(200);
+    let strong = plain.must("etag").to_string();
+    assert!(!strong.starts_with("W/"));
+    let gz = srv
+        .get_with(path, &[("accept-encoding", "gzip")])
+        .expect(200);
+    // Another representation of the same content: a weak ETag of the same tag.
+    assert_eq!(gz.must("etag"), format!("W/{strong}"));
+    let r = srv
+        .get_with(
+            path,
+            &[
+                ("accept-encoding", "gzip"),
+                ("if-none-match", gz.must("etag")),
+            ],
+        )
+        .expect(304);
+    assert!(r.body.is_empty());
+    assert_eq!(r.must("etag"), gz.must("etag"));
+    let r = srv
+        .get_with(path, &[("if-none-match", &strong)])
+        .expect(304);
+    assert_eq!(r.must("etag"), strong);
+    let head = srv.send(Method::HEAD, path, &[("accept-encoding", "gzip")]);
+    assert_eq!(head.status, 200);
+    assert!(head.body.is_empty());
+    assert_eq!(head.must("etag"), gz.must("etag"));
+    assert_eq!(head.header("content-encoding"), Some("gzip"));
+    let head = srv.send(Method::HEAD, path, &[]);
+    assert_eq!(head.status, 200);
+    assert_eq!(head.must("etag"), strong);
+    assert_eq!(head.must("content-length"), plain.body.len().to_string());
+}
+
+// ---------------------------------------------------------------------------
+// Last-Modified
+
+#[test]
+fn last_modified_is_the_files_mtime_and_if_modified_since_gives_304() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    let mtime = std::fs::metadata(&f.synth).unwrap().modified().unwrap();
+    let want = httpdate::fmt_http_date(mtime);
+    let before = httpdate::fmt_http_date(mtime - Duration::from_secs(2));
+    for path in CACHEABLE {
+        let r = srv.get(path).expect(200);
+        assert_eq!(r.must("last-modified"), want, "{path}");
+        let etag = r.must("etag").to_string();
+        let r = srv
+            .get_with(path, &[("if-modified-since", &want)])
+            .expect(304);
+        assert!(r.body.is_empty(), "{path}");
+        assert_eq!(r.must("etag"), etag, "{path}");
+        assert_eq!(r.must("last-modified"), want, "{path}");
+        srv.get_with(path, &[("if-modified-since", &before)])
+            .expect(200);
+        srv.get_with(path, &[("if-modified-since", "not a date")])
+            .expect(200);
+        // If-None-Match wins over If-Modified-Since (RFC 9110 §13.1.3).
+        srv.get_with(
+            path,
+            &[("if-modified-since", &want), ("if-none-match", "\"other\"")],
+        )
+        .expect(200);
+        srv.get_with(
+            path,
+            &[("if-modified-since", &before), ("if-none-match", &etag)],
+        )
+        .expect(304);
+    }
+    // Uncacheable responses carry none.
+    for path in ["/healthz", "/metrics", "/v1/datasets", "/v1/datasets/nope"] {
+        assert_eq!(srv.get(path).header("last-modified"), None, "{path}");
+    }
+}
+
+// ---------------------------------------------------------------------------
+// HTTP/2
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// `GET url` with `client`: the HTTP version and the response.
+fn fetch(
+    rt: &tokio::runtime::Runtime,
+    client: &reqwest::Client,
+    url: &str,
+    headers: &[(&str, &str)],
+) -> (reqwest::Version, Resp) {
+    rt.block_on(async {
+        let mut req = client.get(url);
+        for (k, v) in headers {
+            req = req.header(*k, *v);
+        }
+        let r = req
+            .send()
+            .await
+            .unwrap_or_else(|e| panic!("GET {url}: {e:?}"));
+        let version = r.version();
+        let status = r.status().as_u16();
+        let headers = r.headers().clone();
+        let body = r.bytes().await.unwrap().to_vec();
+        (
+            version,
+            Resp {
+                path: url.to_string(),
+                status,
+                headers,
+                body,
+            },
+        )
+    })
+}
+
+#[test]
+fn h2c_with_prior_knowledge_serves_the_same_responses_as_http1() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    let rt = runtime();
+    let h2 = reqwest::Client::builder()
+        .no_proxy()
+        .http2_prior_knowledge()
+        .timeout(Duration::from_secs(60))
+        .build()
+        .unwrap();
+    for path in CACHEABLE {
+        let h1 = srv.get(path).expect(200);
+        let (version, r) = fetch(&rt, &h2, &srv.url(path), &[]);
+        assert_eq!(version, reqwest::Version::HTTP_2, "{path}");
+        assert_eq!(r.status, 200, "{path}");
+        assert_eq!(r.must("etag"), h1.must("etag"), "{path}");
+        assert_eq!(r.must("last-modified"), h1.must("last-modified"), "{path}");
+        assert_eq!(r.body, h1.body, "{path}");
+        let (_, r) = fetch(
+            &rt,
+            &h2,
+            &srv.url(path),
+            &[("if-none-match", h1.must("etag"))],
+        );
+        assert_eq!(r.status, 304, "{path} over h2");
+    }
+    // Many streams on the one connection at once.
+    let results = rt.block_on(async {
+        let mut set = tokio::task::JoinSet::new();
+        for i in 0..64u32 {
+            let h2 = h2.clone();
+            let url = srv.url(&format!("/v1/datasets/synth/tiles/3/{}/{}", i % 8, i / 8));
+            set.spawn(async move { h2.get(url).send().await.map(|r| r.status().as_u16()) });
+        }
+        set.join_all().await
+    });
+    assert!(results.iter().all(|r| matches!(r, Ok(200))), "{results:?}");
+}
+
+/// What an HTTP/2 client sends first (RFC 9113 §3.4).
+const PREFACE: &[u8] = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n";
+
+/// An HTTP/2 frame header: length, type, flags, stream.
+fn h2_frame(kind: u8, flags: u8, stream: u32, payload: &[u8]) -> Vec<u8> {
+    let len = payload.len() as u32;
+    let mut f = vec![(len >> 16) as u8, (len >> 8) as u8, len as u8, kind, flags];
+    f.extend_from_slice(&stream.to_be_bytes());
+    f.extend_from_slice(payload);
+    f
+}
+
+/// Reads frames until EOF: `(type, stream)` of each, and how long the EOF took.
+fn read_frames(s: &mut TcpStream) -> (Vec<(u8, u32)>, Duration) {
+    let started = Instant::now();
+    let mut all = Vec::new();
+    let mut buf = [0u8; 16384];
+    loop {
+        match s.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => all.extend_from_slice(&buf[..n]),
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break,
+            Err(e) => panic!("the server never closed the connection: {e}"),
+        }
+    }
+    let elapsed = started.elapsed();
+    let mut frames = Vec::new();
+    let mut at = 0;
+    while at + 9 <= all.len() {
+        let len = (usize::from(all[at]) << 16)
+            | (usize::from(all[at + 1]) << 8)
+            | usize::from(all[at + 2]);
+        let stream = u32::from_be_bytes(all[at + 5..at + 9].try_into().unwrap()) & 0x7fff_ffff;
+        frames.push((all[at + 3], stream));
+        at += 9 + len;
+    }
+    (frames, elapsed)
+}
+
+#[test]
+fn idle_h2c_connections_are_closed_after_the_header_timeout() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &["--header-timeout-secs", "1"]);
+    let settings = h2_frame(4, 0, 0, &[]);
+
+    // A connection that says it speaks HTTP/2, then sends no request.
+    let mut s = TcpStream::connect(srv.addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    s.write_all(PREFACE).unwrap();
+    s.write_all(&settings).unwrap();
+    let (_, took) = read_frames(&mut s);
+    assert!(took < Duration::from_secs(5), "closed after {took:?}");
+
+    // One request (GET /healthz, HPACK: :method GET, :scheme http, :path literal),
+    // then silence: the response, then a GOAWAY about a second later, then EOF.
+    let mut s = TcpStream::connect(srv.addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let mut block = vec![0x82, 0x86, 0x44, 8];
+    block.extend_from_slice(b"/healthz");
+    s.write_all(PREFACE).unwrap();
+    s.write_all(&settings).unwrap();
+    s.write_all(&h2_frame(1, 0x5, 1, &block)).unwrap();
+    let (frames, took) = read_frames(&mut s);
+    assert!(frames.contains(&(1, 1)), "no response HEADERS: {frames:?}");
+    assert!(frames.contains(&(0, 1)), "no response DATA: {frames:?}");
+    assert!(
+        frames.iter().any(|&(t, _)| t == 7),
+        "closed without a GOAWAY: {frames:?}"
+    );
+    assert!(
+        took >= Duration::from_millis(800) && took < Duration::from_secs(5),
+        "an idle HTTP/2 connection was closed after {took:?}, want ~1 s"
+    );
+}
+
+// ---------------------------------------------------------------------------
+// TLS
+
+/// A self-signed certificate for 127.0.0.1 and localhost: (cert PEM, key PEM).
+fn self_signed() -> (String, String) {
+    let c =
+        rcgen::generate_simple_self_signed(vec!["127.0.0.1".into(), "localhost".into()]).unwrap();
+    (c.cert.pem(), c.signing_key.serialize_pem())
+}
+
+/// `GET path` over TLS to `addr`, trusting only `cert_pem` and offering `alpn`,
+/// with hyper's client: the protocol ALPN chose and the response.
+fn tls_get(
+    rt: &tokio::runtime::Runtime,
+    addr: std::net::SocketAddr,
+    cert_pem: &str,
+    alpn: &[&[u8]],
+    path: &str,
+    headers: &[(&str, &str)],
+) -> (Option<Vec<u8>>, hyper::Version, Resp) {
+    use hyper_util::rt::{TokioExecutor, TokioIo};
+    use rustls::pki_types::pem::PemObject;
+    use rustls::pki_types::{CertificateDer, ServerName};
+    let mut roots = rustls::RootCertStore::empty();
+    roots
+        .add(CertificateDer::from_pem_slice(cert_pem.as_bytes()).unwrap())
+        .unwrap();
+    let mut config = rustls::ClientConfig::builder_with_provider(Arc::new(
+        rustls::crypto::ring::default_provider(),
+    ))
+    .with_safe_default_protocol_versions()
+    .unwrap()
+    .with_root_certificates(roots)
+    .with_no_client_auth();
+    config.alpn_protocols = alpn.iter().map(|p| p.to_vec()).collect();
+    let connector = tokio_rustls::TlsConnector::from(Arc::new(config));
+    rt.block_on(async {
+        let tcp = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let name = ServerName::IpAddress(addr.ip().into());
+        let tls = connector.connect(name, tcp).await.unwrap();
+        let chosen = tls.get_ref().1.alpn_protocol().map(<[u8]>::to_vec);
+        let io = TokioIo::new(tls);
+        let mut req = hyper::Request::get(format!("https://{addr}{path}"));
+        for (k, v) in headers {
+            req = req.header(*k, *v);
+        }
+        let response = if chosen.as_deref() == Some(b"h2") {
+            let (mut send, conn) = hyper::client::conn::http2::handshake(TokioExecutor::new(), io)
+                .await
+                .unwrap();
+            tokio::spawn(conn);
+            send.send_request(req.body(axum::body::Body::empty()).unwrap())
+                .await
+                .unwrap()
+        } else {
+            let (mut send, conn) = hyper::client::conn::http1::handshake(io).await.unwrap();
+            tokio::spawn(conn);
+            let req = req
+                .uri(path)
+                .header("host", addr.to_string())
+                .body(axum::body::Body::empty())
+                .unwrap();
+            send.send_request(req).await.unwrap()
+        };
+        let version = response.version();
+        let status = response.status().as_u16();
+        let headers = response.headers().clone();
+        let body = axum::body::to_bytes(axum::body::Body::new(response.into_body()), 1 << 30)
+            .await
+            .unwrap()
+            .to_vec();
+        (
+            chosen,
+            version,
+            Resp {
+                path: path.to_string(),
+                status,
+                headers,
+                body,
+            },
+        )
+    })
+}
+
+fn write_pems(dir: &Path) -> (String, std::path::PathBuf, std::path::PathBuf) {
+    let (cert, key) = self_signed();
+    let (c, k) = (dir.join("cert.pem"), dir.join("key.pem"));
+    std::fs::write(&c, &cert).unwrap();
+    std::fs::write(&k, &key).unwrap();
+    (cert, c, k)
+}
+
+#[test]
+fn https_negotiates_h2_by_alpn_and_serves_http1_too() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().unwrap();
+    let (cert, c, k) = write_pems(dir.path());
+    let plain = Server::start(&[&f.synth], &[]);
+    let srv = Server::start(
+        &[&f.synth],
+        &[
+            "--tls-cert",
+            c.to_str().unwrap(),
+            "--tls-key",
+            k.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(srv.scheme, "https", "the listening line must say https://");
+    let rt = runtime();
+    let addr = srv.addr;
+    for path in CACHEABLE {
+        let want = plain.get(path).expect(200);
+        let (alpn, v, r) = tls_get(&rt, addr, &cert, &[b"h2", b"http/1.1"], path, &[]);
+        assert_eq!(
+            alpn.as_deref(),
+            Some(&b"h2"[..]),
+            "{path}: ALPN did not pick h2"
+        );
+        assert_eq!(v, hyper::Version::HTTP_2, "{path}");
+        assert_eq!(r.status, 200, "{path}");
+        assert_eq!(r.must("etag"), want.must("etag"), "{path}");
+        assert_eq!(r.body, want.body, "{path}");
+        let (alpn, v, r) = tls_get(&rt, addr, &cert, &[b"http/1.1"], path, &[]);
+        assert_eq!(alpn.as_deref(), Some(&b"http/1.1"[..]), "{path}");
+        assert_eq!(v, hyper::Version::HTTP_11, "{path}");
+        assert_eq!(r.status, 200, "{path}");
+        assert_eq!(r.must("etag"), want.must("etag"), "{path}");
+        assert_eq!(r.body, want.body, "{path}");
+    }
+    // Compression and CORS work the same over TLS.
+    let (_, _, r) = tls_get(
+        &rt,
+        addr,
+        &cert,
+        &[b"h2"],
+        "/v1/datasets/synth",
+        &[("accept-encoding", "gzip"), ("origin", "https://a.example")],
+    );
+    assert_eq!(r.header("content-encoding"), Some("gzip"));
+    assert_eq!(r.must("access-control-allow-origin"), "*");
+    assert_eq!(gunzip(&r.body), plain.get("/v1/datasets/synth").body);
+    // Plain HTTP on the TLS port is not served.
+    let mut s = TcpStream::connect(srv.addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    s.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        .unwrap();
+    let mut got = Vec::new();
+    let _ = s.read_to_end(&mut got);
+    assert!(
+        !got.starts_with(b"HTTP/1.1 200"),
+        "plain HTTP served on the TLS port"
+    );
+}
+
+#[test]
+fn a_stalled_tls_handshake_is_closed_at_the_header_timeout() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().unwrap();
+    let (_, c, k) = write_pems(dir.path());
+    let srv = Server::start(
+        &[&f.synth],
+        &[
+            "--tls-cert",
+            c.to_str().unwrap(),
+            "--tls-key",
+            k.to_str().unwrap(),
+            "--header-timeout-secs",
+            "1",
+        ],
+    );
+    // The first byte of a TLS record (handshake), then nothing.
+    let mut s = TcpStream::connect(srv.addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    s.write_all(&[0x16, 0x03, 0x01]).unwrap();
+    let started = Instant::now();
+    let mut buf = [0u8; 64];
+    let closed = loop {
+        match s.read(&mut buf) {
+            Ok(0) => break true,
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break true,
+            Err(_) => break false,
+        }
+    };
+    let took = started.elapsed();
+    assert!(closed, "the stalled handshake was never closed");
+    assert!(
+        took >= Duration::from_millis(800) && took < Duration::from_secs(5),
+        "closed after {took:?}, want ~1 s"
+    );
+}
+
+#[test]
+fn bad_tls_files_stop_the_server_with_an_error_naming_the_file() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().unwrap();
+    let (_, c, k) = write_pems(dir.path());
+    let synth = f.synth.to_str().unwrap();
+    let (c, k) = (c.to_str().unwrap(), k.to_str().unwrap());
+    let missing = dir.path().join("nope.pem");
+    let missing = missing.to_str().unwrap();
+    let garbage = dir.path().join("garbage.pem");
+    std::fs::write(&garbage, "not a PEM file\n").unwrap();
+    let garbage = garbage.to_str().unwrap();
+    let (_, other_key) = self_signed();
+    let other = dir.path().join("other-key.pem");
+    std::fs::write(&other, other_key).unwrap();
+    let other = other.to_str().unwrap();
+    for (cert, key, flag, file) in [
+        (c, missing, "--tls-key", missing),
+        (missing, k, "--tls-cert", missing),
+        (c, garbage, "--tls-key", garbage),
+        (garbage, k, "--tls-cert", garbage),
+        // The certificate as the key: a PEM file, but no key in it.
+        (c, c, "--tls-key", c),
+        // A key, but not the certificate's.
+        (c, other, "--tls-key", other),
+    ] {
+        let err = serve_must_refuse(&[synth, "--tls-cert", cert, "--tls-key", key]);
+        assert!(err.contains(flag), "{flag} {file}: {err}");
+        assert!(err.contains(file), "{flag} {file}: {err}");
+    }
+    let err = serve_must_refuse(&[synth, "--tls-cert", c]);
+    assert!(err.contains("--tls-key"), "{err}");
+}
