@@ -1,0 +1,45 @@
+// Reference values from GDAL's command-line tools (gdal-bin), never from our server.
+import { execFileSync } from 'node:child_process';
+
+export function gdalinfo(file) {
+  return JSON.parse(execFileSync('gdalinfo', ['-json', file], { encoding: 'utf8' }));
+}
+
+// The dataset's footprint in WGS84 as GDAL computes it: the polygon of `wgs84Extent` and its
+// [west, south, east, north].
+export function wgs84Footprint(file) {
+  const ring = gdalinfo(file).wgs84Extent.coordinates[0].slice(0, -1);
+  const lons = ring.map((p) => p[0]), lats = ring.map((p) => p[1]);
+  return { polygon: ring, bounds: [Math.min(...lons), Math.min(...lats), Math.max(...lons), Math.max(...lats)] };
+}
+
+function locationValues(file, points, extra = []) {
+  const input = points.map((p) => p.join(' ')).join('\n') + '\n';
+  const out = execFileSync('gdallocationinfo', ['-valonly', ...extra, file], { input, encoding: 'utf8' });
+  return out.trim().split('\n').map(Number);
+}
+
+// Heights of a geographic (EPSG:4326) DEM at [lon, lat]: `nearest` is gdallocationinfo's own
+// value (the sample whose cell holds the point); `bilinear` is computed here from the 2×2 samples
+// around the point with the geotransform (sample (i, j) stands at the centre of its cell, as
+// GDAL's geotransform describes it); `samples` are those four (null for no-data) and `range` the
+// spread of the valid ones. Where some of the four are no-data (N46E008 has SRTM voids) the
+// weights of the valid ones are renormalised, as gdalwarp's bilinear kernel does.
+export function heights(file, lonLats) {
+  const info = gdalinfo(file);
+  const [x0, dx, , y0, , dy] = info.geoTransform;
+  const nodata = info.bands[0].noDataValue;
+  const nearest = locationValues(file, lonLats, ['-wgs84']);
+  return lonLats.map(([lon, lat], k) => {
+    const fx = (lon - x0) / dx - 0.5, fy = (lat - y0) / dy - 0.5;
+    const i = Math.floor(fx), j = Math.floor(fy), tx = fx - i, ty = fy - j;
+    const s = locationValues(file, [[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]).map((v) => (v === nodata ? null : v));
+    const w = [(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty];
+    let sum = 0, weight = 0;
+    s.forEach((v, q) => { if (v !== null) { sum += v * w[q]; weight += w[q]; } });
+    if (weight === 0) throw new Error(`only no-data around ${lon}, ${lat} in ${file}`);
+    const valid = s.filter((v) => v !== null);
+    return { lon, lat, nearest: nearest[k], bilinear: sum / weight, samples: s, voids: 4 - valid.length,
+      range: Math.max(...valid) - Math.min(...valid), spacing: [dx, -dy] };
+  });
+}

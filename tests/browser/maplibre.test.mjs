@@ -1,0 +1,164 @@
+// Tessera's Web Mercator outputs in MapLibre GL JS, in headless Chromium (issue 14 item 5;
+// DESIGN.md §9 "Tested with the real clients"). Run by ./run.sh; README.md explains the
+// thresholds and tolerances.
+import assert from 'node:assert/strict';
+import http from 'node:http';
+import path from 'node:path';
+import { after, before, test } from 'node:test';
+import { heights, wgs84Footprint } from './lib/gdal.mjs';
+import { tileAt, tileOutside } from './lib/geo.mjs';
+import { DATA, buildPyramids, launchBrowser, openPage, screenshot, startStaticServer, startTileServer } from './lib/harness.mjs';
+
+const DATASETS = ['N46E008', 'aletsch'];
+const TILE_SIZE = 512;
+const VIEW = 800; // viewport, px (square)
+const PADDING = 160; // margin around the dataset in the placement views, px
+
+// Placement thresholds (README.md "Placement"). Measured with a right implementation: inside
+// ≥ 0.99 and coverage ≥ 0.9 for both datasets; a DEM stretched over the world gives inside
+// ≈ the footprint's share of the screen (≤ 0.45 here), one shifted by half the dataset
+// ≈ 0.5, a TMS/XYZ row flip nothing at all.
+const MIN_INSIDE = 0.97;
+const MIN_COVERAGE = 0.8;
+
+// Heights (README.md "Heights"): |MapLibre − GDAL bilinear| ≤ ABS_TOL + REL_TOL × (spread of
+// the 2×2 DEM samples around the point).
+const ABS_TOL = 2; // m: Terrarium quantisation (1/256 m) and the DEM's integer metres, with margin
+const REL_TOL = 0.5;
+
+const LANDMARKS = [
+  { name: 'Urnersee', lonLat: [8.61, 46.93] },
+  { name: 'Andermatt', lonLat: [8.5911, 46.635] },
+  { name: 'Lago Maggiore', lonLat: [8.70, 46.10] },
+  { name: 'Tödi shoulder', lonLat: [8.9183, 46.8133] },
+  { name: 'Finsteraarhorn massif', lonLat: [8.1258, 46.5367] },
+];
+
+const footprints = Object.fromEntries(DATASETS.map((d) => [d, wgs84Footprint(path.join(DATA, `${d}.tif`))]));
+let tiles, pages, browser;
+
+before(async () => {
+  const dir = process.env.TESSERA_TILE_SERVER ? null : buildPyramids(DATASETS);
+  tiles = await startTileServer(dir);
+  pages = await startStaticServer();
+  browser = await launchBrowser();
+});
+
+after(async () => {
+  await browser?.close();
+  await pages?.stop();
+  await tiles?.stop();
+});
+
+// A 404 is expected only for a tile wholly outside the dataset's true footprint (GDAL's), which
+// API.md documents as absent; any other status ≥ 400, any failed request and any console error
+// fails the test.
+function assertNoProblems(problems, dataset) {
+  const expected = (r) => r.status === 404 && r.tile && tileOutside(footprints[dataset].polygon, r.tile, TILE_SIZE);
+  const unexpected = problems.responses.filter((r) => !expected(r));
+  const expectedUrls = new Set(problems.responses.filter(expected).map((r) => r.url));
+  const consoleErrors = problems.console.filter((m) =>
+    !(m.text.startsWith('Failed to load resource: the server responded with a status of 404') && expectedUrls.has(m.url)));
+  assert.deepEqual(consoleErrors, [], 'console errors');
+  assert.deepEqual(problems.failed, [], 'failed requests');
+  assert.deepEqual(unexpected, [], 'HTTP errors other than 404s of tiles outside the data');
+}
+
+// A request from node with the page's Origin (and, for OPTIONS, a CORS preflight's headers).
+function request(url, method) {
+  const headers = { Origin: pages.url, ...(method === 'OPTIONS' ? { 'Access-Control-Request-Method': 'GET' } : {}) };
+  return new Promise((resolve, reject) => {
+    const req = http.request(url, { method, headers }, (res) => { res.resume(); resolve(res); });
+    req.on('error', reject);
+    req.end();
+  });
+}
+
+for (const dataset of DATASETS) {
+  test(`${dataset}: TileJSON and CORS`, async () => {
+    const { page, problems } = await openPage(browser, pages.url, { width: 200, height: 200 });
+    // fetched from the page: a cross-origin request, so it fails without CORS headers
+    const tj = await page.evaluate(async (server, name) => {
+      const r = await fetch(`${server}/v1/datasets/${name}/webmercator/tilejson.json?encoding=terrarium&size=512`);
+      return { status: r.status, doc: await r.json() };
+    }, tiles.url, dataset);
+    await page.close();
+    assert.equal(tj.status, 200);
+    const doc = tj.doc;
+    assert.equal(doc.tilejson, '3.0.0');
+    assert.equal(doc.scheme, 'xyz');
+    assert.equal(doc.tileSize, TILE_SIZE);
+    assert.equal(doc.encoding, 'terrarium');
+    assert.ok(Array.isArray(doc.tiles) && doc.tiles.length > 0 && doc.tiles.every((t) => /\{z\}.*\{x\}.*\{y\}/.test(t)), `tiles ${doc.tiles}`);
+    assert.ok(Number.isInteger(doc.minzoom) && Number.isInteger(doc.maxzoom) && doc.minzoom <= doc.maxzoom);
+    // bounds within one DEM cell of GDAL's footprint (N46E008: 0.00083°; aletsch: 200 m ≈ 0.003°)
+    const cell = dataset === 'aletsch' ? 0.003 : 0.00084;
+    const gdal = footprints[dataset].bounds;
+    assert.equal(doc.bounds.length, 4);
+    doc.bounds.forEach((v, i) => assert.ok(Math.abs(v - gdal[i]) <= cell, `bounds ${doc.bounds} vs GDAL ${gdal}`));
+    assert.equal(doc.center.length >= 2, true);
+    // the page cannot read Access-Control-Allow-Origin (not a safelisted header), so the
+    // header and the preflight are checked from here
+    const get = await request(`${tiles.url}/v1/datasets/${dataset}/webmercator/tilejson.json?encoding=terrarium&size=512`, 'GET');
+    assert.equal(get.headers['access-control-allow-origin'], '*');
+    const preflight = await request(`${tiles.url}/v1/datasets/${dataset}/webmercator/0/0/0.png?encoding=terrarium&size=512`, 'OPTIONS');
+    assert.ok(preflight.statusCode >= 200 && preflight.statusCode < 300, `preflight status ${preflight.statusCode}`);
+    assert.equal(preflight.headers['access-control-allow-origin'], '*');
+    assertNoProblems(problems, dataset);
+  });
+
+  test(`${dataset}: hillshade lands on the dataset's footprint`, async () => {
+    const { page, problems } = await openPage(browser, pages.url, { width: VIEW, height: VIEW });
+    const { polygon, bounds } = footprints[dataset];
+    const { zoom } = await page.evaluate((server, name, b, p) =>
+      window.tessera.open({ server, dataset: name, mode: 'placement', view: { bounds: b, padding: p } }), tiles.url, dataset, bounds, PADDING);
+    const file = await screenshot(page, `placement-${dataset}`);
+    const m = await page.evaluate((poly) => window.tessera.placement(poly), polygon);
+    await page.close();
+    const drawn = m.drawnIn + m.drawnOut;
+    const inside = drawn ? m.drawnIn / drawn : 0;
+    const coverage = m.drawnIn / m.area;
+    console.log(`# placement ${dataset}: zoom ${zoom.toFixed(2)}, footprint ${m.area} px of ${m.width}×${m.height}, ` +
+      `drawn ${drawn} px, inside ${inside.toFixed(4)}, coverage ${coverage.toFixed(4)} (${path.relative(process.cwd(), file)})`);
+    assert.ok(inside >= MIN_INSIDE, `${dataset}: only ${(inside * 100).toFixed(1)} % of the hillshade lies on the footprint (need ${MIN_INSIDE * 100} %)`);
+    assert.ok(coverage >= MIN_COVERAGE, `${dataset}: the hillshade covers only ${(coverage * 100).toFixed(1)} % of the footprint (need ${MIN_COVERAGE * 100} %)`);
+    assertNoProblems(problems, dataset);
+  });
+}
+
+test('N46E008: terrain heights at five landmarks match GDAL', async () => {
+  const dataset = 'N46E008';
+  const refs = heights(path.join(DATA, `${dataset}.tif`), LANDMARKS.map((l) => l.lonLat));
+  const { page, problems } = await openPage(browser, pages.url, { width: VIEW, height: VIEW });
+  const tj = await page.evaluate((server, name, c) => window.tessera.open({ server, dataset: name, mode: 'terrain',
+    view: { center: c, zoom: 'maxzoom' } }), tiles.url, dataset, LANDMARKS[0].lonLat);
+  const failures = [];
+  for (const [k, landmark] of LANDMARKS.entries()) {
+    const ref = refs[k];
+    // MapLibre's terrain reads its DEM one zoom below the map's tile zoom (TerrainSourceCache
+    // deltaZoom = 1), so the map goes to maxzoom + 1 for the terrain to use maxzoom tiles.
+    await page.evaluate((c, z) => window.tessera.jump(c, z), landmark.lonLat, tj.maxzoom + 1);
+    // the maxzoom tile under the landmark must have loaded and the value settled (not null, the
+    // same twice 200 ms apart) before it counts; 30 s at most
+    const want = tileAt(tj.maxzoom, ...landmark.lonLat);
+    let value = null, demZoom = null;
+    for (const start = Date.now(); Date.now() - start < 30000;) {
+      const loaded = problems.tiles.some((t) => t.z === want.z && t.x === want.x && t.y === want.y && t.status === 200);
+      const a = await page.evaluate((ll) => window.tessera.elevation(ll), landmark.lonLat);
+      await new Promise((r) => setTimeout(r, 200));
+      const b = await page.evaluate((ll) => window.tessera.elevation(ll), landmark.lonLat);
+      demZoom = await page.evaluate((ll) => window.tessera.demZoom(ll), landmark.lonLat);
+      if (loaded && a !== null && a === b && (demZoom === tj.maxzoom || demZoom === 'unknown')) { value = b; break; }
+    }
+    await screenshot(page, `terrain-${dataset}-${landmark.name.replace(/[^A-Za-z0-9]+/g, '_')}`);
+    const tol = ABS_TOL + REL_TOL * ref.range;
+    const diff = value === null ? Infinity : value - ref.bilinear;
+    console.log(`# ${landmark.name} (${landmark.lonLat.join(', ')}): MapLibre ${value === null ? 'null' : value.toFixed(2)} m, ` +
+      `GDAL bilinear ${ref.bilinear.toFixed(2)} m, nearest ${ref.nearest} m, 2×2 ${ref.samples.join('/')}, ` +
+      `diff ${diff.toFixed(2)} m, tolerance ±${tol.toFixed(2)} m, DEM tile zoom ${demZoom} (maxzoom ${tj.maxzoom})`);
+    if (!(Math.abs(diff) <= tol)) failures.push(`${landmark.name}: MapLibre ${value} m, GDAL ${ref.bilinear.toFixed(2)} m (±${tol.toFixed(2)})`);
+  }
+  await page.close();
+  assert.deepEqual(failures, [], 'heights off');
+  assertNoProblems(problems, dataset);
+});
