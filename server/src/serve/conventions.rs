@@ -10,7 +10,8 @@
 //!    `Access-Control-Expose-Headers` for what range and cache-aware clients read.
 //! 3. [`representation`]: a compressed response's `ETag` becomes weak (`W/"…"`), as
 //!    RFC 9110 §8.8.3 asks of a different representation (nginx does the same); a 304
-//!    answering the weak form repeats it; PNGs get `Accept-Ranges: none`.
+//!    answering the weak form repeats it; images (PNG, WebP tiles) get
+//!    `Accept-Ranges: none`.
 //! 4. [`compression`]: gzip or br (by `Accept-Encoding`) for JSON, XML and text
 //!    only; never PNGs, tile records, tile streams or the pyramid (already compressed
 //!    or read by byte range), never a `206`.
@@ -169,7 +170,7 @@ fn weaken(etag: &HeaderValue) -> Option<HeaderValue> {
 }
 
 /// Weak ETags for compressed responses (and for 304s that confirm a weak one), and
-/// `Accept-Ranges: none` for PNG tiles, whose bytes are made per request.
+/// `Accept-Ranges: none` for image tiles (PNG, WebP), whose bytes are made per request.
 pub async fn representation(req: Request, next: Next) -> Response {
     // The weak form of each tag the client holds, to answer a 304 in kind.
     let held_weak: Vec<String> = req
@@ -200,10 +201,11 @@ pub async fn representation(req: Request, next: Next) -> Response {
         h.insert(header::ETAG, weak);
         h.append(header::VARY, HeaderValue::from_static("accept-encoding"));
     }
-    let is_png = h
+    // Every image we send (PNG, WebP tiles) is made per request.
+    let is_image = h
         .get(header::CONTENT_TYPE)
-        .is_some_and(|v| v.as_bytes().starts_with(b"image/png"));
-    if is_png && !h.contains_key(header::ACCEPT_RANGES) {
+        .is_some_and(|v| v.as_bytes().starts_with(b"image/"));
+    if is_image && !h.contains_key(header::ACCEPT_RANGES) {
         h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("none"));
     }
     r
