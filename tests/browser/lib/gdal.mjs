@@ -23,7 +23,8 @@ function locationValues(file, points, extra = []) {
 // value (the sample whose cell holds the point); `bilinear` is computed here from the 2×2 samples
 // around the point with the geotransform (sample (i, j) stands at the centre of its cell, as
 // GDAL's geotransform describes it); `samples` are those four (null for no-data) and `range` the
-// spread of the valid ones. Where some of the four are no-data (N46E008 has SRTM voids) the
+// spread of the valid ones; `range4` is the spread of the valid samples of the 4×4 block around
+// the point (the samples a right Web Mercator tile can draw on there, README.md "Heights"). Where some of the four are no-data (N46E008 has SRTM voids) the
 // weights of the valid ones are renormalised, as gdalwarp's bilinear kernel does.
 export function heights(file, lonLats) {
   const info = gdalinfo(file);
@@ -33,13 +34,18 @@ export function heights(file, lonLats) {
   return lonLats.map(([lon, lat], k) => {
     const fx = (lon - x0) / dx - 0.5, fy = (lat - y0) / dy - 0.5;
     const i = Math.floor(fx), j = Math.floor(fy), tx = fx - i, ty = fy - j;
-    const s = locationValues(file, [[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]).map((v) => (v === nodata ? null : v));
+    const block = []; // the 4×4 samples i-1 … i+2, j-1 … j+2, row by row
+    for (let b = -1; b <= 2; b++) for (let a = -1; a <= 2; a++) block.push([i + a, j + b]);
+    const s16 = locationValues(file, block).map((v) => (v === nodata ? null : v));
+    const s = [s16[5], s16[6], s16[9], s16[10]];
+    const valid16 = s16.filter((v) => v !== null);
     const w = [(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty];
     let sum = 0, weight = 0;
     s.forEach((v, q) => { if (v !== null) { sum += v * w[q]; weight += w[q]; } });
     if (weight === 0) throw new Error(`only no-data around ${lon}, ${lat} in ${file}`);
     const valid = s.filter((v) => v !== null);
     return { lon, lat, nearest: nearest[k], bilinear: sum / weight, samples: s, voids: 4 - valid.length,
-      range: Math.max(...valid) - Math.min(...valid), spacing: [dx, -dy] };
+      range: Math.max(...valid) - Math.min(...valid), range4: Math.max(...valid16) - Math.min(...valid16),
+      voids4: 16 - valid16.length, spacing: [dx, -dy] };
   });
 }

@@ -76,9 +76,11 @@ async function fit(bounds, padding) {
   return map.getZoom();
 }
 
-// Counts drawn pixels (anything not the background) inside and outside `polygon` ([[lon, lat]…],
-// projected to the screen with map.project).
-function placement(polygon) {
+// Counts drawn pixels (anything not the background) inside `polygon` ([[lon, lat]…], projected to
+// the screen with map.project), within `band` px outside its edge (MapLibre's hillshade takes
+// its slope from the neighbouring DEM pixels, so the drop at the data's edge shades a pixel or
+// two beyond it), and farther out.
+function placement(polygon, band = 2) {
   const canvas = map.getCanvas();
   const w = canvas.width, h = canvas.height;
   const ratio = w / canvas.clientWidth;
@@ -96,7 +98,13 @@ function placement(polygon) {
     }
     return r;
   };
-  let drawnIn = 0, drawnOut = 0, area = 0;
+  const nearEdge = (x, y) => poly.some(([xi, yi], i) => {
+    const [xj, yj] = poly[(i + 1) % poly.length];
+    const dx = xj - xi, dy = yj - yi;
+    const t = Math.max(0, Math.min(1, ((x - xi) * dx + (y - yi) * dy) / (dx * dx + dy * dy)));
+    return Math.hypot(x - xi - t * dx, y - yi - t * dy) <= band;
+  });
+  let drawnIn = 0, drawnBand = 0, drawnOut = 0, area = 0;
   for (let y = 0; y < h; y++) {
     for (let x = 0; x < w; x++) {
       const k = (y * w + x) * 4;
@@ -104,10 +112,10 @@ function placement(polygon) {
       const drawn = d > 12;
       const isIn = inside(x + 0.5, y + 0.5);
       if (isIn) area++;
-      if (drawn) { if (isIn) drawnIn++; else drawnOut++; }
+      if (drawn) { if (isIn) drawnIn++; else if (nearEdge(x + 0.5, y + 0.5)) drawnBand++; else drawnOut++; }
     }
   }
-  return { drawnIn, drawnOut, area, width: w, height: h, polygonOnScreen: poly };
+  return { drawnIn, drawnBand, drawnOut, area, width: w, height: h, polygonOnScreen: poly };
 }
 
 async function jump(center, zoom) {
