@@ -26,11 +26,21 @@ function demSource(tj) {
     maxzoom: tj.maxzoom, encoding: tj.encoding }; // scheme: MapLibre 6's raster-dem has none (xyz)
 }
 
-// Resolves at the next 'idle' (every tile in view loaded, nothing moving); rejects after 60 s.
+// Resolves at the next 'idle' (every tile in view loaded, nothing moving), or once polling sees
+// the map loaded with all its tiles after a frame has been drawn (with 3D terrain MapLibre can
+// keep redrawing, so 'idle' may be long in coming); rejects after 90 s.
 function idle(map) {
   return new Promise((resolve, reject) => {
-    const timer = setTimeout(() => reject(new Error('map not idle after 60 s')), 60000);
-    map.once('idle', () => { clearTimeout(timer); resolve(); });
+    let rendered = false;
+    const onRender = () => { rendered = true; };
+    const done = (f) => { clearTimeout(timer); clearInterval(poll); map.off('render', onRender); map.off('idle', onIdle); f(); };
+    const onIdle = () => done(resolve);
+    const timer = setTimeout(() => done(() => reject(new Error('map not idle after 90 s'))), 90000);
+    const poll = setInterval(() => {
+      if (rendered && map.loaded() && map.areTilesLoaded() && !map.isMoving()) done(resolve);
+    }, 250);
+    map.on('render', onRender);
+    map.on('idle', onIdle);
     map.triggerRepaint();
   });
 }
