@@ -12,6 +12,7 @@ import { DATA, buildPyramids, launchBrowser, openPage, screenshot, startStaticSe
 const DATASETS = ['N46E008', 'aletsch'];
 const TILE_SIZE = 512;
 const VIEW = 800; // viewport, px (square)
+const TERRAIN_VIEW = 400; // the terrain views: SwiftShader draws 3D terrain slowly
 const PADDING = 160; // margin around the dataset in the placement views, px
 
 // Placement thresholds (README.md "Placement"). Measured with a right implementation: inside
@@ -141,7 +142,7 @@ const voidFailures = [];
 test('N46E008: terrain heights at five landmarks match GDAL', async () => {
   const dataset = 'N46E008';
   const refs = heights(path.join(DATA, `${dataset}.tif`), LANDMARKS.map((l) => l.lonLat));
-  const { page, problems } = await openPage(browser, pages.url, { width: VIEW, height: VIEW });
+  const { page, problems } = await openPage(browser, pages.url, { width: TERRAIN_VIEW, height: TERRAIN_VIEW });
   const tj = await page.evaluate((server, name, c) => window.tessera.open({ server, dataset: name, mode: 'terrain',
     view: { center: c, zoom: 'maxzoom' } }), tiles.url, dataset, LANDMARKS[0].lonLat);
   const failures = [];
