@@ -3,6 +3,7 @@
 //! them ([`preview`]) and serves them over HTTP ([`serve`], API.md). [`fuzzing`]
 //! holds the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
 
+pub mod approx_transform;
 pub mod build;
 pub mod crs;
 pub mod fuzzing;
@@ -11,3 +12,4 @@ pub mod ingest;
 pub mod preview;
 pub mod serve;
 pub mod verify;
+pub mod web;

@@ -12,7 +12,7 @@ mod serve_support;
 
 use serve_support::{Server, fixtures, level, open};
 use std::path::Path;
-use tessera_shared::{TileId, testdata};
+use tessera_shared::TileId;
 
 // ---------------------------------------------------------------------------
 // PNG tiles and TileJSON
@@ -120,8 +120,9 @@ fn tilejson_describes_the_png_tiles() {
         assert!(url.contains("/v1/datasets/synth/{z}/{x}/{y}.png"), "{url}");
         assert!(
             j.get("bounds").is_none(),
-            "a dataset without georeferencing has no bounds: {j}"
+            "own-grid tiles have no bounds: {j}"
         );
+        assert_eq!(j["scheme"], "tessera-dataset", "{j}");
         // The template (server-relative without --public-url) resolves to a PNG
         // tile on this server.
         assert!(url.starts_with("/v1/"), "{url}");
@@ -133,35 +134,31 @@ fn tilejson_describes_the_png_tiles() {
         assert_eq!(decode_png(&png.body).0, p.geometry().tile_size());
     }
 
-    if let Some(path) = f.n44.as_deref() {
-        let np = open(path);
-        let facts = testdata::facts("N44W072.hgt");
+    // Own-grid tiles are not Web Mercator: the document must not let a map place
+    // them as XYZ tiles, even for a dataset in longitude and latitude.
+    for (name, crs) in [("N44W072", "EPSG:4326"), ("bigtujunga", "EPSG:32611")] {
+        if !files
+            .iter()
+            .any(|f| f.file_stem().is_some_and(|s| s == name))
+        {
+            continue;
+        }
         let j = srv
-            .get("/v1/datasets/N44W072/tilejson.json")
+            .get(&format!("/v1/datasets/{name}/tilejson.json"))
             .expect(200)
             .json();
         tilejson_encoding(&j);
         assert_eq!(j["tileSize"], 64, "{j}");
-        assert_eq!(j["maxzoom"], np.geometry().finest().get(), "{j}");
-        let bounds: Vec<f64> = j["bounds"]
-            .as_array()
-            .unwrap_or_else(|| panic!("EPSG:4326 dataset needs bounds: {j}"))
-            .iter()
-            .map(|v| v.as_f64().unwrap())
-            .collect();
-        let want = facts.extent.unwrap();
-        assert_eq!(bounds.len(), 4);
-        for (g, w) in bounds.iter().zip(want) {
-            assert!((g - w).abs() < 1e-6, "bounds {bounds:?}, want {want:?}");
-        }
-    }
-    // Projected (UTM) coordinates are not longitudes and latitudes: no bounds.
-    if f.bigtujunga.is_some() {
-        let j = srv
-            .get("/v1/datasets/bigtujunga/tilejson.json")
-            .expect(200)
-            .json();
-        assert!(j.get("bounds").is_none(), "UTM dataset with bounds: {j}");
+        assert_ne!(j["scheme"], "xyz", "own-grid tiles claimed as XYZ: {j}");
+        assert_ne!(j["scheme"], "tms", "{j}");
+        assert!(
+            j.get("bounds").is_none(),
+            "bounds invite placing the tiles: {j}"
+        );
+        assert_eq!(j["crs"], crs, "{j}");
+        let web = j["standard_grids"]["WebMercatorQuad"].as_str().unwrap();
+        let wj = srv.get(web).expect(200).json();
+        assert_eq!(wj["scheme"], "xyz", "{wj}");
     }
     assert_eq!(srv.get("/v1/datasets/nope/tilejson.json").status, 404);
 }

@@ -25,6 +25,27 @@ pub mod routes {
     pub const TILE: &str = "/v1/datasets/{name}/tiles/{level}/{x}/{y}";
     /// PNG height tiles; the last segment is `{y}.png` (axum captures it whole).
     pub const WEB_TILE: &str = "/v1/datasets/{name}/{z}/{x}/{y}";
+    /// TileJSON of a standard grid (`webmercator`, `crs84`); query `encoding=`, `size=`.
+    pub const GRID_TILEJSON: &str = "/v1/datasets/{name}/{grid}/tilejson.json";
+    /// Standard-grid tiles; the last segment is `{y}.png` or `{y}.webp`.
+    pub const GRID_TILE: &str = "/v1/datasets/{name}/{grid}/{z}/{x}/{y}";
+    /// WMTS 1.0.0 capabilities (RESTful) of every dataset with a place on a map.
+    pub const WMTS: &str = "/wmts/1.0.0/WMTSCapabilities.xml";
+    /// WMTS 1.0.0 capabilities of one dataset.
+    pub const DATASET_WMTS: &str = "/v1/datasets/{name}/wmts/1.0.0/WMTSCapabilities.xml";
+    /// OGC API – Tiles (OGC 20-057): landing page.
+    pub const OGC_LANDING: &str = "/ogcapi";
+    pub const OGC_CONFORMANCE: &str = "/ogcapi/conformance";
+    pub const OGC_TILE_MATRIX_SETS: &str = "/ogcapi/tileMatrixSets";
+    /// `{tms}`: `WebMercatorQuad` or `WorldCRS84Quad`.
+    pub const OGC_TILE_MATRIX_SET: &str = "/ogcapi/tileMatrixSets/{tms}";
+    pub const OGC_COLLECTIONS: &str = "/ogcapi/collections";
+    pub const OGC_COLLECTION: &str = "/ogcapi/collections/{name}";
+    pub const OGC_TILESETS: &str = "/ogcapi/collections/{name}/coverage/tiles";
+    pub const OGC_TILESET: &str = "/ogcapi/collections/{name}/coverage/tiles/{tms}";
+    /// One tile; OGC API orders the row before the column.
+    pub const OGC_TILE: &str =
+        "/ogcapi/collections/{name}/coverage/tiles/{tms}/{tile_matrix}/{tile_row}/{tile_col}";
 }
 
 /// `template` with each `{key}` of `params` replaced by its value. Placeholders not

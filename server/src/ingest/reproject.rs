@@ -17,6 +17,7 @@
 //! window (its size is estimated up front for the build's memory plan).
 
 use super::{RowSource, SampleType, SourceInfo};
+use crate::approx_transform::along_row;
 use crate::crs::Crs;
 use anyhow::{Context, anyhow, bail};
 use std::collections::VecDeque;
@@ -26,44 +27,8 @@ use std::os::unix::fs::FileExt;
 use std::path::Path;
 use tessera_shared::{GeoRef, RasterType};
 
-/// Longest span of output samples between exact transforms.
-pub const STEP: usize = 64;
 /// Largest error, in source pixels, of an interpolated source position.
 pub const MAX_ERROR_PX: f64 = 1e-3;
-
-/// Fills `out[i..=k]` between exact ends `a` (at `i`) and `b` (at `k`), splitting the
-/// span while its middle is off the line by more than [`MAX_ERROR_PX`]. A failed
-/// transform (beyond a projection's domain) splits too, down to single samples.
-fn fill_span(
-    exact: &impl Fn(usize) -> Option<[f64; 2]>,
-    out: &mut [[f64; 2]],
-    i: usize,
-    a: Option<[f64; 2]>,
-    k: usize,
-    b: Option<[f64; 2]>,
-) {
-    if let Some(p) = b {
-        out[k] = p;
-    }
-    if k - i <= 1 {
-        return;
-    }
-    let m = usize::midpoint(i, k);
-    let mid = exact(m);
-    if let (Some(pa), Some(pb), Some(pm)) = (a, b, mid) {
-        let t = (m - i) as f64 / (k - i) as f64;
-        let lin = [pa[0] + t * (pb[0] - pa[0]), pa[1] + t * (pb[1] - pa[1])];
-        if (lin[0] - pm[0]).abs() <= MAX_ERROR_PX && (lin[1] - pm[1]).abs() <= MAX_ERROR_PX {
-            for (n, o) in out[i + 1..k].iter_mut().enumerate() {
-                let t = (n + 1) as f64 / (k - i) as f64;
-                *o = [pa[0] + t * (pb[0] - pa[0]), pa[1] + t * (pb[1] - pa[1])];
-            }
-            return;
-        }
-    }
-    fill_span(exact, out, i, a, m, mid);
-    fill_span(exact, out, m, mid, k, b);
-}
 
 /// How output samples are computed from the source's.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -215,7 +180,7 @@ impl Reprojected {
 
     /// Source pixel coordinates (`col`, `row` of sample centres, fractional) of each
     /// output sample of output row `j`: exact at the ends of spans of up to
-    /// [`STEP`] samples, halved until the middle sample's linear estimate is within
+    /// [`crate::approx_transform::STEP`] samples, halved until the middle sample's linear estimate is within
     /// [`MAX_ERROR_PX`] of its exact transform (GDAL's approximate transformer does
     /// the same with 1/8 pixel), linear inside.
     fn source_coords(&self, j: u32) -> Vec<[f64; 2]> {
@@ -230,20 +195,7 @@ impl Reprojected {
             ];
             (c[0].is_finite() && c[1].is_finite()).then_some(c)
         };
-        let mut out = vec![[f64::NAN; 2]; w];
-        let mut i = 0;
-        let mut a = exact(0);
-        if let Some(p) = a {
-            out[0] = p;
-        }
-        while i + 1 < w {
-            let k = (i + STEP).min(w - 1);
-            let b = exact(k);
-            fill_span(&exact, &mut out, i, a, k, b);
-            i = k;
-            a = b;
-        }
-        out
+        along_row(w, MAX_ERROR_PX, &exact)
     }
 
     /// The widest band of source rows an output row needs, from every 64th row.

@@ -1,6 +1,7 @@
 //! `serve` settings: command-line flags, then environment variables, then a TOML
 //! file (`--config`), then defaults — the first that says something wins.
 
+use super::web_cache::{EmptyTiles, WebConfig};
 use anyhow::Context;
 use serde::Deserialize;
 use std::net::SocketAddr;
@@ -75,6 +76,20 @@ pub struct ServeArgs {
     /// PEM file of the TLS private key (PKCS#8, PKCS#1 or SEC1); needs --tls-cert.
     #[arg(long, env = "TESSERA_TLS_KEY", value_name = "PEM")]
     pub tls_key: Option<PathBuf>,
+    /// What standard-grid tiles without data get: 404 with a JSON reason, or 204 No
+    /// Content [default: 404].
+    #[arg(long, env = "TESSERA_EMPTY_TILES", value_name = "STATUS")]
+    pub empty_tiles: Option<EmptyTiles>,
+    /// Attribution shown by maps (TileJSON `attribution`), e.g. "© swisstopo"
+    /// [default: none].
+    #[arg(long, env = "TESSERA_ATTRIBUTION", value_name = "TEXT")]
+    pub attribution: Option<String>,
+    /// MiB of decoded pyramid tiles kept for standard-grid tiles [default: 256].
+    #[arg(long, env = "TESSERA_SOURCE_CACHE_MIB", value_name = "MIB")]
+    pub source_cache_mib: Option<u64>,
+    /// MiB of made standard-grid tiles kept [default: 64].
+    #[arg(long, env = "TESSERA_TILE_CACHE_MIB", value_name = "MIB")]
+    pub tile_cache_mib: Option<u64>,
     /// Log only errors (no request lines or warnings); RUST_LOG still overrides.
     #[arg(short, long)]
     pub quiet: bool,
@@ -99,6 +114,10 @@ struct FileConfig {
     cors_origin: Option<OneOrMany>,
     tls_cert: Option<PathBuf>,
     tls_key: Option<PathBuf>,
+    empty_tiles: Option<EmptyTiles>,
+    attribution: Option<String>,
+    source_cache_mib: Option<u64>,
+    tile_cache_mib: Option<u64>,
 }
 
 /// `cors_origin = "*"` or `cors_origin = ["https://a.example", "https://b.example"]`.
@@ -148,6 +167,8 @@ pub struct Settings {
     pub cors: CorsOrigins,
     /// `None`: plain HTTP (HTTP/1.1 and h2c).
     pub tls: Option<TlsFiles>,
+    /// Standard-grid tiles: empty-tile status, attribution, cache sizes.
+    pub web: WebConfig,
 }
 
 impl Default for Settings {
@@ -168,6 +189,7 @@ impl Default for Settings {
             trust_forwarded: false,
             cors: CorsOrigins::Any,
             tls: None,
+            web: WebConfig::default(),
         }
     }
 }
@@ -349,6 +371,31 @@ impl Settings {
                 (None, Some(_)) => anyhow::bail!(
                     "--tls-key needs --tls-cert (TESSERA_TLS_CERT, `tls_cert` in --config): the certificate chain"
                 ),
+            },
+            web: {
+                let dw = WebConfig::default();
+                let mib = |v: Option<u64>, flag: &str, default: u64| {
+                    v.map_or(Ok(default), |n| {
+                        positive(n, flag).map(|n| n.saturating_mul(1 << 20))
+                    })
+                };
+                WebConfig {
+                    empty_tiles: args
+                        .empty_tiles
+                        .or(file.empty_tiles)
+                        .unwrap_or(dw.empty_tiles),
+                    attribution: args.attribution.clone().or(file.attribution),
+                    source_cache_bytes: mib(
+                        args.source_cache_mib.or(file.source_cache_mib),
+                        "source-cache-mib",
+                        dw.source_cache_bytes,
+                    )?,
+                    tile_cache_bytes: mib(
+                        args.tile_cache_mib.or(file.tile_cache_mib),
+                        "tile-cache-mib",
+                        dw.tile_cache_bytes,
+                    )?,
+                }
             },
         };
         Ok(s)

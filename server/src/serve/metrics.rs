@@ -76,6 +76,11 @@ impl Metrics {
         }
     }
 
+    /// The registry, for metrics kept by other parts of the server.
+    pub fn registry(&self) -> &Registry {
+        &self.registry
+    }
+
     /// Counts one read of a corrupt record, and the record itself if this read found it.
     pub fn corrupt_read(&self, first: bool) {
         self.corrupt_reads.inc();

@@ -11,6 +11,7 @@ pub mod metrics;
 pub mod routes;
 pub mod storage;
 pub mod tls;
+pub mod web_cache;
 
 use axum::Router;
 use axum::extract::{MatchedPath, Request, State};
@@ -45,6 +46,10 @@ pub struct AppState {
     pub max_query_bytes: usize,
     pub public_url: Option<String>,
     pub trust_forwarded: bool,
+    /// Whether the server speaks HTTPS (`--tls-cert`): the scheme of URLs built from `Host`.
+    pub tls: bool,
+    /// Standard-grid web tiles: footprints and caches.
+    pub web: web_cache::WebTiles,
 }
 
 impl AppState {
@@ -94,6 +99,25 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::ERRORS, get(routes::tiles::errors))
         .route(paths::TILE, get(routes::tiles::single))
         .route(paths::WEB_TILE, get(routes::web_tiles::png))
+        .route(paths::GRID_TILEJSON, get(routes::web_grid::tilejson))
+        .route(paths::GRID_TILE, get(routes::web_grid::tile))
+        .route(paths::WMTS, get(routes::wmts::all))
+        .route(paths::DATASET_WMTS, get(routes::wmts::one))
+        .route(paths::OGC_LANDING, get(routes::ogc_api::landing))
+        .route(paths::OGC_CONFORMANCE, get(routes::ogc_api::conformance))
+        .route(
+            paths::OGC_TILE_MATRIX_SETS,
+            get(routes::ogc_api::tile_matrix_sets),
+        )
+        .route(
+            paths::OGC_TILE_MATRIX_SET,
+            get(routes::ogc_api::tile_matrix_set),
+        )
+        .route(paths::OGC_COLLECTIONS, get(routes::ogc_api::collections))
+        .route(paths::OGC_COLLECTION, get(routes::ogc_api::collection))
+        .route(paths::OGC_TILESETS, get(routes::ogc_api::tilesets))
+        .route(paths::OGC_TILESET, get(routes::ogc_api::tileset))
+        .route(paths::OGC_TILE, get(routes::ogc_api::tile))
         .fallback(|| async { ApiError::not_found("no such endpoint; see API.md") })
         .with_state(state.clone());
     api.layer(
@@ -240,10 +264,13 @@ pub async fn shutdown_signal() {
 pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
     let registry = Registry::load(&settings.datasets)?;
     log_datasets(&registry);
+    let metrics = Metrics::new();
+    let web = web_cache::WebTiles::new(settings.web.clone(), metrics.registry());
     Ok(Arc::new(AppState {
         registry: RwLock::new(Arc::new(registry)),
         paths: settings.datasets.clone(),
-        metrics: Metrics::new(),
+        metrics,
+        web,
         limits: RangeLimits {
             max_ranges: settings.max_ranges,
             max_tiles: settings.max_tiles,
@@ -252,6 +279,7 @@ pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
         max_query_bytes: settings.max_query_bytes,
         public_url: settings.public_url.clone(),
         trust_forwarded: settings.trust_forwarded,
+        tls: settings.tls.is_some(),
     }))
 }
 

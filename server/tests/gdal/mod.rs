@@ -43,14 +43,20 @@ pub fn transform(from: &str, to: &str, points: &[[f64; 2]]) -> Vec<[f64; 2]> {
         .stdout(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    {
-        use std::io::Write;
-        let stdin = child.stdin.as_mut().unwrap();
-        for p in points {
-            writeln!(stdin, "{:.10} {:.10}", p[0], p[1]).unwrap();
-        }
+    // Written from a thread: gdaltransform answers as it reads, and with many points
+    // its output would fill the pipe while we still write (a deadlock).
+    let mut stdin = child.stdin.take().unwrap();
+    let mut text = String::with_capacity(points.len() * 32);
+    for p in points {
+        use std::fmt::Write as _;
+        let _ = writeln!(text, "{:.10} {:.10}", p[0], p[1]);
     }
+    let writer = std::thread::spawn(move || {
+        use std::io::Write;
+        stdin.write_all(text.as_bytes()).unwrap();
+    });
     let out = child.wait_with_output().unwrap();
+    writer.join().unwrap();
     assert!(out.status.success());
     String::from_utf8(out.stdout)
         .unwrap()

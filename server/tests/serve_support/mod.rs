@@ -191,6 +191,43 @@ fn find_or_build_fixtures() -> Fixtures {
     }
 }
 
+/// The pyramid of one shared DEM (`../shared/data/dem/<dem>`) at `tile_size`, named
+/// by the DEM's stem (dataset `N46E008` for `N46E008.tif`); `None` (and `SKIPPED`)
+/// when the DEM is absent. Built once per server binary and DEM, beside the other
+/// fixtures, and renamed into place whole like them.
+pub fn dem_pyramid(dem: &str, tile_size: u32) -> Option<PathBuf> {
+    let input = testdata::dem_or_skip(dem)?;
+    let stem = Path::new(dem).file_stem().unwrap().to_str().unwrap();
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("serve-fixtures");
+    std::fs::create_dir_all(&root).unwrap();
+    let dir = root.join(format!(
+        "dem-{}_{}_{tile_size}",
+        identity(Path::new(env!("CARGO_BIN_EXE_tessera-server"))),
+        identity(&input)
+    ));
+    let file = dir.join(format!("{stem}.tess"));
+    if !file.is_file() {
+        let staging = tempfile::Builder::new()
+            .prefix(".building-")
+            .tempdir_in(&root)
+            .unwrap();
+        build_pyramid(
+            input.to_str().unwrap(),
+            &staging.path().join(format!("{stem}.tess")),
+            tile_size,
+        );
+        if std::fs::rename(staging.path(), &dir).is_ok() {
+            let _ = staging.keep();
+        }
+        assert!(file.is_file(), "building {} failed", file.display());
+    }
+    // Mark the set as in use, so no other test binary removes it as stale.
+    let mark = dir.join(format!(".in-use-{}", std::process::id()));
+    std::fs::write(&mark, b"").unwrap();
+    let _ = std::fs::remove_file(&mark);
+    Some(file)
+}
+
 /// Present and absent Morton codes of one level, from the file's own index.
 pub fn present(p: &Pyramid<tessera_shared::FileSource>, level: Level) -> Vec<bool> {
     p.index(level)

@@ -2,9 +2,12 @@
 
 pub mod datasets;
 pub mod health;
+pub mod ogc_api;
 pub mod pyramid;
 pub mod tiles;
+pub mod web_grid;
 pub mod web_tiles;
+pub mod wmts;
 
 use super::AppState;
 use super::dataset::{Dataset, RecordError, valid_name};

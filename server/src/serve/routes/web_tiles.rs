@@ -6,85 +6,22 @@
 //! level, `x` east, `y` south, both from 0): `T × T` pixels, pixel `(i, j)` being
 //! tile sample `(i, j)`. The last row and column of the `(T+1)²` samples, shared
 //! with the next tile east and south, are dropped, as web tiles do not overlap.
-//! Tiles line up with a Web Mercator map only when the DEM itself is in that grid.
+//! Tiles line up with a Web Mercator map only when the DEM itself is in that grid;
+//! maps use the standard grids (routes/web_grid.rs) instead.
 
 use super::{Params, Segments, dataset, level, pinned, stored_record, tile};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
+pub use crate::web::encoding::{Encoding, mapbox, terrarium};
 use axum::Json;
 use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use std::sync::Arc;
-use tessera_shared::Quantization;
 use tessera_shared::codec::{self, CodecError};
-
-/// How heights become the colours of a PNG tile.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Encoding {
-    /// Mapzen Terrarium: `h = R·256 + G + B/256 − 32768` (1/256 m steps).
-    Terrarium,
-    /// Mapbox Terrain-RGB: `h = −10000 + (R·65536 + G·256 + B)·0.1` (0.1 m steps).
-    Mapbox,
-}
-
-impl Encoding {
-    /// What `?encoding=` accepts.
-    pub const ALLOWED: &str = "terrarium, mapbox";
-
-    /// The encoding a query asks for (Terrarium when it names none), or 400.
-    pub fn from_query(value: Option<&str>) -> ApiResult<Self> {
-        match value {
-            None | Some("terrarium") => Ok(Self::Terrarium),
-            Some("mapbox") => Ok(Self::Mapbox),
-            Some(other) => Err(ApiError::bad_request(format!(
-                "unknown encoding {other:?}: allowed values are {}",
-                Self::ALLOWED
-            ))),
-        }
-    }
-
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::Terrarium => "terrarium",
-            Self::Mapbox => "mapbox",
-        }
-    }
-
-    /// The colour of a height in metres.
-    pub fn rgb(self, h: f64) -> [u8; 3] {
-        match self {
-            Self::Terrarium => terrarium(h),
-            Self::Mapbox => mapbox(h),
-        }
-    }
-}
-
-/// Terrarium colour of a height in metres: `v = h + 32768` clamped to
-/// `[0, 65536 − 1/256]`, `R = ⌊v / 256⌋`, `G = ⌊v⌋ mod 256`, `B = ⌊frac(v)·256⌋`.
-/// Decoding gives `h` to within 1/256 m (rounded down) inside the range.
-pub fn terrarium(h: f64) -> [u8; 3] {
-    let v = (h + 32768.0).clamp(0.0, 65536.0 - 1.0 / 256.0);
-    let v = if v.is_nan() { 0.0 } else { v };
-    let whole = v.floor();
-    [
-        (v / 256.0).floor() as u8,
-        (whole as u32 % 256) as u8,
-        ((v - whole) * 256.0).floor() as u8,
-    ]
-}
-
-/// Terrain-RGB colour of a height in metres: `v = round((h + 10000) / 0.1)` clamped
-/// to `0..=2^24 − 1`, `R = v >> 16`, `G = (v >> 8) & 255`, `B = v & 255`.
-/// Decoding gives `h` to within 0.05 m inside the range.
-pub fn mapbox(h: f64) -> [u8; 3] {
-    let v = ((h + 10000.0) / 0.1).round().clamp(0.0, 16_777_215.0);
-    // NaN casts to 0.
-    let v = v as u32;
-    [(v >> 16) as u8, (v >> 8) as u8, v as u8]
-}
+use tessera_shared::{GeoRef, Quantization};
 
 /// The `T × T` RGB pixels of a tile's `(T+1)²` quantized heights.
 pub fn render(heights: &[u16], tile_size: usize, q: &Quantization, encoding: Encoding) -> Vec<u8> {
@@ -193,7 +130,7 @@ pub async fn png(
 
 /// Whether `s` is a plain `host[:port]`: host names, IPv4 and bracketed IPv6
 /// addresses and ports only (RFC 9110 §7.2), nothing that could change a URL's meaning.
-fn valid_host(s: &str) -> bool {
+pub fn valid_host(s: &str) -> bool {
     !s.is_empty()
         && s.len() <= 255
         && s.bytes()
@@ -248,7 +185,7 @@ pub fn base_url(state: &AppState, headers: &HeaderMap) -> ApiResult<String> {
 }
 
 /// `&`, `<`, `>` and `"` as HTML entities (TileJSON attributions are shown as HTML).
-fn html_escape(s: &str) -> String {
+pub fn html_escape(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     for c in s.chars() {
         match c {
@@ -262,18 +199,33 @@ fn html_escape(s: &str) -> String {
     out
 }
 
-/// The TileJSON 3.0.0 document of a dataset, its tile URLs under `base` (scheme
-/// and authority, or `""` for server-relative URLs).
+/// The TileJSON 3.0.0 document of a dataset's own-grid tiles, their URLs under
+/// `base` (scheme and authority, or `""` for server-relative URLs).
 ///
-/// TileJSON `bounds` are WGS84 longitudes and latitudes, so they are given only for
-/// datasets georeferenced in EPSG:4326 (clamped to ±180°, ±90°). A dataset in any
-/// other CRS gets no `bounds` but a `crs` field (e.g. `"EPSG:32632"`) instead; one
-/// with no georeferencing, or no EPSG code, gets neither.
-pub fn tilejson_doc(ds: &Dataset, base: &str, encoding: Encoding) -> serde_json::Value {
+/// These tiles are the pyramid's own grid, not Web Mercator, so the document must
+/// not let a map place them as XYZ tiles: `scheme` is `"tessera-dataset"` (not one
+/// of TileJSON's `xyz`/`tms`, so a validating client refuses the source instead of
+/// drawing it in the wrong place), there are no `bounds`, `crs` names the dataset's
+/// own CRS, and `standard_grids` links the TileJSON of the tiles maps should use
+/// (routes/web_grid.rs).
+pub fn tilejson_doc(
+    ds: &Dataset,
+    base: &str,
+    encoding: Encoding,
+    attribution: Option<&str>,
+) -> serde_json::Value {
     let m = ds.pyramid.metadata();
+    let standard = |grid: &str| {
+        format!(
+            "{base}/v1/datasets/{}/{grid}/tilejson.json?encoding={}",
+            ds.name,
+            encoding.name()
+        )
+    };
     let mut doc = serde_json::json!({
         "tilejson": "3.0.0",
         "name": ds.name,
+        "description": "Height tiles in the dataset's own grid: z is the pyramid level, x and y its tile columns and rows. For web maps use a standard grid (standard_grids).",
         "tiles": [format!(
             "{base}/v1/datasets/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&v={}",
             ds.name,
@@ -284,21 +236,17 @@ pub fn tilejson_doc(ds: &Dataset, base: &str, encoding: Encoding) -> serde_json:
         "maxzoom": ds.pyramid.geometry().finest().get(),
         "tileSize": m.tile_size,
         "encoding": encoding.name(),
-        "scheme": "xyz",
-        "attribution": html_escape(&m.source),
+        "scheme": "tessera-dataset",
+        "standard_grids": {
+            "WebMercatorQuad": standard("webmercator"),
+            "WorldCRS84Quad": standard("crs84"),
+        },
     });
-    if let Some(g) = &m.georef {
-        if g.epsg == Some(4326) {
-            let [w, s, e, n] = g.extent(m.width, m.height);
-            doc["bounds"] = serde_json::json!([
-                w.clamp(-180.0, 180.0),
-                s.clamp(-90.0, 90.0),
-                e.clamp(-180.0, 180.0),
-                n.clamp(-90.0, 90.0),
-            ]);
-        } else if let Some(crs) = g.crs() {
-            doc["crs"] = serde_json::Value::String(crs);
-        }
+    if let Some(crs) = m.georef.as_ref().and_then(GeoRef::crs) {
+        doc["crs"] = serde_json::Value::String(crs);
+    }
+    if let Some(a) = attribution {
+        doc["attribution"] = serde_json::Value::String(html_escape(a));
     }
     doc
 }
@@ -317,7 +265,12 @@ pub async fn tilejson(
     // The document names the base URL and the encoding, so the ETag does too.
     let etag = cache::etag(
         ds.content_hash(),
-        &format!("tilejson {base} {}", encoding.name()),
+        // The attribution is configuration, not content: a new one must change the tag.
+        &format!(
+            "tilejson {base} {} {:?}",
+            encoding.name(),
+            state.web.config.attribution
+        ),
     );
     if cache::not_modified(&headers, &etag, ds.last_modified) {
         return Ok(cache::not_modified_response(
@@ -327,7 +280,8 @@ pub async fn tilejson(
             state.cache_max_age,
         ));
     }
-    let mut r = Json(tilejson_doc(&ds, &base, encoding)).into_response();
+    let attribution = state.web.config.attribution.as_deref();
+    let mut r = Json(tilejson_doc(&ds, &base, encoding, attribution)).into_response();
     cache::set_headers(
         r.headers_mut(),
         &etag,
@@ -354,7 +308,7 @@ mod tests {
         };
         crate::build::build("synthetic:257:3", &file, &opts).unwrap();
         let ds = Dataset::open("snap".into(), &file).unwrap();
-        let tilejson = tilejson_doc(&ds, "", Encoding::Terrarium);
+        let tilejson = tilejson_doc(&ds, "", Encoding::Terrarium, Some("© <test>"));
         insta::assert_snapshot!("tilejson", serde_json::to_string_pretty(&tilejson).unwrap());
         let info = super::super::datasets::describe(&ds);
         insta::assert_snapshot!("dataset", serde_json::to_string_pretty(&info).unwrap());
@@ -362,70 +316,6 @@ mod tests {
 
     fn terrarium_height([r, g, b]: [u8; 3]) -> f64 {
         f64::from(r) * 256.0 + f64::from(g) + f64::from(b) / 256.0 - 32768.0
-    }
-
-    fn mapbox_height([r, g, b]: [u8; 3]) -> f64 {
-        -10000.0 + f64::from(u32::from(r) * 65536 + u32::from(g) * 256 + u32::from(b)) * 0.1
-    }
-
-    /// Heights from −10000 to 9000 m in irregular steps, with fractions of all kinds.
-    fn heights() -> impl Iterator<Item = f64> {
-        (0..=190_000).map(|i| -10000.0 + f64::from(i) * 0.100_003_7)
-    }
-
-    #[test]
-    fn terrarium_round_trips_within_a_256th() {
-        for h in heights().chain([0.0, -0.001, 0.001, -1.0 / 256.0, 8848.86, -10000.0]) {
-            let back = terrarium_height(terrarium(h));
-            assert!(
-                back <= h && h - back < 1.0 / 256.0,
-                "{h} -> {back} ({:?})",
-                terrarium(h)
-            );
-        }
-        assert_eq!(terrarium(0.0), [128, 0, 0]);
-        assert_eq!(terrarium(-1.0), [127, 255, 0]);
-        assert_eq!(terrarium(1.5), [128, 1, 128]);
-    }
-
-    #[test]
-    fn mapbox_round_trips_within_5_cm() {
-        for h in heights().chain([0.0, -0.04, 0.05, 8848.86, -10000.0]) {
-            let back = mapbox_height(mapbox(h));
-            assert!((back - h).abs() <= 0.05 + 1e-9, "{h} -> {back}");
-        }
-        assert_eq!(mapbox(-10000.0), [0, 0, 0]);
-        assert_eq!(mapbox(0.0), [1, 134, 160]); // 100000 = 0x0186A0
-    }
-
-    #[test]
-    fn out_of_range_heights_clamp() {
-        assert_eq!(terrarium(-40000.0), [0, 0, 0]);
-        assert_eq!(terrarium(-32768.0), [0, 0, 0]);
-        assert_eq!(terrarium(40000.0), [255, 255, 255]);
-        assert_eq!(terrarium(f64::NAN), [0, 0, 0]);
-        assert_eq!(mapbox(-10000.1), [0, 0, 0]);
-        assert_eq!(mapbox(-1e9), [0, 0, 0]);
-        assert_eq!(mapbox(1e9), [255, 255, 255]);
-        assert_eq!(mapbox(f64::NAN), [0, 0, 0]);
-        // The top of Terrain-RGB's range is −10000 + (2^24 − 1)·0.1 m.
-        assert_eq!(mapbox(1_667_721.5), [255, 255, 255]);
-    }
-
-    #[test]
-    fn encoding_from_query() {
-        assert_eq!(Encoding::from_query(None).unwrap(), Encoding::Terrarium);
-        assert_eq!(
-            Encoding::from_query(Some("terrarium")).unwrap(),
-            Encoding::Terrarium
-        );
-        assert_eq!(
-            Encoding::from_query(Some("mapbox")).unwrap(),
-            Encoding::Mapbox
-        );
-        let e = Encoding::from_query(Some("webp")).unwrap_err();
-        assert_eq!(e.status, axum::http::StatusCode::BAD_REQUEST);
-        assert!(e.message.contains("terrarium, mapbox"), "{}", e.message);
     }
 
     #[test]

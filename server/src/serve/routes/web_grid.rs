@@ -1,0 +1,380 @@
+//! Standard-grid web tiles (issue 14, DESIGN §9): `WebMercatorQuad` (`webmercator`,
+//! the XYZ scheme of MapLibre, Leaflet, OpenLayers, QGIS) and `WorldCRS84Quad`
+//! (`crs84`), resampled per request from the pyramid whatever the dataset's CRS
+//! (web/resample.rs), as Terrarium or Terrain-RGB PNG or lossless WebP, with a
+//! TileJSON 3.0.0 document per grid and encoding.
+//!
+//! - `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.png|.webp?encoding=&size=`
+//! - `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`
+
+use super::web_tiles::{base_url, html_escape};
+use super::{Params, Segments, dataset, unavailable};
+use crate::serve::dataset::{Dataset, RecordError};
+use crate::serve::error::{ApiError, ApiResult};
+use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
+use crate::serve::{AppState, TilesServed, cache};
+use crate::web::encoding::{Encoding, ImageFormat, rgba};
+use crate::web::footprint::Footprint;
+use crate::web::resample::{self, SourceTile};
+use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet, WebTile};
+use axum::Json;
+use axum::body::Body;
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use bytes::Bytes;
+use std::collections::HashMap;
+use std::sync::Arc;
+use tessera_shared::TileId;
+use tessera_shared::codec;
+
+/// Tile sizes served, in pixels.
+pub const SIZES: [u32; 2] = [256, 512];
+
+/// The grid a path segment names, or 404 naming the grids there are.
+pub fn grid(raw: &str) -> ApiResult<TileMatrixSet> {
+    TileMatrixSet::parse(raw).ok_or_else(|| {
+        ApiError::not_found(format!(
+            "unknown tile grid {raw:?}: the grids are webmercator (WebMercatorQuad) and crs84 (WorldCRS84Quad)"
+        ))
+    })
+}
+
+/// `?size=` (256 when absent), or 400.
+pub fn size(query: &HashMap<String, String>) -> ApiResult<u32> {
+    match query.get("size").map(String::as_str) {
+        None => Ok(256),
+        Some(s) => s
+            .parse::<u32>()
+            .ok()
+            .filter(|v| SIZES.contains(v))
+            .ok_or_else(|| {
+                ApiError::bad_request(format!("unknown size {s:?}: sizes are 256 and 512"))
+            }),
+    }
+}
+
+/// `?encoding=`, or 400.
+pub fn encoding(query: &HashMap<String, String>) -> ApiResult<Encoding> {
+    Encoding::from_query(query.get("encoding").map(String::as_str))
+}
+
+/// The dataset's footprint, or 404 saying why it has no place on a map.
+pub fn footprint(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Result<Footprint, String>>> {
+    let fp = state
+        .web
+        .footprint(ds.content_hash(), || Footprint::new(ds.pyramid.metadata()));
+    if let Err(e) = fp.as_ref() {
+        return Err(ApiError::not_found(format!(
+            "dataset {:?} has no standard-grid tiles: {e}",
+            ds.name
+        )));
+    }
+    Ok(fp)
+}
+
+/// The web tile `z/x/y` of `tms`, or 404 naming the valid ranges.
+fn web_tile(tms: TileMatrixSet, z: &str, x: &str, y: &str) -> ApiResult<WebTile> {
+    let z_ok = z.parse::<u8>().ok().filter(|z| *z <= MAX_ZOOM);
+    let Some(zv) = z_ok else {
+        return Err(ApiError::not_found(format!(
+            "zoom {z:?} is not in {} (zooms 0-{MAX_ZOOM})",
+            tms.id()
+        )));
+    };
+    match (x.parse::<u32>(), y.parse::<u32>()) {
+        (Ok(xv), Ok(yv)) => WebTile::new(tms, zv, xv, yv),
+        _ => None,
+    }
+    .ok_or_else(|| {
+        let (cols, rows) = tms.matrix_size(zv);
+        ApiError::not_found(format!(
+            "tile ({x}, {y}) is not in {} zoom {zv} (x 0-{}, y 0-{})",
+            tms.id(),
+            cols - 1,
+            rows - 1
+        ))
+    })
+}
+
+/// Why a tile could not be made.
+enum Failure {
+    Corrupt(TileId, bool),
+    Undecodable(TileId, codec::CodecError),
+    Unavailable(String),
+    Encode(String),
+}
+
+/// A decoded source tile, through the cache; `None` when the pyramid has no such
+/// tile (outside the DEM, or wholly no-data).
+fn source(
+    state: &AppState,
+    ds: &Dataset,
+    tile: TileId,
+) -> Result<Option<Arc<SourceTile>>, Failure> {
+    // Absent tiles are known from the index: nothing to decode or cache.
+    if ds.pyramid.entry(tile).is_none_or(|e| e.length == 0) {
+        return Ok(None);
+    }
+    let layout = ds.pyramid.record_layout();
+    let quantization = ds.pyramid.metadata().quantization;
+    state
+        .web
+        .source(dataset_key(ds.content_hash()), tile, || {
+            let record = match ds.record(tile) {
+                Ok(Some((_, bytes))) => bytes,
+                Ok(None) => return Err(None),
+                Err(RecordError::Corrupt(c)) => {
+                    return Err(Some(Failure::Corrupt(c.tile, c.first)));
+                }
+                Err(RecordError::Unavailable(r)) => return Err(Some(Failure::Unavailable(r))),
+            };
+            let decoded = codec::decode_record(&record, layout)
+                .map_err(|e| Some(Failure::Undecodable(tile, e)))?;
+            Ok(Arc::new(SourceTile {
+                heights: decoded.heights,
+                mask: decoded.mask,
+                quantization,
+            }))
+        })
+        .map(Some)
+        .or_else(|e| e.map_or(Ok(None), Err))
+}
+
+/// The encoded tile, or an empty body when it holds no data.
+fn make(state: &AppState, ds: &Dataset, fp: &Footprint, key: MadeKey) -> Result<Bytes, Failure> {
+    let geometry = ds.pyramid.geometry();
+    let Some(plan) = resample::plan(fp, geometry, key.tile, key.px) else {
+        return Ok(Bytes::new());
+    };
+    let sources = plan
+        .source_tiles()
+        .into_iter()
+        .map(|t| source(state, ds, t))
+        .collect::<Result<Vec<_>, _>>()?;
+    let heights = plan.sample(&sources);
+    if heights.iter().all(|h| h.is_nan()) {
+        return Ok(Bytes::new());
+    }
+    let pixels = rgba(&heights, key.encoding);
+    key.format
+        .encode(&pixels, key.px)
+        .map(Bytes::from)
+        .map_err(Failure::Encode)
+}
+
+/// `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.{png,webp}?encoding=&size=`.
+pub async fn tile(
+    State(state): State<Arc<AppState>>,
+    Segments((name, grid_name, z, x, y)): Segments<(String, String, String, String, String)>,
+    Params(query): Params,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let Some((y, format)) = ImageFormat::split(&y) else {
+        return Err(ApiError::not_found(
+            "no such endpoint; grid tiles are /v1/datasets/{name}/{grid}/{z}/{x}/{y}.png or .webp (see API.md)",
+        ));
+    };
+    let ds = dataset(&state, &name)?;
+    let tms = grid(&grid_name)?;
+    let enc = encoding(&query)?;
+    let px = size(&query)?;
+    let tile = web_tile(tms, &z, &x, y)?;
+    let pin = super::pinned(&ds, &query);
+    let etag = cache::etag(
+        ds.content_hash(),
+        &format!(
+            "grid {} {px} {} {} {}/{}/{}",
+            tms.path(),
+            enc.name(),
+            format.extension(),
+            tile.z,
+            tile.x,
+            tile.y
+        ),
+    );
+    if cache::not_modified(&headers, &etag, ds.last_modified) {
+        return Ok(cache::not_modified_response(
+            &etag,
+            ds.last_modified,
+            pin,
+            state.cache_max_age,
+        ));
+    }
+    let fp = footprint(&state, &ds)?;
+    let key = MadeKey {
+        dataset: dataset_key(ds.content_hash()),
+        tile,
+        px,
+        encoding: enc,
+        format,
+    };
+    let body = if let Some(b) = state.web.made(&key) {
+        b
+    } else {
+        let (st, d) = (state.clone(), ds.clone());
+        // Resampling and compressing take milliseconds: keep them off the runtime.
+        let made = tokio::task::spawn_blocking(move || {
+            let fp = fp
+                .as_ref()
+                .as_ref()
+                .map_err(|e| Failure::Encode(e.clone()))?;
+            make(&st, &d, fp, key)
+        })
+        .await
+        .map_err(|e| ApiError::internal(format!("{tile}: tile task failed: {e}")))?;
+        let b = made.map_err(|f| failure(&state, &ds, tile, f))?;
+        state.web.keep(key, b.clone());
+        b
+    };
+    if body.is_empty() {
+        return Ok(empty(&state, &ds, tile, &etag, pin));
+    }
+    let len = body.len();
+    let mut r = Response::new(Body::from(body));
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static(format.mime()),
+    );
+    h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
+    cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
+    r.extensions_mut().insert(TilesServed(1));
+    Ok(r)
+}
+
+/// The answer for a tile without data: 404 with a reason, or 204 (`--empty-tiles
+/// 204`); cacheable like a full tile, since it is as immutable.
+fn empty(state: &AppState, ds: &Dataset, tile: WebTile, etag: &str, pin: bool) -> Response {
+    let mut r = match state.web.config.empty_tiles {
+        EmptyTiles::NotFound => ApiError::not_found(format!(
+            "{tile} holds no data of dataset {:?}: it lies outside the dataset or over no-data",
+            ds.name
+        ))
+        .into_response(),
+        EmptyTiles::NoContent => StatusCode::NO_CONTENT.into_response(),
+    };
+    cache::set_headers(
+        r.headers_mut(),
+        etag,
+        ds.last_modified,
+        pin,
+        state.cache_max_age,
+    );
+    r
+}
+
+fn failure(state: &AppState, ds: &Dataset, tile: WebTile, f: Failure) -> ApiError {
+    match f {
+        Failure::Corrupt(t, first) => {
+            state.metrics.corrupt_read(first);
+            ApiError::internal(format!("{tile}: source {t} fails its checksum"))
+        }
+        Failure::Undecodable(t, e) => {
+            state.metrics.corrupt_read(ds.mark_undecodable(t));
+            tracing::error!(dataset = %ds.name, tile = %t, error = %e, "record does not decode");
+            ApiError::internal(format!(
+                "{tile}: source {t} passes its checksum but its height data does not decode"
+            ))
+        }
+        Failure::Unavailable(r) => unavailable(&r),
+        Failure::Encode(e) => {
+            tracing::error!(dataset = %ds.name, %tile, error = %e, "tile encoding failed");
+            ApiError::internal(format!("{tile}: cannot encode the tile"))
+        }
+    }
+}
+
+/// The TileJSON 3.0.0 document of a dataset's tiles in `tms` (see the module doc).
+pub fn tilejson_doc(
+    ds: &Dataset,
+    fp: &Footprint,
+    tms: TileMatrixSet,
+    base: &str,
+    enc: Encoding,
+    px: u32,
+    attribution: Option<&str>,
+) -> serde_json::Value {
+    let m = ds.pyramid.metadata();
+    let max = fp.max_zoom(tms, px);
+    let [w, s, e, n] = fp.lon_lat;
+    let [lon, lat] = fp.centre();
+    let mut doc = serde_json::json!({
+        "tilejson": "3.0.0",
+        "name": ds.name,
+        "tiles": [format!(
+            "{base}/v1/datasets/{}/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&size={px}&v={}",
+            ds.name,
+            tms.path(),
+            enc.name(),
+            m.content_hash
+        )],
+        "scheme": "xyz",
+        "minzoom": 0,
+        "maxzoom": max,
+        "bounds": [w.clamp(-180.0, 180.0), s.clamp(-90.0, 90.0), e.clamp(-180.0, 180.0), n.clamp(-90.0, 90.0)],
+        "center": [lon, lat, fp.overview_zoom(tms).min(max)],
+        "tileSize": px,
+        "encoding": enc.name(),
+        "tileMatrixSet": tms.id(),
+        "crs": format!("EPSG:{}", tms.epsg()),
+    });
+    if let Some(a) = attribution {
+        doc["attribution"] = serde_json::Value::String(html_escape(a));
+    }
+    doc
+}
+
+/// `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`.
+pub async fn tilejson(
+    State(state): State<Arc<AppState>>,
+    Segments((name, grid_name)): Segments<(String, String)>,
+    Params(query): Params,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let ds = dataset(&state, &name)?;
+    let tms = grid(&grid_name)?;
+    let enc = encoding(&query)?;
+    let px = size(&query)?;
+    let base = base_url(&state, &headers)?;
+    let pin = super::pinned(&ds, &query);
+    let etag = cache::etag(
+        ds.content_hash(),
+        &format!(
+            "grid tilejson {} {base} {} {px} {:?}",
+            tms.path(),
+            enc.name(),
+            state.web.config.attribution
+        ),
+    );
+    if cache::not_modified(&headers, &etag, ds.last_modified) {
+        return Ok(cache::not_modified_response(
+            &etag,
+            ds.last_modified,
+            pin,
+            state.cache_max_age,
+        ));
+    }
+    let fp = footprint(&state, &ds)?;
+    let Ok(fp) = fp.as_ref() else {
+        return Err(ApiError::internal("footprint vanished"));
+    };
+    let doc = tilejson_doc(
+        &ds,
+        fp,
+        tms,
+        &base,
+        enc,
+        px,
+        state.web.config.attribution.as_deref(),
+    );
+    let mut r = Json(doc).into_response();
+    cache::set_headers(
+        r.headers_mut(),
+        &etag,
+        ds.last_modified,
+        pin,
+        state.cache_max_age,
+    );
+    Ok(r)
+}

@@ -1,0 +1,468 @@
+//! OGC WMTS 1.0.0 capabilities (RESTful binding) for the standard-grid tiles of
+//! web_grid.rs, so GIS desktops (QGIS) and GDAL's WMTS driver open the datasets from
+//! one URL, with no hand-written XML (issue 14, DESIGN §9).
+//!
+//! - `GET /wmts/1.0.0/WMTSCapabilities.xml`: every dataset that has a place on a map;
+//! - `GET /v1/datasets/{name}/wmts/1.0.0/WMTSCapabilities.xml`: one dataset.
+//!
+//! One layer per dataset and encoding (`{name}_terrarium`, `{name}_mapbox`), each
+//! linked to both standard grids (`WebMercatorQuad`, `WorldCRS84Quad`) with the tile
+//! ranges that hold the dataset per zoom, and a `ResourceURL` template pointing at
+//! the 256-pixel PNG tiles, pinned to the content hash. WMTS clients need absolute
+//! URLs: they come from `--public-url` (or trusted forwarded headers), else from the
+//! request's `Host`, and then the document is marked private (see [`absolute_base`]).
+
+use super::web_grid::footprint;
+use super::web_tiles::{base_url, valid_host};
+use super::{Params, Segments, dataset, pinned};
+use crate::serve::AppState;
+use crate::serve::cache::{self, LastModified};
+use crate::serve::dataset::Dataset;
+use crate::serve::error::{ApiError, ApiResult};
+use crate::web::encoding::Encoding;
+use crate::web::footprint::Footprint;
+use crate::web::tile_matrix::TileMatrixSet;
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderValue, Uri, header};
+use axum::response::{IntoResponse, Response};
+use std::fmt::Write as _;
+use std::sync::Arc;
+use tessera_shared::api::routes;
+
+/// The tile size the capabilities describe (the standard grids' own).
+pub const TILE_PX: u32 = 256;
+
+/// The encodings offered as layers, in layer order.
+pub const ENCODINGS: [Encoding; 2] = [Encoding::Terrarium, Encoding::Mapbox];
+
+/// How to turn a pixel back into a height, for abstracts and descriptions.
+pub fn decoding(enc: Encoding) -> &'static str {
+    match enc {
+        Encoding::Terrarium => {
+            "Terrarium-encoded heights: h = R*256 + G + B/256 - 32768 metres (1/256 m steps); alpha 0 marks no data."
+        }
+        Encoding::Mapbox => {
+            "Terrain-RGB-encoded heights: h = -10000 + (R*65536 + G*256 + B)*0.1 metres (0.1 m steps); alpha 0 marks no data."
+        }
+    }
+}
+
+/// `&`, `<`, `>`, `"` and `'` as XML entities; control characters other than tab,
+/// newline and carriage return (not allowed in XML 1.0) are dropped.
+pub fn xml_escape(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&apos;"),
+            '\t' | '\n' | '\r' => out.push(c),
+            c if c.is_control() => {}
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// The CRS URN WMTS 1.0.0 documents use, with the axis order GDAL and QGIS read:
+/// EPSG:3857 is east–north, and OGC CRS84 is longitude–latitude (EPSG:4326's URN
+/// would be latitude–longitude).
+pub const fn crs_urn(tms: TileMatrixSet) -> &'static str {
+    match tms {
+        TileMatrixSet::WebMercatorQuad => "urn:ogc:def:crs:EPSG::3857",
+        TileMatrixSet::WorldCrs84Quad => "urn:ogc:def:crs:OGC:1.3:CRS84",
+    }
+}
+
+/// The standard's well-known scale set of a grid (WMTS 1.0.0 annex E).
+pub const fn well_known_scale_set(tms: TileMatrixSet) -> &'static str {
+    match tms {
+        TileMatrixSet::WebMercatorQuad => "urn:ogc:def:wkss:OGC:1.0:GoogleMapsCompatible",
+        TileMatrixSet::WorldCrs84Quad => "urn:ogc:def:wkss:OGC:1.0:GoogleCRS84Quad",
+    }
+}
+
+/// Tile ranges of one zoom: the tiles that meet `bounds` (a box in the grid's CRS).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileLimits {
+    pub min_col: u32,
+    pub max_col: u32,
+    pub min_row: u32,
+    pub max_row: u32,
+}
+
+/// The tiles of `tms` at zoom `z` that meet the box `[x0, y0, x1, y1]`.
+pub fn tile_limits(tms: TileMatrixSet, bounds: [f64; 4], z: u8) -> TileLimits {
+    let [ex0, _, _, ey1] = tms.extent();
+    let span = tms.tile_span(z);
+    let (cols, rows) = tms.matrix_size(z);
+    let [bx0, by0, bx1, by1] = bounds;
+    let index = |v: f64, n: u32| -> u32 {
+        if v.is_nan() || v <= 0.0 {
+            0
+        } else {
+            // Saturating float-to-int cast, then clamped into the matrix.
+            (v as u32).min(n - 1)
+        }
+    };
+    let min_col = index(((bx0 - ex0) / span).floor(), cols);
+    let max_col = index(((bx1 - ex0) / span).ceil() - 1.0, cols).max(min_col);
+    let min_row = index(((ey1 - by1) / span).floor(), rows);
+    let max_row = index(((ey1 - by0) / span).ceil() - 1.0, rows).max(min_row);
+    TileLimits {
+        min_col,
+        max_col,
+        min_row,
+        max_row,
+    }
+}
+
+/// A dataset with a place on the map.
+#[derive(Debug)]
+pub struct Mapped<'a> {
+    pub ds: &'a Dataset,
+    pub fp: &'a Footprint,
+}
+
+/// The capabilities document of `layers` (already in name order), its URLs under
+/// `base` (scheme and authority, no trailing slash) and the document's own URL `me`.
+pub fn capabilities(layers: &[Mapped<'_>], base: &str, me: &str) -> String {
+    let mut x = String::with_capacity(8192 + layers.len() * 16384);
+    x.push_str(concat!(
+        r#"<?xml version="1.0" encoding="UTF-8"?>"#,
+        "\n",
+        r#"<Capabilities xmlns="http://www.opengis.net/wmts/1.0" xmlns:ows="http://www.opengis.net/ows/1.1" xmlns:xlink="http://www.w3.org/1999/xlink" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:schemaLocation="http://www.opengis.net/wmts/1.0 http://schemas.opengis.net/wmts/1.0/wmtsGetCapabilities_response.xsd" version="1.0.0">"#,
+        "\n",
+        "  <ows:ServiceIdentification>\n",
+        "    <ows:Title>Tessera DEM tiles</ows:Title>\n",
+        "    <ows:Abstract>Elevation as Terrarium or Terrain-RGB PNG tiles on the standard WebMercatorQuad and WorldCRS84Quad grids; each layer's abstract says how to decode heights.</ows:Abstract>\n",
+        "    <ows:ServiceType>OGC WMTS</ows:ServiceType>\n",
+        "    <ows:ServiceTypeVersion>1.0.0</ows:ServiceTypeVersion>\n",
+        "  </ows:ServiceIdentification>\n",
+        "  <Contents>\n",
+    ));
+    // The deepest zoom any layer needs, per grid (the matrix sets list no deeper).
+    let mut deepest = [0u8; 2];
+    for m in layers {
+        for (i, tms) in TileMatrixSet::ALL.into_iter().enumerate() {
+            deepest[i] = deepest[i].max(m.fp.max_zoom(tms, TILE_PX));
+        }
+    }
+    for m in layers {
+        for enc in ENCODINGS {
+            layer(&mut x, m, enc, base);
+        }
+    }
+    for (i, tms) in TileMatrixSet::ALL.into_iter().enumerate() {
+        matrix_set(&mut x, tms, deepest[i]);
+    }
+    let _ = write!(
+        x,
+        "  </Contents>\n  <ServiceMetadataURL xlink:href=\"{}\"/>\n</Capabilities>\n",
+        xml_escape(me)
+    );
+    x
+}
+
+fn corners(x: &mut String, [x0, y0, x1, y1]: [f64; 4]) {
+    let _ = write!(
+        x,
+        "<ows:LowerCorner>{x0} {y0}</ows:LowerCorner><ows:UpperCorner>{x1} {y1}</ows:UpperCorner>"
+    );
+}
+
+fn layer(x: &mut String, m: &Mapped<'_>, enc: Encoding, base: &str) {
+    let name = xml_escape(&m.ds.name);
+    let [w, s, e, n] = m.fp.lon_lat;
+    let wgs84 = [
+        w.clamp(-180.0, 180.0),
+        s.clamp(-90.0, 90.0),
+        e.clamp(-180.0, 180.0),
+        n.clamp(-90.0, 90.0),
+    ];
+    let _ = write!(
+        x,
+        "    <Layer>\n      <ows:Title>{name} ({})</ows:Title>\n      <ows:Abstract>{}</ows:Abstract>\n      <ows:WGS84BoundingBox>",
+        match enc {
+            Encoding::Terrarium => "Terrarium",
+            Encoding::Mapbox => "Terrain-RGB",
+        },
+        xml_escape(decoding(enc)),
+    );
+    corners(x, wgs84);
+    let _ = write!(
+        x,
+        "</ows:WGS84BoundingBox>\n      <ows:Identifier>{name}_{}</ows:Identifier>\n",
+        enc.name()
+    );
+    // The box in each grid's own CRS: GDAL takes the layer's extent from the one
+    // whose CRS matches the chosen grid's.
+    for tms in TileMatrixSet::ALL {
+        let _ = write!(x, "      <ows:BoundingBox crs=\"{}\">", crs_urn(tms));
+        let b = match tms {
+            TileMatrixSet::WorldCrs84Quad => wgs84,
+            TileMatrixSet::WebMercatorQuad => m.fp.grid_bounds(tms),
+        };
+        corners(x, b);
+        x.push_str("</ows:BoundingBox>\n");
+    }
+    x.push_str(concat!(
+        "      <Style isDefault=\"true\"><ows:Identifier>default</ows:Identifier></Style>\n",
+        "      <Format>image/png</Format>\n",
+    ));
+    for tms in TileMatrixSet::ALL {
+        let _ = writeln!(
+            x,
+            "      <TileMatrixSetLink>\n        <TileMatrixSet>{}</TileMatrixSet>\n        <TileMatrixSetLimits>",
+            tms.id()
+        );
+        let bounds = m.fp.grid_bounds(tms);
+        for z in 0..=m.fp.max_zoom(tms, TILE_PX) {
+            let l = tile_limits(tms, bounds, z);
+            let _ = writeln!(
+                x,
+                "          <TileMatrixLimits><TileMatrix>{z}</TileMatrix><MinTileRow>{}</MinTileRow><MaxTileRow>{}</MaxTileRow><MinTileCol>{}</MinTileCol><MaxTileCol>{}</MaxTileCol></TileMatrixLimits>",
+                l.min_row, l.max_row, l.min_col, l.max_col
+            );
+        }
+        x.push_str("        </TileMatrixSetLimits>\n      </TileMatrixSetLink>\n");
+    }
+    // {TileMatrixSet} is the standard identifier, which the tile route accepts as
+    // the grid segment (web_grid.rs `grid`).
+    let template = format!(
+        "{base}/v1/datasets/{}/{{TileMatrixSet}}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?encoding={}&size={TILE_PX}&v={}",
+        m.ds.name,
+        enc.name(),
+        m.ds.content_hash()
+    );
+    let _ = write!(
+        x,
+        "      <ResourceURL format=\"image/png\" resourceType=\"tile\" template=\"{}\"/>\n    </Layer>\n",
+        xml_escape(&template)
+    );
+}
+
+fn matrix_set(x: &mut String, tms: TileMatrixSet, deepest: u8) {
+    let _ = writeln!(
+        x,
+        "    <TileMatrixSet>\n      <ows:Identifier>{}</ows:Identifier>\n      <ows:SupportedCRS>{}</ows:SupportedCRS>\n      <WellKnownScaleSet>{}</WellKnownScaleSet>",
+        tms.id(),
+        crs_urn(tms),
+        well_known_scale_set(tms)
+    );
+    let [x0, _, _, y1] = tms.extent();
+    for z in 0..=deepest {
+        let (cols, rows) = tms.matrix_size(z);
+        let _ = writeln!(
+            x,
+            "      <TileMatrix><ows:Identifier>{z}</ows:Identifier><ScaleDenominator>{}</ScaleDenominator><TopLeftCorner>{x0} {y1}</TopLeftCorner><TileWidth>{TILE_PX}</TileWidth><TileHeight>{TILE_PX}</TileHeight><MatrixWidth>{cols}</MatrixWidth><MatrixHeight>{rows}</MatrixHeight></TileMatrix>",
+            tms.scale_denominator(z, TILE_PX)
+        );
+    }
+    x.push_str("    </TileMatrixSet>\n");
+}
+
+/// Scheme and authority for the document's absolute URLs, and whether they came
+/// from the request's `Host` (DECISIONS "WMTS capabilities and the Host header").
+///
+/// `--public-url` (or `X-Forwarded-*` with `--trust-forwarded`) wins, as for
+/// TileJSON. Without either, WMTS clients still need absolute URLs (GDAL and QGIS
+/// do not resolve relative templates), so the request's `Host` (HTTP/2: its
+/// `:authority`) is used, checked to be a plain `host[:port]`; such a response is
+/// `Cache-Control: private` with `Vary: Host`, so no shared cache hands it to a
+/// client that asked under another name.
+pub fn absolute_base(
+    state: &AppState,
+    headers: &HeaderMap,
+    uri: &Uri,
+) -> ApiResult<(String, bool)> {
+    let base = base_url(state, headers)?;
+    if !base.is_empty() {
+        return Ok((base, false));
+    }
+    let mut hosts = headers.get_all(header::HOST).iter();
+    let host = match (hosts.next(), hosts.next()) {
+        (Some(h), None) => h.to_str().ok().map(str::to_string),
+        (None, _) => uri.authority().map(|a| a.as_str().to_string()),
+        (Some(_), Some(_)) => None,
+    };
+    let host = host.filter(|h| valid_host(h)).ok_or_else(|| {
+        ApiError::bad_request(
+            "the WMTS capabilities need absolute URLs: send one valid Host header (host[:port]), or run the server with --public-url",
+        )
+    })?;
+    let scheme = if state.tls { "https" } else { "http" };
+    Ok((format!("{scheme}://{host}"), true))
+}
+
+/// Marks a response built from the request's `Host` as private to that client.
+fn privately(h: &mut HeaderMap, from_host: bool, max_age: u64) {
+    if from_host {
+        if let Ok(v) = HeaderValue::from_str(&format!("private, max-age={max_age}")) {
+            h.insert(header::CACHE_CONTROL, v);
+        }
+        h.append(header::VARY, HeaderValue::from_static("host"));
+    }
+}
+
+/// The XML response, or its 304, with the given validators.
+fn respond(
+    state: &AppState,
+    headers: &HeaderMap,
+    etag: &str,
+    last_modified: LastModified,
+    pin: bool,
+    from_host: bool,
+    body: impl FnOnce() -> String,
+) -> Response {
+    let mut r = if cache::not_modified(headers, etag, last_modified) {
+        cache::not_modified_response(etag, last_modified, pin, state.cache_max_age)
+    } else {
+        let mut r = body().into_response();
+        r.headers_mut().insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/xml"),
+        );
+        cache::set_headers(
+            r.headers_mut(),
+            etag,
+            last_modified,
+            pin,
+            state.cache_max_age,
+        );
+        r
+    };
+    privately(r.headers_mut(), from_host, state.cache_max_age);
+    r
+}
+
+/// A hash naming the content of several datasets at once (names and content
+/// hashes), 16 hex digits, for the ETag of documents about all of them.
+pub fn combined_hash<'a>(datasets: impl IntoIterator<Item = &'a Dataset>) -> String {
+    let mut s = String::new();
+    for d in datasets {
+        let _ = writeln!(s, "{} {}", d.name, d.content_hash());
+    }
+    format!("{:016x}", xxhash_rust::xxh3::xxh3_64(s.as_bytes()))
+}
+
+/// The latest modification time of several datasets.
+pub fn latest(datasets: &[Arc<Dataset>]) -> LastModified {
+    LastModified::new(datasets.iter().filter_map(|d| d.last_modified.time()).max())
+}
+
+/// A dataset and its footprint (or why it has none).
+pub type MappedDataset = (Arc<Dataset>, Arc<Result<Footprint, String>>);
+
+/// Every available dataset that has a place on a map, with its footprint, in name
+/// order (the others are left out: they have no standard-grid tiles).
+pub fn mapped_datasets(state: &AppState) -> Vec<MappedDataset> {
+    state
+        .registry()
+        .datasets
+        .values()
+        .filter(|d| d.available().is_ok())
+        .filter_map(|d| footprint(state, d).ok().map(|fp| (d.clone(), fp)))
+        .collect()
+}
+
+/// `GET /wmts/1.0.0/WMTSCapabilities.xml`: every dataset with a place on a map.
+pub async fn all(
+    State(state): State<Arc<AppState>>,
+    headers: HeaderMap,
+    uri: Uri,
+) -> ApiResult<Response> {
+    let (base, from_host) = absolute_base(&state, &headers, &uri)?;
+    let found = mapped_datasets(&state);
+    let ds: Vec<Arc<Dataset>> = found.iter().map(|(d, _)| d.clone()).collect();
+    let etag = cache::etag(
+        &combined_hash(ds.iter().map(AsRef::as_ref)),
+        &format!("wmts {base}"),
+    );
+    Ok(respond(
+        &state,
+        &headers,
+        &etag,
+        latest(&ds),
+        false,
+        from_host,
+        || {
+            let layers: Vec<Mapped<'_>> = found
+                .iter()
+                .filter_map(|(d, fp)| fp.as_ref().as_ref().ok().map(|fp| Mapped { ds: d, fp }))
+                .collect();
+            capabilities(&layers, &base, &format!("{base}{}", routes::WMTS))
+        },
+    ))
+}
+
+/// `GET /v1/datasets/{name}/wmts/1.0.0/WMTSCapabilities.xml`: one dataset (404
+/// when it has no place on a map).
+pub async fn one(
+    State(state): State<Arc<AppState>>,
+    Segments(name): Segments<String>,
+    Params(query): Params,
+    headers: HeaderMap,
+    uri: Uri,
+) -> ApiResult<Response> {
+    let ds = dataset(&state, &name)?;
+    let (base, from_host) = absolute_base(&state, &headers, &uri)?;
+    let fp = footprint(&state, &ds)?;
+    let Ok(fp) = fp.as_ref() else {
+        return Err(ApiError::internal("footprint vanished"));
+    };
+    let pin = pinned(&ds, &query);
+    let etag = cache::etag(ds.content_hash(), &format!("wmts {base}"));
+    let me = format!(
+        "{base}{}",
+        tessera_shared::api::fill(routes::DATASET_WMTS, &[("name", &ds.name)])
+    );
+    Ok(respond(
+        &state,
+        &headers,
+        &etag,
+        ds.last_modified,
+        pin,
+        from_host,
+        || capabilities(&[Mapped { ds: &ds, fp }], &base, &me),
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::web::tile_matrix::WebTile;
+
+    #[test]
+    fn limits_cover_the_box_and_stay_in_the_matrix() {
+        let tms = TileMatrixSet::WorldCrs84Quad;
+        // 8°–9° E, 46°–47° N at zoom 7: tiles are 180/128 = 1.40625° wide.
+        let l = tile_limits(tms, [8.0, 46.0, 9.0, 47.0], 7);
+        assert_eq!((l.min_col, l.max_col), (133, 134));
+        assert_eq!((l.min_row, l.max_row), (30, 31));
+        // The box's corners lie in the tiles named.
+        for (c, r) in [(l.min_col, l.min_row), (l.max_col, l.max_row)] {
+            let b = WebTile::new(tms, 7, c, r).unwrap().bounds();
+            assert!(
+                b[0] < 9.0 && b[2] > 8.0 && b[1] < 47.0 && b[3] > 46.0,
+                "{b:?}"
+            );
+        }
+        // The whole world, and beyond, is the whole matrix.
+        let w = tile_limits(tms, [-400.0, -100.0, 400.0, 100.0], 2);
+        assert_eq!((w.min_col, w.max_col, w.min_row, w.max_row), (0, 7, 0, 3));
+        // A box ending exactly on a tile edge does not reach into the next tile.
+        let e = tile_limits(tms, [0.0, 0.0, 180.0, 90.0], 0);
+        assert_eq!((e.min_col, e.max_col, e.min_row, e.max_row), (1, 1, 0, 0));
+    }
+
+    #[test]
+    fn dataset_strings_are_escaped() {
+        assert_eq!(
+            xml_escape("a<b>&\"c\"'\u{1}d"),
+            "a&lt;b&gt;&amp;&quot;c&quot;&apos;d"
+        );
+    }
+}

@@ -1,0 +1,437 @@
+//! One standard-grid tile's heights, resampled on the fly from the pyramid (DESIGN
+//! §9, issue 14): the pyramid stays in the dataset's own grid, and each output pixel
+//! is read from the level whose sample spacing best matches the pixel's.
+//!
+//! 1. **Window.** Only pixels inside the dataset's bounding box in the grid's CRS
+//!    (and [`APRON`] pixels around it) are computed; the rest are no-data.
+//! 2. **Level.** At the point of the tile nearest the dataset's centre, one pixel
+//!    step east and south is carried to the dataset's samples; the level whose
+//!    stride is nearest (in log₂) to that footprint is read — the finest when the
+//!    map zooms in beyond the data.
+//! 3. **Coordinates.** Every pixel centre is carried to the level's sample
+//!    coordinates through the projection library, approximately
+//!    ([`crate::approx_transform::over_grid`], within [`TOLERANCE`] of a sample).
+//! 4. **Heights.** Bilinear on the stored (quantized) heights of the cell the point
+//!    falls in — exact where the point is a sample. Each sample stands for its
+//!    pixel, as in GDAL: a point is terrain when its nearest sample is, and a
+//!    sample is terrain when a cell it is a corner of is (the mask is per cell,
+//!    format v2). So a point half a sample beyond the DEM's edge still reads the
+//!    edge, and a valid summit beside a void is served, interpolated over the
+//!    void's fill (nearest valid heights).
+//! 5. **Apron.** Pixels that are not terrain are no-data (NaN: transparent), except
+//!    those within [`APRON`] pixels of a terrain pixel (this tile's or a
+//!    neighbour's), which carry the fill's height (clamped to the grid at the DEM's
+//!    outer edge). Web clients interpolate elevation tiles bilinearly and ignore
+//!    alpha (MapLibre reads pixels up to 1.5 px east and south of a point, and a
+//!    transparent pixel decodes as −32768 m): without the apron, every lookup at
+//!    the edge of the data would sink into a pit.
+
+use super::footprint::Footprint;
+use super::tile_matrix::WebTile;
+use crate::approx_transform::over_grid;
+use tessera_shared::mask::CellMask;
+use tessera_shared::{Level, Quantization, TileGeometry, TileId};
+
+/// Largest error of an interpolated pixel position, in samples of the level read
+/// (1/100 000 of a sample: on a 1:1 slope of 200 m samples, 2 mm of height).
+pub const TOLERANCE: f64 = 1e-5;
+
+/// Pixels around terrain that carry heights (see the module doc, step 5).
+pub const APRON: i64 = 2;
+
+/// A decoded pyramid tile, as the sampler reads it.
+#[derive(Debug)]
+pub struct SourceTile {
+    /// `(T+1)²` quantized heights, row-major, north row first.
+    pub heights: Vec<u16>,
+    pub mask: CellMask,
+    pub quantization: Quantization,
+}
+
+impl SourceTile {
+    /// Heap bytes held (what a cache of these counts).
+    pub fn bytes(&self) -> u64 {
+        (self.heights.len() * 2 + self.mask.encode().len().max(8)) as u64
+    }
+}
+
+/// What one output tile needs from the pyramid, and where each pixel reads it.
+#[derive(Debug)]
+pub struct Plan {
+    pub tile: WebTile,
+    pub px: u32,
+    pub level: Level,
+    /// Pixels `[i0, j0, i1, j1)` computed, in the tile's pixel coordinates; they
+    /// may reach [`APRON`] pixels beyond the tile, into its neighbours.
+    window: [i64; 4],
+    /// The level's sample coordinates of each window pixel, row-major.
+    coords: Vec<[f64; 2]>,
+    /// The level's tiles the window reads: first column and row, columns, rows.
+    tiles: [u32; 4],
+    tile_size: u32,
+}
+
+/// The plan for `tile` at `px` pixels, or `None` when no pixel can hold data.
+pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> Option<Plan> {
+    if !fp.meets(tile) {
+        return None;
+    }
+    let window = window(fp, tile, px)?;
+    let finest = geometry.finest();
+    let k = stride_log2(fp, tile, px).min(u32::from(finest.get()));
+    let level = Level::new(finest.get() - k as u8)?;
+    let stride = f64::from(1u32 << k);
+    let [i0, j0, i1, j1] = window;
+    let (w, h) = ((i1 - i0) as usize, (j1 - j0) as usize);
+    let exact = |i: usize, j: usize| {
+        let [x, y] = tile.pixel_centre(px, (i0 + i as i64) as f64, (j0 + j as i64) as f64);
+        let [c, r] = fp.to_samples(tile.tms, x, y)?;
+        Some([c / stride, r / stride])
+    };
+    let coords = over_grid(w, h, TOLERANCE, &exact);
+    let t = geometry.tile_size();
+    let n = level.tiles_per_side();
+    let limit = f64::from(n) * f64::from(t);
+    let (mut tx0, mut ty0, mut tx1, mut ty1) = (u32::MAX, u32::MAX, 0, 0);
+    let mut terrain_possible = false;
+    for &[c, r] in &coords {
+        if !(c.is_finite() && r.is_finite()) {
+            continue;
+        }
+        terrain_possible |= in_range(c, r, limit);
+        // Apron pixels read the grid clamped; terrain also needs the cells around
+        // its nearest sample (validity, see the module doc).
+        let (c, r) = (c.clamp(0.0, limit), r.clamp(0.0, limit));
+        let lo = |v: f64| tile_of((v - 1.0).max(0.0), t, n);
+        let hi = |v: f64| tile_of((v + 1.0).min(limit), t, n);
+        tx0 = tx0.min(lo(c));
+        ty0 = ty0.min(lo(r));
+        tx1 = tx1.max(hi(c));
+        ty1 = ty1.max(hi(r));
+    }
+    if !terrain_possible {
+        return None;
+    }
+    Some(Plan {
+        tile,
+        px,
+        level,
+        window,
+        coords,
+        tiles: [tx0, ty0, tx1 - tx0 + 1, ty1 - ty0 + 1],
+        tile_size: t,
+    })
+}
+
+/// The pixel window of `tile` that the dataset's bounding box covers, with a
+/// margin of one pixel and the [`APRON`], reaching beyond the tile by the apron;
+/// `None` when it covers no pixel of the tile.
+fn window(fp: &Footprint, tile: WebTile, px: u32) -> Option<[i64; 4]> {
+    let [x0, _, _, y1] = tile.bounds();
+    let [bx0, by0, bx1, by1] = fp.grid_bounds(tile.tms);
+    let c = tile.tms.cell_size(tile.z, px);
+    let side = f64::from(px);
+    let a = APRON as f64;
+    let clamp = |v: f64| v.clamp(-a, side + a) as i64;
+    let i0 = clamp(((bx0 - x0) / c).floor() - 1.0 - a);
+    let i1 = clamp(((bx1 - x0) / c).ceil() + 1.0 + a);
+    let j0 = clamp(((y1 - by1) / c).floor() - 1.0 - a);
+    let j1 = clamp(((y1 - by0) / c).ceil() + 1.0 + a);
+    let px = i64::from(px);
+    (i0 < i1.min(px) && j0 < j1.min(px) && i1 > 0 && j1 > 0).then_some([i0, j0, i1, j1])
+}
+
+/// log₂ of the finest-level stride that best matches one pixel of `tile`: the
+/// footprint of a pixel step at the point of the tile nearest the dataset's centre,
+/// in finest samples, rounded in log₂ (0 when the pixel is finer than a sample).
+fn stride_log2(fp: &Footprint, tile: WebTile, px: u32) -> u32 {
+    let [x0, y0, x1, y1] = tile.bounds();
+    let [bx0, by0, bx1, by1] = fp.grid_bounds(tile.tms);
+    let c = tile.tms.cell_size(tile.z, px);
+    let cx = f64::midpoint(bx0, bx1).clamp(x0 + c, x1 - c);
+    let cy = f64::midpoint(by0, by1).clamp(y0 + c, y1 - c);
+    let at = |x: f64, y: f64| fp.to_samples(tile.tms, x, y);
+    let (Some(p), Some(e), Some(s)) = (at(cx, cy), at(cx + c, cy), at(cx, cy - c)) else {
+        return 0;
+    };
+    let d = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
+    let f = (d(p, e) * d(p, s)).sqrt();
+    let k = f.log2().round();
+    if k.is_finite() && k > 0.0 {
+        k.min(31.0) as u32
+    } else {
+        0
+    }
+}
+
+/// Whether a point is within half a sample of the level's grid (of `limit` cells).
+fn in_range(c: f64, r: f64, limit: f64) -> bool {
+    c >= -0.5 && r >= -0.5 && c <= limit + 0.5 && r <= limit + 0.5
+}
+
+/// The tile (of `n` per side, `t` cells each) holding level coordinate `v ≥ 0`; a
+/// point on a shared border goes to the tile before it only at the grid's end.
+/// (Truncation is `floor` for `v ≥ 0`, without a libm call.)
+fn tile_of(v: f64, t: u32, n: u32) -> u32 {
+    ((v / f64::from(t)) as u32).min(n - 1)
+}
+
+impl Plan {
+    /// The level's tiles to read, row-major over the plan's tile rectangle; the
+    /// sampler takes them back in this order.
+    pub fn source_tiles(&self) -> Vec<TileId> {
+        let [tx0, ty0, cols, rows] = self.tiles;
+        (0..rows)
+            .flat_map(|dy| (0..cols).map(move |dx| (tx0 + dx, ty0 + dy)))
+            .filter_map(|(x, y)| TileId::new(self.level, x, y))
+            .collect()
+    }
+
+    /// The tile's `px × px` heights in metres, row-major, NaN where there is no
+    /// terrain (and no apron). `sources[k]` is the `k`-th of [`Self::source_tiles`],
+    /// `None` when the pyramid has no such tile (outside the DEM, or wholly no-data).
+    pub fn sample<T: AsRef<SourceTile>>(&self, sources: &[Option<T>]) -> Vec<f64> {
+        let [i0, j0, i1, j1] = self.window;
+        let w = (i1 - i0) as usize;
+        let [tx0, ty0, cols, rows] = self.tiles;
+        let t = self.tile_size;
+        let n = self.level.tiles_per_side();
+        let limit = f64::from(n) * f64::from(t);
+        let side = t as usize + 1;
+        let tile_at = |tx: u32, ty: u32| -> Option<&SourceTile> {
+            if tx < tx0 || ty < ty0 || tx - tx0 >= cols || ty - ty0 >= rows {
+                return None;
+            }
+            let slot = ((ty - ty0) * cols + (tx - tx0)) as usize;
+            sources.get(slot)?.as_ref().map(AsRef::as_ref)
+        };
+        // Whether level cell (gx, gy) is terrain.
+        let cell = |gx: i64, gy: i64| -> bool {
+            let cells = i64::from(n) * i64::from(t);
+            if gx < 0 || gy < 0 || gx >= cells || gy >= cells {
+                return false;
+            }
+            let (gx, gy) = (gx as u32, gy as u32);
+            tile_at(gx / t, gy / t).is_some_and(|s| s.mask.is_valid(gx % t, gy % t))
+        };
+        // Heights of every window pixel that has a source (terrain or not), and
+        // which are terrain.
+        let mut heights = vec![f64::NAN; self.coords.len()];
+        let mut terrain = vec![false; self.coords.len()];
+        for (k, &[c0, r0]) in self.coords.iter().enumerate() {
+            if !(c0.is_finite() && r0.is_finite()) {
+                continue;
+            }
+            let (c, r) = (c0.clamp(0.0, limit), r0.clamp(0.0, limit));
+            let (tx, ty) = (tile_of(c, t, n), tile_of(r, t, n));
+            let Some(src) = tile_at(tx, ty) else {
+                continue;
+            };
+            let (u, v) = (c - f64::from(tx * t), r - f64::from(ty * t));
+            let (ci, cj) = ((u as u32).min(t - 1), (v as u32).min(t - 1));
+            terrain[k] = in_range(c0, r0, limit)
+                && (src.mask.is_valid(ci, cj) || {
+                    let (nx, ny) = ((c + 0.5) as i64, (r + 0.5) as i64);
+                    cell(nx - 1, ny - 1) || cell(nx, ny - 1) || cell(nx - 1, ny) || cell(nx, ny)
+                });
+            let (fu, fv) = (u - f64::from(ci), v - f64::from(cj));
+            let q = &src.quantization;
+            let base = cj as usize * side + ci as usize;
+            let hs = &src.heights;
+            let at = |o: usize| q.height(hs[base + o]);
+            let top = lerp(at(0), at(1), fu);
+            let bottom = lerp(at(side), at(side + 1), fu);
+            heights[k] = lerp(top, bottom, fv);
+        }
+        let px = i64::from(self.px);
+        let mut out = vec![f64::NAN; (px * px) as usize];
+        let (wi, hi) = (w as i64, j1 - j0);
+        // Whether a terrain pixel lies within the apron of window pixel `k`.
+        let near_terrain = |k: usize| {
+            let (i, j) = ((k % w) as i64, (k / w) as i64);
+            ((j - APRON).max(0)..=(j + APRON).min(hi - 1)).any(|jj| {
+                ((i - APRON).max(0)..=(i + APRON).min(wi - 1))
+                    .any(|ii| terrain[(jj * wi + ii) as usize])
+            })
+        };
+        for j in j0.max(0)..j1.min(px) {
+            for i in i0.max(0)..i1.min(px) {
+                let k = ((j - j0) * wi + (i - i0)) as usize;
+                let h = heights[k];
+                if terrain[k] || (h.is_finite() && near_terrain(k)) {
+                    out[(j * px + i) as usize] = h;
+                }
+            }
+        }
+        out
+    }
+}
+
+/// `a + t·(b − a)`: exactly `a` at `t = 0`, so a point on a sample reads it exactly.
+fn lerp(a: f64, b: f64, t: f64) -> f64 {
+    if t == 0.0 { a } else { a + t * (b - a) }
+}
+
+impl AsRef<SourceTile> for SourceTile {
+    fn as_ref(&self) -> &SourceTile {
+        self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::web::tile_matrix::TileMatrixSet;
+    use std::sync::Arc;
+    use tessera_shared::{GeoRef, Metadata, RasterType, VerticalDatum};
+
+    /// A 4326 dataset of `n × n` samples at `d`° whose heights are a plane in
+    /// longitude and latitude, in one pyramid level of one tile.
+    fn plane_dataset(n: u32, d: f64, tile_size: u32) -> (Metadata, TileGeometry) {
+        let m = Metadata {
+            width: n,
+            height: n,
+            tile_size,
+            levels: 1,
+            quantization: Quantization {
+                offset: 0.0,
+                scale: 1.0,
+                max_error: 0.0,
+            },
+            min_height: 0.0,
+            max_height: 1.0,
+            nodata_count: 0,
+            nodata_fill: String::new(),
+            georef: Some(GeoRef {
+                epsg: Some(4326),
+                crs_name: None,
+                proj: None,
+                wkt: None,
+                // Sample (0, 0) centred on (10° E, 50° N).
+                geotransform: [10.0 - d / 2.0, d, 0.0, 50.0 + d / 2.0, 0.0, -d],
+                raster_type: RasterType::PixelIsArea,
+            }),
+            ground_spacing: None,
+            vertical_datum: VerticalDatum::Unknown,
+            level_counts: vec![],
+            source: String::new(),
+            generator: String::new(),
+            content_hash: String::new(),
+        };
+        let g = TileGeometry::new(n, n, tile_size).unwrap();
+        (m, g)
+    }
+
+    /// Height `3·col + 5·row` (quantized exactly), with cells 9..12 × 19..22
+    /// masked: samples 10..=11 × 20..=21 have no valid cell around them.
+    fn plane_tile(n: u32) -> SourceTile {
+        let side = n as usize;
+        let heights = (0..side * side)
+            .map(|k| (3 * (k % side) + 5 * (k / side)) as u16)
+            .collect();
+        let mut mask = CellMask::all_valid(n - 1);
+        for y in 19..22 {
+            for x in 9..12 {
+                mask.set(x, y, false);
+            }
+        }
+        SourceTile {
+            heights,
+            mask,
+            quantization: Quantization {
+                offset: 0.0,
+                scale: 1.0,
+                max_error: 0.0,
+            },
+        }
+    }
+
+    #[test]
+    fn bilinear_heights_at_every_pixel_and_no_data_where_masked() {
+        let d = 1.0 / 64.0;
+        let (m, g) = plane_dataset(65, d, 64);
+        let fp = Footprint::new(&m).unwrap();
+        // CRS84 zoom 7: 180/128 = 1.406° per tile; (10°, 50°) is in tile x 135, y 28.
+        let tile = WebTile::new(TileMatrixSet::WorldCrs84Quad, 7, 135, 28).unwrap();
+        let plan = plan(&fp, &g, tile, 256).unwrap();
+        assert_eq!(plan.level.get(), 0);
+        assert_eq!(plan.source_tiles().len(), 1);
+        let src = Arc::new(plane_tile(65));
+        let out = plan.sample(&[Some(src)]);
+        // Pixel centres fall at c = −10 + (i + ½)·45/128 samples (and likewise r):
+        // never on a half sample, so "nearest sample" is never a tie.
+        let at = |i: u32, j: u32| {
+            let [lon, lat] = tile.pixel_centre(256, f64::from(i), f64::from(j));
+            ((lon - 10.0) / d, (50.0 - lat) / d)
+        };
+        // Terrain: each sample stands for its pixel (half a sample beyond the edge
+        // samples counts), except samples 10..=11 × 20..=21 (no valid cell).
+        let is_terrain = |i: u32, j: u32| {
+            let (c, r) = at(i, j);
+            let in_pixels = (-0.5..64.5).contains(&c) && (-0.5..64.5).contains(&r);
+            let (nc, nr) = (c.round(), r.round());
+            in_pixels && !((10.0..=11.0).contains(&nc) && (20.0..=21.0).contains(&nr))
+        };
+        let (mut terrain, mut apron, mut none) = (0, 0, 0);
+        for j in 0..256u32 {
+            for i in 0..256u32 {
+                let (c, r) = at(i, j);
+                let h = out[(j * 256 + i) as usize];
+                // The plane is the fill too: apron pixels read it, clamped to the grid.
+                let want = 3.0 * c.clamp(0.0, 64.0) + 5.0 * r.clamp(0.0, 64.0);
+                let near = (j.saturating_sub(2)..=(j + 2).min(255)).any(|jj| {
+                    (i.saturating_sub(2)..=(i + 2).min(255)).any(|ii| is_terrain(ii, jj))
+                });
+                if is_terrain(i, j) {
+                    terrain += 1;
+                    assert!((h - want).abs() < 1e-6, "({i}, {j}): {h} vs {want}");
+                } else if near {
+                    apron += 1;
+                    assert!((h - want).abs() < 1e-6, "apron ({i}, {j}): {h} vs {want}");
+                } else {
+                    none += 1;
+                    assert!(
+                        h.is_nan(),
+                        "({i}, {j}) at ({c}, {r}) should be no-data: {h}"
+                    );
+                }
+            }
+        }
+        assert!(
+            terrain > 1000 && apron > 0 && none > 0,
+            "{terrain} terrain, {apron} apron, {none} none"
+        );
+    }
+
+    #[test]
+    fn a_tile_far_from_the_dataset_needs_nothing() {
+        let (m, g) = plane_dataset(65, 1.0 / 64.0, 64);
+        let fp = Footprint::new(&m).unwrap();
+        let far = WebTile::new(TileMatrixSet::WebMercatorQuad, 7, 0, 0).unwrap();
+        assert!(plan(&fp, &g, far, 256).is_none());
+    }
+
+    #[test]
+    fn the_level_follows_the_pixel_size() {
+        // 8193 samples at 1/10 000°, in tiles of 256: levels 0..=5.
+        let n = 8193;
+        let (m, g) = plane_dataset(n, 1e-4, 256);
+        let fp = Footprint::new(&m).unwrap();
+        let [lon, lat] = fp.centre();
+        let centre = |z: u8| {
+            let (cols, rows) = TileMatrixSet::WorldCrs84Quad.matrix_size(z);
+            let x = ((lon + 180.0) / 360.0 * f64::from(cols)) as u32;
+            let y = ((90.0 - lat) / 180.0 * f64::from(rows)) as u32;
+            WebTile::new(TileMatrixSet::WorldCrs84Quad, z, x, y).unwrap()
+        };
+        // At z, a 256-px pixel is 180/(256·2^z)° = 7031/2^z samples (log₂ 12.78):
+        // z 13 → 0.86 → stride 1 (finest, level 5); z 12 → 1.7 → stride 2
+        // (level 4); z 10 → 6.9 → stride 8 (level 2); z 5 → the root.
+        let level = |z| plan(&fp, &g, centre(z), 256).unwrap().level.get();
+        assert_eq!(level(13), 5);
+        assert_eq!(level(16), 5);
+        assert_eq!(level(12), 4);
+        assert_eq!(level(10), 2);
+        assert_eq!(level(5), 0);
+    }
+}
