@@ -105,6 +105,15 @@ fn report(results: &Path, template: &Path, out: &Path, plots: &Path) -> anyhow::
         ),
         ("gpu", sections::gpu::section(r.gpu.as_deref())),
         ("ingest", sections::ingest::section(r.ingest.as_deref())),
+        (
+            "webtiles",
+            sections::webtiles::section(
+                r.webtiles.as_deref(),
+                r.webtiles_check.as_deref(),
+                r.meta.as_ref().map(|m| m.cores),
+                &ctx,
+            ),
+        ),
     ];
     let aims: Vec<Aim> = parts.iter().flat_map(|(_, s)| s.aims.clone()).collect();
     let mut values: BTreeMap<&str, String> = BTreeMap::new();

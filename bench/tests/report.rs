@@ -73,6 +73,7 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
         "## Streaming under latency",
         "## Selection time",
         "## Real datasets",
+        "## Web tiles",
         "## GPU",
     ] {
         assert!(doc.contains(&format!("\n{heading}\n")), "no {heading}");
@@ -117,7 +118,26 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
     );
     let select = line_with(&doc, "| [Selection time](#selection-time)");
     assert!(select.ends_with("| **not met** |"), "{select}");
-    assert!(doc.contains("6 of 12 aims met, 6 not met, 0 not measured."));
+    // Web tiles: cold 63 against 8 tiles/s (7.88×), source-warm 42 against 10.5
+    // (4.0×): the 10× aim not met; warm 5500 tiles/s on 2 cores, 2750 per core: met.
+    let web = line_with(&doc, "| [Web tiles](#web-tiles): Web Mercator");
+    assert!(web.ends_with("| **not met** |"), "{web}");
+    assert!(
+        web.contains("cold 7.88×, source-warm 4.00×, warm 524×"),
+        "{web}"
+    );
+    let core = line_with(&doc, "| [Web tiles](#web-tiles): ≥ 2000 tiles/s per core");
+    assert!(core.ends_with("| **met** |"), "{core}");
+    let warm = line_with(&doc, "| Tessera warm: made tiles cached |");
+    assert!(
+        warm.contains("| 5500 (5000–6000) | 2750 (2500–3000) |"),
+        "{warm}"
+    );
+    assert!(doc.contains("Tessera decodes to 1436.0 m, TiTiler to 1436.0 m"));
+    assert!(
+        doc.contains("7 of 14 aims met, 7 not met, 0 not measured."),
+        "{doc}"
+    );
 
     // Every link to a section lands on a heading.
     let headings: Vec<String> = doc
@@ -140,6 +160,7 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
         "gonzalez.png",
         "stream.png",
         "select.png",
+        "webtiles.png",
     ] {
         assert!(
             doc.contains(&format!("](../plots/{name})")),
@@ -168,7 +189,7 @@ fn missing_results_say_not_run_and_aims_not_measured() {
     let doc = std::fs::read_to_string(&out).expect("written");
     assert!(doc.contains("*Not run: the results have no `serve.jsonl`.*"));
     assert!(
-        doc.contains("0 of 12 aims met, 0 not met, 12 not measured."),
+        doc.contains("0 of 14 aims met, 0 not met, 14 not measured."),
         "{doc}"
     );
 }
