@@ -51,11 +51,12 @@ impl Encoding {
 pub fn terrarium(h: f64) -> [u8; 3] {
     let v = (h + 32768.0).clamp(0.0, 65536.0 - 1.0 / 256.0);
     let v = if v.is_nan() { 0.0 } else { v };
-    let whole = v.floor();
+    // Truncation is floor for v ≥ 0 (and needs no libm call, per pixel).
+    let whole = v as u32;
     [
-        (v / 256.0).floor() as u8,
-        (whole as u32 % 256) as u8,
-        ((v - whole) * 256.0).floor() as u8,
+        (whole >> 8) as u8,
+        whole as u8,
+        ((v - f64::from(whole)) * 256.0) as u8,
     ]
 }
 
@@ -63,9 +64,9 @@ pub fn terrarium(h: f64) -> [u8; 3] {
 /// to `0..=2^24 − 1`, `R = v >> 16`, `G = (v >> 8) & 255`, `B = v & 255`.
 /// Decoding gives `h` to within 0.05 m inside the range.
 pub fn mapbox(h: f64) -> [u8; 3] {
-    let v = ((h + 10000.0) / 0.1).round().clamp(0.0, 16_777_215.0);
-    // NaN casts to 0.
-    let v = v as u32;
+    // Round half away from zero, as f64::round, for the values that matter (≥ 0):
+    // the cast truncates, and saturates below 0 (and NaN casts to 0).
+    let v = (((h + 10000.0) / 0.1 + 0.5) as u32).min(16_777_215);
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
 }
 

@@ -92,26 +92,32 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
     let t = geometry.tile_size();
     let n = level.tiles_per_side();
     let limit = f64::from(n) * f64::from(t);
-    let (mut tx0, mut ty0, mut tx1, mut ty1) = (u32::MAX, u32::MAX, 0, 0);
+    // The bounding box of the finite coordinates, clamped to the grid (apron pixels
+    // read it clamped), and whether any point can be terrain.
+    let (mut c0, mut r0, mut c1, mut r1) = (
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    );
     let mut terrain_possible = false;
     for &[c, r] in &coords {
         if !(c.is_finite() && r.is_finite()) {
             continue;
         }
         terrain_possible |= in_range(c, r, limit);
-        // Apron pixels read the grid clamped; terrain also needs the cells around
-        // its nearest sample (validity, see the module doc).
-        let (c, r) = (c.clamp(0.0, limit), r.clamp(0.0, limit));
-        let lo = |v: f64| tile_of((v - 1.0).max(0.0), t, n);
-        let hi = |v: f64| tile_of((v + 1.0).min(limit), t, n);
-        tx0 = tx0.min(lo(c));
-        ty0 = ty0.min(lo(r));
-        tx1 = tx1.max(hi(c));
-        ty1 = ty1.max(hi(r));
+        c0 = c0.min(c);
+        r0 = r0.min(r);
+        c1 = c1.max(c);
+        r1 = r1.max(r);
     }
     if !terrain_possible {
         return None;
     }
+    // Terrain also needs the cells around its nearest sample (see the module doc).
+    let lo = |v: f64| tile_of((v.clamp(0.0, limit) - 1.0).max(0.0), t, n);
+    let hi = |v: f64| tile_of((v.clamp(0.0, limit) + 1.0).min(limit), t, n);
+    let (tx0, ty0, tx1, ty1) = (lo(c0), lo(r0), hi(c1), hi(r1));
     Some(Plan {
         tile,
         px,
@@ -218,13 +224,23 @@ impl Plan {
         // which are terrain.
         let mut heights = vec![f64::NAN; self.coords.len()];
         let mut terrain = vec![false; self.coords.len()];
+        // Neighbouring pixels mostly read the same tile: look it up once per run.
+        let mut last: Option<((u32, u32), Option<&SourceTile>)> = None;
         for (k, &[c0, r0]) in self.coords.iter().enumerate() {
             if !(c0.is_finite() && r0.is_finite()) {
                 continue;
             }
             let (c, r) = (c0.clamp(0.0, limit), r0.clamp(0.0, limit));
             let (tx, ty) = (tile_of(c, t, n), tile_of(r, t, n));
-            let Some(src) = tile_at(tx, ty) else {
+            let src = match last {
+                Some((at, s)) if at == (tx, ty) => s,
+                _ => {
+                    let s = tile_at(tx, ty);
+                    last = Some(((tx, ty), s));
+                    s
+                }
+            };
+            let Some(src) = src else {
                 continue;
             };
             let (u, v) = (c - f64::from(tx * t), r - f64::from(ty * t));
