@@ -253,24 +253,35 @@ fn compare_tile(
     c
 }
 
+/// N46E008 as GDAL reads it, a server of its pyramid, and the TileJSON `maxzoom` of
+/// `grid` at `px` pixels; `None` (skipped) without GDAL or the DEM.
+fn n46e008_at_max_zoom(grid: &str, px: u32) -> Option<(Dem, Server, u8)> {
+    if !gdal::gdal_or_skip() {
+        return None;
+    }
+    let b = built()?;
+    let dem = Dem::read(&testdata::dem_or_skip("N46E008.tif")?, "EPSG:4326");
+    let srv = Server::start(&[&b.n46e008], &[]);
+    let tj = srv
+        .get(&format!(
+            "/v1/datasets/N46E008/{grid}/tilejson.json?size={px}"
+        ))
+        .expect(200)
+        .json();
+    let z = tj["maxzoom"].as_u64().unwrap() as u8;
+    Some((dem, srv, z))
+}
+
 /// Every pixel of the Web Mercator tiles at the dataset's max zoom holding two
 /// landmarks (Urnersee 431 m, Andermatt 1436 m), in both encodings, against the
 /// DEM through PROJ: within the encoding's precision (Terrarium rounds down to
 /// 1/256 m; Terrain-RGB rounds to 0.1 m, so 0.05 m) plus 5 mm for where proj4rs and
-/// PROJ put a pixel centre (see `webmercator_positions_agree_with_proj`).
+/// PROJ put a pixel centre (see `our_projections_agree_with_proj`).
 #[test]
 fn webmercator_tiles_carry_the_dem_heights_at_every_pixel() {
-    if !gdal::gdal_or_skip() {
+    let Some((dem, srv, z)) = n46e008_at_max_zoom("webmercator", 512) else {
         return;
-    }
-    let Some(b) = built() else { return };
-    let dem = Dem::read(&testdata::dem_or_skip("N46E008.tif").unwrap(), "EPSG:4326");
-    let srv = Server::start(&[&b.n46e008], &[]);
-    let tj = srv
-        .get("/v1/datasets/N46E008/webmercator/tilejson.json?size=512")
-        .expect(200)
-        .json();
-    let z = tj["maxzoom"].as_u64().unwrap() as u8;
+    };
     for (lon, lat) in [(8.61, 46.93), (8.5911, 46.6350)] {
         let (x, y) = xyz_tile(lon, lat, z);
         for (enc, precision) in [("terrarium", 1.0 / 256.0), ("mapbox", 0.05)] {
@@ -294,17 +305,9 @@ fn webmercator_tiles_carry_the_dem_heights_at_every_pixel() {
 /// agree to the encoding's precision alone.
 #[test]
 fn crs84_tiles_carry_the_dem_heights_exactly() {
-    if !gdal::gdal_or_skip() {
+    let Some((dem, srv, z)) = n46e008_at_max_zoom("crs84", 256) else {
         return;
-    }
-    let Some(b) = built() else { return };
-    let dem = Dem::read(&testdata::dem_or_skip("N46E008.tif").unwrap(), "EPSG:4326");
-    let srv = Server::start(&[&b.n46e008], &[]);
-    let tj = srv
-        .get("/v1/datasets/N46E008/crs84/tilejson.json?size=256")
-        .expect(200)
-        .json();
-    let z = tj["maxzoom"].as_u64().unwrap() as u8;
+    };
     let n = f64::from(1u32 << z);
     // WorldCRS84Quad: 2^(z+1) × 2^z tiles of 180/2^z degrees, row 0 at 90° N.
     let (x, y) = (

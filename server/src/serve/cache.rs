@@ -78,6 +78,19 @@ pub fn not_modified(req: &HeaderMap, etag: &str, last_modified: LastModified) ->
         .is_some_and(|since| modified <= since)
 }
 
+/// The `304` for a request whose validators match this response ([`not_modified`]),
+/// or `None` when the full response must be sent.
+pub fn revalidate(
+    req: &HeaderMap,
+    etag: &str,
+    last_modified: LastModified,
+    pinned: bool,
+    max_age: u64,
+) -> Option<Response> {
+    not_modified(req, etag, last_modified)
+        .then(|| not_modified_response(etag, last_modified, pinned, max_age))
+}
+
 /// `Cache-Control` for a response: immutable for a year when the URL pins the
 /// content (`?v=<content hash>` matches), otherwise `max_age` seconds with revalidation
 /// by ETag.

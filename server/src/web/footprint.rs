@@ -234,11 +234,13 @@ impl Footprint {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use tessera_shared::{GroundSpacing, Quantization, VerticalDatum};
 
-    fn metadata(epsg: u32, gt: [f64; 6], width: u32, height: u32) -> Metadata {
+    /// A dataset's metadata with only its grid and CRS filled in (the other tests of
+    /// web/ use it too).
+    pub(crate) fn metadata(epsg: u32, gt: [f64; 6], width: u32, height: u32) -> Metadata {
         Metadata {
             width,
             height,

@@ -28,7 +28,7 @@
 
 use super::footprint::Footprint;
 use super::tile_matrix::WebTile;
-use crate::approx_transform::over_grid;
+use crate::approx_transform::{along_row, over_grid};
 use tessera_shared::mask::CellMask;
 use tessera_shared::{Level, Quantization, TileGeometry, TileId};
 
@@ -64,11 +64,74 @@ pub struct Plan {
     /// Pixels `[i0, j0, i1, j1)` computed, in the tile's pixel coordinates; they
     /// may reach [`APRON`] pixels beyond the tile, into its neighbours.
     window: [i64; 4],
-    /// The level's sample coordinates of each window pixel, row-major.
-    coords: Vec<[f64; 2]>,
+    /// The level's sample coordinates of the window's pixels.
+    coords: Coords,
     /// The level's tiles the window reads: first column and row, columns, rows.
     tiles: [u32; 4],
     tile_size: u32,
+}
+
+/// Where a window's pixels fall among the level's samples.
+#[derive(Debug)]
+enum Coords {
+    /// Every pixel's (column, row), row-major.
+    Grid(Vec<[f64; 2]>),
+    /// The column of each window column and the row of each window row, where the
+    /// grid's axes map to the dataset's (a dataset in longitude and latitude, in
+    /// either standard grid): a row and a column of transforms instead of a grid.
+    Separable { cols: Vec<f64>, rows: Vec<f64> },
+}
+
+/// Whether `exact`'s columns depend on `i` alone and its rows on `j` alone, to
+/// within a tenth of [`TOLERANCE`], on a 9 × 9 lattice of the `w × h` window.
+fn separable(w: usize, h: usize, exact: &impl Fn(usize, usize) -> Option<[f64; 2]>) -> bool {
+    let at = |k: usize, n: usize| k * (n - 1) / 8;
+    let eps = TOLERANCE / 10.0;
+    let lattice: Option<Vec<[f64; 2]>> = (0..9)
+        .flat_map(|b| (0..9).map(move |a| (at(a, w), at(b, h))))
+        .map(|(i, j)| exact(i, j))
+        .collect();
+    let Some(p) = lattice else { return false };
+    (0..9).all(|b| {
+        (0..9).all(|a| {
+            let q = p[b * 9 + a];
+            (q[0] - p[a][0]).abs() <= eps && (q[1] - p[b * 9][1]).abs() <= eps
+        })
+    })
+}
+
+/// One coordinate of a point among a level's `n` tiles of `t` cells (`limit` =
+/// `n·t` cells in all).
+#[derive(Clone, Copy, Debug)]
+struct AxisPos {
+    /// Within half a sample of the grid (can be terrain).
+    in_range: bool,
+    /// Clamped to the grid.
+    clamped: f64,
+    tile: u32,
+    /// The cell within the tile, and the fraction of the way across it.
+    cell: u32,
+    frac: f64,
+}
+
+impl AxisPos {
+    /// `None` for a point that did not transform.
+    fn new(v: f64, t: u32, n: u32, limit: f64) -> Option<Self> {
+        if !v.is_finite() {
+            return None;
+        }
+        let clamped = v.clamp(0.0, limit);
+        let tile = tile_of(clamped, t, n);
+        let u = clamped - f64::from(tile * t);
+        let cell = (u as u32).min(t - 1);
+        Some(Self {
+            in_range: (-0.5..=limit + 0.5).contains(&v),
+            clamped,
+            tile,
+            cell,
+            frac: u - f64::from(cell),
+        })
+    }
 }
 
 /// The plan for `tile` at `px` pixels, or `None` when no pixel can hold data.
@@ -88,7 +151,6 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
         let [c, r] = fp.to_samples(tile.tms, x, y)?;
         Some([c / stride, r / stride])
     };
-    let coords = over_grid(w, h, TOLERANCE, &exact);
     let t = geometry.tile_size();
     let n = level.tiles_per_side();
     let limit = f64::from(n) * f64::from(t);
@@ -101,16 +163,40 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
         f64::NEG_INFINITY,
     );
     let mut terrain_possible = false;
-    for &[c, r] in &coords {
-        if !(c.is_finite() && r.is_finite()) {
-            continue;
+    let coords = if separable(w, h, &exact) {
+        let axis = |len: usize, f: &dyn Fn(usize) -> Option<f64>| -> Vec<f64> {
+            along_row(len, TOLERANCE, &|k| f(k).map(|v| [v, 0.0]))
+                .into_iter()
+                .map(|p| p[0])
+                .collect()
+        };
+        let cols = axis(w, &|i| exact(i, h / 2).map(|p| p[0]));
+        let rows = axis(h, &|j| exact(w / 2, j).map(|p| p[1]));
+        let within = |v: &f64| (-0.5..=limit + 0.5).contains(v);
+        terrain_possible = cols.iter().any(within) && rows.iter().any(within);
+        for &c in cols.iter().filter(|v| v.is_finite()) {
+            c0 = c0.min(c);
+            c1 = c1.max(c);
         }
-        terrain_possible |= in_range(c, r, limit);
-        c0 = c0.min(c);
-        r0 = r0.min(r);
-        c1 = c1.max(c);
-        r1 = r1.max(r);
-    }
+        for &r in rows.iter().filter(|v| v.is_finite()) {
+            r0 = r0.min(r);
+            r1 = r1.max(r);
+        }
+        Coords::Separable { cols, rows }
+    } else {
+        let grid = over_grid(w, h, TOLERANCE, &exact);
+        for &[c, r] in &grid {
+            if !(c.is_finite() && r.is_finite()) {
+                continue;
+            }
+            terrain_possible |= in_range(c, r, limit);
+            c0 = c0.min(c);
+            r0 = r0.min(r);
+            c1 = c1.max(c);
+            r1 = r1.max(r);
+        }
+        Coords::Grid(grid)
+    };
     if !terrain_possible {
         return None;
     }
@@ -222,42 +308,57 @@ impl Plan {
         };
         // Heights of every window pixel that has a source (terrain or not), and
         // which are terrain.
-        let mut heights = vec![f64::NAN; self.coords.len()];
-        let mut terrain = vec![false; self.coords.len()];
+        let len = (w as i64 * (j1 - j0)) as usize;
+        let mut heights = vec![f64::NAN; len];
+        let mut terrain = vec![false; len];
         // Neighbouring pixels mostly read the same tile: look it up once per run.
         let mut last: Option<((u32, u32), Option<&SourceTile>)> = None;
-        for (k, &[c0, r0]) in self.coords.iter().enumerate() {
-            if !(c0.is_finite() && r0.is_finite()) {
-                continue;
-            }
-            let (c, r) = (c0.clamp(0.0, limit), r0.clamp(0.0, limit));
-            let (tx, ty) = (tile_of(c, t, n), tile_of(r, t, n));
+        let mut pixel = |k: usize, a: &AxisPos, b: &AxisPos| {
             let src = match last {
-                Some((at, s)) if at == (tx, ty) => s,
+                Some((at, s)) if at == (a.tile, b.tile) => s,
                 _ => {
-                    let s = tile_at(tx, ty);
-                    last = Some(((tx, ty), s));
+                    let s = tile_at(a.tile, b.tile);
+                    last = Some(((a.tile, b.tile), s));
                     s
                 }
             };
             let Some(src) = src else {
-                continue;
+                return;
             };
-            let (u, v) = (c - f64::from(tx * t), r - f64::from(ty * t));
-            let (ci, cj) = ((u as u32).min(t - 1), (v as u32).min(t - 1));
-            terrain[k] = in_range(c0, r0, limit)
-                && (src.mask.is_valid(ci, cj) || {
-                    let (nx, ny) = ((c + 0.5) as i64, (r + 0.5) as i64);
+            terrain[k] = a.in_range
+                && b.in_range
+                && (src.mask.is_valid(a.cell, b.cell) || {
+                    let (nx, ny) = ((a.clamped + 0.5) as i64, (b.clamped + 0.5) as i64);
                     cell(nx - 1, ny - 1) || cell(nx, ny - 1) || cell(nx - 1, ny) || cell(nx, ny)
                 });
-            let (fu, fv) = (u - f64::from(ci), v - f64::from(cj));
             let q = &src.quantization;
-            let base = cj as usize * side + ci as usize;
+            let base = b.cell as usize * side + a.cell as usize;
             let hs = &src.heights;
             let at = |o: usize| q.height(hs[base + o]);
-            let top = lerp(at(0), at(1), fu);
-            let bottom = lerp(at(side), at(side + 1), fu);
-            heights[k] = lerp(top, bottom, fv);
+            let top = lerp(at(0), at(1), a.frac);
+            let bottom = lerp(at(side), at(side + 1), a.frac);
+            heights[k] = lerp(top, bottom, b.frac);
+        };
+        let axis = |v: f64| AxisPos::new(v, t, n, limit);
+        match &self.coords {
+            Coords::Grid(grid) => {
+                for (k, &[c, r]) in grid.iter().enumerate() {
+                    if let (Some(a), Some(b)) = (axis(c), axis(r)) {
+                        pixel(k, &a, &b);
+                    }
+                }
+            }
+            Coords::Separable { cols, rows } => {
+                let cols: Vec<Option<AxisPos>> = cols.iter().map(|&c| axis(c)).collect();
+                for (j, &r) in rows.iter().enumerate() {
+                    let Some(b) = axis(r) else { continue };
+                    for (i, a) in cols.iter().enumerate() {
+                        if let Some(a) = a {
+                            pixel(j * w + i, a, &b);
+                        }
+                    }
+                }
+            }
         }
         let px = i64::from(self.px);
         let mut out = vec![f64::NAN; (px * px) as usize];
@@ -299,41 +400,15 @@ mod tests {
     use super::*;
     use crate::web::tile_matrix::TileMatrixSet;
     use std::sync::Arc;
-    use tessera_shared::{GeoRef, Metadata, RasterType, VerticalDatum};
+    use tessera_shared::Metadata;
 
     /// A 4326 dataset of `n × n` samples at `d`° whose heights are a plane in
     /// longitude and latitude, in one pyramid level of one tile.
     fn plane_dataset(n: u32, d: f64, tile_size: u32) -> (Metadata, TileGeometry) {
-        let m = Metadata {
-            width: n,
-            height: n,
-            tile_size,
-            levels: 1,
-            quantization: Quantization {
-                offset: 0.0,
-                scale: 1.0,
-                max_error: 0.0,
-            },
-            min_height: 0.0,
-            max_height: 1.0,
-            nodata_count: 0,
-            nodata_fill: String::new(),
-            georef: Some(GeoRef {
-                epsg: Some(4326),
-                crs_name: None,
-                proj: None,
-                wkt: None,
-                // Sample (0, 0) centred on (10° E, 50° N).
-                geotransform: [10.0 - d / 2.0, d, 0.0, 50.0 + d / 2.0, 0.0, -d],
-                raster_type: RasterType::PixelIsArea,
-            }),
-            ground_spacing: None,
-            vertical_datum: VerticalDatum::Unknown,
-            level_counts: vec![],
-            source: String::new(),
-            generator: String::new(),
-            content_hash: String::new(),
-        };
+        // Sample (0, 0) centred on (10° E, 50° N).
+        let gt = [10.0 - d / 2.0, d, 0.0, 50.0 + d / 2.0, 0.0, -d];
+        let mut m = crate::web::footprint::tests::metadata(4326, gt, n, n);
+        m.tile_size = tile_size;
         let g = TileGeometry::new(n, n, tile_size).unwrap();
         (m, g)
     }
@@ -417,6 +492,34 @@ mod tests {
             terrain > 1000 && apron > 0 && none > 0,
             "{terrain} terrain, {apron} apron, {none} none"
         );
+    }
+
+    #[test]
+    fn the_separable_path_reads_what_the_grid_path_reads() {
+        let d = 1.0 / 64.0;
+        let (m, g) = plane_dataset(65, d, 64);
+        let fp = Footprint::new(&m).unwrap();
+        let src = [Some(Arc::new(plane_tile(65)))];
+        for tile in [
+            WebTile::new(TileMatrixSet::WorldCrs84Quad, 7, 135, 28).unwrap(),
+            WebTile::new(TileMatrixSet::WebMercatorQuad, 8, 135, 86).unwrap(),
+        ] {
+            let mut p = plan(&fp, &g, tile, 256).unwrap();
+            let Coords::Separable { cols, rows } = &p.coords else {
+                panic!("{tile}: a longitude/latitude dataset maps axis to axis");
+            };
+            let grid = rows
+                .iter()
+                .flat_map(|&r| cols.iter().map(move |&c| [c, r]))
+                .collect();
+            let fast = p.sample(&src);
+            p.coords = Coords::Grid(grid);
+            let general = p.sample(&src);
+            assert!(fast.iter().any(|h| h.is_finite()), "{tile}");
+            for (a, b) in fast.iter().zip(&general) {
+                assert!(a == b || (a.is_nan() && b.is_nan()), "{tile}: {a} vs {b}");
+            }
+        }
     }
 
     #[test]

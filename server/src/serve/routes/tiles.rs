@@ -204,13 +204,9 @@ pub async fn single(
     let pin = pinned(&ds, &query);
     // The record's own checksum identifies its bytes: the strongest possible ETag.
     let etag = format!("\"{:016x}\"", entry.checksum);
-    if cache::not_modified(&headers, &etag, ds.last_modified) {
-        return Ok(cache::not_modified_response(
-            &etag,
-            ds.last_modified,
-            pin,
-            state.cache_max_age,
-        ));
+    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    {
+        return Ok(r);
     }
     let mut r = Response::new(Body::from(bytes));
     let h = r.headers_mut();

@@ -193,13 +193,9 @@ pub async fn tile(
             tile.y
         ),
     );
-    if cache::not_modified(&headers, &etag, ds.last_modified) {
-        return Ok(cache::not_modified_response(
-            &etag,
-            ds.last_modified,
-            pin,
-            state.cache_max_age,
-        ));
+    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    {
+        return Ok(r);
     }
     let fp = footprint(&state, &ds)?;
     let key = MadeKey {
@@ -347,13 +343,9 @@ pub async fn tilejson(
             state.web.config.attribution
         ),
     );
-    if cache::not_modified(&headers, &etag, ds.last_modified) {
-        return Ok(cache::not_modified_response(
-            &etag,
-            ds.last_modified,
-            pin,
-            state.cache_max_age,
-        ));
+    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    {
+        return Ok(r);
     }
     let fp = footprint(&state, &ds)?;
     let Ok(fp) = fp.as_ref() else {

@@ -83,13 +83,9 @@ pub async fn png(
             tile.y()
         ),
     );
-    if cache::not_modified(&headers, &etag, ds.last_modified) {
-        return Ok(cache::not_modified_response(
-            &etag,
-            ds.last_modified,
-            pin,
-            state.cache_max_age,
-        ));
+    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    {
+        return Ok(r);
     }
     let geometry = *ds.pyramid.geometry();
     let layout = ds.pyramid.record_layout();
@@ -272,13 +268,9 @@ pub async fn tilejson(
             state.web.config.attribution
         ),
     );
-    if cache::not_modified(&headers, &etag, ds.last_modified) {
-        return Ok(cache::not_modified_response(
-            &etag,
-            ds.last_modified,
-            pin,
-            state.cache_max_age,
-        ));
+    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    {
+        return Ok(r);
     }
     let attribution = state.web.config.attribution.as_deref();
     let mut r = Json(tilejson_doc(&ds, &base, encoding, attribution)).into_response();
