@@ -362,20 +362,26 @@ impl Plan {
         }
         let px = i64::from(self.px);
         let mut out = vec![f64::NAN; (px * px) as usize];
-        let (wi, hi) = (w as i64, j1 - j0);
-        // Whether a terrain pixel lies within the apron of window pixel `k`.
-        let near_terrain = |k: usize| {
-            let (i, j) = ((k % w) as i64, (k / w) as i64);
-            ((j - APRON).max(0)..=(j + APRON).min(hi - 1)).any(|jj| {
-                ((i - APRON).max(0)..=(i + APRON).min(wi - 1))
-                    .any(|ii| terrain[(jj * wi + ii) as usize])
-            })
-        };
+        // Window pixels with a terrain pixel within the apron: a square dilation,
+        // done as a pass along rows and one down columns.
+        let hi = (j1 - j0) as usize;
+        let a = APRON as usize;
+        let mut along = vec![false; len];
+        for j in 0..hi {
+            let row = &terrain[j * w..(j + 1) * w];
+            for i in 0..w {
+                along[j * w + i] = row[i.saturating_sub(a)..=(i + a).min(w - 1)].contains(&true);
+            }
+        }
         for j in j0.max(0)..j1.min(px) {
+            let jj = (j - j0) as usize;
+            let (top, bottom) = (jj.saturating_sub(a), (jj + a).min(hi - 1));
             for i in i0.max(0)..i1.min(px) {
-                let k = ((j - j0) * wi + (i - i0)) as usize;
+                let ii = (i - i0) as usize;
+                let k = jj * w + ii;
                 let h = heights[k];
-                if terrain[k] || (h.is_finite() && near_terrain(k)) {
+                let near = || (top..=bottom).any(|r| along[r * w + ii]);
+                if terrain[k] || (h.is_finite() && near()) {
                     out[(j * px + i) as usize] = h;
                 }
             }
