@@ -15,7 +15,8 @@
 # is curl -Z --parallel-max 64 requesting each tile once, its tiles/s = tiles ÷ wall):
 #   tessera cold         a fresh server (both caches empty), one pass;
 #   tessera warm         that same server afterwards, made tiles cached
-#                        (--tile-cache-mib 1024, enough for every tile of the list), wrk;
+#                        (--tile-cache-mib sized for every tile of the list, with
+#                        slack: the whole list in bytes × 1.25 + 64 MiB), wrk;
 #   tessera source-warm  a fresh server with --tile-cache-mib 1, one unmeasured pass
 #                        (decoded source tiles cached), then wrk: every tile resampled
 #                        and PNG-encoded per request (the /metrics tile-cache hits say
@@ -219,9 +220,11 @@ for z in range(lo, hi + 1):
   log "webtiles: $name: $ntiles tiles at zooms $minzoom-$maxzoom (of $(wc -l < "$WORK/$name.zxy") covering the bounds), mean $mean_bytes bytes"
   stop "$TESSERA_PID"
 
+  # The made-tile cache must hold the whole list for "warm" to mean warm.
+  local cache_mib=$(( total * 5 / 4 / 1048576 + 64 ))
   for run in $(seq "$RUNS"); do
-    log "webtiles: $name run $run of $RUNS: Tessera cold, then warm (${secs}s)"
-    start_tessera "$WORK/$name.tess" --tile-cache-mib 1024
+    log "webtiles: $name run $run of $RUNS: Tessera cold, then warm (${secs}s, --tile-cache-mib $cache_mib)"
+    start_tessera "$WORK/$name.tess" --tile-cache-mib "$cache_mib"
     local h0 m0 j
     j=$(pass_json "$TESSERA_URL" "$WORK/$name.tessera")
     local h1 m1

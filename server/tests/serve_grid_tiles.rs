@@ -275,8 +275,10 @@ fn n46e008_at_max_zoom(grid: &str, px: u32) -> Option<(Dem, Server, u8)> {
 /// Every pixel of the Web Mercator tiles at the dataset's max zoom holding two
 /// landmarks (Urnersee 431 m, Andermatt 1436 m), in both encodings, against the
 /// DEM through PROJ: within the encoding's precision (Terrarium rounds down to
-/// 1/256 m; Terrain-RGB rounds to 0.1 m, so 0.05 m) plus 5 mm for where proj4rs and
-/// PROJ put a pixel centre (see `our_projections_agree_with_proj`).
+/// 1/256 m; Terrain-RGB rounds to 0.1 m, so 0.05 m) plus 0.1 mm: the server
+/// transforms each column and row exactly (proj4rs agrees with PROJ to 1e-6 m, see
+/// `our_projections_agree_with_proj`), and gdaltransform prints 10 decimals (5e-11°:
+/// up to 4e-6 m of height on the Alps' slopes).
 #[test]
 fn webmercator_tiles_carry_the_dem_heights_at_every_pixel() {
     let Some((dem, srv, z)) = n46e008_at_max_zoom("webmercator", 512) else {
@@ -290,7 +292,7 @@ fn webmercator_tiles_carry_the_dem_heights_at_every_pixel() {
             // Both tiles reach beyond the DEM (47° N) or over voids; most is terrain.
             assert!(c.both > 150_000, "{c:?}");
             assert!(
-                c.worst <= precision + 0.005,
+                c.worst <= precision + 1e-4,
                 "{enc}: worst {} m: {c:?}",
                 c.worst
             );

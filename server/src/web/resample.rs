@@ -9,7 +9,9 @@
 //!    stride is nearest (in log₂) to that footprint is read — the finest when the
 //!    map zooms in beyond the data.
 //! 3. **Coordinates.** Every pixel centre is carried to the level's sample
-//!    coordinates through the projection library, approximately
+//!    coordinates through the projection library. Where the grid's axes map to the
+//!    dataset's (a longitude/latitude dataset in either grid), exactly: one
+//!    transform per column and per row. Elsewhere approximately
 //!    ([`crate::approx_transform::over_grid`], within [`TOLERANCE`] of a sample).
 //! 4. **Heights.** Bilinear on the stored (quantized) heights of the cell the point
 //!    falls in — exact where the point is a sample. Each sample stands for its
@@ -28,7 +30,7 @@
 
 use super::footprint::Footprint;
 use super::tile_matrix::WebTile;
-use crate::approx_transform::{along_row, over_grid};
+use crate::approx_transform::over_grid;
 use tessera_shared::mask::CellMask;
 use tessera_shared::{Level, Quantization, TileGeometry, TileId};
 
@@ -164,11 +166,10 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
     );
     let mut terrain_possible = false;
     let coords = if separable(w, h, &exact) {
+        // Every column and row transformed exactly: a few hundred transforms, so
+        // these tiles are as exact as the projection library.
         let axis = |len: usize, f: &dyn Fn(usize) -> Option<f64>| -> Vec<f64> {
-            along_row(len, TOLERANCE, &|k| f(k).map(|v| [v, 0.0]))
-                .into_iter()
-                .map(|p| p[0])
-                .collect()
+            (0..len).map(|k| f(k).unwrap_or(f64::NAN)).collect()
         };
         let cols = axis(w, &|i| exact(i, h / 2).map(|p| p[0]));
         let rows = axis(h, &|j| exact(w / 2, j).map(|p| p[1]));
