@@ -289,7 +289,8 @@ print(z, int(fx), int(fy), int((fx % 1) * px), int((fy % 1) * px))
       tessera_m: $t, titiler_m: $g, titiler_size: $dims, run: 1}')"
 }
 
-rm -f "$RESULTS/webtiles_check.jsonl"
+# Only srtm writes the landmark check: keep it when only the moon is rerun.
+if [ "${WEBTILES_SRTM:-1}" = 1 ]; then rm -f "$RESULTS/webtiles_check.jsonl"; fi
 [ "${WEBTILES_SRTM:-1}" = 1 ] && dataset srtm "$DEM/N46E008.tif" 8
 if [ "${WEBTILES_MOON:-1}" = 1 ]; then
   gdal_translate -q -ot Int16 -scale 0 65535 -10000 55535 -a_srs EPSG:4326 -a_ullr 43 33 75 1 \
