@@ -484,8 +484,9 @@ fn a_burst_of_neighbouring_tiles_decodes_each_source_tile_once() {
 }
 
 /// Where our projection library (proj4rs) puts points against PROJ (through
-/// `gdaltransform`), for the grids' CRSs and the DEMs': the positional part of the
-/// tolerances above.
+/// `gdaltransform`), for the grids' CRSs and the DEMs', both ways: longitude and
+/// latitude into the CRS, and the CRS's points back (the way the server carries
+/// pixel centres to a dataset). The positional part of the tolerances above.
 #[test]
 fn our_projections_agree_with_proj() {
     if !gdal::gdal_or_skip() {
@@ -493,6 +494,7 @@ fn our_projections_agree_with_proj() {
     }
     let merc = Crs::from_epsg(3857).unwrap();
     let lv95 = Crs::from_epsg(2056).unwrap();
+    let geo = Crs::from_epsg(4326).unwrap();
     let lon_lat: Vec<[f64; 2]> = (0..400)
         .map(|k| {
             [
@@ -501,21 +503,26 @@ fn our_projections_agree_with_proj() {
             ]
         })
         .collect();
-    for (crs, code, limit_m) in [(&merc, "EPSG:3857", 1e-6), (&lv95, "EPSG:2056", 0.01)] {
+    // Limits: 1e-6 m and 1e-5 of a 3″ sample (8.3e-9°) for Web Mercator; 1 cm and
+    // 1e-7° for LV95 (its datum shift is a towgs84 whose inverse iterates).
+    for (crs, code, limit_m, limit_deg) in [
+        (&merc, "EPSG:3857", 1e-6, 1e-5 / 1200.0),
+        (&lv95, "EPSG:2056", 0.01, 1e-7),
+    ] {
         let proj = gdal::transform("OGC:CRS84", code, &lon_lat);
-        let mut worst = 0f64;
+        let (mut forward, mut back) = (0f64, 0f64);
         for (p, want) in lon_lat.iter().zip(&proj) {
             let got = crs.from_lon_lat(p[0], p[1]).unwrap();
-            worst = worst.max((got[0] - want[0]).hypot(got[1] - want[1]));
+            forward = forward.max((got[0] - want[0]).hypot(got[1] - want[1]));
+            let [lon, lat] = crs.transform_to(&geo, want[0], want[1]).unwrap();
+            back = back.max((lon - p[0]).abs().max((lat - p[1]).abs()));
         }
-        eprintln!("{code}: proj4rs vs PROJ, worst {worst} m");
-        assert!(worst < limit_m, "{code}: {worst} m");
+        eprintln!("{code}: proj4rs vs PROJ, worst {forward} m forward, {back}° back");
+        assert!(forward < limit_m, "{code}: {forward} m");
+        assert!(back < limit_deg, "{code}: {back}°");
     }
 }
 
-/// TileJSON per grid means what it says; bad parameters get a 4xx with a reason;
-/// tiles without data are 404 (or 204 with `--empty-tiles 204`); WebP carries the
-/// same pixels as PNG.
 #[test]
 fn tilejson_parameters_and_empty_tiles() {
     let Some(b) = built() else { return };

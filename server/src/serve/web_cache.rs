@@ -89,7 +89,7 @@ impl Weighter<MadeKey, Bytes> for MadeBytes {
 /// The shared state of the web tiles.
 pub struct WebTiles {
     pub config: WebConfig,
-    footprints: Mutex<HashMap<u64, Arc<Result<Footprint, String>>>>,
+    footprints: Mutex<HashMap<u64, Result<Arc<Footprint>, String>>>,
     sources: Cache<(u64, TileId), Arc<SourceTile>, SourceBytes>,
     made: Cache<MadeKey, Bytes, MadeBytes>,
     /// `tessera_web_cache_bytes{cache=source|tile}`.
@@ -169,14 +169,14 @@ impl WebTiles {
         &self,
         content_hash: &str,
         make: impl FnOnce() -> anyhow::Result<Footprint>,
-    ) -> Arc<Result<Footprint, String>> {
+    ) -> Result<Arc<Footprint>, String> {
         let key = dataset_key(content_hash);
         let mut map = self
             .footprints
             .lock()
             .unwrap_or_else(PoisonError::into_inner);
         map.entry(key)
-            .or_insert_with(|| Arc::new(make().map_err(|e| format!("{e:#}"))))
+            .or_insert_with(|| make().map(Arc::new).map_err(|e| format!("{e:#}")))
             .clone()
     }
 

@@ -156,6 +156,26 @@ pub fn stored_record(
     }
 }
 
+/// `&`, `<`, `>`, `"` and `'` as entities, for XML (WMTS) and HTML (TileJSON
+/// attributions are shown as HTML); control characters other than tab,
+/// newline and carriage return (not allowed in XML 1.0) are dropped.
+pub fn xml_escape(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&apos;"),
+            '\t' | '\n' | '\r' => out.push(c),
+            c if c.is_control() => {}
+            c => out.push(c),
+        }
+    }
+    out
+}
+
 /// Whether the query pins the content with `v=<content hash>` (then responses are immutable).
 pub fn pinned(ds: &Dataset, query: &HashMap<String, String>) -> bool {
     query.get("v").is_some_and(|v| v == ds.content_hash())

@@ -19,7 +19,7 @@ use super::{Params, Segments, dataset, pinned};
 use crate::serve::AppState;
 use crate::serve::cache::{self, LastModified};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult};
+use crate::serve::error::ApiResult;
 use crate::web::encoding::Encoding;
 use crate::web::footprint::Footprint;
 use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet};
@@ -202,8 +202,8 @@ fn respond(
     pin: bool,
     body: impl FnOnce() -> Value,
 ) -> Response {
-    if cache::not_modified(headers, etag, last_modified) {
-        return cache::not_modified_response(etag, last_modified, pin, state.cache_max_age);
+    if let Some(r) = cache::revalidate(headers, etag, last_modified, pin, state.cache_max_age) {
+        return r;
     }
     let mut r = Json(body()).into_response();
     cache::set_headers(
@@ -346,12 +346,7 @@ pub async fn collections(
     Ok(respond(&state, &headers, &etag, latest(&ds), false, || {
         let list: Vec<Value> = found
             .iter()
-            .filter_map(|(d, fp)| {
-                fp.as_ref()
-                    .as_ref()
-                    .ok()
-                    .map(|fp| collection_doc(d, fp, &base))
-            })
+            .map(|(d, fp)| collection_doc(d, fp, &base))
             .collect();
         json!({
             "links": [link("self", &format!("{base}/ogcapi/collections"), "datasets")],
@@ -367,10 +362,6 @@ fn mapped(state: &AppState, name: &str) -> ApiResult<MappedDataset> {
     Ok((ds, fp))
 }
 
-fn vanished() -> ApiError {
-    ApiError::internal("footprint vanished")
-}
-
 /// `GET /ogcapi/collections/{name}`.
 pub async fn collection(
     State(state): State<Arc<AppState>>,
@@ -379,7 +370,6 @@ pub async fn collection(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let (ds, fp) = mapped(&state, &name)?;
-    let fp = fp.as_ref().as_ref().map_err(|_| vanished())?;
     let base = base_url(&state, &headers)?;
     let etag = cache::etag(ds.content_hash(), &format!("ogcapi collection {base}"));
     let pin = pinned(&ds, &query);
@@ -389,7 +379,7 @@ pub async fn collection(
         &etag,
         ds.last_modified,
         pin,
-        || collection_doc(&ds, fp, &base),
+        || collection_doc(&ds, &fp, &base),
     ))
 }
 
@@ -401,7 +391,6 @@ pub async fn tilesets(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let (ds, fp) = mapped(&state, &name)?;
-    let fp = fp.as_ref().as_ref().map_err(|_| vanished())?;
     let enc = web_grid::encoding(&query)?;
     let base = base_url(&state, &headers)?;
     let etag = cache::etag(
@@ -420,7 +409,7 @@ pub async fn tilesets(
             let sets: Vec<Value> = TileMatrixSet::ALL
                 .into_iter()
                 .map(|tms| {
-                    let mut t = tileset_doc(&ds, fp, tms, enc, &base);
+                    let mut t = tileset_doc(&ds, &fp, tms, enc, &base);
                     // A tilesets list carries each tileset's summary, not its limits.
                     if let Some(o) = t.as_object_mut() {
                         o.remove("tileMatrixSetLimits");
@@ -455,7 +444,6 @@ pub async fn tileset(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let (ds, fp) = mapped(&state, &name)?;
-    let fp = fp.as_ref().as_ref().map_err(|_| vanished())?;
     let tms = grid(&id)?;
     let enc = web_grid::encoding(&query)?;
     let base = base_url(&state, &headers)?;
@@ -470,7 +458,7 @@ pub async fn tileset(
         &etag,
         ds.last_modified,
         pin,
-        || tileset_doc(&ds, fp, tms, enc, &base),
+        || tileset_doc(&ds, &fp, tms, enc, &base),
     ))
 }
 

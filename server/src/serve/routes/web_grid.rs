@@ -7,8 +7,8 @@
 //! - `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.png|.webp?encoding=&size=`
 //! - `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`
 
-use super::web_tiles::{base_url, html_escape};
-use super::{Params, Segments, dataset, unavailable};
+use super::web_tiles::base_url;
+use super::{Params, Segments, dataset, unavailable, xml_escape};
 use crate::serve::dataset::{Dataset, RecordError};
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
@@ -60,17 +60,16 @@ pub fn encoding(query: &HashMap<String, String>) -> ApiResult<Encoding> {
 }
 
 /// The dataset's footprint, or 404 saying why it has no place on a map.
-pub fn footprint(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Result<Footprint, String>>> {
-    let fp = state
+pub fn footprint(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Footprint>> {
+    state
         .web
-        .footprint(ds.content_hash(), || Footprint::new(ds.pyramid.metadata()));
-    if let Err(e) = fp.as_ref() {
-        return Err(ApiError::not_found(format!(
-            "dataset {:?} has no standard-grid tiles: {e}",
-            ds.name
-        )));
-    }
-    Ok(fp)
+        .footprint(ds.content_hash(), || Footprint::new(ds.pyramid.metadata()))
+        .map_err(|e| {
+            ApiError::not_found(format!(
+                "dataset {:?} has no standard-grid tiles: {e}",
+                ds.name
+            ))
+        })
 }
 
 /// The web tile `z/x/y` of `tms`, or 404 naming the valid ranges.
@@ -210,15 +209,9 @@ pub async fn tile(
     } else {
         let (st, d) = (state.clone(), ds.clone());
         // Resampling and compressing take milliseconds: keep them off the runtime.
-        let made = tokio::task::spawn_blocking(move || {
-            let fp = fp
-                .as_ref()
-                .as_ref()
-                .map_err(|e| Failure::Encode(e.clone()))?;
-            make(&st, &d, fp, key)
-        })
-        .await
-        .map_err(|e| ApiError::internal(format!("{tile}: tile task failed: {e}")))?;
+        let made = tokio::task::spawn_blocking(move || make(&st, &d, &fp, key))
+            .await
+            .map_err(|e| ApiError::internal(format!("{tile}: tile task failed: {e}")))?;
         let b = made.map_err(|f| failure(&state, &ds, tile, f))?;
         state.web.keep(key, b.clone());
         b
@@ -316,7 +309,7 @@ pub fn tilejson_doc(
         "crs": format!("EPSG:{}", tms.epsg()),
     });
     if let Some(a) = attribution {
-        doc["attribution"] = serde_json::Value::String(html_escape(a));
+        doc["attribution"] = serde_json::Value::String(xml_escape(a));
     }
     doc
 }
@@ -348,12 +341,9 @@ pub async fn tilejson(
         return Ok(r);
     }
     let fp = footprint(&state, &ds)?;
-    let Ok(fp) = fp.as_ref() else {
-        return Err(ApiError::internal("footprint vanished"));
-    };
     let doc = tilejson_doc(
         &ds,
-        fp,
+        &fp,
         tms,
         &base,
         enc,

@@ -9,7 +9,7 @@
 //! Tiles line up with a Web Mercator map only when the DEM itself is in that grid;
 //! maps use the standard grids (routes/web_grid.rs) instead.
 
-use super::{Params, Segments, dataset, level, pinned, stored_record, tile};
+use super::{Params, Segments, dataset, level, pinned, stored_record, tile, xml_escape};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
@@ -180,21 +180,6 @@ pub fn base_url(state: &AppState, headers: &HeaderMap) -> ApiResult<String> {
     Ok(format!("{proto}://{host}"))
 }
 
-/// `&`, `<`, `>` and `"` as HTML entities (TileJSON attributions are shown as HTML).
-pub fn html_escape(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            c => out.push(c),
-        }
-    }
-    out
-}
-
 /// The TileJSON 3.0.0 document of a dataset's own-grid tiles, their URLs under
 /// `base` (scheme and authority, or `""` for server-relative URLs).
 ///
@@ -242,7 +227,7 @@ pub fn tilejson_doc(
         doc["crs"] = serde_json::Value::String(crs);
     }
     if let Some(a) = attribution {
-        doc["attribution"] = serde_json::Value::String(html_escape(a));
+        doc["attribution"] = serde_json::Value::String(xml_escape(a));
     }
     doc
 }
@@ -349,6 +334,6 @@ mod tests {
         for bad in ["evil/path", "a b", "x@y", "", "a\"b"] {
             assert!(!valid_host(bad), "{bad:?}");
         }
-        assert_eq!(html_escape("a<b>&\"c\""), "a&lt;b&gt;&amp;&quot;c&quot;");
+        assert_eq!(xml_escape("a<b>&\"c\""), "a&lt;b&gt;&amp;&quot;c&quot;");
     }
 }

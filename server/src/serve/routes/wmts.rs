@@ -14,7 +14,7 @@
 
 use super::web_grid::footprint;
 use super::web_tiles::{base_url, valid_host};
-use super::{Params, Segments, dataset, pinned};
+use super::{Params, Segments, dataset, pinned, xml_escape};
 use crate::serve::AppState;
 use crate::serve::cache::{self, LastModified};
 use crate::serve::dataset::Dataset;
@@ -45,25 +45,6 @@ pub fn decoding(enc: Encoding) -> &'static str {
             "Terrain-RGB-encoded heights: h = -10000 + (R*65536 + G*256 + B)*0.1 metres (0.1 m steps); alpha 0 marks no data."
         }
     }
-}
-
-/// `&`, `<`, `>`, `"` and `'` as XML entities; control characters other than tab,
-/// newline and carriage return (not allowed in XML 1.0) are dropped.
-pub fn xml_escape(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&apos;"),
-            '\t' | '\n' | '\r' => out.push(c),
-            c if c.is_control() => {}
-            c => out.push(c),
-        }
-    }
-    out
 }
 
 /// The CRS URN WMTS 1.0.0 documents use, with the axis order GDAL and QGIS read:
@@ -354,7 +335,7 @@ pub fn latest(datasets: &[Arc<Dataset>]) -> LastModified {
 }
 
 /// A dataset and its footprint (or why it has none).
-pub type MappedDataset = (Arc<Dataset>, Arc<Result<Footprint, String>>);
+pub type MappedDataset = (Arc<Dataset>, Arc<Footprint>);
 
 /// Every available dataset that has a place on a map, with its footprint, in name
 /// order (the others are left out: they have no standard-grid tiles).
@@ -389,10 +370,8 @@ pub async fn all(
         false,
         from_host,
         || {
-            let layers: Vec<Mapped<'_>> = found
-                .iter()
-                .filter_map(|(d, fp)| fp.as_ref().as_ref().ok().map(|fp| Mapped { ds: d, fp }))
-                .collect();
+            let layers: Vec<Mapped<'_>> =
+                found.iter().map(|(d, fp)| Mapped { ds: d, fp }).collect();
             capabilities(&layers, &base, &format!("{base}{}", routes::WMTS))
         },
     ))
@@ -410,9 +389,6 @@ pub async fn one(
     let ds = dataset(&state, &name)?;
     let (base, from_host) = absolute_base(&state, &headers, &uri)?;
     let fp = footprint(&state, &ds)?;
-    let Ok(fp) = fp.as_ref() else {
-        return Err(ApiError::internal("footprint vanished"));
-    };
     let pin = pinned(&ds, &query);
     let etag = cache::etag(ds.content_hash(), &format!("wmts {base}"));
     let me = format!(
@@ -426,7 +402,7 @@ pub async fn one(
         ds.last_modified,
         pin,
         from_host,
-        || capabilities(&[Mapped { ds: &ds, fp }], &base, &me),
+        || capabilities(&[Mapped { ds: &ds, fp: &fp }], &base, &me),
     ))
 }
 
