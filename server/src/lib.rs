@@ -5,8 +5,10 @@
 
 pub mod approx_transform;
 pub mod build;
+pub mod cesium;
 pub mod crs;
 pub mod fuzzing;
+pub mod geoid;
 pub mod info;
 pub mod ingest;
 pub mod preview;

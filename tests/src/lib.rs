@@ -2,6 +2,8 @@
 
 #![allow(clippy::unwrap_used)] // test fixtures: a failed unwrap is a failed test
 
+pub mod quantized_mesh;
+
 use std::collections::HashMap;
 use tessera_client::select::World;
 use tessera_client::stream::pool::TilePool;
