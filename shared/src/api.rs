@@ -27,6 +27,10 @@ pub mod routes {
     pub const WEB_TILE: &str = "/v1/datasets/{name}/{z}/{x}/{y}";
     /// TileJSON of a standard grid (`webmercator`, `crs84`); query `encoding=`, `size=`.
     pub const GRID_TILEJSON: &str = "/v1/datasets/{name}/{grid}/tilejson.json";
+    /// Cesium terrain: `layer.json` (quantized-mesh-1.0, EPSG:4326 TMS).
+    pub const CESIUM_LAYER: &str = "/v1/datasets/{name}/cesium/layer.json";
+    /// Cesium terrain tiles; the last segment is `{y}.terrain`.
+    pub const CESIUM_TILE: &str = "/v1/datasets/{name}/cesium/{z}/{x}/{y}";
     /// Standard-grid tiles; the last segment is `{y}.png` or `{y}.webp`.
     pub const GRID_TILE: &str = "/v1/datasets/{name}/{grid}/{z}/{x}/{y}";
     /// WMTS 1.0.0 capabilities (RESTful) of every dataset with a place on a map.

@@ -90,6 +90,11 @@ pub struct ServeArgs {
     /// MiB of made standard-grid tiles kept [default: 64].
     #[arg(long, env = "TESSERA_TILE_CACHE_MIB", value_name = "MIB")]
     pub tile_cache_mib: Option<u64>,
+    /// The EGM96 geoid grid (GTX) that puts EGM96 heights on the ellipsoid for Cesium
+    /// terrain [default: TESSERA_GEOID, then /usr/share/proj/egm96_15.gtx from
+    /// Debian's proj-data; without one, such heights are served as-is with a warning].
+    #[arg(long, value_name = "GTX")]
+    pub geoid: Option<PathBuf>,
     /// Log only errors (no request lines or warnings); RUST_LOG still overrides.
     #[arg(short, long)]
     pub quiet: bool,
@@ -118,6 +123,7 @@ struct FileConfig {
     attribution: Option<String>,
     source_cache_mib: Option<u64>,
     tile_cache_mib: Option<u64>,
+    geoid: Option<PathBuf>,
 }
 
 /// `cors_origin = "*"` or `cors_origin = ["https://a.example", "https://b.example"]`.
@@ -395,10 +401,32 @@ impl Settings {
                         "tile-cache-mib",
                         dw.tile_cache_bytes,
                     )?,
+                    geoid: geoid(args.geoid.clone().or(file.geoid).as_deref())?,
                 }
             },
         };
         Ok(s)
+    }
+}
+
+/// The geoid grid: the one named (which must open), else the first default found
+/// (which may be missing: Cesium terrain then says so in `layer.json`).
+fn geoid(explicit: Option<&std::path::Path>) -> anyhow::Result<Option<std::sync::Arc<crate::geoid::Geoid>>> {
+    let named = explicit.is_some() || std::env::var_os("TESSERA_GEOID").is_some();
+    match crate::geoid::find(explicit) {
+        Some(path) => match crate::geoid::Geoid::open(&path) {
+            Ok(g) => Ok(Some(std::sync::Arc::new(g))),
+            Err(e) if named => Err(e.context("--geoid")),
+            Err(e) => {
+                tracing::warn!(path = %path.display(), error = %format!("{e:#}"), "cannot read the geoid grid; EGM96 heights go to Cesium as-is");
+                Ok(None)
+            }
+        },
+        None if named => anyhow::bail!(
+            "--geoid: {} does not exist",
+            explicit.map_or_else(|| std::env::var("TESSERA_GEOID").unwrap_or_default(), |p| p.display().to_string())
+        ),
+        None => Ok(None),
     }
 }
 

@@ -110,6 +110,8 @@ fn compressible(content_type: &str) -> bool {
         || t == "application/xml"
         || t.ends_with("+json")
         || t.ends_with("+xml")
+        // Quantized-mesh tiles are served gzipped, as the format's spec says.
+        || t == "application/vnd.quantized-mesh"
 }
 
 /// Compress only text (see [`compressible`]), and only above a few hundred bytes.

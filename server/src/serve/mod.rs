@@ -101,6 +101,8 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::WEB_TILE, get(routes::web_tiles::png))
         .route(paths::GRID_TILEJSON, get(routes::web_grid::tilejson))
         .route(paths::GRID_TILE, get(routes::web_grid::tile))
+        .route(paths::CESIUM_LAYER, get(routes::cesium::layer))
+        .route(paths::CESIUM_TILE, get(routes::cesium::tile))
         .route(paths::WMTS, get(routes::wmts::all))
         .route(paths::DATASET_WMTS, get(routes::wmts::one))
         .route(paths::OGC_LANDING, get(routes::ogc_api::landing))

@@ -4,6 +4,9 @@
 //! LRU of made tiles. Both caches are weighed in bytes; their sizes, hits and misses
 //! are in `/metrics`.
 
+use crate::cesium::terrain::Terrain;
+use crate::cesium::tiling::CesiumTile;
+use crate::geoid::Geoid;
 use crate::web::encoding::{Encoding, ImageFormat};
 use crate::web::footprint::Footprint;
 use crate::web::resample::SourceTile;
@@ -38,6 +41,8 @@ pub struct WebConfig {
     pub attribution: Option<String>,
     pub source_cache_bytes: u64,
     pub tile_cache_bytes: u64,
+    /// The EPSG96 geoid grid for Cesium terrain heights (`--geoid`), when found.
+    pub geoid: Option<Arc<Geoid>>,
 }
 
 impl Default for WebConfig {
@@ -47,6 +52,7 @@ impl Default for WebConfig {
             attribution: None,
             source_cache_bytes: 256 << 20,
             tile_cache_bytes: 64 << 20,
+            geoid: None,
         }
     }
 }
@@ -65,6 +71,15 @@ pub struct MadeKey {
     pub px: u32,
     pub encoding: Encoding,
     pub format: ImageFormat,
+}
+
+/// A made Cesium terrain tile's identity: the tile and the extensions it carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TerrainKey {
+    pub dataset: u64,
+    pub tile: CesiumTile,
+    pub normals: bool,
+    pub metadata: bool,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -86,10 +101,21 @@ impl Weighter<MadeKey, Bytes> for MadeBytes {
     }
 }
 
+#[derive(Clone, Copy, Debug)]
+struct TerrainBytes;
+
+impl Weighter<TerrainKey, Bytes> for TerrainBytes {
+    fn weight(&self, _: &TerrainKey, v: &Bytes) -> u64 {
+        v.len() as u64 + 64
+    }
+}
+
 /// The shared state of the web tiles.
 pub struct WebTiles {
     pub config: WebConfig,
     footprints: Mutex<HashMap<u64, Result<Arc<Footprint>, String>>>,
+    terrains: Mutex<HashMap<u64, Result<Arc<Terrain>, String>>>,
+    terrain_tiles: Cache<TerrainKey, Bytes, TerrainBytes>,
     sources: Cache<(u64, TileId), Arc<SourceTile>, SourceBytes>,
     made: Cache<MadeKey, Bytes, MadeBytes>,
     /// `tessera_web_cache_bytes{cache=source|tile}`.
@@ -140,7 +166,7 @@ impl WebTiles {
         registry
             .register(Box::new(lookups.clone()))
             .expect("metric names are unique");
-        for cache in ["source", "tile"] {
+        for cache in ["source", "tile", "terrain"] {
             bytes.with_label_values(&[cache]).set(0);
             for result in ["hit", "miss"] {
                 lookups.with_label_values(&[cache, result]).inc_by(0);
@@ -157,8 +183,14 @@ impl WebTiles {
                 config.tile_cache_bytes,
                 MadeBytes,
             ),
+            terrain_tiles: Cache::with_weighter(
+                estimated_items(config.tile_cache_bytes, 32 << 10),
+                config.tile_cache_bytes,
+                TerrainBytes,
+            ),
             config,
             footprints: Mutex::new(HashMap::new()),
+            terrains: Mutex::new(HashMap::new()),
             bytes,
             lookups,
         }
@@ -178,6 +210,34 @@ impl WebTiles {
         map.entry(key)
             .or_insert_with(|| make().map(Arc::new).map_err(|e| format!("{e:#}")))
             .clone()
+    }
+
+    /// The Cesium terrain plan of the dataset with this content hash, made once.
+    pub fn terrain(
+        &self,
+        content_hash: &str,
+        make: impl FnOnce() -> Result<Terrain, String>,
+    ) -> Result<Arc<Terrain>, String> {
+        let key = dataset_key(content_hash);
+        let mut map = self.terrains.lock().unwrap_or_else(PoisonError::into_inner);
+        map.entry(key)
+            .or_insert_with(|| make().map(Arc::new))
+            .clone()
+    }
+
+    /// A made terrain tile, if the cache holds it.
+    pub fn terrain_tile(&self, key: &TerrainKey) -> Option<Bytes> {
+        let got = self.terrain_tiles.get(key);
+        self.count("terrain", got.is_none(), self.terrain_tiles.weight());
+        got
+    }
+
+    /// Keeps a made terrain tile.
+    pub fn keep_terrain(&self, key: TerrainKey, body: Bytes) {
+        self.terrain_tiles.insert(key, body);
+        self.bytes
+            .with_label_values(&["terrain"])
+            .set(i64::try_from(self.terrain_tiles.weight()).unwrap_or(i64::MAX));
     }
 
     /// A decoded pyramid tile: from the cache, or made by `load` — once, however

@@ -5,6 +5,7 @@ pub mod health;
 pub mod ogc_api;
 pub mod pyramid;
 pub mod tiles;
+pub mod cesium;
 pub mod web_grid;
 pub mod web_tiles;
 pub mod wmts;

@@ -97,7 +97,8 @@ fn web_tile(tms: TileMatrixSet, z: &str, x: &str, y: &str) -> ApiResult<WebTile>
 }
 
 /// Why a tile could not be made.
-enum Failure {
+#[derive(Debug)]
+pub enum Failure {
     Corrupt(TileId, bool),
     Undecodable(TileId, codec::CodecError),
     Unavailable(String),
@@ -106,7 +107,7 @@ enum Failure {
 
 /// A decoded source tile, through the cache; `None` when the pyramid has no such
 /// tile (outside the DEM, or wholly no-data).
-fn source(
+pub fn source(
     state: &AppState,
     ds: &Dataset,
     tile: TileId,
@@ -212,7 +213,7 @@ pub async fn tile(
         let made = tokio::task::spawn_blocking(move || make(&st, &d, &fp, key))
             .await
             .map_err(|e| ApiError::internal(format!("{tile}: tile task failed: {e}")))?;
-        let b = made.map_err(|f| failure(&state, &ds, tile, f))?;
+        let b = made.map_err(|f| failure_error(&state, &ds, &tile.to_string(), f))?;
         state.web.keep(key, b.clone());
         b
     };
@@ -253,7 +254,8 @@ fn empty(state: &AppState, ds: &Dataset, tile: WebTile, etag: &str, pin: bool) -
     r
 }
 
-fn failure(state: &AppState, ds: &Dataset, tile: WebTile, f: Failure) -> ApiError {
+/// The API error for a tile (`tile` names it) that could not be made.
+pub fn failure_error(state: &AppState, ds: &Dataset, tile: &str, f: Failure) -> ApiError {
     match f {
         Failure::Corrupt(t, first) => {
             state.metrics.corrupt_read(first);
