@@ -102,6 +102,37 @@ impl Crs {
         self.wkt.as_deref()
     }
 
+    /// The semi-axes `(equatorial, polar)` in metres of the ellipsoid (or sphere) this
+    /// CRS's coordinates are on, as the projection library parsed them: WGS 84's
+    /// `(6 378 137, 6 356 752.314…)` for EPSG:4326, `(1 737 400, 1 737 400)` for the
+    /// Moon's `+proj=longlat +R=1737400`, whatever `+ellps`/`+datum`/`+a`/`+b`/`+rf`/`+R`
+    /// the definition uses. `None` only if the library's values are not a usable
+    /// ellipsoid (non-finite, non-positive, or polar > equatorial).
+    ///
+    /// ```
+    /// use tessera_server::crs::Crs;
+    ///
+    /// let moon = Crs::parse("+proj=longlat +R=1737400 +no_defs").unwrap();
+    /// assert_eq!(moon.body_radii(), Some((1_737_400.0, 1_737_400.0)));
+    /// let (a, b) = Crs::parse("EPSG:4326").unwrap().body_radii().unwrap();
+    /// assert_eq!(a, 6_378_137.0);
+    /// assert!((b - 6_356_752.314_245).abs() < 1e-3);
+    /// ```
+    pub fn body_radii(&self) -> Option<(f64, f64)> {
+        let (a, b) = self.proj.ellipse_parameters();
+        (a.is_finite() && b.is_finite() && b > 0.0 && b <= a).then_some((a, b))
+    }
+
+    /// Longitude/latitude (degrees) on this CRS's own ellipsoid, with no datum shift:
+    /// where [`Crs::to_lon_lat`] pivots through WGS 84, which means nothing for a CRS
+    /// of another body.
+    fn own_geographic(&self) -> anyhow::Result<Self> {
+        let (a, b) = self
+            .body_radii()
+            .ok_or_else(|| anyhow!("the CRS {} has no usable ellipsoid", self.proj_string))?;
+        Self::from_proj_string(&format!("+proj=longlat +a={a} +b={b} +no_defs"))
+    }
+
     /// Whether coordinates are longitude/latitude (degrees).
     pub fn is_geographic(&self) -> bool {
         self.proj.is_latlong()
@@ -173,25 +204,29 @@ fn wgs84() -> Proj {
 }
 
 /// Metres on the ground between neighbouring samples at the DEM's centre, in x
-/// (columns) and y (rows): the sample steps are carried to WGS 84 and measured in a
-/// transverse Mercator centred on the DEM (scale 1 on its central meridian and,
-/// over one cell, true to well under a millimetre).
+/// (columns) and y (rows), on the CRS's own body: the sample steps are carried to
+/// longitude/latitude on the CRS's ellipsoid ([`Crs::body_radii`]: WGS 84's for
+/// EPSG:4326, the Moon's sphere for `+proj=longlat +R=1737400`) and measured in a
+/// transverse Mercator on that ellipsoid centred on the DEM (scale 1 on its central
+/// meridian and, over one cell, true to well under a millimetre).
 pub fn ground_spacing(georef: &GeoRef, width: u32, height: u32) -> anyhow::Result<GroundSpacing> {
     let crs =
         Crs::of(georef).ok_or_else(|| anyhow!("the CRS is not known to the projection library"))?;
+    let geographic = crs.own_geographic()?;
+    let (a, b) = crs.body_radii().expect("own_geographic checked the radii");
     let (c, r) = (f64::from(width) / 2.0 - 0.5, f64::from(height) / 2.0 - 0.5);
     let at = |dc: f64, dr: f64| {
         let [x, y] = georef.sample_centre(c + dc, r + dr);
-        crs.to_lon_lat(x, y)
+        crs.transform_to(&geographic, x, y)
     };
     let centre = at(0.0, 0.0)?;
     let local = Crs::from_proj_string(&format!(
-        "+proj=tmerc +lat_0={} +lon_0={} +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs",
+        "+proj=tmerc +lat_0={} +lon_0={} +k=1 +x_0=0 +y_0=0 +a={a} +b={b} +units=m +no_defs",
         centre[1], centre[0]
     ))?;
-    let metres = |a: [f64; 2], b: [f64; 2]| -> anyhow::Result<f64> {
-        let pa = local.from_lon_lat(a[0], a[1])?;
-        let pb = local.from_lon_lat(b[0], b[1])?;
+    let metres = |p: [f64; 2], q: [f64; 2]| -> anyhow::Result<f64> {
+        let pa = geographic.transform_to(&local, p[0], p[1])?;
+        let pb = geographic.transform_to(&local, q[0], q[1])?;
         Ok((pa[0] - pb[0]).hypot(pa[1] - pb[1]))
     };
     let s = GroundSpacing {
@@ -279,6 +314,43 @@ mod tests {
                 .to_string()
                 .contains("UTM11")
         );
+    }
+
+    #[test]
+    fn body_radii_are_the_crs_own_ellipsoid() {
+        let wgs84 = Crs::parse("EPSG:4326").unwrap().body_radii().unwrap();
+        assert_eq!(wgs84.0, 6_378_137.0);
+        // b = a (1 − 1/298.257223563).
+        assert!((wgs84.1 - 6_356_752.314_245_18).abs() < 1e-6, "{wgs84:?}");
+        // A projected CRS is on its datum's ellipsoid: LV95 on Bessel 1841.
+        let bessel = Crs::parse("EPSG:2056").unwrap().body_radii().unwrap();
+        assert_eq!(bessel.0, 6_377_397.155);
+        assert!((bessel.1 - 6_356_078.963).abs() < 1e-3, "{bessel:?}");
+        let moon = Crs::parse("+proj=longlat +R=1737400 +no_defs").unwrap();
+        assert_eq!(moon.body_radii(), Some((1_737_400.0, 1_737_400.0)));
+        // Mars (IAU 2015 49900): a = 3 396 190 m, b = 3 376 200 m.
+        let mars = Crs::parse("+proj=longlat +a=3396190 +b=3376200 +no_defs").unwrap();
+        assert_eq!(mars.body_radii(), Some((3_396_190.0, 3_376_200.0)));
+    }
+
+    /// On the Moon's sphere (R = 1 737.4 km) a 1/256° cell is R·π/180/256 =
+    /// 118.4506 m north–south and that times cos φ east–west, whatever the Earth's
+    /// ellipsoid would say (430 m there).
+    #[test]
+    fn ground_spacing_on_another_body_uses_its_sphere() {
+        let step = 1.0 / 256.0;
+        let g = GeoRef {
+            epsg: None,
+            proj: Some("+proj=longlat +R=1737400 +no_defs".into()),
+            geotransform: [51.0, step, 0.0, 24.992_187_5, 0.0, -step],
+            ..geographic(0.0, 0.0, 1.0)
+        };
+        let s = ground_spacing(&g, 4096, 4096).unwrap();
+        let ns = 1_737_400.0 * step.to_radians();
+        assert!((s.y - ns).abs() < 1e-6, "{} vs {ns}", s.y);
+        let lat = 24.992_187_5 - 2048.0 * step;
+        assert!((s.x - ns * lat.to_radians().cos()).abs() < 1e-6, "{}", s.x);
+        assert!((s.y - 118.4506).abs() < 1e-3);
     }
 
     #[test]

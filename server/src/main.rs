@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use tessera_server::build::interrupt::{Interrupt, Interrupted};
 use tessera_server::build::{BuildOptions, build_inputs};
+use tessera_server::ingest::assign::Bounds;
 use tessera_server::ingest::reproject::{ReprojectOptions, Resampling, parse_spacing};
 use tessera_server::ingest::{InputSpec, Overlap};
 use tessera_server::{info, preview, verify};
@@ -76,6 +77,25 @@ enum Command {
         /// (SRTM .hgt: egm96), else unknown.
         #[arg(long, value_enum)]
         vertical_datum: Option<DatumArg>,
+        /// The input's horizontal CRS: EPSG:CODE or a PROJ string (e.g. '+proj=longlat
+        /// +R=1737400 +no_defs' for the Moon). Assigned, not reprojected: it replaces the
+        /// input's own CRS (with a warning naming both), and --to reprojects from it. The
+        /// input needs a geotransform: its own or --bounds. A mosaic takes it as a whole
+        /// (every input; they must still share one grid).
+        #[arg(long, value_name = "CRS")]
+        crs: Option<String>,
+        /// The outer edges of the raster's pixels in the CRS's units (pixel-is-area, as
+        /// GDAL's -a_ullr but in W,S,E,N order), for inputs without a geotransform such as
+        /// a PNG: e.g. --bounds 51,8.9921875,67,24.9921875. Replaces the input's own
+        /// geotransform (with a warning). Needs a CRS: the input's or --crs. One input
+        /// only (a file or a VRT), not a mosaic of several.
+        #[arg(
+            long,
+            value_name = "W,S,E,N",
+            value_parser = parse_bounds,
+            allow_hyphen_values = true
+        )]
+        bounds: Option<Bounds>,
         /// Reproject to this CRS first (EPSG:CODE, e.g. EPSG:4326, EPSG:3857, EPSG:32632,
         /// or a PROJ string), resampling onto a north-up grid that covers the input.
         #[arg(long, value_name = "CRS")]
@@ -130,6 +150,11 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// `--bounds W,S,E,N` ([`Bounds`]'s parser, its error as clap shows it).
+fn parse_bounds(s: &str) -> Result<Bounds, String> {
+    s.parse().map_err(|e: anyhow::Error| format!("{e:#}"))
 }
 
 /// Parses sizes like `512MiB`, `2GiB`, `300MB`, `1000`.
@@ -227,6 +252,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             offset,
             nodata,
             vertical_datum,
+            crs,
+            bounds,
             to,
             resampling,
             spacing,
@@ -240,6 +267,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 memory_budget: memory,
                 nodata,
                 vertical_datum: vertical_datum.map(DatumArg::datum),
+                crs,
+                bounds,
                 reproject: to.map(|to| ReprojectOptions {
                     to,
                     resampling,

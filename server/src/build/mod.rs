@@ -57,7 +57,14 @@ pub struct BuildOptions {
     pub overlap: ingest::Overlap,
     /// What the heights are measured from; `None`: what the input says, else unknown.
     pub vertical_datum: Option<VerticalDatum>,
-    /// Resample to another CRS first (`--to`).
+    /// Assign this horizontal CRS (`--crs`: `EPSG:CODE` or a PROJ string) to the
+    /// input, replacing its own: coordinates are relabelled, not transformed
+    /// ([`ingest::assign`]). With a mosaic, to the mosaic (all its inputs).
+    pub crs: Option<String>,
+    /// Assign these outer pixel edges (`--bounds`, in the CRS's units) to the input,
+    /// replacing its own geotransform. One input only (a file or a VRT).
+    pub bounds: Option<ingest::assign::Bounds>,
+    /// Resample to another CRS first (`--to`), from the one `crs` assigns if given.
     pub reproject: Option<ingest::reproject::ReprojectOptions>,
     /// Show progress bars (on a terminal).
     pub progress: bool,
@@ -75,6 +82,8 @@ impl Default for BuildOptions {
             nodata: None,
             overlap: ingest::Overlap::Error,
             vertical_datum: None,
+            crs: None,
+            bounds: None,
             reproject: None,
             progress: false,
             interrupt: interrupt::Interrupt::default(),
@@ -141,11 +150,42 @@ pub fn build_inputs(
         opts.scale.is_finite() && opts.scale > 0.0 && opts.offset.is_finite(),
         "--scale must be a positive number and --offset a finite number"
     );
+    // Flag errors before any input is read.
+    let assigned_crs = opts
+        .crs
+        .as_deref()
+        .map(|s| crate::crs::Crs::parse(s).context("--crs"))
+        .transpose()?;
+    if opts.bounds.is_some()
+        && let ingest::inputs::Expanded::Files(files) = ingest::inputs::expand(inputs)?
+        && files.len() > 1
+    {
+        anyhow::bail!(
+            "{} and {} more: --bounds places one raster, not a mosaic of {} inputs; give \
+             each input its own georeferencing (GeoTIFFs, or a VRT)",
+            files[0].display(),
+            files.len() - 1,
+            files.len()
+        );
+    }
     let ingest::Opened {
         input: source,
         label,
         source_name,
     } = ingest::open_inputs(inputs, opts.nodata, opts.overlap)?;
+    let source = match source {
+        Input::Rows(rows) => Input::Rows(
+            ingest::assign::assign(rows, assigned_crs.as_ref(), opts.bounds, &label)
+                .with_context(|| label.clone())?,
+        ),
+        Input::Synthetic(_) if assigned_crs.is_some() || opts.bounds.is_some() => {
+            anyhow::bail!(
+                "{label}: --crs and --bounds need a file input; synthetic terrain has no grid \
+                 to georeference"
+            )
+        }
+        source @ Input::Synthetic(_) => source,
+    };
     let dir = output
         .parent()
         .filter(|p| !p.as_os_str().is_empty())

@@ -2,6 +2,7 @@
 //! a DEM never has to fit in memory (DESIGN §2); the synthetic terrain is instead
 //! generated on demand for any window.
 
+pub mod assign;
 pub mod geotiff;
 pub mod hgt;
 pub mod inputs;
