@@ -77,7 +77,7 @@ impl Window {
         let [sx0, sy0, sx1, sy1] = squares;
         let ok = square >= 2
             && square.is_power_of_two()
-            && grid % square == 0
+            && grid.is_multiple_of(square)
             && sx0 < sx1
             && sy0 < sy1
             && sx1 * square <= grid
@@ -293,7 +293,7 @@ impl Window {
     fn split(&self, a: Lattice, b: Lattice, c: Lattice, tau: f64, out: &mut Vec<[Lattice; 3]>) {
         let leaf = a[0].abs_diff(b[0]) == 1 && a[1].abs_diff(b[1]) == 1;
         if !leaf {
-            let m = [(a[0] + b[0]) / 2, (a[1] + b[1]) / 2];
+            let m = [u32::midpoint(a[0], b[0]), u32::midpoint(a[1], b[1])];
             if self.error(m) > tau {
                 self.split(c, a, m, tau, out);
                 self.split(b, c, m, tau, out);
@@ -311,7 +311,7 @@ mod tests {
 
     /// A rough deterministic surface (xorshift noise plus a ridge).
     fn terrain(x: u32, y: u32) -> f64 {
-        let mut s = u64::from(x) * 0x9E37_79B9 ^ u64::from(y) * 0x85EB_CA6B ^ 0x1234_5678;
+        let mut s = (u64::from(x) * 0x9E37_79B9) ^ (u64::from(y) * 0x85EB_CA6B) ^ 0x1234_5678;
         s ^= s << 13;
         s ^= s >> 7;
         s ^= s << 17;

@@ -60,8 +60,8 @@ enum Mapping {
     },
     /// Any other CRS: the GDAL geotransform, then the projection library.
     Projected {
-        crs: Crs,
-        body: Crs,
+        crs: Box<Crs>,
+        body: Box<Crs>,
         gt: [f64; 6],
         inverse: [f64; 6],
     },
@@ -195,14 +195,19 @@ impl Terrain {
             }
             .map_err(|e| format!("{e:#}"))?;
             Mapping::Projected {
-                crs,
-                body,
+                crs: Box::new(crs),
+                body: Box::new(body),
                 gt,
                 inverse,
             }
         };
         let (wm, hm) = (f64::from(m.width - 1), f64::from(m.height - 1));
-        let mut bounds = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        let mut bounds = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
         for k in 0..=16 {
             let t = f64::from(k) / 16.0;
             for (c, r) in [(t * wm, 0.0), (t * wm, hm), (0.0, t * hm), (wm, t * hm)] {
@@ -217,8 +222,7 @@ impl Terrain {
                 ];
             }
         }
-        if !(bounds[0] >= -180.0 && bounds[2] <= 180.0 && bounds[1] >= -90.0 && bounds[3] <= 90.0)
-        {
+        if !(bounds[0] >= -180.0 && bounds[2] <= 180.0 && bounds[1] >= -90.0 && bounds[3] <= 90.0) {
             return Err(format!(
                 "it spans longitudes {:.6}..{:.6} and latitudes {:.6}..{:.6}, outside −180..180 × −90..90 (the antimeridian is not handled)",
                 bounds[0], bounds[2], bounds[1], bounds[3]
@@ -307,9 +311,9 @@ impl Terrain {
         let e = self.mapping.lon_lat(wm + stride, hm);
         let s = self.mapping.lon_lat(wm, hm + stride);
         match (c, e, s) {
-            (Some(c), Some(e), Some(s)) => {
-                (e[0] - c[0]).hypot(e[1] - c[1]).min((s[0] - c[0]).hypot(s[1] - c[1]))
-            }
+            (Some(c), Some(e), Some(s)) => (e[0] - c[0])
+                .hypot(e[1] - c[1])
+                .min((s[0] - c[0]).hypot(s[1] - c[1])),
             _ => stride,
         }
     }
@@ -365,7 +369,9 @@ impl Terrain {
         let step = self.quantization.scale;
         let mut worst = 0_u32;
         for tile in self.geometry.present_tiles(level) {
-            let Some(src) = data.tile(tile)? else { continue };
+            let Some(src) = data.tile(tile)? else {
+                continue;
+            };
             let h = &src.heights;
             for r in 0..t_samples - 1 {
                 for c in 0..t_samples - 1 {
@@ -438,7 +444,12 @@ impl Terrain {
     ) -> Option<Squares> {
         // The rectangle in level coordinates, from a 9 × 9 lattice (exact for a
         // geographic grid; a sample of margin for a curved projected one).
-        let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        let mut b = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
         for j in 0..=8 {
             for i in 0..=8 {
                 let lon = rect[0] + (rect[2] - rect[0]) * f64::from(i) / 8.0;
@@ -513,7 +524,11 @@ impl Terrain {
         let x_first = ox0 * s;
         let lons: Vec<f64> = match (geoid, mapping) {
             (Some(_), Mapping::Affine { .. }) => (x_first..=ox1 * s)
-                .map(|x| mapping.lon_lat(f64::from(x) * stride, 0.0).map_or(0.0, |p| p[0]))
+                .map(|x| {
+                    mapping
+                        .lon_lat(f64::from(x) * stride, 0.0)
+                        .map_or(0.0, |p| p[0])
+                })
                 .collect(),
             _ => Vec::new(),
         };
@@ -597,32 +612,68 @@ struct Line {
 impl Line {
     fn inside(self, p: Pt) -> bool {
         let c = if self.vertical { p.x } else { p.y };
-        if self.keep_greater { c >= self.v } else { c <= self.v }
+        if self.keep_greater {
+            c >= self.v
+        } else {
+            c <= self.v
+        }
     }
 }
 
 /// The four lines of a box `[x0, y0, x1, y1]`.
 fn box_lines(b: [f64; 4]) -> [Line; 4] {
     [
-        Line { vertical: true, v: b[0], keep_greater: true },
-        Line { vertical: false, v: b[1], keep_greater: true },
-        Line { vertical: true, v: b[2], keep_greater: false },
-        Line { vertical: false, v: b[3], keep_greater: false },
+        Line {
+            vertical: true,
+            v: b[0],
+            keep_greater: true,
+        },
+        Line {
+            vertical: false,
+            v: b[1],
+            keep_greater: true,
+        },
+        Line {
+            vertical: true,
+            v: b[2],
+            keep_greater: false,
+        },
+        Line {
+            vertical: false,
+            v: b[3],
+            keep_greater: false,
+        },
     ]
 }
 
 /// Where a segment crosses a line, computed from its endpoints in a fixed order so
 /// that every triangle (and every tile) sharing the segment gets the same bits.
 fn crossing(a: Pt, b: Pt, line: Line) -> Pt {
-    let (p, q) = if (a.x, a.y) <= (b.x, b.y) { (a, b) } else { (b, a) };
-    let (pc, qc) = if line.vertical { (p.x, q.x) } else { (p.y, q.y) };
+    let (p, q) = if (a.x, a.y) <= (b.x, b.y) {
+        (a, b)
+    } else {
+        (b, a)
+    };
+    let (pc, qc) = if line.vertical {
+        (p.x, q.x)
+    } else {
+        (p.y, q.y)
+    };
     let t = (line.v - pc) / (qc - pc);
     let other = |pv: f64, qv: f64| pv + t * (qv - pv);
     let h = other(p.h, q.h);
     if line.vertical {
-        Pt { x: line.v, y: other(p.y, q.y), h }
+        Pt {
+            x: line.v,
+            y: other(p.y, q.y),
+            h,
+        }
     } else {
-        Pt { x: other(p.x, q.x), y: line.v, h }
+        Pt {
+            x: other(p.x, q.x),
+            y: line.v,
+            h,
+        }
     }
 }
 
@@ -656,7 +707,11 @@ fn clip(poly: &[(Pt, Support)], lines: &[Line; 4], k: usize, tri: &[Pt; 3]) -> V
                     } else {
                         (line.v, lines[j].v)
                     };
-                    Pt { x: vx, y: hy, h: plane(tri, vx, hy) }
+                    Pt {
+                        x: vx,
+                        y: hy,
+                        h: plane(tri, vx, hy),
+                    }
                 }
             };
             out.push((p, if ina { Support::Line(k) } else { sup }));
@@ -700,7 +755,12 @@ struct Builder {
 
 impl Builder {
     fn new(rect: [f64; 4]) -> Self {
-        Self { rect, index: HashMap::new(), points: Vec::new(), triangles: Vec::new() }
+        Self {
+            rect,
+            index: HashMap::new(),
+            points: Vec::new(),
+            triangles: Vec::new(),
+        }
     }
 
     fn vertex(&mut self, p: Pt) -> u32 {
@@ -789,9 +849,16 @@ impl Builder {
         let vertices = self
             .points
             .iter()
-            .map(|p| MeshVertex { u: q(p.x, w, e), v: q(p.y, s, n), height: p.h })
+            .map(|p| MeshVertex {
+                u: q(p.x, w, e),
+                v: q(p.y, s, n),
+                height: p.h,
+            })
             .collect();
-        TerrainMesh { vertices, triangles: self.triangles }
+        TerrainMesh {
+            vertices,
+            triangles: self.triangles,
+        }
     }
 
     /// The rest of the rectangle: a constrained Delaunay triangulation of the data
@@ -820,19 +887,17 @@ impl Builder {
         if !self.triangles.is_empty() && boundary.is_empty() {
             return; // the data covers the tile
         }
-        if std::env::var_os("TESSERA_DEBUG_FILL").is_some() && !self.triangles.is_empty() && self.rect[2] - self.rect[0] < 0.1 {
-            eprintln!("fill {:?}: {} boundary edges", self.rect, boundary.len());
-            for &(a, b) in boundary.iter().take(6) {
-                eprintln!("  {:?} -> {:?}", self.points[a as usize], self.points[b as usize]);
-            }
-        }
         let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> =
             ConstrainedDelaunayTriangulation::new();
         let mut handle_of: HashMap<u32, spade::handles::FixedVertexHandle> = HashMap::new();
         let mut id_of: HashMap<spade::handles::FixedVertexHandle, u32> = HashMap::new();
         let corners = [[w, s], [e, s], [e, n], [w, n]];
         for [x, y] in corners {
-            let p = Pt { x, y, h: terrain.sea_level(x, y) };
+            let p = Pt {
+                x,
+                y,
+                h: terrain.sea_level(x, y),
+            };
             let id = self.vertex(p);
             if let Ok(hd) = cdt.insert(Point2::new(x, y)) {
                 handle_of.insert(id, hd);
@@ -841,10 +906,10 @@ impl Builder {
         }
         for &(a, b) in &boundary {
             for id in [a, b] {
-                if !handle_of.contains_key(&id) {
+                if let std::collections::hash_map::Entry::Vacant(slot) = handle_of.entry(id) {
                     let p = self.points[id as usize];
                     if let Ok(hd) = cdt.insert(Point2::new(p.x, p.y)) {
-                        handle_of.insert(id, hd);
+                        slot.insert(hd);
                         id_of.insert(hd, id);
                     }
                 }
@@ -853,17 +918,18 @@ impl Builder {
         // Data vertices where the data's boundary meets the tile's edge are endpoints
         // of boundary edges, so they are in; the corners close the hull.
         for &(a, b) in &boundary {
-            if let (Some(&ha), Some(&hb)) = (handle_of.get(&a), handle_of.get(&b)) {
-                if cdt.can_add_constraint(ha, hb) {
-                    cdt.add_constraint(ha, hb);
-                }
+            if let (Some(&ha), Some(&hb)) = (handle_of.get(&a), handle_of.get(&b))
+                && cdt.can_add_constraint(ha, hb)
+            {
+                cdt.add_constraint(ha, hb);
             }
         }
         let faces: Vec<[u32; 3]> = cdt
             .inner_faces()
             .filter_map(|f| {
                 let vs = f.vertices();
-                let ids: Option<Vec<u32>> = vs.iter().map(|v| id_of.get(&v.fix()).copied()).collect();
+                let ids: Option<Vec<u32>> =
+                    vs.iter().map(|v| id_of.get(&v.fix()).copied()).collect();
                 let ids = ids?;
                 let c = vs.iter().fold([0.0, 0.0], |acc, v| {
                     let p = v.position();
