@@ -877,7 +877,7 @@ impl Builder {
         let along = |a: Pt, b: Pt| {
             (a.x == b.x && (a.x == w || a.x == e)) || (a.y == b.y && (a.y == s || a.y == n))
         };
-        let boundary: Vec<(u32, u32)> = uses
+        let mut boundary: Vec<(u32, u32)> = uses
             .into_iter()
             .filter(|&((a, b), k)| {
                 k == 1 && !along(self.points[a as usize], self.points[b as usize])
@@ -887,6 +887,9 @@ impl Builder {
         if !self.triangles.is_empty() && boundary.is_empty() {
             return; // the data covers the tile
         }
+        // A fixed order (not the map's): the same tile is the same bytes in every
+        // process, for caches and replicas.
+        boundary.sort_unstable();
         let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> =
             ConstrainedDelaunayTriangulation::new();
         let mut handle_of: HashMap<u32, spade::handles::FixedVertexHandle> = HashMap::new();

@@ -97,7 +97,8 @@ pub fn cors(origins: &CorsOrigins) -> CorsLayer {
     }
 }
 
-/// Whether a content type is text worth compressing: JSON, XML and `text/*`.
+/// Whether a content type is worth compressing: JSON, XML, `text/*`, and quantized-mesh
+/// terrain (which its spec serves gzipped).
 fn compressible(content_type: &str) -> bool {
     let t = content_type
         .split(';')
@@ -218,8 +219,10 @@ mod tests {
     use super::compressible;
 
     #[test]
-    fn only_text_is_compressible() {
+    fn only_text_and_meshes_are_compressible() {
         for yes in [
+            "application/vnd.quantized-mesh",
+            "application/vnd.quantized-mesh;extensions=octvertexnormals-metadata",
             "application/json",
             "application/json; charset=utf-8",
             "text/plain; version=0.0.4; charset=utf-8",
@@ -237,7 +240,6 @@ mod tests {
             "application/vnd.tessera.tile",
             "application/vnd.tessera.pyramid",
             "multipart/byteranges; boundary=x",
-            "application/vnd.quantized-mesh",
             "",
         ] {
             assert!(!compressible(no), "{no}");
