@@ -3,6 +3,7 @@
 #![allow(clippy::unwrap_used)] // test fixtures: a failed unwrap is a failed test
 
 pub mod quantized_mesh;
+pub mod terrain_check;
 
 use std::collections::HashMap;
 use tessera_client::select::World;

@@ -22,12 +22,13 @@
 use std::collections::HashMap;
 use tessera_e2e::Rng;
 use tessera_e2e::quantized_mesh::decode;
+use tessera_e2e::terrain_check::SampleGrid;
 use tessera_server::build::{BuildOptions, build};
 use tessera_server::cesium::quantized_mesh::{Extensions, TerrainMesh, encode};
 use tessera_server::cesium::terrain::{PyramidLevels, Terrain};
 use tessera_server::cesium::tiling::CesiumTile;
 use tessera_server::geoid::Geoid;
-use tessera_shared::{FileSource, Pyramid, TileId, VerticalDatum, testdata};
+use tessera_shared::{FileSource, Pyramid, VerticalDatum, testdata};
 
 /// Tiles checked per zoom at most.
 const PER_ZOOM: usize = 48;
@@ -85,67 +86,13 @@ fn moon() -> Option<Case> {
         offset: -10000.0,
         vertical_datum: Some(VerticalDatum::Ellipsoid),
         crs: Some("+proj=longlat +R=1737400 +no_defs".into()),
-        bounds: Some(tessera_server::ingest::assign::Bounds::new(51.0, 8.992_187_5, 67.0, 24.992_187_5).unwrap()),
+        bounds: Some(
+            tessera_server::ingest::assign::Bounds::new(51.0, 8.992_187_5, 67.0, 24.992_187_5)
+                .unwrap(),
+        ),
         ..BuildOptions::default()
     };
     built("moon 4096²", "moon_crisium_gld100_4096.png", &opts, None)
-}
-
-/// The finest samples' longitude/latitude lattice, from the georeferencing alone.
-struct Lattice {
-    lon0: f64,
-    dlon: f64,
-    lat0: f64,
-    dlat: f64,
-    width: u32,
-    height: u32,
-}
-
-impl Lattice {
-    fn of(case: &Case) -> Self {
-        let m = case.pyramid.metadata();
-        let gt = m.georef.as_ref().unwrap().geotransform;
-        Self {
-            lon0: gt[0] + 0.5 * gt[1],
-            dlon: gt[1],
-            lat0: gt[3] + 0.5 * gt[5],
-            dlat: gt[5],
-            width: m.width,
-            height: m.height,
-        }
-    }
-}
-
-/// Every stored finest sample, in metres above the ellipsoid.
-fn truth(case: &Case) -> Vec<f64> {
-    let m = case.pyramid.metadata();
-    let g = *case.pyramid.geometry();
-    let lat = Lattice::of(case);
-    let t = g.tile_size();
-    let ts = g.tile_samples();
-    let mut out = vec![f64::NAN; (m.width * m.height) as usize];
-    for tile in g.present_tiles(g.finest()) {
-        let rec = case.pyramid.read_tile(tile).unwrap().unwrap();
-        for r in 0..=t {
-            for c in 0..=t {
-                let (x, y) = (tile.x() * t + c, tile.y() * t + r);
-                if x < m.width && y < m.height {
-                    let mut h = m
-                        .quantization
-                        .height(rec.heights[(r * (t + 1) + c) as usize]);
-                    if let Some(geoid) = &case.geoid {
-                        h += geoid.undulation(
-                            lat.lon0 + f64::from(x) * lat.dlon,
-                            lat.lat0 + f64::from(y) * lat.dlat,
-                        );
-                    }
-                    out[(y * m.width + x) as usize] = h;
-                }
-            }
-        }
-        let _ = ts;
-    }
-    out
 }
 
 /// The tiles of zoom `z` to check: all, or a seeded sample of [`PER_ZOOM`].
@@ -164,9 +111,13 @@ fn tiles(case: &Case, z: u8, rng: &mut Rng) -> Vec<CesiumTile> {
         .collect()
 }
 
-/// The decoded tile's worst error over the samples it covers, and whether it covers
-/// them all.
-fn worst_error(case: &Case, lat: &Lattice, truth: &[f64], tile: CesiumTile, mesh: &TerrainMesh) -> (f64, usize) {
+/// The decoded tile's worst error over the samples it covers; it must cover them all.
+fn worst_error(
+    case: &Case,
+    grid: &SampleGrid,
+    tile: CesiumTile,
+    mesh: &TerrainMesh,
+) -> (f64, usize) {
     let rect = tile.rect();
     let ext = Extensions {
         normals: true,
@@ -174,58 +125,17 @@ fn worst_error(case: &Case, lat: &Lattice, truth: &[f64], tile: CesiumTile, mesh
     };
     let bytes = encode(mesh, rect, &case.terrain.ellipsoid, &ext).unwrap();
     let d = decode(&bytes).unwrap();
-    let pos = d.positions(rect);
-    // Samples in the closed rectangle.
-    let col = |lon: f64| (lon - lat.lon0) / lat.dlon;
-    let row = |la: f64| (la - lat.lat0) / lat.dlat;
-    let c0 = col(rect[0]).ceil().max(0.0) as i64;
-    let c1 = col(rect[2]).floor().min(f64::from(lat.width - 1)) as i64;
-    let (ra, rb) = (row(rect[3]), row(rect[1]));
-    let r0 = ra.min(rb).ceil().max(0.0) as i64;
-    let r1 = ra.max(rb).floor().min(f64::from(lat.height - 1)) as i64;
-    if c0 > c1 || r0 > r1 {
-        return (0.0, 0);
-    }
-    let (nc, nr) = ((c1 - c0 + 1) as usize, (r1 - r0 + 1) as usize);
-    let mut err = vec![f64::NAN; nc * nr];
-    for t in &d.triangles {
-        let [a, b, c] = t.map(|i| pos[i as usize]);
-        let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
-        if det == 0.0 {
-            continue;
-        }
-        let lo = [a[0].min(b[0]).min(c[0]), a[1].min(b[1]).min(c[1])];
-        let hi = [a[0].max(b[0]).max(c[0]), a[1].max(b[1]).max(c[1])];
-        let (ca, cb) = (col(lo[0]).ceil() as i64, col(hi[0]).floor() as i64);
-        let (rr0, rr1) = (row(hi[1]), row(lo[1]));
-        let (ra, rb) = (rr0.min(rr1).ceil() as i64, rr0.max(rr1).floor() as i64);
-        for r in ra.max(r0)..=rb.min(r1) {
-            for cc in ca.max(c0)..=cb.min(c1) {
-                let x = lat.lon0 + cc as f64 * lat.dlon;
-                let y = lat.lat0 + r as f64 * lat.dlat;
-                let l1 = ((x - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (y - a[1])) / det;
-                let l2 = ((b[0] - a[0]) * (y - a[1]) - (x - a[0]) * (b[1] - a[1])) / det;
-                let l0 = 1.0 - l1 - l2;
-                let tol = -1e-9;
-                if l0 < tol || l1 < tol || l2 < tol {
-                    continue;
-                }
-                let h = l0 * a[2] + l1 * b[2] + l2 * c[2];
-                let want = truth[(r as u32 * lat.width + cc as u32) as usize];
-                let k = (r - r0) as usize * nc + (cc - c0) as usize;
-                let e = (h - want).abs();
-                err[k] = if err[k].is_nan() { e } else { err[k].max(e) };
-            }
-        }
-    }
-    let holes = err.iter().filter(|e| e.is_nan()).count();
-    assert_eq!(holes, 0, "{}: {tile}: {holes} of {} samples not covered", case.name, err.len());
-    (err.iter().copied().fold(0.0, f64::max), err.len())
+    let check = grid.worst_error(rect, &d.positions(rect), &d.triangles);
+    assert_eq!(
+        check.holes, 0,
+        "{}: {tile}: {} of {} samples not covered",
+        case.name, check.holes, check.samples
+    );
+    (check.worst, check.samples)
 }
 
 fn brute_force(case: &Case) {
-    let lat = Lattice::of(case);
-    let truth = truth(case);
+    let grid = SampleGrid::of(&case.pyramid, case.geoid.as_deref());
     let levels = PyramidLevels::new(&case.pyramid);
     let mut rng = Rng(15);
     for z in 0..=case.terrain.max_zoom {
@@ -233,7 +143,7 @@ fn brute_force(case: &Case) {
         let (mut worst, mut samples, mut tris, mut n) = (0.0_f64, 0, 0, 0);
         for tile in tiles(case, z, &mut rng) {
             let mesh = case.terrain.mesh(tile, &levels).unwrap();
-            let (e, s) = worst_error(case, &lat, &truth, tile, &mesh);
+            let (e, s) = worst_error(case, &grid, tile, &mesh);
             assert!(
                 e <= plan.geometric_error,
                 "{}: {tile}: error {e:.3} m > geometric error {:.3} m (level {}, tau {:.3})",
@@ -286,7 +196,9 @@ fn shared_edges(case: &Case) {
         };
         for a in tiles(case, z, &mut rng) {
             for (dx, dy) in [(1, 0), (0, 1)] {
-                let Some(b) = CesiumTile::new(z, a.x + dx, a.y + dy) else { continue };
+                let Some(b) = CesiumTile::new(z, a.x + dx, a.y + dy) else {
+                    continue;
+                };
                 if !case.terrain.is_available(b) {
                     continue;
                 }
@@ -297,12 +209,19 @@ fn shared_edges(case: &Case) {
                     (side(&ma, None, Some(32767)), side(&mb, None, Some(0)))
                 };
                 assert!(!ea.is_empty(), "{}: {a} has no edge vertices", case.name);
-                assert_eq!(ea, eb, "{}: {a} and {b} differ on their shared edge", case.name);
+                assert_eq!(
+                    ea, eb,
+                    "{}: {a} and {b} differ on their shared edge",
+                    case.name
+                );
                 pairs += 1;
             }
         }
     }
-    eprintln!("{}: {pairs} neighbour pairs share their edges exactly", case.name);
+    eprintln!(
+        "{}: {pairs} neighbour pairs share their edges exactly",
+        case.name
+    );
     assert!(pairs > 50, "too few pairs checked: {pairs}");
 }
 
@@ -339,5 +258,4 @@ fn layer_zooms_follow_the_data() {
     assert_eq!(c.terrain.available(0), Some([1, 0, 1, 0]));
     // Zoom 8: 0.703125° tiles; the sample centres span 8..9° E, 46..47° N.
     assert_eq!(c.terrain.available(8), Some([267, 193, 268, 194]));
-    let _ = TileId::new;
 }

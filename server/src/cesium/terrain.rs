@@ -33,6 +33,7 @@ use super::tiling::{CesiumTile, MAX_ZOOM, geometric_error, level_zero_error};
 use crate::crs::Crs;
 use crate::geoid::Geoid;
 use crate::web::resample::SourceTile;
+use rustc_hash::FxHashMap;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use tessera_shared::{Level, Metadata, Quantization, TileGeometry, TileId, VerticalDatum};
@@ -135,6 +136,13 @@ pub struct ZoomPlan {
     /// The error CesiumJS assumes at this zoom, which every tile keeps within.
     pub geometric_error: f64,
     truth: Truth,
+}
+
+impl ZoomPlan {
+    /// The same plan at another threshold (for benchmarks at equal error).
+    pub fn with_tau(self, tau: f64) -> Self {
+        Self { tau, ..self }
+    }
 }
 
 /// One dataset as terrain: what `layer.json` says and how tiles are meshed.
@@ -401,6 +409,18 @@ impl Terrain {
     /// The mesh of `tile` (always covering its rectangle).
     pub fn mesh<D: LevelData>(&self, tile: CesiumTile, data: &D) -> Result<TerrainMesh, D::Error> {
         let plan = self.plan(tile.z, data)?;
+        self.mesh_with(tile, &plan, data)
+    }
+
+    /// The mesh of `tile` with a given plan (benchmarks compare thresholds with it;
+    /// tiles meshed with different plans do not share their edges).
+    pub fn mesh_with<D: LevelData>(
+        &self,
+        tile: CesiumTile,
+        plan: &ZoomPlan,
+        data: &D,
+    ) -> Result<TerrainMesh, D::Error> {
+        let plan = *plan;
         let rect = tile.rect();
         let stride = self.geometry.spacing(plan.level) as f64;
         let cells = (1u32 << plan.level.get()) * self.geometry.tile_size();
@@ -748,7 +768,7 @@ fn clip_box(poly: Vec<(Pt, Support)>, b: [f64; 4], tri: &[Pt; 3]) -> Vec<(Pt, Su
 /// Collects a tile's vertices (deduplicated by position) and triangles.
 struct Builder {
     rect: [f64; 4],
-    index: HashMap<(u64, u64), u32>,
+    index: FxHashMap<(u64, u64), u32>,
     points: Vec<Pt>,
     triangles: Vec<[u32; 3]>,
 }
@@ -757,7 +777,7 @@ impl Builder {
     fn new(rect: [f64; 4]) -> Self {
         Self {
             rect,
-            index: HashMap::new(),
+            index: FxHashMap::default(),
             points: Vec::new(),
             triangles: Vec::new(),
         }
@@ -774,6 +794,27 @@ impl Builder {
     /// Clips one RTIN triangle (level coordinates) to the data, carries it to
     /// longitude/latitude, clips it to the tile and keeps the pieces.
     fn add_triangle(&mut self, terrain: &Terrain, t: [Pt; 3], stride: f64, data_box: [f64; 4]) {
+        // Most triangles lie inside both boxes: no clipping (the same vertices result).
+        let in_data = |p: &Pt| {
+            p.x >= data_box[0] && p.y >= data_box[1] && p.x <= data_box[2] && p.y <= data_box[3]
+        };
+        if t.iter().all(in_data) {
+            let ll = t.map(|p| {
+                terrain
+                    .mapping
+                    .lon_lat(p.x * stride, p.y * stride)
+                    .map(|[x, y]| Pt { x, y, h: p.h })
+            });
+            if let [Some(a), Some(b), Some(c)] = ll {
+                let [w, s, e, n] = self.rect;
+                let inside = |p: &Pt| p.x >= w && p.x <= e && p.y >= s && p.y <= n;
+                if inside(&a) && inside(&b) && inside(&c) {
+                    let ids = [a, b, c].map(|p| self.vertex(p));
+                    self.triangle(ids[0], ids[1], ids[2]);
+                    return;
+                }
+            }
+        }
         let poly: Vec<(Pt, Support)> = (0..3)
             .map(|i| (t[i], Support::Segment(t[i], t[(i + 1) % 3])))
             .collect();
@@ -867,7 +908,7 @@ impl Builder {
         use spade::{ConstrainedDelaunayTriangulation, Point2, Triangulation};
         let [w, s, e, n] = self.rect;
         // Boundary edges: used by one triangle only and not along the tile's edge.
-        let mut uses: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut uses: FxHashMap<(u32, u32), u32> = FxHashMap::default();
         for t in &self.triangles {
             for k in 0..3 {
                 let (a, b) = (t[k], t[(k + 1) % 3]);
