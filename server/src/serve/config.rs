@@ -411,7 +411,9 @@ impl Settings {
 
 /// The geoid grid: the one named (which must open), else the first default found
 /// (which may be missing: Cesium terrain then says so in `layer.json`).
-fn geoid(explicit: Option<&std::path::Path>) -> anyhow::Result<Option<std::sync::Arc<crate::geoid::Geoid>>> {
+fn geoid(
+    explicit: Option<&std::path::Path>,
+) -> anyhow::Result<Option<std::sync::Arc<crate::geoid::Geoid>>> {
     let named = explicit.is_some() || std::env::var_os("TESSERA_GEOID").is_some();
     match crate::geoid::find(explicit) {
         Some(path) => match crate::geoid::Geoid::open(&path) {
@@ -424,7 +426,10 @@ fn geoid(explicit: Option<&std::path::Path>) -> anyhow::Result<Option<std::sync:
         },
         None if named => anyhow::bail!(
             "--geoid: {} does not exist",
-            explicit.map_or_else(|| std::env::var("TESSERA_GEOID").unwrap_or_default(), |p| p.display().to_string())
+            explicit.map_or_else(
+                || std::env::var("TESSERA_GEOID").unwrap_or_default(),
+                |p| p.display().to_string()
+            )
         ),
         None => Ok(None),
     }

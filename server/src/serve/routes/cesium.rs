@@ -79,11 +79,16 @@ fn extensions(headers: &HeaderMap) -> (bool, bool) {
         let Ok(v) = accept.to_str() else { continue };
         for range in v.split(',') {
             let mut parts = range.split(';').map(str::trim);
-            if !parts.next().is_some_and(|t| t.eq_ignore_ascii_case(MEDIA_TYPE)) {
+            if !parts
+                .next()
+                .is_some_and(|t| t.eq_ignore_ascii_case(MEDIA_TYPE))
+            {
                 continue;
             }
             for p in parts {
-                let Some(list) = p.strip_prefix("extensions=") else { continue };
+                let Some(list) = p.strip_prefix("extensions=") else {
+                    continue;
+                };
                 for ext in list.trim_matches('"').split('-') {
                     match ext {
                         "octvertexnormals" => normals = true,
@@ -124,7 +129,14 @@ pub async fn tile(
     let pin = super::pinned(&ds, &query);
     let etag = cache::etag(
         ds.content_hash(),
-        &format!("terrain {}/{}/{} n{} m{}", t.z, t.x, t.y, u8::from(normals), u8::from(metadata)),
+        &format!(
+            "terrain {}/{}/{} n{} m{}",
+            t.z,
+            t.x,
+            t.y,
+            u8::from(normals),
+            u8::from(metadata)
+        ),
     );
     let vary = |r: &mut Response| {
         r.headers_mut()
@@ -184,7 +196,12 @@ pub async fn tile(
 }
 
 /// Meshes and encodes one tile.
-fn make(state: &AppState, ds: &Dataset, terrain: &Terrain, key: TerrainKey) -> Result<Bytes, Failure> {
+fn make(
+    state: &AppState,
+    ds: &Dataset,
+    terrain: &Terrain,
+    key: TerrainKey,
+) -> Result<Bytes, Failure> {
     let data = Pyramid { state, ds };
     let plan = terrain.plan(key.tile.z, &data)?;
     let mesh = terrain.mesh(key.tile, &data)?;
@@ -273,6 +290,12 @@ pub async fn layer(
     let terrain = terrain(&state, &ds)?;
     let doc = layer_doc(&ds, &terrain, state.web.config.attribution.as_deref());
     let mut r = Json(doc).into_response();
-    cache::set_headers(r.headers_mut(), &etag, ds.last_modified, pin, state.cache_max_age);
+    cache::set_headers(
+        r.headers_mut(),
+        &etag,
+        ds.last_modified,
+        pin,
+        state.cache_max_age,
+    );
     Ok(r)
 }
