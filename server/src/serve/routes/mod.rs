@@ -1,11 +1,11 @@
 //! HTTP handlers, one module per group of endpoints (API.md).
 
+pub mod cesium;
 pub mod datasets;
 pub mod health;
 pub mod ogc_api;
 pub mod pyramid;
 pub mod tiles;
-pub mod cesium;
 pub mod web_grid;
 pub mod web_tiles;
 pub mod wmts;
