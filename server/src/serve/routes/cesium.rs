@@ -258,7 +258,10 @@ pub fn layer_doc(ds: &Dataset, terrain: &Terrain, attribution: Option<&str>) -> 
         "maxzoom": terrain.max_zoom,
         "bounds": [w, s, e, n],
         "available": available,
-        "extensions": ["octvertexnormals", "metadata"],
+        // Not "metadata": CesiumJS (1.145) then expects `metadataAvailability` and
+        // tile-carried availability, which this server does not make; tiles still
+        // carry the metadata extension when a client asks for it in `Accept`.
+        "extensions": ["octvertexnormals"],
         "metadata": meta,
     });
     if let Some(a) = attribution {
