@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# The browser tests (README.md here): MapLibre GL JS in headless Chromium against
-# `tessera-server serve`. Called by `./run test` after cargo test; runs alone too:
+# The browser tests (README.md here): MapLibre GL JS, then CesiumJS, in headless Chromium
+# against `tessera-server serve`. Called by `./run test` after cargo test; runs alone too:
 #   tests/browser/run.sh          (TESSERA_SERVER=path/to/tessera-server, default target/debug/)
-# Needs node/npm and /usr/bin/chromium (./run installs chromium nodejs npm) and gdal-bin.
+# Needs node/npm and /usr/bin/chromium (./run installs chromium nodejs npm), gdal-bin, and
+# proj-bin (cs2cs) with proj-data (the EGM96 grid) for the Cesium heights.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../.." && pwd)
@@ -24,5 +25,7 @@ fi
 echo "== browser tests (node --test, headless Chromium)" >&2
 rc=0
 node --test maplibre.test.mjs || rc=$?
+echo "== CesiumJS terrain (cesium.test.mjs, $(elapsed) s so far)" >&2
+node --test cesium.test.mjs || rc=$?
 echo "browser tests took $(elapsed) s, npm ci included (screenshots in out/browser/)" >&2
 exit "$rc"

@@ -25,7 +25,9 @@ function locationValues(file, points, extra = []) {
 // GDAL's geotransform describes it); `samples` are those four (null for no-data) and `range` the
 // spread of the valid ones; `range4` is the spread of the valid samples of the 4×4 block around
 // the point (the samples a right Web Mercator tile can draw on there, README.md "Heights"). Where some of the four are no-data (N46E008 has SRTM voids) the
-// weights of the valid ones are renormalised, as gdalwarp's bilinear kernel does.
+// weights of the valid ones are renormalised, as gdalwarp's bilinear kernel does. `block` is that
+// 4×4 block row by row (null for no-data; the 2×2 are block[5], [6], [9], [10]), `cell` the
+// sample (i, j) at the 2×2's north-west corner and `t` the point's fraction [tx, ty] of the cell.
 export function heights(file, lonLats) {
   const info = gdalinfo(file);
   const [x0, dx, , y0, , dy] = info.geoTransform;
@@ -46,6 +48,6 @@ export function heights(file, lonLats) {
     const valid = s.filter((v) => v !== null);
     return { lon, lat, nearest: nearest[k], bilinear: sum / weight, samples: s, voids: 4 - valid.length,
       range: Math.max(...valid) - Math.min(...valid), range4: Math.max(...valid16) - Math.min(...valid16),
-      voids4: 16 - valid16.length, spacing: [dx, -dy] };
+      voids4: 16 - valid16.length, block: s16, t: [tx, ty], cell: [i, j], spacing: [dx, -dy] };
   });
 }

@@ -1,6 +1,6 @@
 // The harness of the browser tests: pyramids built with the server binary, `tessera-server
-// serve` on a random port, a second tiny HTTP server for the test page and MapLibre (another
-// origin, so CORS is exercised), and headless Chromium driven by puppeteer-core.
+// serve` on a random port, a second tiny HTTP server for the test pages, MapLibre and CesiumJS
+// (another origin, so CORS is exercised), and headless Chromium driven by puppeteer-core.
 import { spawn, execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import http from 'node:http';
@@ -16,23 +16,24 @@ export const OUT = path.resolve(ROOT, process.env.TESSERA_BROWSER_OUT ?? 'out/br
 const SERVER_BIN = path.resolve(ROOT, process.env.TESSERA_SERVER ?? 'target/debug/tessera-server');
 const CHROMIUM = process.env.CHROMIUM ?? '/usr/bin/chromium';
 
-// Builds DATA/NAME.tif into DIR/NAME.tess for each name; returns DIR (a fresh temp dir).
-export function buildPyramids(names) {
+// Builds DATA/NAME.tif into DIR/NAME.tess for each name, with `args` added to each
+// `tessera-server build` (e.g. ['--vertical-datum', 'egm96']); returns DIR (a fresh temp dir).
+export function buildPyramids(names, { args = [] } = {}) {
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'tessera-browser-'));
   for (const name of names) {
     const input = path.join(DATA, `${name}.tif`);
     if (!fs.existsSync(input)) throw new Error(`missing test DEM ${input}`);
-    execFileSync(SERVER_BIN, ['build', input, '-o', path.join(dir, `${name}.tess`), '--quiet'],
+    execFileSync(SERVER_BIN, ['build', input, '-o', path.join(dir, `${name}.tess`), '--quiet', ...args],
       { stdio: ['ignore', 'ignore', 'inherit'] });
   }
   return dir;
 }
 
-// `tessera-server serve DIR --listen 127.0.0.1:0`; resolves to { url, stop } once it prints
+// `tessera-server serve DIR --listen 127.0.0.1:0 ARGS…`; resolves to { url, stop } once it prints
 // `listening on http://ADDR`. TESSERA_TILE_SERVER=URL uses an already running server instead.
-export async function startTileServer(dir) {
+export async function startTileServer(dir, { args = [] } = {}) {
   if (process.env.TESSERA_TILE_SERVER) return { url: process.env.TESSERA_TILE_SERVER, stop: async () => {}, log: () => '' };
-  const child = spawn(SERVER_BIN, ['serve', dir, '--listen', '127.0.0.1:0'], { stdio: ['ignore', 'pipe', 'pipe'] });
+  const child = spawn(SERVER_BIN, ['serve', dir, '--listen', '127.0.0.1:0', ...args], { stdio: ['ignore', 'pipe', 'pipe'] });
   let stdout = '', stderr = '';
   child.stderr.on('data', (d) => { stderr += d; });
   const url = await new Promise((resolve, reject) => {
@@ -54,11 +55,15 @@ export async function startTileServer(dir) {
 }
 
 const TYPES = { '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/javascript',
-  '.css': 'text/css', '.map': 'application/json' };
+  '.css': 'text/css', '.map': 'application/json', '.json': 'application/json', '.wasm': 'application/wasm',
+  '.png': 'image/png', '.jpg': 'image/jpeg', '.svg': 'image/svg+xml', '.ktx2': 'image/ktx2', '.glb': 'model/gltf-binary' };
 
-// Serves page/ at / and maplibre-gl's dist/ at /maplibre/ on 127.0.0.1, another port.
+// Serves page/ at /, maplibre-gl's dist/ at /maplibre/ and CesiumJS's built package
+// (cesium's Build/Cesium: Cesium.js, Workers/, Assets/, Widgets/, ThirdParty/) at /cesium/ on
+// 127.0.0.1, another port; straight from node_modules, nothing copied.
 export async function startStaticServer() {
-  const roots = { '/maplibre/': path.join(HERE, 'node_modules/maplibre-gl/dist'), '/': path.join(HERE, 'page') };
+  const roots = { '/maplibre/': path.join(HERE, 'node_modules/maplibre-gl/dist'),
+    '/cesium/': path.join(HERE, 'node_modules/cesium/Build/Cesium'), '/': path.join(HERE, 'page') };
   const server = http.createServer((req, res) => {
     const p = decodeURIComponent(new URL(req.url, 'http://x').pathname);
     const prefix = Object.keys(roots).find((r) => p.startsWith(r));
@@ -82,23 +87,26 @@ export async function launchBrowser() {
   });
 }
 
-// A page on the test page, with every console error, page error, failed request and HTTP
-// error response recorded in `problems` (the test decides which 404s are expected).
-export async function openPage(browser, staticUrl, { width = 800, height = 800 } = {}) {
+// A tab on test page `file` (page/index.html: MapLibre; page/cesium.html: CesiumJS), with every
+// console error, page error, failed request and HTTP error response recorded in `problems` (the
+// test decides which 404s are expected), and every response's URL, status and headers in
+// `problems.all`.
+export async function openPage(browser, staticUrl, { width = 800, height = 800, file = 'index.html' } = {}) {
   const page = await browser.newPage();
   await page.setViewport({ width, height, deviceScaleFactor: 1 });
-  const problems = { console: [], failed: [], responses: [], tiles: [] };
+  const problems = { console: [], failed: [], responses: [], tiles: [], all: [] };
   // Chromium logs "Failed to load resource" for every status >= 400: those carry the URL, so
   // the test can match them with the responses it expects
   page.on('console', (m) => { if (m.type() === 'error') problems.console.push({ text: m.text(), url: m.location()?.url ?? '' }); });
   page.on('pageerror', (e) => problems.console.push({ text: `page error: ${e.message}`, url: '' }));
   page.on('requestfailed', (r) => problems.failed.push(`${r.url()}: ${r.failure()?.errorText}`));
   page.on('response', (r) => {
+    problems.all.push({ url: r.url(), status: r.status(), headers: r.headers() });
     const m = r.url().match(/\/webmercator\/(\d+)\/(\d+)\/(\d+)\.png/);
     if (m) problems.tiles.push({ z: +m[1], x: +m[2], y: +m[3], status: r.status() });
     if (r.status() >= 400) problems.responses.push({ url: r.url(), status: r.status(), tile: m ? { z: +m[1], x: +m[2], y: +m[3] } : null });
   });
-  await page.goto(`${staticUrl}/index.html`, { waitUntil: 'load' });
+  await page.goto(`${staticUrl}/${file}`, { waitUntil: 'load' });
   await page.waitForFunction(() => window.tessera?.ready === true, { timeout: 30000 });
   return { page, problems };
 }

@@ -1,0 +1,219 @@
+// Tessera's Cesium terrain (quantized-mesh-1.0, issue 15) in CesiumJS, in headless Chromium
+// (DESIGN.md §9 "Tested with the real clients"). Run by ./run.sh after maplibre.test.mjs;
+// README.md "CesiumJS" explains the tolerance.
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import path from 'node:path';
+import { after, before, test } from 'node:test';
+import { heights, wgs84Footprint } from './lib/gdal.mjs';
+import { EGM96_GRID, undulations } from './lib/proj.mjs';
+import { DATA, buildPyramids, launchBrowser, openPage, screenshot, startStaticServer, startTileServer } from './lib/harness.mjs';
+
+const DATASET = 'N46E008'; // SRTM 3″, heights above EGM96
+const VIEW = { width: 800, height: 500 };
+
+// The issue's landmarks with the DEM's own sample there (SRTM, metres above EGM96).
+const LANDMARKS = [
+  { name: 'Urnersee', lonLat: [8.61, 46.93], issue: 431 },
+  { name: 'Andermatt', lonLat: [8.5911, 46.635], issue: 1436 },
+  { name: 'Lago Maggiore', lonLat: [8.70, 46.10], issue: 191 },
+  { name: 'Tödi shoulder', lonLat: [8.9183, 46.8133], issue: 3543 },
+  { name: 'Finsteraarhorn massif', lonLat: [8.1258, 46.5367], issue: 4173 },
+];
+const FINSTERAARHORN = LANDMARKS[4].lonLat, LAGO_MAGGIORE = LANDMARKS[2].lonLat;
+
+// Tolerance of a Cesium height against the DEM's bilinear surface plus the geoid:
+//   ε + |twist| / 4 + DECODE.
+// ε = levelZeroGeometricError / 2^maxzoom from layer.json's metadata: the server's bound on how far
+// the deepest zoom's mesh is from the DEM's samples (RTIN, quantization included). Every
+// triangle of such a mesh has its vertices at samples and its edges along grid lines or cell
+// diagonals, so in the cell around the point the mesh is one plane, or one plane on each side of
+// a diagonal. Where one plane f covers the cell, f − bilinear is itself bilinear (f has no
+// twist), so it peaks at a corner: ≤ ε. Where a diagonal splits the cell, f on a half equals the
+// linear interpolation of its three corners (each within ε), and a triangle's linear
+// interpolation differs from the bilinear surface by at most |q00 + q11 − q10 − q01| / 4 (at the
+// diagonal's middle): ≤ ε + |twist| / 4. The server adds the geoid per vertex; EGM96 bends by
+// far less than a millimetre across a 90 m cell, so N at the point is exact enough.
+// DECODE covers CesiumJS's decoding (float32 header heights, 1/32767 height steps over the tile's
+// range) and its interpolation in the decoded triangle.
+const DECODE = 0.5; // m
+
+// Screenshot checks: the rendered terrain's heights (globe.getHeight) at the Finsteraarhorn and
+// at Lago Maggiore must differ by more than this (they differ by ~3980 m; a flat globe by 0), and
+// the grey levels of the centre crop must vary by more than MIN_STD (a single colour gives 0).
+const MIN_RELIEF = 2000; // m
+const MIN_STD = 8; // grey levels
+
+let tiles, pages, browser, tab, problems, opened;
+const footprint = wgs84Footprint(path.join(DATA, `${DATASET}.tif`));
+
+before(async () => {
+  if (!fs.existsSync(EGM96_GRID)) throw new Error(`missing the EGM96 grid ${EGM96_GRID} (Debian's proj-data)`);
+  // --vertical-datum egm96: SRTM heights are above EGM96; the server adds the geoid's undulation
+  // from the same grid PROJ uses for the reference (named, so a missing grid fails loudly)
+  const dir = process.env.TESSERA_TILE_SERVER ? null : buildPyramids([DATASET], { args: ['--vertical-datum', 'egm96'] });
+  tiles = await startTileServer(dir, { args: ['--geoid', EGM96_GRID] });
+  pages = await startStaticServer();
+  browser = await launchBrowser();
+  ({ page: tab, problems } = await openPage(browser, pages.url, { ...VIEW, file: 'cesium.html' }));
+  opened = await tab.evaluate((server, name) => window.tessera.open({ server, dataset: name }), tiles.url, DATASET);
+});
+
+after(async () => {
+  await tab?.close();
+  await browser?.close();
+  await pages?.stop();
+  await tiles?.stop();
+});
+
+// The TMS tiles of EPSG:4326 zoom z (2^(z+1) × 2^z, y from the south) covering [w, s, e, n].
+function covering(z, [w, s, e, n]) {
+  const span = 180 / 2 ** z;
+  return { startX: Math.floor((w + 180) / span), endX: Math.floor((e + 180) / span),
+    startY: Math.floor((s + 90) / span), endY: Math.floor((n + 90) / span) };
+}
+
+test(`${DATASET}: layer.json as CesiumJS reads it`, async () => {
+  const { layer, hasVertexNormals, hasMetadata } = opened;
+  assert.equal(layer.status, 200, 'layer.json fetched cross-origin from the page');
+  const doc = layer.doc;
+  assert.equal(doc.format, 'quantized-mesh-1.0');
+  assert.equal(doc.scheme, 'tms');
+  assert.equal(doc.projection, 'EPSG:4326');
+  // Normals only: with `metadata` listed, CesiumJS 1.145 needs `metadataAvailability`
+  // (tile-carried availability), which the server does not make (DECISIONS).
+  assert.deepEqual(doc.extensions, ['octvertexnormals'], `extensions ${doc.extensions}`);
+  assert.match(doc.tiles[0], /^\{z\}\/\{x\}\/\{y\}\.terrain\?v=[0-9A-Za-z]+$/);
+  assert.ok(Number.isInteger(doc.maxzoom) && doc.maxzoom >= 12, `maxzoom ${doc.maxzoom}`);
+  assert.equal(doc.available.length, doc.maxzoom + 1, 'one `available` entry per zoom');
+  // per zoom, the tiles listed hold the data (GDAL's footprint) and nothing beyond it: they
+  // include those of the sample centres' box shrunk a little, and lie within those of the
+  // pixel-is-area footprint
+  const [w, s, e, n] = footprint.bounds;
+  const cell = 1 / 1200;
+  for (let z = 0; z <= doc.maxzoom; z++) {
+    assert.equal(doc.available[z].length, 1, `zoom ${z}: one range`);
+    const a = doc.available[z][0];
+    const inner = covering(z, [w + cell, s + cell, e - cell, n - cell]), outer = covering(z, footprint.bounds);
+    assert.ok(a.startX <= inner.startX && a.endX >= inner.endX && a.startY <= inner.startY && a.endY >= inner.endY,
+      `zoom ${z}: ${JSON.stringify(a)} misses data tiles ${JSON.stringify(inner)}`);
+    assert.ok(a.startX >= outer.startX && a.endX <= outer.endX && a.startY >= outer.startY && a.endY <= outer.endY,
+      `zoom ${z}: ${JSON.stringify(a)} beyond the data ${JSON.stringify(outer)}`);
+  }
+  assert.ok(doc.metadata.levelZeroGeometricError > 0, 'metadata.levelZeroGeometricError');
+  // CesiumJS took the normals from it (and, as listed, no metadata)
+  assert.equal(hasVertexNormals, true, 'provider.hasVertexNormals');
+  assert.equal(hasMetadata, false, 'provider.hasMetadata');
+});
+
+test(`${DATASET}: sampleTerrainMostDetailed at five landmarks matches GDAL + PROJ`, async () => {
+  const doc = opened.layer.doc;
+  const epsilon = doc.metadata.levelZeroGeometricError / 2 ** doc.maxzoom;
+  const refs = heights(path.join(DATA, `${DATASET}.tif`), LANDMARKS.map((l) => l.lonLat));
+  const geoid = undulations(LANDMARKS.map((l) => l.lonLat));
+  const samples = await tab.evaluate((ll) => window.tessera.sample(ll), LANDMARKS.map((l) => l.lonLat));
+  const rows = [], failures = [];
+  for (const [k, landmark] of LANDMARKS.entries()) {
+    const r = dem(refs[k]);
+    const tol = epsilon + r.twist / 4 + DECODE;
+    const { height, level } = samples[k];
+    const lo = r.lo + geoid[k], hi = r.hi + geoid[k];
+    const diff = height < lo ? height - lo : height > hi ? height - hi : 0; // from the bilinear (range, over voids)
+    rows.push({ landmark: landmark.name, issue: landmark.issue, bilinear: r, N: geoid[k], cesium: height, level, diff, tol });
+    if (!(Math.abs(diff) <= tol) || level !== doc.maxzoom) {
+      failures.push(`${landmark.name}: Cesium ${height} m at level ${level}, expected ${lo.toFixed(2)}…${hi.toFixed(2)} ±${tol.toFixed(2)} m at level ${doc.maxzoom}`);
+    }
+  }
+  const f = (v) => v.toFixed(2);
+  console.log(`# ε = levelZeroGeometricError ${f(doc.metadata.levelZeroGeometricError)} m / 2^${doc.maxzoom} = ${f(epsilon)} m`);
+  console.log('# | landmark | issue | DEM bilinear | +N (EGM96) | = expected | Cesium | diff | tolerance |');
+  for (const r of rows) {
+    const b = r.bilinear.lo === r.bilinear.hi ? f(r.bilinear.lo) : `${f(r.bilinear.lo)}…${f(r.bilinear.hi)} (void fill; GDAL ${f(r.bilinear.gdal)})`;
+    const e = r.bilinear.lo === r.bilinear.hi ? f(r.bilinear.lo + r.N) : `${f(r.bilinear.lo + r.N)}…${f(r.bilinear.hi + r.N)}`;
+    console.log(`# | ${r.landmark} | ${r.issue} m | ${b} m | +${r.N.toFixed(3)} m | ${e} m | ${f(r.cesium)} m (z${r.level}) | ` +
+      `${r.diff >= 0 ? '+' : ''}${f(r.diff)} m | ±${f(r.tol)} m (ε ${f(epsilon)} + twist/4 ${f(r.bilinear.twist / 4)} + ${DECODE}) |`);
+  }
+  assert.deepEqual(failures, [], 'heights off');
+});
+
+// The DEM's bilinear surface at the point from the 2×2 samples around it (GDAL's, lib/gdal.mjs),
+// and the cell's twist |q00 + q11 − q10 − q01|. SRTM voids: the pyramid fills a no-data sample
+// with its nearest valid sample by a 3-4 chamfer distance (FORMAT.md), i.e. with one of its valid
+// edge neighbours if it has any, else one of its valid diagonal ones. Which one on a tie is the
+// build's business, so every candidate is tried: `lo`…`hi` is the range of the bilinear value and
+// `twist` the largest twist over them. Without voids lo = hi = GDAL's bilinear.
+function dem(ref) {
+  const at = (a, b) => ref.block[(b + 1) * 4 + (a + 1)];
+  const corners = [[0, 0], [1, 0], [0, 1], [1, 1]];
+  const candidates = corners.map(([a, b]) => {
+    if (at(a, b) !== null) return [at(a, b)];
+    const edge = [[a - 1, b], [a + 1, b], [a, b - 1], [a, b + 1]].map(([p, q]) => at(p, q)).filter((v) => v !== null);
+    const diag = [[a - 1, b - 1], [a + 1, b - 1], [a - 1, b + 1], [a + 1, b + 1]].map(([p, q]) => at(p, q)).filter((v) => v !== null);
+    if (edge.length + diag.length === 0) throw new Error(`void at ${ref.lon}, ${ref.lat} without a valid neighbour`);
+    return edge.length ? edge : diag;
+  });
+  const [tx, ty] = ref.t;
+  const w = [(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty];
+  let lo = Infinity, hi = -Infinity, twist = 0;
+  for (const q00 of candidates[0]) for (const q10 of candidates[1]) for (const q01 of candidates[2]) for (const q11 of candidates[3]) {
+    const v = w[0] * q00 + w[1] * q10 + w[2] * q01 + w[3] * q11;
+    lo = Math.min(lo, v); hi = Math.max(hi, v);
+    twist = Math.max(twist, Math.abs(q00 + q11 - q10 - q01));
+  }
+  return { lo, hi, twist, gdal: ref.bilinear };
+}
+
+test(`${DATASET}: a view of the Alps with lit terrain`, async () => {
+  // From 60 km, pitched 30° down, looking north-north-east at the middle of the Alps; the camera
+  // stands over the Ticino Alps, inside the dataset.
+  const target = [8.45, 46.55, 2500];
+  const t0 = Date.now();
+  await tab.evaluate((o) => window.tessera.fly(o), { target, range: 60000, heading: 10, pitch: -30 });
+  const loaded = await tab.evaluate(() => window.tessera.tilesLoaded());
+  const seconds = (Date.now() - t0) / 1000;
+  const file = await screenshot(tab, 'cesium-alps');
+  const v = await tab.evaluate((p) => window.tessera.view(p), [FINSTERAARHORN, LAGO_MAGGIORE]);
+  const [hF, hL] = v.heights;
+  console.log(`# view: camera ${v.camera.lon.toFixed(4)}° E ${v.camera.lat.toFixed(4)}° N ${(v.camera.height / 1000).toFixed(1)} km, ` +
+    `heading ${v.camera.heading.toFixed(1)}°, pitch ${v.camera.pitch.toFixed(1)}°; screen centre on ` +
+    (v.centre ? `${v.centre.lon.toFixed(4)}° E ${v.centre.lat.toFixed(4)}° N ${v.centre.height.toFixed(0)} m` : 'nothing') +
+    `; tiles loaded ${(loaded.ms / 1000).toFixed(1)} s after the flight (${seconds.toFixed(1)} s in all); globe.getHeight Finsteraarhorn ` +
+    `${hF?.toFixed(1)} m, Lago Maggiore ${hL?.toFixed(1)} m; centre crop grey std ${v.pixels.std.toFixed(1)}, ` +
+    `${v.pixels.colours} colours (${path.relative(process.cwd(), file)})`);
+  const [w, s, e, n] = footprint.bounds;
+  const inside = (p) => p.lon > w && p.lon < e && p.lat > s && p.lat < n;
+  assert.ok(inside(v.camera), `camera at ${v.camera.lon}, ${v.camera.lat}: not over the Alps of ${DATASET}`);
+  assert.ok(v.camera.height > 20000 && v.camera.height < 60000, `camera height ${v.camera.height} m`);
+  assert.ok(v.centre && inside(v.centre) && Math.hypot(v.centre.lon - target[0], v.centre.lat - target[1]) < 0.1,
+    `screen centre on ${JSON.stringify(v.centre)}, not near ${target}`);
+  assert.ok(hF !== null && hL !== null && hF - hL > MIN_RELIEF,
+    `rendered terrain too flat: Finsteraarhorn ${hF} m, Lago Maggiore ${hL} m (need > ${MIN_RELIEF} m apart)`);
+  assert.ok(v.pixels.std > MIN_STD && v.pixels.colours > 1, `screenshot centre nearly one colour (grey std ${v.pixels.std})`);
+});
+
+// Last: everything the page did, landmark sampling and the view included.
+test(`${DATASET}: no console errors, no failed requests, negotiated terrain responses`, () => {
+  const terrain = problems.all.filter((r) => /\/cesium\/\d+\/\d+\/\d+\.terrain/.test(r.url));
+  const layers = problems.all.filter((r) => /\/cesium\/layer\.json/.test(r.url));
+  const statuses = {};
+  for (const r of terrain) statuses[r.status] = (statuses[r.status] ?? 0) + 1;
+  const encodings = {};
+  for (const r of terrain) encodings[r.headers['content-encoding'] ?? 'identity'] = (encodings[r.headers['content-encoding'] ?? 'identity'] ?? 0) + 1;
+  console.log(`# ${terrain.length} terrain responses (status ${JSON.stringify(statuses)}, content-encoding ${JSON.stringify(encodings)}), ${layers.length} layer.json`);
+  assert.deepEqual(problems.console, [], 'console errors');
+  assert.deepEqual(problems.failed, [], 'failed requests');
+  assert.deepEqual(problems.responses, [], 'HTTP errors');
+  assert.ok(terrain.length > 0 && layers.length > 0);
+  const bad = [...terrain, ...layers].filter((r) => r.status !== 200 && r.status !== 304);
+  assert.deepEqual(bad.map((r) => `${r.status} ${r.url}`), [], 'terrain and layer.json responses other than 200/304');
+  // CesiumJS asked for the normals (requestVertexNormals; requestMetadata finds none listed) and got them,
+  // compressed as Chromium's Accept-Encoding allows (the server has gzip and br), cross-origin
+  for (const r of terrain.filter((t) => t.status === 200)) {
+    const type = r.headers['content-type'] ?? '';
+    const m = type.match(/^application\/vnd\.quantized-mesh;\s*extensions=([a-z-]+)$/);
+    const ext = m ? m[1].split('-') : [];
+    assert.deepEqual(ext, ['octvertexnormals'], `${r.url}: Content-Type ${type}`);
+    assert.ok(['gzip', 'br'].includes(r.headers['content-encoding']), `${r.url}: content-encoding ${r.headers['content-encoding']}`);
+    assert.equal(r.headers['access-control-allow-origin'], '*', `${r.url}: CORS`);
+  }
+});
