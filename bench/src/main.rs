@@ -114,6 +114,10 @@ fn report(results: &Path, template: &Path, out: &Path, plots: &Path) -> anyhow::
                 &ctx,
             ),
         ),
+        (
+            "terrain",
+            sections::terrain::section(r.terrain_mesh.as_deref(), r.terrain_serve.as_deref()),
+        ),
     ];
     let aims: Vec<Aim> = parts.iter().flat_map(|(_, s)| s.aims.clone()).collect();
     let mut values: BTreeMap<&str, String> = BTreeMap::new();

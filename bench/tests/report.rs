@@ -74,6 +74,7 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
         "## Selection time",
         "## Real datasets",
         "## Web tiles",
+        "## Cesium terrain",
         "## GPU",
     ] {
         assert!(doc.contains(&format!("\n{heading}\n")), "no {heading}");
@@ -134,8 +135,28 @@ fn the_report_has_every_section_the_numbers_and_the_verdicts() {
         "{warm}"
     );
     assert!(doc.contains("Tessera decodes to 1436.0 m, TiTiler to 1436.0 m"));
+    // Cesium terrain: N46E008 zoom 10 meshes in 8 ms (median), the moon's zoom 8 in
+    // 400 µs: the 0.5 ms aim not met; 3000 and 2000 of 8192 triangles (0.37×, 0.24×)
+    // at 0.95× the grid's error: met. Serving: cold 460 and 470 tiles/s.
+    let mesh = line_with(&doc, "| [Cesium terrain](#cesium-terrain): ≤ 0.5 ms");
+    assert!(mesh.ends_with("| **not met** |"), "{mesh}");
     assert!(
-        doc.contains("7 of 14 aims met, 7 not met, 0 not measured."),
+        mesh.contains("`N46E008` zoom 10 (≈ 211² samples): 8 ms"),
+        "{mesh}"
+    );
+    let tri = line_with(
+        &doc,
+        "| [Cesium terrain](#cesium-terrain): ≤ 0.5× the triangles",
+    );
+    assert!(tri.ends_with("| **met** |"), "{tri}");
+    assert!(tri.contains("`N46E008` zoom 10: 0.37×"), "{tri}");
+    let cold = line_with(&doc, "| `N46E008` | 12 | 552 |");
+    assert!(
+        cold.contains("| cold | curl -Z | 2 | 465 (460–470) |"),
+        "{cold}"
+    );
+    assert!(
+        doc.contains("8 of 16 aims met, 8 not met, 0 not measured."),
         "{doc}"
     );
 
@@ -188,8 +209,9 @@ fn missing_results_say_not_run_and_aims_not_measured() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let doc = std::fs::read_to_string(&out).expect("written");
     assert!(doc.contains("*Not run: the results have no `serve.jsonl`.*"));
+    assert!(doc.contains("*Not run: the results have no `terrain_mesh.jsonl`.*"));
     assert!(
-        doc.contains("0 of 14 aims met, 0 not met, 14 not measured."),
+        doc.contains("0 of 16 aims met, 0 not met, 16 not measured."),
         "{doc}"
     );
 }

@@ -17,6 +17,7 @@ pub mod policy;
 pub mod select;
 pub mod serve;
 pub mod stream;
+pub mod terrain;
 pub mod webtiles;
 
 use crate::chart::Image;
