@@ -87,6 +87,18 @@ impl Mapping {
         }
     }
 
+    /// Degrees between finest samples at `(col, row)`: the smaller of the two axes.
+    fn spacing_at(&self, col: f64, row: f64) -> Option<f64> {
+        let c = self.lon_lat(col, row)?;
+        let e = self.lon_lat(col + 1.0, row)?;
+        let s = self.lon_lat(col, row + 1.0)?;
+        Some(
+            (e[0] - c[0])
+                .hypot(e[1] - c[1])
+                .min((s[0] - c[0]).hypot(s[1] - c[1])),
+        )
+    }
+
     /// Finest-grid coordinates of a longitude and latitude.
     fn to_samples(&self, lon: f64, lat: f64) -> Option<[f64; 2]> {
         match self {
@@ -160,6 +172,8 @@ pub struct Terrain {
     /// bounding box; exact for a geographic grid).
     pub bounds: [f64; 4],
     pub max_zoom: u8,
+    /// Degrees between finest samples at the data's centre (the smaller axis).
+    spacing_deg: f64,
     /// Half a height step of the widest tile range possible.
     quantization_margin: f64,
     /// Per level: `e_L` from the tables and the largest leaf twist, once known.
@@ -259,19 +273,9 @@ impl Terrain {
         let level_zero_error = level_zero_error(ellipsoid.maximum_radius());
         // The deepest zoom: tiles of at most 4 finest samples, where the mesh is the
         // data; and no deeper than the quantization leaves half the error to the mesh.
-        let spacing = {
-            let c = mapping.lon_lat(wm / 2.0, hm / 2.0);
-            let e = mapping.lon_lat(wm / 2.0 + 1.0, hm / 2.0);
-            let s = mapping.lon_lat(wm / 2.0, hm / 2.0 + 1.0);
-            match (c, e, s) {
-                (Some(c), Some(e), Some(s)) => {
-                    let dx = (e[0] - c[0]).hypot(e[1] - c[1]);
-                    let dy = (s[0] - c[0]).hypot(s[1] - c[1]);
-                    dx.min(dy)
-                }
-                _ => return Err("its centre does not transform".into()),
-            }
-        };
+        let spacing = mapping
+            .spacing_at(wm / 2.0, hm / 2.0)
+            .ok_or("its centre does not transform")?;
         let mut max_zoom = 0;
         while max_zoom < MAX_ZOOM
             && CesiumTile::span(max_zoom) > 4.0 * spacing
@@ -289,6 +293,7 @@ impl Terrain {
             datum_warning,
             bounds,
             max_zoom,
+            spacing_deg: spacing,
             quantization_margin: range / 65534.0,
             level_bounds: Mutex::new(HashMap::new()),
         })
@@ -310,20 +315,8 @@ impl Terrain {
 
     /// Degrees between a level's samples (the smaller axis, at the centre).
     fn level_spacing_deg(&self, level: Level) -> f64 {
-        let stride = self.geometry.spacing(level) as f64;
-        let (wm, hm) = (
-            f64::from(self.geometry.width() - 1) / 2.0,
-            f64::from(self.geometry.height() - 1) / 2.0,
-        );
-        let c = self.mapping.lon_lat(wm, hm);
-        let e = self.mapping.lon_lat(wm + stride, hm);
-        let s = self.mapping.lon_lat(wm, hm + stride);
-        match (c, e, s) {
-            (Some(c), Some(e), Some(s)) => (e[0] - c[0])
-                .hypot(e[1] - c[1])
-                .min((s[0] - c[0]).hypot(s[1] - c[1])),
-            _ => stride,
-        }
+        // Locally linear: a level's spacing is its stride times the finest's.
+        self.spacing_deg * self.geometry.spacing(level) as f64
     }
 
     /// The level, square size and threshold of zoom `z` (see the module doc).
