@@ -835,7 +835,8 @@ def check_compose(compose_bin: str | None) -> dict | None:
     if shutil.which("nginx"):
         with tempfile.TemporaryDirectory() as tmp:
             local = local_nginx_conf(conf, tmp, {"tessera-1": 1, "tessera-2": 2}, 1)
-            p = subprocess.run(["nginx", "-t", "-q", "-p", tmp, "-c", local], capture_output=True, text=True)
+            p = subprocess.run(["nginx", "-t", "-q", "-e", os.path.join(tmp, "error.log"), "-p", tmp, "-c", local],
+                               capture_output=True, text=True)
             R.check(p.returncode == 0, "nginx -t accepts nginx.conf (upstreams and paths rewritten for loopback)",
                     p.stderr.strip())
     return model
@@ -1178,7 +1179,8 @@ def nginx_live(replicas: list, tmp: str) -> None:
     os.makedirs(ndir)
     port = free_port()
     path = local_nginx_conf(conf, ndir, {"tessera-1": port_of(replicas[0].url), "tessera-2": port_of(replicas[1].url)}, port)
-    ng = Proc("nginx", ["nginx", "-p", ndir, "-c", path, "-g", "daemon off;"], os.environ.copy(), tmp, stdout_pipe=False)
+    ng = Proc("nginx", ["nginx", "-e", os.path.join(ndir, "error.log"), "-p", ndir, "-c", path, "-g", "daemon off;"],
+              os.environ.copy(), tmp, stdout_pipe=False)
     front = f"http://127.0.0.1:{port}"
     deadline = time.time() + 10
     while time.time() < deadline and Http.get(front + "/nginx-health", timeout=2)[0] != 200:
