@@ -994,6 +994,15 @@ def _live(binary, compose, rendered, venv_bin, tmp, base_env):
     has_s3_build = "s3://" in build_help
     has_parts = "--part" in build_help and "--assemble" in build_help
 
+    # The runtime stage installs no libraries: the binary may link only what
+    # debian:12-slim has (glibc's, libgcc_s).
+    if shutil.which("ldd"):
+        libs = set(re.findall(r"^\s*(\S+\.so[.\d]*)", run(["ldd", binary]).stdout, re.M))
+        slim = {"linux-vdso.so.1", "libgcc_s.so.1", "libm.so.6", "libc.so.6", "ld-linux-x86-64.so.2",
+                "/lib64/ld-linux-x86-64.so.2", "libpthread.so.0", "libdl.so.2", "librt.so.1"}
+        R.check(bool(libs) and libs <= slim, f"the binary links only libraries debian:12-slim has ({', '.join(sorted(libs))})",
+                f"also {sorted(libs - slim)}")
+
     data = os.path.join(tmp, "data")
     os.makedirs(data)
     p = run([binary, "build", "synthetic:257", "-o", os.path.join(data, "demo.tess"), "--quiet"], base_env)
