@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use tessera_server::build::interrupt::{Interrupt, Interrupted};
+use tessera_server::build::parts::{PartSpec, assemble as assemble_parts, build_part};
 use tessera_server::build::{BuildOptions, build_inputs};
 use tessera_server::ingest::assign::Bounds;
 use tessera_server::ingest::reproject::{ReprojectOptions, Resampling, parse_spacing};
@@ -43,10 +44,18 @@ enum Command {
     /// origins on one lattice); samples no input covers are no-data, and so is each
     /// input's own no-data value. Inputs are opened only while the rows being read cross
     /// them.
+    ///
+    /// Distributed build (e.g. a Kubernetes Indexed Job): `build INPUT --part K/N -o PARTS/`
+    /// in N processes, one per K, then `build --assemble PARTS/ -o OUT.tess` once. The
+    /// assembled file is byte for byte the one a single `build INPUT -o OUT.tess` with the
+    /// same options writes. Each part reads the whole input.
     Build {
         /// The DEMs to read (files, directories, quoted glob patterns, .vrt files), or
         /// synthetic:SIZE[:SEED].
-        #[arg(value_name = "INPUT", required_unless_present = "inputs_list")]
+        #[arg(
+            value_name = "INPUT",
+            required_unless_present_any = ["inputs_list", "assemble"]
+        )]
         input: Vec<String>,
         /// A text file naming inputs, one per line (files, directories or patterns,
         /// relative to the list's folder; blank lines and lines starting with # are skipped).
@@ -57,9 +66,31 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Overlap::Error)]
         overlap: Overlap,
         /// The pyramid file to write (e.g. dem.tess). Written to a temporary file beside
-        /// it and renamed into place only when complete and verified.
+        /// it and renamed into place only when complete and verified. With --part: the
+        /// folder the part file goes into (created if missing).
         #[arg(short, long)]
         output: PathBuf,
+        /// Build only part K of N of the pyramid (K from 0): the subtrees of the Kth slice
+        /// of the top-level Morton ranges, written to OUTPUT/part-KKKK-of-NNNN.tesspart
+        /// (renamed into place when complete, so a part that died is simply rerun). `/N`
+        /// takes K from JOB_COMPLETION_INDEX, which a Kubernetes Indexed Job sets. Every
+        /// part must be built with the same input and options.
+        #[arg(long, value_name = "K/N", conflicts_with = "assemble")]
+        part: Option<String>,
+        /// Assemble the parts in this folder (every part-*-of-N.tesspart of one build)
+        /// into the pyramid OUTPUT: the top levels from the parts' roots, then the file,
+        /// verified and renamed into place. A missing, duplicate, damaged or mismatched
+        /// part is an error naming it. Takes no INPUT and no options that shape the
+        /// pyramid: those come from the parts.
+        #[arg(
+            long,
+            value_name = "PARTS",
+            conflicts_with_all = [
+                "input", "inputs_list", "overlap", "tile_size", "scale", "offset", "nodata",
+                "vertical_datum", "crs", "bounds", "to", "resampling", "spacing"
+            ]
+        )]
+        assemble: Option<PathBuf>,
         /// Tile size in cells: a power of two from 64 to 4096 (tiles have one more sample).
         #[arg(long, default_value_t = 512)]
         tile_size: u32,
@@ -259,7 +290,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             spacing,
             memory,
             quiet,
+            part,
+            assemble,
         } => {
+            // Flag errors before anything is read.
+            let part = part
+                .map(|p| PartSpec::parse(&p, std::env::var("JOB_COMPLETION_INDEX").ok().as_deref()))
+                .transpose()?;
             let opts = BuildOptions {
                 tile_size,
                 scale,
@@ -282,20 +319,48 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 args: input,
                 list: inputs_list,
             };
-            let r = match build_inputs(&inputs, &output, &opts) {
+            // Death by signal N exits 128 + N, the shell's convention.
+            let interrupted = |e: &anyhow::Error| {
+                e.downcast_ref::<Interrupted>().map(|Interrupted(sig)| {
+                    eprintln!("error: {e:#}");
+                    ExitCode::from(128 + *sig as u8)
+                })
+            };
+            if let Some(spec) = part {
+                let r = match build_part(&inputs, &output, spec, &opts) {
+                    Ok(r) => r,
+                    Err(e) => return interrupted(&e).ok_or(e),
+                };
+                println!(
+                    "built part {}/{} {}: level {} codes {}..{}, {} records, {:.1} MB in {:.2} s",
+                    r.spec.k,
+                    r.spec.n,
+                    r.path.display(),
+                    r.split,
+                    r.tops.start,
+                    r.tops.end,
+                    r.records,
+                    r.file_bytes as f64 / 1e6,
+                    r.seconds
+                );
+                return Ok(ExitCode::SUCCESS);
+            }
+            let r = match &assemble {
+                Some(dir) => assemble_parts(dir, &output, &opts),
+                None => build_inputs(&inputs, &output, &opts),
+            };
+            let r = match r {
                 Ok(r) => r,
-                Err(e) => {
-                    if let Some(Interrupted(sig)) = e.downcast_ref::<Interrupted>() {
-                        eprintln!("error: {e:#}");
-                        // The shell convention for death by signal N.
-                        return Ok(ExitCode::from(128 + *sig as u8));
-                    }
-                    return Err(e);
-                }
+                Err(e) => return interrupted(&e).ok_or(e),
             };
             let m = &r.metadata;
             println!(
-                "built {}: {}×{} samples, {} levels, {} tiles, {:.1} MB ({:.3} bytes/sample) in {:.2} s ({:.1} M samples/s)",
+                "{} {}: {}×{} samples, {} levels, {} tiles, {:.1} MB ({:.3} bytes/sample) in {:.2} s ({:.1} M samples/s)",
+                if assemble.is_some() {
+                    "assembled"
+                } else {
+                    "built"
+                },
                 output.display(),
                 m.width,
                 m.height,

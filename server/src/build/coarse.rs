@@ -3,7 +3,7 @@
 //! by AND-pooling (FORMAT.md "Validity mask").
 
 use super::mesh_error::BlockErrors;
-use super::{Encoded, Node, encode, writer};
+use super::{Encoded, Node, Sink, encode};
 use indicatif::ProgressBar;
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{CellMask, Level, Morton, Quantization, TileGeometry};
@@ -13,6 +13,9 @@ pub(super) struct Aggregator<'a> {
     pub(super) geometry: TileGeometry,
     pub(super) quant: Quantization,
     pub(super) spacings: u32,
+    /// The coarsest level assembled: the root for a whole build, the split level for
+    /// a part of a distributed build. Its nodes go to [`Sink::top`], not to a parent.
+    pub(super) top: Level,
     /// Per level, the up-to-four siblings waiting for their parent.
     pub(super) pending: Vec<[Option<Node>; 4]>,
     /// Range of the finest records' quantized heights (the dataset's).
@@ -22,9 +25,11 @@ pub(super) struct Aggregator<'a> {
 }
 
 impl Aggregator<'_> {
+    /// A tile (`None`: absent) and its encoded record, which goes to `sink` before the
+    /// tile joins its siblings.
     pub(super) fn push(
         &mut self,
-        writer: &mut writer::PyramidWriter,
+        sink: &mut dyn Sink,
         level: Level,
         m: Morton,
         item: Option<(Node, Encoded)>,
@@ -32,7 +37,7 @@ impl Aggregator<'_> {
         let node = match item {
             Some((node, enc)) => {
                 if let Some(record) = &enc.record {
-                    writer.push(level, m, record, enc.summary)?;
+                    sink.record(level, m, record, enc.summary)?;
                     if level == self.geometry.finest() {
                         self.min_q = self.min_q.min(enc.summary.min);
                         self.max_q = self.max_q.max(enc.summary.max);
@@ -43,9 +48,23 @@ impl Aggregator<'_> {
             }
             None => None,
         };
-        let Some(parent_level) = level.coarser() else {
-            return Ok(());
-        };
+        self.push_node(sink, level, m, node)
+    }
+
+    /// A tile whose record is already written (or is written elsewhere: the split
+    /// level's tiles, when assembling parts) joins its siblings; the fourth makes
+    /// their parent.
+    pub(super) fn push_node(
+        &mut self,
+        sink: &mut dyn Sink,
+        level: Level,
+        m: Morton,
+        node: Option<Node>,
+    ) -> anyhow::Result<()> {
+        if level == self.top {
+            return sink.top(m, node);
+        }
+        let parent_level = level.coarser().expect("a level below the top has a parent");
         let slot = &mut self.pending[usize::from(level.get())];
         slot[usize::from(m.quadrant())] = node;
         if m.quadrant() == 3 {
@@ -57,7 +76,7 @@ impl Aggregator<'_> {
             // Freed before the parent cascades upward, so each level holds at most
             // three waiting siblings (memory::Plan counts on it).
             drop(children);
-            self.push(writer, parent_level, m.parent(), parent)?;
+            self.push(sink, parent_level, m.parent(), parent)?;
         }
         Ok(())
     }

@@ -19,6 +19,7 @@ mod finest;
 pub mod interrupt;
 pub mod memory;
 pub mod mesh_error;
+pub mod parts;
 pub mod raster;
 pub mod spool;
 pub mod writer;
@@ -146,6 +147,66 @@ pub fn build_inputs(
     opts: &BuildOptions,
 ) -> anyhow::Result<BuildReport> {
     let started = Instant::now();
+    let dir = output_dir(output);
+    let prepared = prepare(inputs, dir, opts)?;
+    let writer = create_output(output, prepared.geometry, meta_reserve(&prepared.meta))?;
+    let loaded = prepared.load(dir, opts, started, None)?;
+    build_tiles(&loaded, writer, opts, started)
+}
+
+/// The folder beside `output` where its temporary files go.
+fn output_dir(output: &Path) -> &Path {
+    output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+}
+
+/// An input opened and sized, before any sample is read: its geometry, the memory
+/// plan and the metadata but for what reading it tells (quantization, counts).
+/// What a whole build and a part of a distributed build ([`parts`]) both start from.
+struct Prepared {
+    source: Input,
+    /// The no-data value the spool recognises (none after reprojection, which marks
+    /// no-data as NaN itself).
+    spool_nodata: Option<f64>,
+    label: String,
+    geometry: TileGeometry,
+    plan: memory::Plan,
+    meta: Metadata,
+}
+
+/// The DEM as the tiler reads it.
+enum Dem {
+    Spooled(spool::SpooledRaster),
+    Synthetic(ingest::synthetic::Synthetic),
+}
+
+impl Dem {
+    fn raster(&self) -> &dyn Raster {
+        match self {
+            Dem::Spooled(s) => s,
+            Dem::Synthetic(s) => s,
+        }
+    }
+}
+
+/// A [`Prepared`] input after reading: what the tiler reads, and the metadata with
+/// its quantization (and, for a whole build, its no-data count) known.
+struct Loaded {
+    dem: Dem,
+    geometry: TileGeometry,
+    plan: memory::Plan,
+    meta: Metadata,
+}
+
+/// Opens the inputs, applies `--crs`/`--bounds`/`--to`, and sizes the pyramid.
+/// `dir` holds temporary files (reprojection's).
+fn prepare(
+    inputs: &ingest::InputSpec,
+    dir: &Path,
+    opts: &BuildOptions,
+) -> anyhow::Result<Prepared> {
     anyhow::ensure!(
         opts.scale.is_finite() && opts.scale > 0.0 && opts.offset.is_finite(),
         "--scale must be a positive number and --offset a finite number"
@@ -186,10 +247,6 @@ pub fn build_inputs(
         }
         source @ Input::Synthetic(_) => source,
     };
-    let dir = output
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
     // Reprojection reads the source whole first; its output marks no-data as NaN,
     // so the spool below needs no no-data value of its own.
     let (source, spool_nodata) = match (source, &opts.reproject) {
@@ -229,7 +286,7 @@ pub fn build_inputs(
         Input::Rows(r) => r.vertical_datum().unwrap_or_default(),
         Input::Synthetic(_) => VerticalDatum::Unknown,
     });
-    let mut meta = Metadata {
+    let meta = Metadata {
         width,
         height,
         tile_size: opts.tile_size,
@@ -251,41 +308,78 @@ pub fn build_inputs(
         generator: format!("tessera-server {}", env!("CARGO_PKG_VERSION")),
         content_hash: String::new(),
     };
-    let writer = writer::PyramidWriter::create(output, geometry, meta_reserve(&meta))
-        .with_context(|| output.display().to_string())?;
-    match source {
-        Input::Rows(mut rows) => {
-            let spool_bar = bar(opts.progress, u64::from(height), "reading");
-            let spooled = spool::SpooledRaster::spool(
-                rows.as_mut(),
-                dir,
-                spool_nodata,
-                plan.band_bytes,
-                |r| {
-                    spool_bar.set_position(u64::from(r));
-                    opts.interrupt.check()
-                },
-            )
-            .with_context(|| input.to_string())?;
-            spool_bar.finish_and_clear();
-            tracing::debug!(seconds = started.elapsed().as_secs_f64(), "input spooled");
-            meta.quantization = spooled.quantizer.to_metres(
-                opts.scale,
-                opts.offset,
-                spooled.sample_type.is_integer(),
-            );
-            meta.nodata_count = spooled.nodata_count;
-            build_tiles(&spooled, geometry, &mut meta, writer, opts, &plan, started)
-        }
-        Input::Synthetic(synth) => {
-            meta.quantization = Quantization {
-                offset: ingest::synthetic::OFFSET,
-                scale: ingest::synthetic::SCALE,
-                max_error: 0.0,
-            };
-            meta.nodata_fill = "none (synthetic)".into();
-            build_tiles(&synth, geometry, &mut meta, writer, opts, &plan, started)
-        }
+    Ok(Prepared {
+        source,
+        spool_nodata,
+        label,
+        geometry,
+        plan,
+        meta,
+    })
+}
+
+impl Prepared {
+    /// Reads the input: a file is spooled into `dir` (its quantization and no-data
+    /// count then known), synthetic terrain needs nothing. With `digest`, every raw
+    /// sample read is hashed into it too (a part's fingerprint of its input).
+    fn load(
+        self,
+        dir: &Path,
+        opts: &BuildOptions,
+        started: Instant,
+        digest: Option<&mut xxhash_rust::xxh3::Xxh3>,
+    ) -> anyhow::Result<Loaded> {
+        let Prepared {
+            source,
+            spool_nodata,
+            label,
+            geometry,
+            plan,
+            mut meta,
+        } = self;
+        let dem = match source {
+            Input::Rows(mut rows) => {
+                let spool_bar = bar(opts.progress, u64::from(geometry.height()), "reading");
+                let mut digesting;
+                let rows: &mut dyn ingest::RowSource = match digest {
+                    Some(hash) => {
+                        digesting = parts::Digesting::new(rows.as_mut(), hash);
+                        &mut digesting
+                    }
+                    None => rows.as_mut(),
+                };
+                let spooled =
+                    spool::SpooledRaster::spool(rows, dir, spool_nodata, plan.band_bytes, |r| {
+                        spool_bar.set_position(u64::from(r));
+                        opts.interrupt.check()
+                    })
+                    .with_context(|| label.clone())?;
+                spool_bar.finish_and_clear();
+                tracing::debug!(seconds = started.elapsed().as_secs_f64(), "input spooled");
+                meta.quantization = spooled.quantizer.to_metres(
+                    opts.scale,
+                    opts.offset,
+                    spooled.sample_type.is_integer(),
+                );
+                meta.nodata_count = spooled.nodata_count;
+                Dem::Spooled(spooled)
+            }
+            Input::Synthetic(synth) => {
+                meta.quantization = Quantization {
+                    offset: ingest::synthetic::OFFSET,
+                    scale: ingest::synthetic::SCALE,
+                    max_error: 0.0,
+                };
+                meta.nodata_fill = "none (synthetic)".into();
+                Dem::Synthetic(synth)
+            }
+        };
+        Ok(Loaded {
+            dem,
+            geometry,
+            plan,
+            meta,
+        })
     }
 }
 
@@ -331,86 +425,64 @@ fn meta_reserve(meta: &Metadata) -> u64 {
     tessera_shared::format::encode_metadata(&m).len() as u64 + 64
 }
 
-fn build_tiles(
-    raster: &dyn Raster,
+/// Where the tiler's output goes: a pyramid file ([`writer::PyramidWriter`]) or a
+/// part of a distributed build ([`parts`]).
+trait Sink {
+    /// A tile's record and its index summary; each level's arrive in Morton order.
+    fn record(
+        &mut self,
+        level: Level,
+        m: Morton,
+        record: &[u8],
+        summary: IndexEntry,
+    ) -> anyhow::Result<()>;
+
+    /// A tile of the top level the tiler assembles (`None`: absent), in Morton order.
+    fn top(&mut self, m: Morton, node: Option<Node>) -> anyhow::Result<()>;
+}
+
+impl Sink for writer::PyramidWriter {
+    fn record(
+        &mut self,
+        level: Level,
+        m: Morton,
+        record: &[u8],
+        summary: IndexEntry,
+    ) -> anyhow::Result<()> {
+        self.push(level, m, record, summary)
+    }
+
+    /// A pyramid's top is its root: nothing waits for it.
+    fn top(&mut self, _m: Morton, _node: Option<Node>) -> anyhow::Result<()> {
+        Ok(())
+    }
+}
+
+/// Creates the writer of a finished pyramid at `output`; with [`finish_output`], the
+/// one way a pyramid reaches its output, for a whole build and an assembled one alike.
+fn create_output(
+    output: &Path,
     geometry: TileGeometry,
-    meta: &mut Metadata,
-    mut writer: writer::PyramidWriter,
+    meta_reserve: u64,
+) -> anyhow::Result<writer::PyramidWriter> {
+    writer::PyramidWriter::create(output, geometry, meta_reserve)
+        .with_context(|| output.display().to_string())
+}
+
+/// Writes the pyramid's index, header and metadata, verifies the file and moves it
+/// into place ([`writer::PyramidWriter::finish`]).
+fn finish_output(
+    writer: writer::PyramidWriter,
+    meta: Metadata,
+    geometry: &TileGeometry,
     opts: &BuildOptions,
-    plan: &memory::Plan,
     started: Instant,
 ) -> anyhow::Result<BuildReport> {
-    let finest = geometry.finest();
-    let t = geometry.tile_log2();
-    // Spacings 0 ..= t + L_max: from the data itself to the root's single cell.
-    let spacings = t + u32::from(finest.get()) + 1;
-    let total_tiles: u64 = geometry
-        .levels()
-        .map(|l| geometry.present_tiles(l).count() as u64)
-        .sum();
-    let tiles_bar = bar(opts.progress, total_tiles, "tiling");
-    let batch = plan.batch;
-    let slots = finest.tile_slots();
-    let quant = meta.quantization;
-    let mut agg = Aggregator {
-        geometry,
-        quant,
-        spacings,
-        pending: (0..=finest.get())
-            .map(|_| [None, None, None, None])
-            .collect(),
-        min_q: u16::MAX,
-        max_q: 0,
-        bar: &tiles_bar,
-    };
-    std::thread::scope(|scope| -> anyhow::Result<()> {
-        let (tx, rx) =
-            std::sync::mpsc::sync_channel::<anyhow::Result<Vec<Option<(Node, Encoded)>>>>(1);
-        let producer = scope.spawn(move || {
-            let mut start = 0u64;
-            while start < slots {
-                let end = (start + batch as u64).min(slots);
-                let result: anyhow::Result<Vec<_>> = (start..end)
-                    .into_par_iter()
-                    .map(|m| {
-                        let tile =
-                            TileId::from_morton(finest, Morton::from_raw(m)).expect("m < 4^L");
-                        if !geometry.is_present(tile) {
-                            return Ok(None);
-                        }
-                        let node = finest_node(raster, &geometry, tile, spacings)?;
-                        let enc = encode(&node, &geometry, finest, &quant);
-                        Ok(Some((node, enc)))
-                    })
-                    .collect();
-                let failed = result.is_err();
-                if tx.send(result).is_err() || failed {
-                    return;
-                }
-                start = end;
-            }
-        });
-        let mut m = 0u64;
-        for batch in rx {
-            opts.interrupt.check()?;
-            for item in batch? {
-                agg.push(&mut writer, finest, Morton::from_raw(m), item)?;
-                m += 1;
-            }
-        }
-        producer.join().expect("tile producer panicked");
-        anyhow::ensure!(m == slots, "tile production stopped early");
-        Ok(())
-    })?;
-    tiles_bar.finish_and_clear();
-    tracing::debug!(seconds = started.elapsed().as_secs_f64(), "tiles built");
-    meta.min_height = quant.height(agg.min_q);
-    meta.max_height = quant.height(agg.max_q);
-    meta.level_counts = level_counts(&geometry, &raster.depth_counts());
+    let total_tiles = count_tiles(geometry, geometry.levels());
     let verify_bar = bar(opts.progress, total_tiles, "verifying");
     let target = writer.target().to_path_buf();
     let (metadata, file_bytes) = writer
-        .finish(meta.clone(), &opts.interrupt, |n| verify_bar.inc(n))
+        .finish(meta, &opts.interrupt, |n| verify_bar.inc(n))
         .with_context(|| format!("cannot finish {}", target.display()))?;
     verify_bar.finish_and_clear();
     tracing::debug!(
@@ -424,6 +496,141 @@ fn build_tiles(
         file_bytes,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// Tiles the geometry places inside the DEM at these levels.
+fn count_tiles(geometry: &TileGeometry, levels: impl Iterator<Item = Level>) -> u64 {
+    levels
+        .map(|l| geometry.present_tiles(l).count() as u64)
+        .sum()
+}
+
+/// A whole build: the root's subtree, then the metadata's numbers, then the file.
+fn build_tiles(
+    loaded: &Loaded,
+    writer: writer::PyramidWriter,
+    opts: &BuildOptions,
+    started: Instant,
+) -> anyhow::Result<BuildReport> {
+    let geometry = loaded.geometry;
+    let raster = loaded.dem.raster();
+    let mut writer = writer;
+    let mut meta = loaded.meta.clone();
+    let quant = meta.quantization;
+    let tiles_bar = bar(
+        opts.progress,
+        count_tiles(&geometry, geometry.levels()),
+        "tiling",
+    );
+    let tiling = Tiling {
+        raster,
+        geometry,
+        quant,
+        plan: loaded.plan,
+        opts,
+        bar: &tiles_bar,
+    };
+    let (min_q, max_q) = tiling.subtrees(&mut writer, Level::ROOT, 0..1)?;
+    tiles_bar.finish_and_clear();
+    tracing::debug!(seconds = started.elapsed().as_secs_f64(), "tiles built");
+    meta.min_height = quant.height(min_q);
+    meta.max_height = quant.height(max_q);
+    meta.level_counts = level_counts(&geometry, &raster.depth_counts());
+    finish_output(writer, meta, &geometry, opts, started)
+}
+
+/// What the tiler reads and how: shared by a whole build and a part.
+struct Tiling<'a> {
+    raster: &'a dyn Raster,
+    geometry: TileGeometry,
+    quant: Quantization,
+    plan: memory::Plan,
+    opts: &'a BuildOptions,
+    bar: &'a ProgressBar,
+}
+
+impl Tiling<'_> {
+    /// Builds the subtrees of the level-`top` tiles with Morton codes `tops`: cuts,
+    /// measures and encodes their finest tiles in parallel batches, in Morton order,
+    /// and assembles every tile up to level `top` as soon as its four children exist.
+    /// Records go to `sink` (each level in Morton order), level-`top` nodes to
+    /// [`Sink::top`]. A whole build is the root's subtree (`top` 0, `tops` 0..1).
+    /// Returns the range of the finest records' quantized heights (`u16::MAX, 0`
+    /// when there is none).
+    fn subtrees(
+        &self,
+        sink: &mut dyn Sink,
+        top: Level,
+        tops: std::ops::Range<u64>,
+    ) -> anyhow::Result<(u16, u16)> {
+        let Tiling {
+            raster,
+            geometry,
+            quant,
+            plan,
+            opts,
+            bar,
+        } = *self;
+        let finest = geometry.finest();
+        let t = geometry.tile_log2();
+        // Spacings 0 ..= t + L_max: from the data itself to the root's single cell.
+        let spacings = t + u32::from(finest.get()) + 1;
+        let batch = plan.batch;
+        let depth = 2 * u32::from(finest.get() - top.get());
+        let (first, end) = (tops.start << depth, tops.end << depth);
+        let mut agg = Aggregator {
+            geometry,
+            quant,
+            spacings,
+            top,
+            pending: (0..=finest.get())
+                .map(|_| [None, None, None, None])
+                .collect(),
+            min_q: u16::MAX,
+            max_q: 0,
+            bar,
+        };
+        std::thread::scope(|scope| -> anyhow::Result<()> {
+            let (tx, rx) =
+                std::sync::mpsc::sync_channel::<anyhow::Result<Vec<Option<(Node, Encoded)>>>>(1);
+            let producer = scope.spawn(move || {
+                let mut start = first;
+                while start < end {
+                    let stop = (start + batch as u64).min(end);
+                    let result: anyhow::Result<Vec<_>> = (start..stop)
+                        .into_par_iter()
+                        .map(|m| {
+                            let tile =
+                                TileId::from_morton(finest, Morton::from_raw(m)).expect("m < 4^L");
+                            if !geometry.is_present(tile) {
+                                return Ok(None);
+                            }
+                            let node = finest_node(raster, &geometry, tile, spacings)?;
+                            let enc = encode(&node, &geometry, finest, &quant);
+                            Ok(Some((node, enc)))
+                        })
+                        .collect();
+                    let failed = result.is_err();
+                    if tx.send(result).is_err() || failed {
+                        return;
+                    }
+                    start = stop;
+                }
+            });
+            let mut m = first;
+            for batch in rx {
+                opts.interrupt.check()?;
+                for item in batch? {
+                    agg.push(sink, finest, Morton::from_raw(m), item)?;
+                    m += 1;
+                }
+            }
+            producer.join().expect("tile producer panicked");
+            anyhow::ensure!(m == end, "tile production stopped early");
+            Ok(())
+        })?;
+        Ok((agg.min_q, agg.max_q))
+    }
 }
 
 /// Errors in quantization steps → metres, rounded up so the bound stays conservative.

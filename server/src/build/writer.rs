@@ -103,13 +103,13 @@ impl std::fmt::Debug for PyramidWriter {
 
 /// Partial files are named `.NAME.partial-PID-XXXXXX` so a later build can tell
 /// whose they are.
-fn partial_prefix(name: &str, pid: u32) -> String {
+pub(super) fn partial_prefix(name: &str, pid: u32) -> String {
     format!(".{name}.partial-{pid}-")
 }
 
 /// Removes partial files of `name` left by builds that were killed (their process no
 /// longer exists). Only where `/proc` tells which processes are alive.
-fn remove_stale_partials(dir: &Path, name: &str) {
+pub(super) fn remove_stale_partials(dir: &Path, name: &str) {
     if !Path::new("/proc/self").exists() {
         return;
     }
