@@ -178,14 +178,14 @@ struct Prepared {
 
 /// The DEM as the tiler reads it.
 enum Dem {
-    Spooled(spool::SpooledRaster),
+    Spooled(Box<spool::SpooledRaster>),
     Synthetic(ingest::synthetic::Synthetic),
 }
 
 impl Dem {
     fn raster(&self) -> &dyn Raster {
         match self {
-            Dem::Spooled(s) => s,
+            Dem::Spooled(s) => s.as_ref(),
             Dem::Synthetic(s) => s,
         }
     }
@@ -362,7 +362,7 @@ impl Prepared {
                     spooled.sample_type.is_integer(),
                 );
                 meta.nodata_count = spooled.nodata_count;
-                Dem::Spooled(spooled)
+                Dem::Spooled(Box::new(spooled))
             }
             Input::Synthetic(synth) => {
                 meta.quantization = Quantization {

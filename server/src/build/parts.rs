@@ -220,6 +220,9 @@ fn rect_depths(xs: &Range<u32>, ys: &Range<u32>) -> DepthCounts {
     c
 }
 
+/// Samples of a row whose validity is read at once.
+const VALIDITY_CHUNK: u32 = 1 << 16;
+
 /// A part's share of the DEM's depth counts ([`Raster::depth_counts`]): the
 /// samples its level-`level` tiles `tops` own, valid and filled. The parts' shares
 /// add up to the whole raster's counts.
@@ -242,11 +245,10 @@ pub(super) fn share(
         if !raster.has_nodata() {
             continue;
         }
-        const CHUNK: u32 = 1 << 16;
         for y in ys.clone() {
             let mut x = xs.start;
             while x < xs.end {
-                let w = CHUNK.min(xs.end - x);
+                let w = VALIDITY_CHUNK.min(xs.end - x);
                 valid.resize(w as usize, false);
                 raster.read_validity(x, y, w, 1, &mut valid)?;
                 for (i, _) in valid.iter().enumerate().filter(|(_, v)| !**v) {
@@ -1113,8 +1115,10 @@ impl PartFile {
             while r.next()?.is_some() {}
         }
         let mut roots = self.roots(&g)?;
-        while roots.next()?.is_some() {}
-        Ok(())
+        for _ in self.trailer.tops.clone() {
+            roots.next()?;
+        }
+        roots.finish()
     }
 }
 
@@ -1191,22 +1195,15 @@ struct Roots {
 }
 
 impl Roots {
-    /// The next code's node (`Some(None)`: absent); `None` after the last.
-    fn next(&mut self) -> anyhow::Result<Option<Option<Node>>> {
+    /// The next code's node (`None`: absent).
+    fn next(&mut self) -> anyhow::Result<Option<Node>> {
         let m = self.next;
-        if m == self.end {
-            ensure!(
-                self.remaining == 0,
-                "corrupt: {} bytes after the last split-level tile",
-                self.remaining
-            );
-            return Ok(None);
-        }
+        ensure!(m < self.end, "corrupt: more split-level tiles than codes");
         self.next += 1;
         let mut tag = [0u8; 1];
         self.take(&mut tag, m)?;
         match tag[0] {
-            0 => return Ok(Some(None)),
+            0 => return Ok(None),
             1 => {}
             t => bail!("corrupt: split-level tile {m} has tag {t}"),
         }
@@ -1245,7 +1242,7 @@ impl Roots {
         max.copy_from_slice(&ranges[64..]);
         let mask = CellMask::decode(mask, self.side as u32 - 1)
             .map_err(|e| anyhow::anyhow!("corrupt: split-level tile {m}: {e}"))?;
-        Ok(Some(Some(Node {
+        Ok(Some(Node {
             heights: u16s(heights),
             errors: BlockErrors {
                 values: errors
@@ -1256,7 +1253,17 @@ impl Roots {
             min,
             max,
             mask,
-        })))
+        }))
+    }
+
+    /// Checks that every code's node was read and nothing follows.
+    fn finish(&self) -> anyhow::Result<()> {
+        ensure!(
+            self.next == self.end && self.remaining == 0,
+            "corrupt: {} bytes after the last split-level tile",
+            self.remaining
+        );
+        Ok(())
     }
 
     fn take(&mut self, buf: &mut [u8], m: u64) -> anyhow::Result<()> {
@@ -1401,6 +1408,8 @@ fn open_parts(dir: &Path) -> anyhow::Result<Vec<PartFile>> {
         .find(|p| p.trailer.fingerprint[..] == fingerprint[..])
         .map(|p| p.trailer.meta.clone());
     let mut by_k: BTreeMap<u32, Vec<PartFile>> = BTreeMap::new();
+    // Ks some file claims, matching or not: a mismatched part is not also "missing".
+    let claimed: std::collections::BTreeSet<u32> = same_n.iter().map(|p| p.header.k).collect();
     for p in same_n {
         if p.trailer.fingerprint[..] == fingerprint[..] {
             by_k.entry(p.header.k).or_default().push(p);
@@ -1425,7 +1434,7 @@ fn open_parts(dir: &Path) -> anyhow::Result<Vec<PartFile>> {
         }
     }
     for k in 0..n {
-        if !by_k.contains_key(&k) {
+        if !claimed.contains(&k) {
             let spec = PartSpec { k, n };
             problems.push(format!(
                 "{}: missing (part {k} of {n}; build it with --part {k}/{n})",
@@ -1515,17 +1524,10 @@ pub fn assemble(dir: &Path, output: &Path, opts: &BuildOptions) -> anyhow::Resul
         opts.interrupt.check()?;
         let mut roots = p.roots(&geometry).with_context(named)?;
         for m in p.trailer.tops.clone() {
-            let node = roots
-                .next()
-                .with_context(named)?
-                .expect("one per code of the slice");
+            let node = roots.next().with_context(named)?;
             agg.push_node(&mut writer, split, Morton::from_raw(m), node)?;
         }
-        ensure!(
-            roots.next().with_context(named)?.is_none(),
-            "{}: corrupt: more split-level tiles than codes",
-            named()
-        );
+        roots.finish().with_context(named)?;
     }
     drop(agg);
     tiles_bar.finish_and_clear();
