@@ -11,7 +11,7 @@ use tessera_client::app::{load_test, window};
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
 use tessera_client::select::Policy;
-use tessera_client::stream::{RequestMode, StreamConfig};
+use tessera_client::stream::{RequestMode, StreamConfig, TileSource};
 use tessera_shared::Pyramid;
 
 #[derive(Debug, Parser)]
@@ -27,15 +27,12 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Load-test a server: N simulated clients fly the built-in paths (staggered)
-    /// through the real selection and streaming code, without rendering.
+    /// Load-test a server (or a static host serving a pyramid file, --pyramid): N
+    /// simulated clients fly the built-in paths (staggered) through the real
+    /// selection and streaming code, without rendering.
     Load {
-        /// Server base URL, e.g. http://127.0.0.1:8080.
-        #[arg(long)]
-        server: String,
-        /// Dataset name on the server.
-        #[arg(long)]
-        dataset: String,
+        #[command(flatten)]
+        source: SourceArgs,
         #[arg(long, default_value_t = 16)]
         clients: u32,
         /// How long, e.g. 30s, 2m.
@@ -59,15 +56,12 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Fly a path over a dataset served by `tessera-server serve`: selection and
-    /// streaming at a fixed frame rate, in real time, with per-frame statistics.
+    /// Fly a path over a dataset served by `tessera-server serve`, or over a pyramid
+    /// file read straight from a static host (--pyramid): selection and streaming at
+    /// a fixed frame rate, in real time, with per-frame statistics.
     Fly {
-        /// Server base URL, e.g. http://127.0.0.1:8080.
-        #[arg(long)]
-        server: String,
-        /// Dataset name on the server.
-        #[arg(long)]
-        dataset: String,
+        #[command(flatten)]
+        source: SourceArgs,
         /// canyon, pass, orbit, or a path JSON file.
         #[arg(long, default_value = "canyon")]
         path: String,
@@ -205,6 +199,32 @@ enum Command {
     },
 }
 
+/// Where the tiles come from: a server and dataset, or a pyramid file's URL.
+#[derive(Debug, clap::Args)]
+struct SourceArgs {
+    /// Server base URL, e.g. http://127.0.0.1:8080.
+    #[arg(long, required_unless_present = "pyramid", requires = "dataset")]
+    server: Option<String>,
+    /// Dataset name on the server.
+    #[arg(long, required_unless_present = "pyramid", requires = "server")]
+    dataset: Option<String>,
+    /// Read a pyramid file straight from a static host, CDN or object store with
+    /// HTTP Range requests, no Tessera server: http(s)://host/path/file.tess (or
+    /// file:///path/file.tess). The host must answer Range requests with 206.
+    #[arg(long, value_name = "URL", conflicts_with_all = ["server", "dataset"])]
+    pyramid: Option<String>,
+}
+
+impl SourceArgs {
+    fn source(self) -> anyhow::Result<TileSource> {
+        match (self.pyramid, self.server, self.dataset) {
+            (Some(url), None, None) => Ok(TileSource::pyramid(url)),
+            (None, Some(server), Some(dataset)) => Ok(TileSource::server(server, dataset)),
+            _ => anyhow::bail!("give --server URL --dataset NAME, or --pyramid URL"),
+        }
+    }
+}
+
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     match run(cli) {
@@ -254,8 +274,7 @@ fn parse_viewport(v: &str) -> anyhow::Result<(u32, u32)> {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Load {
-            server,
-            dataset,
+            source,
             clients,
             duration,
             mode,
@@ -267,8 +286,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         } => {
             let (width, height) = parse_viewport(&viewport)?;
             let opts = load_test::LoadOptions {
-                server,
-                dataset,
+                source: source.source()?,
                 clients,
                 duration,
                 mode: match mode {
@@ -291,8 +309,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Fly {
-            server,
-            dataset,
+            source,
             path,
             frames,
             fps,
@@ -356,8 +373,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 "--fps, --tau and --budget-ms must be positive"
             );
             let opts = FlyOptions {
-                server,
-                dataset,
+                source: source.source()?,
                 path,
                 frames,
                 fps,

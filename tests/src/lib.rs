@@ -2,6 +2,7 @@
 
 #![allow(clippy::unwrap_used)] // test fixtures: a failed unwrap is a failed test
 
+pub mod nginx;
 pub mod quantized_mesh;
 pub mod terrain_check;
 

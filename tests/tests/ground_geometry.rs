@@ -296,8 +296,7 @@ fn settled_flight(
     out_dir: &Path,
 ) -> tessera_client::app::fly::FrameRecord {
     let opts = FlyOptions {
-        server: format!("http://{}", f.server),
-        dataset: d.name.into(),
+        source: tessera_client::stream::TileSource::server(format!("http://{}", f.server), d.name),
         path,
         frames: 1,
         fps: 30.0,

@@ -178,8 +178,7 @@ fn load_generator_batches_in_range_mode_only() {
     let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
     let run = |mode| {
         load(&LoadOptions {
-            server: format!("http://{addr}"),
-            dataset: "terrain".into(),
+            source: tessera_client::stream::TileSource::server(format!("http://{addr}"), "terrain"),
             clients: 3,
             duration: Duration::from_millis(1500),
             mode,

@@ -1,22 +1,22 @@
 //! `tessera fly --no-render`: selection and streaming along a path at a fixed frame
-//! rate, in real time against a real server, writing per-frame statistics.
+//! rate, in real time against a real server (or a pyramid file on a static host,
+//! `--pyramid`), writing per-frame statistics.
 
 use super::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles, fetch_tiles};
 use crate::paths::{FlyPath, pose_camera};
 use crate::select::{FrameStats, SelectParams, Selector, World};
 use crate::stream::pool::TilePool;
-use crate::stream::{FrameWork, StreamConfig, StreamStats, Streamer};
+use crate::stream::{FrameWork, StreamConfig, StreamStats, Streamer, TileSource};
 use anyhow::Context;
 use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
-use tessera_shared::api;
-use tessera_shared::codec::RecordLayout;
 
 #[derive(Clone, Debug)]
 pub struct FlyOptions {
-    pub server: String,
-    pub dataset: String,
+    /// A dataset on a Tessera server (`--server URL --dataset NAME`), or a pyramid
+    /// file read with HTTP Range from any static host (`--pyramid URL`).
+    pub source: TileSource,
     pub path: String,
     pub frames: u32,
     pub fps: f64,
@@ -175,37 +175,25 @@ impl RenderSummary {
     }
 }
 
-/// What the client learns from `/v1/datasets/{name}`.
+/// What the client learns from `/v1/datasets/{name}` (or a static file's header).
 pub(crate) struct DatasetView {
     pub world: World,
     pub min_height: f64,
     pub max_height: f64,
-    /// How the dataset's records are laid out (they arrive as stored).
-    pub layout: RecordLayout,
 }
 
-/// Reads `/v1/datasets/{name}` into a [`World`], the height range and record layout.
-pub(crate) fn world(streamer: &Streamer, opts: &FlyOptions) -> anyhow::Result<DatasetView> {
-    let url = format!(
-        "{}{}",
-        opts.server.trim_end_matches('/'),
-        api::fill(api::routes::DATASET, &[("name", &opts.dataset)])
-    );
-    let info: api::DatasetInfo = streamer.block_on(async {
-        let r = streamer.client().get(&url).send().await?;
-        let status = r.status();
-        let body = r.text().await?;
-        anyhow::ensure!(status.is_success(), "{url}: HTTP {status}: {body}");
-        serde_json::from_str(&body)
-            .with_context(|| format!("{url}: not the dataset description of API.md"))
-    })?;
+/// Opens the flight's source ([`Streamer::open`]): the streamer, and the dataset's
+/// document read into a [`World`], the height range and record layout.
+pub(crate) fn open(opts: &FlyOptions) -> anyhow::Result<(Streamer, DatasetView)> {
+    let (streamer, info) = Streamer::open(&opts.source, opts.stream.clone(), opts.runtime.clone())
+        .with_context(|| format!("cannot open {}", opts.source))?;
     let world = World::from_dataset(&info, opts.spacing)?;
-    Ok(DatasetView {
-        layout: RecordLayout::new(world.geometry.tile_log2(), info.format_version),
+    let view = DatasetView {
         world,
         min_height: info.min_height,
         max_height: info.max_height,
-    })
+    };
+    Ok((streamer, view))
 }
 
 /// How long a measured frame may wait for its tiles ([`RenderSetup::settle`], the
@@ -235,26 +223,14 @@ pub fn fly_to_file(opts: &FlyOptions, stats: Option<&Path>) -> anyhow::Result<Fl
 
 /// Flies the path, writing one [`FrameRecord`] per frame to `stats`.
 pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Result<FlySummary> {
-    let streamer_for = |layout: RecordLayout| match &opts.runtime {
-        Some(h) => Streamer::on_runtime(
-            h.clone(),
-            &opts.server,
-            &opts.dataset,
-            layout,
-            opts.stream.clone(),
-        ),
-        None => Streamer::new(&opts.server, &opts.dataset, layout, opts.stream.clone()),
-    };
-    // The probe only reads the dataset document; it decodes no record.
-    let probe = streamer_for(RecordLayout::current(9))?;
-    let DatasetView {
-        world,
-        min_height,
-        max_height,
-        layout,
-    } = world(&probe, opts)?;
-    drop(probe);
-    let mut streamer = streamer_for(layout)?;
+    let (
+        mut streamer,
+        DatasetView {
+            world,
+            min_height,
+            max_height,
+        },
+    ) = open(opts)?;
     let size = world.size_m();
     let path = FlyPath::load(&opts.path, size.max_element())?;
     let params = SelectParams {

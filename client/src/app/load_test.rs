@@ -1,16 +1,17 @@
 //! `tessera load`: many simulated clients flying the built-in paths through the real
-//! selection and streaming code (no rendering), to load-test a server.
+//! selection and streaming code (no rendering), to load-test a server, or a static
+//! host serving a pyramid file (`--pyramid`).
 
 use super::fly::{FlyOptions, fly};
-use crate::stream::{RequestMode, StreamConfig};
+use crate::stream::{RequestMode, StreamConfig, TileSource};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 #[derive(Clone, Debug)]
 pub struct LoadOptions {
-    pub server: String,
-    pub dataset: String,
+    /// The server and dataset, or the pyramid file's URL.
+    pub source: TileSource,
     pub clients: u32,
     pub duration: Duration,
     pub mode: RequestMode,
@@ -95,8 +96,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
     let handles: Vec<_> = (0..opts.clients)
         .map(|i| {
             let fly_opts = FlyOptions {
-                server: opts.server.clone(),
-                dataset: opts.dataset.clone(),
+                source: opts.source.clone(),
                 path: paths[i as usize % paths.len()].to_string(),
                 frames,
                 fps: opts.fps,

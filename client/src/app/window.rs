@@ -1,4 +1,5 @@
-//! The windowed client (`tessera fly --server URL --dataset NAME`): a winit window
+//! The windowed client (`tessera fly --server URL --dataset NAME`, or `--pyramid
+//! URL`): a winit window
 //! flown with the mouse and keyboard, the same selection, streaming and renderer as
 //! the headless client, statistics in the title bar.
 //!
@@ -20,7 +21,6 @@ use glam::DVec3;
 use std::collections::HashSet;
 use std::sync::Arc;
 use std::time::Instant;
-use tessera_shared::codec::RecordLayout;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, EventLoop};
@@ -78,25 +78,19 @@ impl State {
         render: RenderOptions,
         display: Box<dyn wgpu::wgt::WgpuHasDisplayHandle>,
     ) -> anyhow::Result<Self> {
-        let probe = Streamer::new(
-            &opts.server,
-            &opts.dataset,
-            RecordLayout::current(9),
-            opts.stream.clone(),
-        )?;
-        let super::fly::DatasetView {
-            world,
-            min_height: min_h,
-            max_height: max_h,
-            layout,
-        } = super::fly::world(&probe, opts)?;
-        drop(probe);
-        let streamer = Streamer::new(&opts.server, &opts.dataset, layout, opts.stream.clone())?;
+        let (
+            streamer,
+            super::fly::DatasetView {
+                world,
+                min_height: min_h,
+                max_height: max_h,
+            },
+        ) = super::fly::open(opts)?;
         let window = Arc::new(
             event_loop
                 .create_window(
                     Window::default_attributes()
-                        .with_title(format!("Tessera — {}", opts.dataset))
+                        .with_title(format!("Tessera — {}", opts.source.name()))
                         .with_inner_size(winit::dpi::PhysicalSize::new(
                             render.width,
                             render.height,
@@ -172,7 +166,7 @@ impl State {
             cursor: None,
             last: Instant::now(),
             fps: (0, Instant::now(), 0.0),
-            dataset: opts.dataset.clone(),
+            dataset: opts.source.name().to_string(),
         })
     }
 

@@ -5,9 +5,12 @@
 //! tiles the server has no record of (absent), and how the request ended, with whom
 //! to blame for a failure ([`Blame`]).
 
+use super::source::{StaticFile, Transport, Validators};
 use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
+use tessera_shared::ByteSource;
 use tessera_shared::codec::RecordLayout;
+use tessera_shared::format::IndexEntry;
 use tessera_shared::wire::{Frame, FrameDecoder, WireError};
 use tessera_shared::{CellMask, ErrorTable, Level, Morton, MortonRange, TileId, codec};
 
@@ -80,6 +83,48 @@ fn decode_slots() -> Arc<tokio::sync::Semaphore> {
         .clone()
 }
 
+/// Decodes one record off the I/O threads: decoding is CPU work, and no more decodes
+/// run at once than there are cores, so that many clients in one process cannot
+/// starve the I/O threads. The read goes on meanwhile: latency is the network's.
+///
+/// With `check` (the index's checksum and where the bytes came from), the record is
+/// first checked against it: a mismatch is reported as a corrupt record
+/// ([`Event::Corrupt`]), not as a failure of the request, since the index says
+/// exactly where the next record starts.
+fn spawn_decode(
+    tile: TileId,
+    record: Vec<u8>,
+    check: Option<(u64, String)>,
+    layout: RecordLayout,
+    tx: mpsc::Sender<Event>,
+) -> tokio::task::JoinHandle<Result<(), Failure>> {
+    tokio::spawn(async move {
+        let _slot = decode_slots()
+            .acquire_owned()
+            .await
+            .map_err(|e| (e.to_string(), Blame::Request))?;
+        tokio::task::spawn_blocking(move || {
+            if let Some((want, from)) = check
+                && tessera_shared::format::checksum(&record) != want
+            {
+                let _ = tx.send(Event::Corrupt {
+                    tile,
+                    error: format!(
+                        "{from}: {tile}: record fails its checksum in the index (corrupt in the file, or damaged on the way)"
+                    ),
+                });
+                return Ok(());
+            }
+            let rec = codec::decode_record(&record, layout)
+                .map_err(|e| (format!("{tile}: {e}"), Blame::Tile(tile)))?;
+            let _ = tx.send(Event::Tile(Box::new(Decoded::new(tile, rec))));
+            Ok::<(), Failure>(())
+        })
+        .await
+        .map_err(|e| (e.to_string(), Blame::Tile(tile)))?
+    })
+}
+
 /// One range request for tiles of `level`: streams the body through the frame
 /// decoder and decodes each record as it completes, off the frame thread.
 pub(super) async fn fetch(
@@ -121,25 +166,8 @@ pub(super) async fn fetch(
                     } => {
                         let tile = TileId::from_morton(frame_level, morton)
                             .ok_or_else(|| whole(&"tile outside its level"))?;
-                        // Decoding is CPU work: keep it off the I/O threads, and run
-                        // no more decodes at once than there are cores, so that many
-                        // clients in one process cannot starve the I/O threads. The
-                        // read goes on meanwhile: latency is the network's.
-                        let tx = tx.clone();
-                        decodes.push(tokio::spawn(async move {
-                            let _slot = decode_slots()
-                                .acquire_owned()
-                                .await
-                                .map_err(|e| (e.to_string(), Blame::Request))?;
-                            tokio::task::spawn_blocking(move || {
-                                let rec = codec::decode_record(&record, layout)
-                                    .map_err(|e| (format!("{tile}: {e}"), Blame::Tile(tile)))?;
-                                let _ = tx.send(Event::Tile(Box::new(Decoded::new(tile, rec))));
-                                Ok::<(), Failure>(())
-                            })
-                            .await
-                            .map_err(|e| (e.to_string(), Blame::Tile(tile)))?
-                        }));
+                        // The wire decoder has checked the frame's checksum.
+                        decodes.push(spawn_decode(tile, record, None, layout, tx.clone()));
                     }
                     Frame::Error {
                         level,
@@ -273,4 +301,167 @@ pub(super) async fn fetch_one(
     }
     .await;
     finish(&tx, id, sent, result);
+}
+
+/// Splits the bytes of one byte range into the records the index says it holds, in
+/// order (a level's records are contiguous: FORMAT.md "Layout").
+struct Splitter {
+    records: std::collections::VecDeque<(TileId, IndexEntry)>,
+    buf: Vec<u8>,
+}
+
+impl Splitter {
+    fn new(records: &[(TileId, IndexEntry)]) -> Self {
+        Self {
+            records: records.iter().copied().collect(),
+            buf: Vec::new(),
+        }
+    }
+
+    /// Adds received bytes; every record they complete, with its index entry.
+    fn push(&mut self, bytes: &[u8]) -> Vec<(TileId, IndexEntry, Vec<u8>)> {
+        self.buf.extend_from_slice(bytes);
+        let mut done = Vec::new();
+        while let Some(&(tile, e)) = self.records.front() {
+            let len = e.length as usize;
+            if self.buf.len() < len {
+                break;
+            }
+            let rest = self.buf.split_off(len);
+            done.push((tile, e, std::mem::replace(&mut self.buf, rest)));
+            self.records.pop_front();
+        }
+        done
+    }
+
+    fn is_done(&self) -> bool {
+        self.records.is_empty()
+    }
+}
+
+/// One Range request for a run of records contiguous in a static pyramid file
+/// (serverless reads, [`super::source`]): the body is split into records at the
+/// index's boundaries as it arrives, and each is checked against its index checksum
+/// and decoded off the frame thread, as [`fetch`] does with a server's frames.
+///
+/// The answer must be `206` with the range asked for, from the file the client
+/// opened (its validators, its length, compared before the body is read); a `200`
+/// (the host stopped honouring `Range`), a `416` (the file is shorter than its index
+/// says), another range, a changed `ETag`/`Last-Modified`/length or a short body
+/// fail the request and name the cause. A short body blames the first record not
+/// received; the records before it are delivered.
+pub(super) async fn fetch_range(
+    client: reqwest::Client,
+    file: Arc<StaticFile>,
+    records: Vec<(TileId, IndexEntry)>,
+    id: u64,
+    layout: RecordLayout,
+    tx: mpsc::Sender<Event>,
+) {
+    let sent = Instant::now();
+    let (Some(first), Some(last)) = (records.first(), records.last()) else {
+        finish(&tx, id, sent, Ok(0));
+        return;
+    };
+    let (start, end) = (first.1.offset, last.1.end());
+    let len = end - start;
+    let from = format!("{} bytes={start}-{}", file.url, end - 1);
+    let whole = |e: &dyn std::fmt::Display| (format!("{from}: {e}"), Blame::Request);
+    let mut split = Splitter::new(&records);
+    let mut decodes = Vec::new();
+    let take = |split: &mut Splitter, bytes: &[u8], decodes: &mut Vec<_>| {
+        for (tile, e, record) in split.push(bytes) {
+            let check = Some((e.checksum, from.clone()));
+            decodes.push(spawn_decode(tile, record, check, layout, tx.clone()));
+        }
+    };
+    let result = async {
+        match &file.transport {
+            Transport::Http(validators) => {
+                let mut resp = client
+                    .get(&file.url)
+                    .header(reqwest::header::RANGE, format!("bytes={start}-{}", end - 1))
+                    .send()
+                    .await
+                    .map_err(|e| whole(&e))?;
+                let range = super::source::content_range(resp.headers());
+                let now = Validators::of_response(resp.headers(), range.and_then(|r| r.2));
+                if let Some(what) = validators.changed(&now) {
+                    return Err(whole(&format!(
+                        "the pyramid changed under the client ({what}); open it again"
+                    )));
+                }
+                match resp.status() {
+                    reqwest::StatusCode::PARTIAL_CONTENT => {}
+                    reqwest::StatusCode::OK => {
+                        return Err(whole(
+                            &"HTTP 200 to a Range request: the host stopped honouring Range",
+                        ));
+                    }
+                    reqwest::StatusCode::RANGE_NOT_SATISFIABLE => {
+                        return Err(whole(
+                            &"HTTP 416: the file is shorter than its index says (the pyramid changed under the client, or was truncated)",
+                        ));
+                    }
+                    status => return Err(whole(&format!("HTTP {status}"))),
+                }
+                if range.map(|r| (r.0, r.1)) != Some((start, end - 1)) {
+                    return Err(whole(&format!(
+                        "the host answered another range ({:?})",
+                        resp.headers().get(reqwest::header::CONTENT_RANGE)
+                    )));
+                }
+                let mut bytes = 0u64;
+                while let Some(chunk) = resp.chunk().await.map_err(|e| {
+                    // A body cut short: blame the first record still missing.
+                    (format!("{from}: {e}"), Blame::Truncated)
+                })? {
+                    bytes += chunk.len() as u64;
+                    if bytes > len {
+                        return Err(whole(&format!("more than the {len} bytes asked for")));
+                    }
+                    take(&mut split, &chunk, &mut decodes);
+                }
+                if !split.is_done() {
+                    return Err((
+                        format!("{from}: short body: {bytes} of {len} bytes"),
+                        Blame::Truncated,
+                    ));
+                }
+                Ok(bytes)
+            }
+            Transport::Memory(body) => {
+                let bytes = usize::try_from(start)
+                    .ok()
+                    .zip(usize::try_from(end).ok())
+                    .and_then(|(a, b)| body.get(a..b))
+                    .ok_or_else(|| whole(&"the file is shorter than its index says"))?;
+                take(&mut split, bytes, &mut decodes);
+                Ok(len)
+            }
+            Transport::File(src) => {
+                let src = src.clone();
+                let bytes = tokio::task::spawn_blocking(move || src.read_vec(start, len as usize))
+                .await
+                .map_err(|e| whole(&e))?
+                .map_err(|e| whole(&e))?;
+                take(&mut split, &bytes, &mut decodes);
+                Ok(len)
+            }
+        }
+    }
+    .await;
+    let latency = sent.elapsed();
+    let mut result = result;
+    for d in decodes {
+        let failed = match d.await {
+            Ok(Ok(())) => continue,
+            Ok(Err((e, blame))) => (format!("{from}: {e}"), blame),
+            Err(e) => (format!("{from}: decoding task failed: {e}"), Blame::Request),
+        };
+        if result.is_ok() {
+            result = Err(failed);
+        }
+    }
+    finish_after(&tx, id, latency, result);
 }

@@ -1,4 +1,5 @@
-//! Streaming tiles from a Tessera server (DESIGN §5, Kang §6.1).
+//! Streaming tiles from a Tessera server, or straight from a pyramid file on a
+//! static host (DESIGN §5, §9, Kang §6.1).
 //!
 //! The frame thread never waits on the network. Each frame it calls
 //! [`Streamer::frame`], which
@@ -29,18 +30,31 @@
 //! 404 for a single tile: outside the DEM or, in format v2, wholly no-data — are
 //! marked absent in the pool: they are never asked for again, and selection
 //! neither waits for them nor counts them as holes.
+//!
+//! Two backends feed the same streamer ([`TileSource`]): a Tessera server (one
+//! request per batch of Morton ranges, `?ranges=`), and a pyramid file read
+//! serverlessly with HTTP Range ([`source`]): its index is local, so tiles with no
+//! record are absent without a request, and each run of wanted records contiguous in
+//! the file (a Morton range, gaps of absent tiles included) is one Range request.
+//! A record that fails its index checksum is reported corrupt, as a server's error
+//! frame is. Selection, budget, prefetch, retries, cancellation and statistics are
+//! the same.
 
 mod fetch;
 pub mod pool;
+pub mod source;
 
 use crate::select::Wanted;
-use fetch::{Blame, Decoded, Event, fetch, fetch_one};
+use anyhow::Context;
+use fetch::{Blame, Decoded, Event, fetch, fetch_one, fetch_range};
 use pool::TilePool;
+use source::StaticFile;
+pub use source::TileSource;
 use std::collections::{HashMap, HashSet};
-use std::sync::mpsc;
+use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant};
 use tessera_shared::codec::RecordLayout;
-use tessera_shared::{Level, Morton, TileId, api, morton, range_query};
+use tessera_shared::{Level, Morton, TileGeometry, TileId, api, morton, range_query};
 
 /// Most codes one trailer may mark absent: far more than one request names
 /// ([`StreamConfig::max_tiles_per_request`]), so a hostile trailer cannot make the
@@ -92,6 +106,10 @@ impl Default for StreamConfig {
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StreamStats {
     pub requests: u64,
+    /// Morton ranges those requests asked for (a server request may name several;
+    /// a Range request to a static file is one).
+    #[serde(default)]
+    pub ranges: u64,
     /// Requests answered in full.
     pub responses: u64,
     pub bytes: u64,
@@ -120,14 +138,20 @@ struct Flight {
     task: tokio::task::JoinHandle<()>,
 }
 
+/// Where a streamer's requests go.
+enum Backend {
+    /// A Tessera server: its root URL, without a trailing `/`, and the dataset.
+    Server { url: String, dataset: String },
+    /// A pyramid file read with HTTP Range (or from `file://`), its index local.
+    Static(Arc<StaticFile>),
+}
+
 /// Fetches tiles in the background on its own runtime.
 pub struct Streamer {
     _owned: Option<tokio::runtime::Runtime>,
     rt: tokio::runtime::Handle,
     client: reqwest::Client,
-    /// The server's root URL, without a trailing `/`.
-    server: String,
-    dataset: String,
+    backend: Backend,
     layout: RecordLayout,
     config: StreamConfig,
     tx: mpsc::Sender<Event>,
@@ -147,13 +171,34 @@ pub struct Streamer {
 
 impl std::fmt::Debug for Streamer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let source = match &self.backend {
+            Backend::Server { url, dataset } => format!("{dataset} on {url}"),
+            Backend::Static(file) => file.url.clone(),
+        };
         f.debug_struct("Streamer")
-            .field("server", &self.server)
-            .field("dataset", &self.dataset)
+            .field("source", &source)
             .field("in_flight", &self.flights.len())
             .field("stats", &self.stats)
             .finish_non_exhaustive()
     }
+}
+
+/// The HTTP client of a streamer. HTTPS goes through rustls with the `ring`
+/// provider, installed here once for the process (reqwest has no provider of its
+/// own; one installed already serves as well).
+fn http_client(timeout: Duration) -> anyhow::Result<reqwest::Client> {
+    static PROVIDER: std::sync::Once = std::sync::Once::new();
+    PROVIDER.call_once(|| {
+        let _ = rustls::crypto::ring::default_provider().install_default();
+    });
+    Ok(reqwest::Client::builder().timeout(timeout).build()?)
+}
+
+fn own_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?)
 }
 
 impl Streamer {
@@ -164,12 +209,64 @@ impl Streamer {
         layout: RecordLayout,
         config: StreamConfig,
     ) -> anyhow::Result<Self> {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()?;
+        let rt = own_runtime()?;
         let handle = rt.handle().clone();
         Self::with_runtime(Some(rt), handle, server, name, layout, config)
+    }
+
+    /// A streamer for `source`, on `runtime` or one of its own, and the dataset's
+    /// document (API.md): from the server's `/v1/datasets/{name}`, or built from a
+    /// static file's header as the server would build it. The records' layout comes
+    /// from that document.
+    pub fn open(
+        source: &TileSource,
+        config: StreamConfig,
+        runtime: Option<tokio::runtime::Handle>,
+    ) -> anyhow::Result<(Self, api::DatasetInfo)> {
+        let (owned, rt) = if let Some(h) = runtime {
+            (None, h)
+        } else {
+            let rt = own_runtime()?;
+            let h = rt.handle().clone();
+            (Some(rt), h)
+        };
+        let client = http_client(config.request_timeout)?;
+        let (backend, info) = match source {
+            TileSource::Server { url, dataset } => {
+                let url = url.trim_end_matches('/').to_string();
+                let info = rt.block_on(describe(&client, &url, dataset))?;
+                (
+                    Backend::Server {
+                        url,
+                        dataset: dataset.clone(),
+                    },
+                    info,
+                )
+            }
+            TileSource::StaticFile { url } => {
+                let file = rt.block_on(StaticFile::open(&client, url))?;
+                tracing::debug!(
+                    "{url}: opened with {} requests, {} bytes",
+                    file.open_requests,
+                    file.open_bytes
+                );
+                let info = file.describe(source.name());
+                (Backend::Static(Arc::new(file)), info)
+            }
+        };
+        let geometry = TileGeometry::new(info.width, info.height, info.tile_size)?;
+        let layout = RecordLayout::new(geometry.tile_log2(), info.format_version);
+        let streamer = Self::build(owned, rt, client, backend, layout, config);
+        Ok((streamer, info))
+    }
+
+    /// Requests and bytes it took to open a static file (its header region): 0 for a
+    /// server, whose dataset document is not counted either.
+    pub fn open_cost(&self) -> (u32, u64) {
+        match &self.backend {
+            Backend::Server { .. } => (0, 0),
+            Backend::Static(f) => (f.open_requests, f.open_bytes),
+        }
     }
 
     /// A streamer whose fetches run on an existing runtime (the load generator runs
@@ -192,16 +289,28 @@ impl Streamer {
         layout: RecordLayout,
         config: StreamConfig,
     ) -> anyhow::Result<Self> {
-        let client = reqwest::Client::builder()
-            .timeout(config.request_timeout)
-            .build()?;
+        let client = http_client(config.request_timeout)?;
+        let backend = Backend::Server {
+            url: server.trim_end_matches('/').to_string(),
+            dataset: name.to_string(),
+        };
+        Ok(Self::build(owned, rt, client, backend, layout, config))
+    }
+
+    fn build(
+        owned: Option<tokio::runtime::Runtime>,
+        rt: tokio::runtime::Handle,
+        client: reqwest::Client,
+        backend: Backend,
+        layout: RecordLayout,
+        config: StreamConfig,
+    ) -> Self {
         let (tx, rx) = mpsc::channel();
-        Ok(Self {
+        Self {
             _owned: owned,
             rt,
             client,
-            server: server.trim_end_matches('/').to_string(),
-            dataset: name.to_string(),
+            backend,
             layout,
             config,
             tx,
@@ -214,7 +323,7 @@ impl Streamer {
             stats: StreamStats::default(),
             last_error: None,
             latencies_ms: Vec::new(),
-        })
+        }
     }
 
     /// Runs a future on the streamer's runtime (for one-off requests such as metadata).
@@ -394,7 +503,7 @@ impl Streamer {
 
     /// Requests the wanted tiles that are not resident, pending or backing off, most
     /// wanted first, coalesced into Morton ranges per level.
-    fn issue(&mut self, pool: &TilePool, wanted: &[Wanted]) -> usize {
+    fn issue(&mut self, pool: &mut TilePool, wanted: &[Wanted]) -> usize {
         let now = Instant::now();
         let mut sorted: Vec<&Wanted> = wanted.iter().collect();
         sorted.sort_by(|a, b| b.rho.total_cmp(&a.rho));
@@ -426,6 +535,18 @@ impl Streamer {
                 if self.flights.len() >= self.config.max_in_flight {
                     return issued;
                 }
+                let (server, dataset) = match &self.backend {
+                    Backend::Server { url, dataset } => (url, dataset),
+                    Backend::Static(file) => {
+                        let file = file.clone();
+                        let (n, full) = self.issue_static(pool, &file, level, chunk);
+                        issued += n;
+                        if full {
+                            return issued;
+                        }
+                        continue;
+                    }
+                };
                 let tiles: HashSet<TileId> = chunk
                     .iter()
                     .filter_map(|m| TileId::from_morton(level, *m))
@@ -436,15 +557,12 @@ impl Streamer {
                 let task = match self.config.mode {
                     RequestMode::Ranges => {
                         let ranges = morton::coalesce(chunk.iter().copied());
+                        self.stats.ranges += ranges.len() as u64;
                         let path = api::fill(
                             api::routes::TILES,
-                            &[("name", &self.dataset), ("level", &level.to_string())],
+                            &[("name", dataset), ("level", &level.to_string())],
                         );
-                        let url = format!(
-                            "{}{path}?ranges={}",
-                            self.server,
-                            range_query::format(&ranges)
-                        );
+                        let url = format!("{server}{path}?ranges={}", range_query::format(&ranges));
                         self.rt.spawn(fetch(client, url, level, id, layout, tx))
                     }
                     RequestMode::Single => {
@@ -452,13 +570,14 @@ impl Streamer {
                         let path = api::fill(
                             api::routes::TILE,
                             &[
-                                ("name", &self.dataset),
+                                ("name", dataset),
                                 ("level", &level.to_string()),
                                 ("x", &tile.x().to_string()),
                                 ("y", &tile.y().to_string()),
                             ],
                         );
-                        let url = format!("{}{path}", self.server);
+                        self.stats.ranges += 1;
+                        let url = format!("{server}{path}");
                         self.rt.spawn(fetch_one(client, url, tile, id, layout, tx))
                     }
                 };
@@ -469,4 +588,71 @@ impl Streamer {
         }
         issued
     }
+
+    /// [`Streamer::issue`] for a static file: the chunk's tiles with no record are
+    /// absent (the local index says so: no request); the others are grouped into
+    /// runs contiguous in the file, one Range request each, while the cap on
+    /// requests in flight allows. Returns the requests issued and whether the cap
+    /// stopped it (the rest are asked for in a later frame).
+    fn issue_static(
+        &mut self,
+        pool: &mut TilePool,
+        file: &Arc<StaticFile>,
+        level: Level,
+        chunk: &[Morton],
+    ) -> (usize, bool) {
+        let mut present = Vec::with_capacity(chunk.len());
+        for &m in chunk {
+            let Some(tile) = TileId::from_morton(level, m) else {
+                continue;
+            };
+            if let Some(e) = file.entry(tile) {
+                present.push((tile, e));
+            } else {
+                self.backoff.remove(&tile);
+                pool.mark_absent(tile);
+            }
+        }
+        present.sort_by_key(|(_, e)| e.offset);
+        let mut issued = 0;
+        for run in source::byte_runs(&present) {
+            if self.flights.len() >= self.config.max_in_flight {
+                return (issued, true);
+            }
+            let id = self.next_id;
+            self.next_id += 1;
+            let task = self.rt.spawn(fetch_range(
+                self.client.clone(),
+                file.clone(),
+                run.to_vec(),
+                id,
+                self.layout,
+                self.tx.clone(),
+            ));
+            let tiles = run.iter().map(|(t, _)| *t).collect();
+            self.flights.insert(id, Flight { tiles, task });
+            self.stats.requests += 1;
+            self.stats.ranges += 1;
+            issued += 1;
+        }
+        (issued, false)
+    }
+}
+
+/// `GET /v1/datasets/{name}` of `server`: the dataset's document (API.md).
+async fn describe(
+    client: &reqwest::Client,
+    server: &str,
+    dataset: &str,
+) -> anyhow::Result<api::DatasetInfo> {
+    let url = format!(
+        "{server}{}",
+        api::fill(api::routes::DATASET, &[("name", dataset)])
+    );
+    let r = client.get(&url).send().await?;
+    let status = r.status();
+    let body = r.text().await?;
+    anyhow::ensure!(status.is_success(), "{url}: HTTP {status}: {body}");
+    serde_json::from_str(&body)
+        .with_context(|| format!("{url}: not the dataset description of API.md"))
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Duration;
 use tessera_client::app::fly::{FlyOptions, FrameRecord, fly};
-use tessera_client::stream::StreamConfig;
+use tessera_client::stream::{StreamConfig, TileSource};
 use tessera_server::build::{BuildOptions, build};
 use tessera_server::serve::config::Settings;
 
@@ -71,8 +71,7 @@ pub fn glide(dir: &Path) -> String {
 
 pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
     FlyOptions {
-        server: format!("http://{server}"),
-        dataset: "terrain".into(),
+        source: TileSource::server(format!("http://{server}"), "terrain"),
         path,
         frames,
         fps: 60.0,

@@ -1,0 +1,490 @@
+//! Where tiles come from: a Tessera server, or a pyramid file read straight from a
+//! static host with HTTP Range (serverless reads, DESIGN §9; issue 16 item 3).
+//!
+//! A static file is opened with as few requests as the format allows (FORMAT.md
+//! "Layout": the header, level table, every level's index and the metadata lie
+//! together before `records_offset`): one Range request for the first
+//! [`FIRST_RANGE`] bytes, which holds the whole header region of most pyramids, and
+//! at most one more for the rest of it. The header checksum covers that whole region,
+//! so it is checked as a local file's is ([`Pyramid::open`]). From then on the index
+//! is local: a Morton range of present tiles is one byte range ([`Pyramid::byte_range`]),
+//! fetched with one Range request and split into records at the index's boundaries;
+//! every record is checked against its index checksum. Tiles with no index entry are
+//! known absent without asking anyone.
+//!
+//! The first response's validators (`ETag`, `Last-Modified`) and the file's length are
+//! kept, and every later answer's headers are compared with them before its body is
+//! read, so a file replaced under the client is reported ("the pyramid changed under
+//! the client") rather than read as a mixture of two files. Requests do not carry
+//! `If-Range`: a host would answer a changed file with `200` and the whole new file,
+//! which it then pushes down the connection until the client drops it; without
+//! `If-Range` the answer is the range of the new file, a few records at most, and its
+//! headers say it changed just the same.
+
+use anyhow::Context;
+use reqwest::StatusCode;
+use reqwest::header::{self, HeaderMap};
+use std::io;
+use std::path::Path;
+use tessera_shared::api::DatasetInfo;
+use tessera_shared::format::{FileHeader, HEADER_LEN, IndexEntry};
+use tessera_shared::{ByteSource, FileSource, Pyramid, TileId};
+
+/// Where a flight's tiles come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TileSource {
+    /// `tessera-server serve`: its root URL (e.g. `http://127.0.0.1:8080`) and the
+    /// dataset's name there.
+    Server { url: String, dataset: String },
+    /// A pyramid file on any host that answers HTTP Range requests (nginx, a CDN, an
+    /// object store with public read: `http://host/path/file.tess`), or a local file
+    /// (`file:///path/file.tess`). No server runs.
+    StaticFile { url: String },
+}
+
+impl TileSource {
+    pub fn server(url: impl Into<String>, dataset: impl Into<String>) -> Self {
+        Self::Server {
+            url: url.into(),
+            dataset: dataset.into(),
+        }
+    }
+
+    pub fn pyramid(url: impl Into<String>) -> Self {
+        Self::StaticFile { url: url.into() }
+    }
+
+    /// The dataset's name: the server's, or the file's stem (as the server would
+    /// name it).
+    pub fn name(&self) -> &str {
+        match self {
+            Self::Server { dataset, .. } => dataset,
+            Self::StaticFile { url } => file_stem(url),
+        }
+    }
+}
+
+impl std::fmt::Display for TileSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Server { url, dataset } => write!(f, "dataset {dataset} on {url}"),
+            Self::StaticFile { url } => write!(f, "pyramid {url}"),
+        }
+    }
+}
+
+/// The last path segment of `url` without its extension (`moon8k` of
+/// `http://cdn/x/moon8k.tess?sig=…`).
+fn file_stem(url: &str) -> &str {
+    let path = url.split(['?', '#']).next().unwrap_or(url);
+    let last = path.rsplit('/').next().unwrap_or(path);
+    match last.rsplit_once('.') {
+        Some((stem, _)) if !stem.is_empty() => stem,
+        _ => last,
+    }
+}
+
+/// Bytes asked for by the first request of an open: the header region of every
+/// pyramid up to about 1900 index entries per file (a 4097² DEM in 128-cell tiles,
+/// an 8193² one in 256-cell tiles) fits, so it opens with one request; larger
+/// ones take one more.
+pub const FIRST_RANGE: u64 = 64 * 1024;
+
+/// The largest header region (header, level table, indices, metadata) an open will
+/// read: the dense index grows with the finest level's `4^L`; beyond this a file is
+/// too big to open serverlessly (serve it with `tessera-server`).
+pub const MAX_HEADER_REGION: u64 = 256 << 20;
+
+/// The largest file accepted from a host that ignores `Range` (answers 200 with
+/// the whole body): read into memory once. A larger one is refused before its body
+/// is read.
+pub const MAX_WHOLE_BODY: u64 = 64 << 20;
+
+/// The header region of a remote file: bytes `0..records_offset`, and the file's
+/// length. Reads outside the region fail (records are fetched by the streamer).
+#[derive(Debug)]
+pub(crate) struct HeaderRegion {
+    bytes: Vec<u8>,
+    total: u64,
+}
+
+impl ByteSource for HeaderRegion {
+    fn size(&self) -> io::Result<u64> {
+        Ok(self.total)
+    }
+
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> io::Result<()> {
+        let start = usize::try_from(offset).map_err(|_| io::ErrorKind::UnexpectedEof)?;
+        let src = start
+            .checked_add(buf.len())
+            .and_then(|end| self.bytes.get(start..end))
+            .ok_or(io::ErrorKind::UnexpectedEof)?;
+        buf.copy_from_slice(src);
+        Ok(())
+    }
+}
+
+/// What identifies one version of a remote file: compared on every response.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub(crate) struct Validators {
+    pub etag: Option<String>,
+    pub last_modified: Option<String>,
+    /// The file's length (`Content-Range`'s total), when the host says.
+    pub total: Option<u64>,
+}
+
+impl Validators {
+    pub(crate) fn of_response(headers: &HeaderMap, total: Option<u64>) -> Self {
+        let text = |name| {
+            headers
+                .get(name)
+                .and_then(|v: &header::HeaderValue| v.to_str().ok())
+                .map(str::to_string)
+        };
+        Self {
+            etag: text(header::ETAG),
+            last_modified: text(header::LAST_MODIFIED),
+            total,
+        }
+    }
+
+    /// `Some(what differs)` when `now` (a later response) is not the file this was
+    /// taken from. Validators a response leaves out are not compared.
+    pub(crate) fn changed(&self, now: &Self) -> Option<String> {
+        let differs = |what: &str, a: &Option<String>, b: &Option<String>| match (a, b) {
+            (Some(a), Some(b)) if a != b => Some(format!("{what} {a} at open, now {b}")),
+            _ => None,
+        };
+        differs("ETag", &self.etag, &now.etag)
+            .or_else(|| differs("Last-Modified", &self.last_modified, &now.last_modified))
+            .or_else(|| match (self.total, now.total) {
+                (Some(a), Some(b)) if a != b => Some(format!("{a} bytes at open, now {b}")),
+                _ => None,
+            })
+    }
+}
+
+/// How a static file's records are read.
+#[derive(Debug)]
+pub(crate) enum Transport {
+    /// HTTP Range requests, checked against the open's validators.
+    Http(Validators),
+    /// The whole file, from a host that ignored `Range` (small files only).
+    Memory(Vec<u8>),
+    /// A local file (`file://`).
+    File(std::sync::Arc<FileSource>),
+}
+
+/// A pyramid file opened for serverless reads: its header region checked and
+/// parsed, every level's index in memory, records read on demand.
+#[derive(Debug)]
+pub(crate) struct StaticFile {
+    pub url: String,
+    pub pyramid: Pyramid<HeaderRegion>,
+    pub transport: Transport,
+    /// Requests and bytes the open took.
+    pub open_requests: u32,
+    pub open_bytes: u64,
+}
+
+impl StaticFile {
+    /// The dataset's document as the server would send it for this file (API.md):
+    /// everything the client learns of a dataset comes from the file's header here.
+    pub fn describe(&self, name: &str) -> DatasetInfo {
+        DatasetInfo::new(
+            name,
+            self.pyramid.metadata(),
+            self.pyramid.header().version,
+            self.pyramid.source().total,
+        )
+    }
+
+    /// The index entry of `tile`, `None` when it has no record (absent).
+    pub fn entry(&self, tile: TileId) -> Option<IndexEntry> {
+        self.pyramid.entry(tile).copied()
+    }
+
+    /// Opens `url` (`http://…` or `file://…`), reading its header region.
+    pub async fn open(client: &reqwest::Client, url: &str) -> anyhow::Result<Self> {
+        if let Some(path) = url.strip_prefix("file://") {
+            return Self::open_local(url, Path::new(path));
+        }
+        anyhow::ensure!(
+            url.starts_with("http://") || url.starts_with("https://"),
+            "{url}: a pyramid URL is http://…, https://… or file://…"
+        );
+        let first = client
+            .get(url)
+            .header(header::RANGE, format!("bytes=0-{}", FIRST_RANGE - 1))
+            .send()
+            .await
+            .with_context(|| format!("{url}: cannot fetch the pyramid's header"))?;
+        match first.status() {
+            StatusCode::PARTIAL_CONTENT => Self::open_ranged(client, url, first).await,
+            StatusCode::OK => Self::open_whole(url, first).await,
+            StatusCode::RANGE_NOT_SATISFIABLE => {
+                anyhow::bail!("{url}: 416 Range Not Satisfiable: the file is empty")
+            }
+            status => anyhow::bail!("{url}: HTTP {status}"),
+        }
+    }
+
+    /// The usual case: the host answered the first Range request with 206.
+    async fn open_ranged(
+        client: &reqwest::Client,
+        url: &str,
+        first: reqwest::Response,
+    ) -> anyhow::Result<Self> {
+        let (start, _, total) = content_range(first.headers())
+            .with_context(|| format!("{url}: 206 without a valid Content-Range"))?;
+        anyhow::ensure!(
+            start == 0,
+            "{url}: asked for bytes from 0, got them from {start}"
+        );
+        let validators = Validators::of_response(first.headers(), total);
+        let mut bytes = read_body(first, FIRST_RANGE)
+            .await
+            .with_context(|| format!("{url}: reading the pyramid's header"))?;
+        let header = FileHeader::parse(&bytes).map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        let region = header.records_offset;
+        anyhow::ensure!(
+            region <= MAX_HEADER_REGION,
+            "{url}: the header region (header, indices, metadata) is {region} bytes, more than the {MAX_HEADER_REGION} a serverless read fetches; serve this pyramid with tessera-server"
+        );
+        let mut requests = 1;
+        let have = bytes.len() as u64;
+        if region > have {
+            // One more request for the rest of the indices and the metadata.
+            let rest = client
+                .get(url)
+                .header(header::RANGE, format!("bytes={have}-{}", region - 1))
+                .send()
+                .await
+                .with_context(|| format!("{url}: cannot fetch the pyramid's indices"))?;
+            requests += 1;
+            let now = Validators::of_response(
+                rest.headers(),
+                content_range(rest.headers()).and_then(|r| r.2),
+            );
+            if let Some(what) = validators.changed(&now) {
+                anyhow::bail!("{url}: the pyramid changed under the client ({what})");
+            }
+            anyhow::ensure!(
+                rest.status() == StatusCode::PARTIAL_CONTENT,
+                "{url}: HTTP {} to the Range request for the indices",
+                rest.status()
+            );
+            anyhow::ensure!(
+                content_range(rest.headers()).map(|r| (r.0, r.1)) == Some((have, region - 1)),
+                "{url}: the answer for the indices is not the range asked for"
+            );
+            bytes.extend(read_body(rest, region - have).await?);
+        }
+        anyhow::ensure!(
+            bytes.len() as u64 >= region,
+            "{url}: the file ends inside its header region ({} of {region} bytes)",
+            bytes.len()
+        );
+        let open_bytes = bytes.len() as u64;
+        bytes.truncate(region as usize);
+        let pyramid = Pyramid::open(HeaderRegion {
+            bytes,
+            total: total.unwrap_or(u64::MAX),
+        })
+        .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        Ok(Self {
+            url: url.to_string(),
+            pyramid,
+            transport: Transport::Http(validators),
+            open_requests: requests,
+            open_bytes,
+        })
+    }
+
+    /// A host that ignores `Range`: a small file is read whole, once; a large one is
+    /// refused before its body is read.
+    async fn open_whole(url: &str, resp: reqwest::Response) -> anyhow::Result<Self> {
+        let refuse = |n: &dyn std::fmt::Display| {
+            anyhow::anyhow!(
+                "{url}: the host ignores HTTP Range (it answered 200 with the whole {n}-byte file); serverless reads need Range support (nginx, S3 and CDNs have it), and a file over {MAX_WHOLE_BODY} bytes is not downloaded whole"
+            )
+        };
+        if let Some(n) = resp.content_length().filter(|n| *n > MAX_WHOLE_BODY) {
+            return Err(refuse(&n));
+        }
+        let body = read_body(resp, MAX_WHOLE_BODY + 1).await?;
+        if body.len() as u64 > MAX_WHOLE_BODY {
+            return Err(refuse(&format!("over-{MAX_WHOLE_BODY}")));
+        }
+        let total = body.len() as u64;
+        let header = FileHeader::parse(&body).map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        let region = usize::try_from(header.records_offset)
+            .ok()
+            .filter(|r| *r <= body.len())
+            .with_context(|| format!("{url}: the file ends inside its header region"))?;
+        let pyramid = Pyramid::open(HeaderRegion {
+            bytes: body[..region].to_vec(),
+            total,
+        })
+        .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        tracing::warn!("{url}: the host ignores HTTP Range; read the whole {total}-byte file");
+        Ok(Self {
+            url: url.to_string(),
+            pyramid,
+            transport: Transport::Memory(body),
+            open_requests: 1,
+            open_bytes: total,
+        })
+    }
+
+    /// `file://PATH`: the header region read from the file, records with `pread`.
+    fn open_local(url: &str, path: &Path) -> anyhow::Result<Self> {
+        let file = FileSource::open(path).with_context(|| format!("{url}: cannot open"))?;
+        let total = file.size()?;
+        let head = file
+            .read_vec(0, HEADER_LEN.min(total as usize))
+            .with_context(|| format!("{url}: cannot read"))?;
+        let header = FileHeader::parse(&head).map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        anyhow::ensure!(
+            header.records_offset <= total.min(MAX_HEADER_REGION),
+            "{url}: the header region of {} bytes does not fit the file or the limit",
+            header.records_offset
+        );
+        let bytes = file.read_vec(0, header.records_offset as usize)?;
+        let open_bytes = bytes.len() as u64;
+        let pyramid = Pyramid::open(HeaderRegion { bytes, total })
+            .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        Ok(Self {
+            url: url.to_string(),
+            pyramid,
+            transport: Transport::File(std::sync::Arc::new(file)),
+            open_requests: 0,
+            open_bytes,
+        })
+    }
+}
+
+/// `Content-Range: bytes FIRST-LAST/TOTAL` as `(first, last, total)`; the total is
+/// `None` for `*` (unknown).
+pub(crate) fn content_range(headers: &HeaderMap) -> Option<(u64, u64, Option<u64>)> {
+    let v = headers.get(header::CONTENT_RANGE)?.to_str().ok()?;
+    let (range, total) = v.trim().strip_prefix("bytes ")?.split_once('/')?;
+    let (a, b) = range.split_once('-')?;
+    let (a, b) = (a.trim().parse().ok()?, b.trim().parse().ok()?);
+    let total = match total.trim() {
+        "*" => None,
+        t => Some(t.parse().ok()?),
+    };
+    (a <= b).then_some((a, b, total))
+}
+
+/// A response's body, at most `limit` bytes of it (more is an error for a range;
+/// [`StaticFile::open_whole`] asks for one byte over its limit to tell).
+async fn read_body(mut resp: reqwest::Response, limit: u64) -> anyhow::Result<Vec<u8>> {
+    let mut out = Vec::new();
+    while let Some(chunk) = resp.chunk().await? {
+        out.extend_from_slice(&chunk);
+        if out.len() as u64 >= limit {
+            out.truncate(limit as usize);
+            break;
+        }
+    }
+    Ok(out)
+}
+
+/// Groups a level's present wanted tiles into runs whose records are contiguous in
+/// the file (FORMAT.md: a level's records lie in Morton order without gaps): each
+/// run is one byte range, one Range request. Tiles in between that have no record
+/// do not break a run. `tiles` comes sorted by offset.
+pub(crate) fn byte_runs(tiles: &[(TileId, IndexEntry)]) -> Vec<&[(TileId, IndexEntry)]> {
+    let mut runs = Vec::new();
+    let mut start = 0;
+    for i in 1..=tiles.len() {
+        if i == tiles.len() || tiles[i - 1].1.end() != tiles[i].1.offset {
+            if i > start {
+                runs.push(&tiles[start..i]);
+            }
+            start = i;
+        }
+    }
+    runs
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::Level;
+
+    #[test]
+    fn names_are_file_stems() {
+        assert_eq!(file_stem("http://h/a/moon8k.tess"), "moon8k");
+        assert_eq!(file_stem("http://h/b/k.tess?X-Amz=1#f"), "k");
+        assert_eq!(file_stem("file:///tmp/terrain"), "terrain");
+        assert_eq!(TileSource::pyramid("http://h/x.tess").name(), "x");
+        assert_eq!(TileSource::server("http://h", "moon").name(), "moon");
+    }
+
+    #[test]
+    fn content_ranges_parse() {
+        let mut h = HeaderMap::new();
+        h.insert(
+            header::CONTENT_RANGE,
+            "bytes 0-65535/1234567".parse().unwrap(),
+        );
+        assert_eq!(content_range(&h), Some((0, 65535, Some(1_234_567))));
+        h.insert(header::CONTENT_RANGE, "bytes 10-20/*".parse().unwrap());
+        assert_eq!(content_range(&h), Some((10, 20, None)));
+        h.insert(header::CONTENT_RANGE, "bytes */100".parse().unwrap());
+        assert_eq!(content_range(&h), None);
+        h.insert(header::CONTENT_RANGE, "bytes 5-4/100".parse().unwrap());
+        assert_eq!(content_range(&h), None);
+    }
+
+    #[test]
+    fn validators_tell_a_changed_file() {
+        let a = Validators {
+            etag: Some("\"5f-10\"".into()),
+            last_modified: Some("Mon, 01 Jan 2024 00:00:00 GMT".into()),
+            total: Some(100),
+        };
+        assert_eq!(a.changed(&a), None);
+        let missing = Validators::default();
+        assert_eq!(
+            a.changed(&missing),
+            None,
+            "what is not sent is not compared"
+        );
+        let mut b = a.clone();
+        b.etag = Some("\"60-10\"".into());
+        assert!(a.changed(&b).unwrap().contains("ETag"));
+        let mut c = a.clone();
+        c.total = Some(99);
+        assert!(a.changed(&c).unwrap().contains("99"));
+    }
+
+    #[test]
+    fn runs_break_where_records_are_not_contiguous() {
+        let l = Level::new(2).unwrap();
+        let t = |m: u64, offset: u64, length: u32| {
+            let tile = TileId::from_morton(l, tessera_shared::Morton::from_raw(m)).unwrap();
+            (
+                tile,
+                IndexEntry {
+                    offset,
+                    length,
+                    ..IndexEntry::default()
+                },
+            )
+        };
+        // 0 and 1 touch; 3 follows 1 directly (2 has no record); 5 does not (4 is
+        // present but not wanted).
+        let tiles = [t(0, 100, 10), t(1, 110, 5), t(3, 115, 7), t(5, 140, 3)];
+        let runs = byte_runs(&tiles);
+        let codes: Vec<Vec<u64>> = runs
+            .iter()
+            .map(|r| r.iter().map(|(t, _)| t.morton().get()).collect())
+            .collect();
+        assert_eq!(codes, [vec![0, 1, 3], vec![5]]);
+        assert!(byte_runs(&[]).is_empty());
+    }
+}

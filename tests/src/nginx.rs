@@ -1,0 +1,236 @@
+//! nginx as a static host in tests (Debian's `nginx`, which `./run test` installs):
+//! started by the test on a free loopback port with a generated minimal config (pid,
+//! logs and temporary files in a temporary directory, `daemon off`, one process run
+//! as the current user), serving a directory. Its access log records every request's
+//! `Range` header, so a test can count the Range requests a client made.
+//!
+//! Without `/usr/sbin/nginx` (or `$TESSERA_NGINX`) a test prints `SKIPPED`, or fails
+//! when `CI` is set, so CI can never pass by skipping (as `gdal_or_skip`).
+
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The nginx binary: `$TESSERA_NGINX`, else Debian's.
+fn binary() -> PathBuf {
+    std::env::var_os("TESSERA_NGINX").map_or_else(|| PathBuf::from("/usr/sbin/nginx"), Into::into)
+}
+
+/// Whether nginx is here; `SKIPPED` when not, a failure when `CI` is set.
+pub fn nginx_or_skip() -> bool {
+    let ok = Command::new(binary())
+        .arg("-v")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "nginx is missing and CI is set (./run test installs nginx)"
+        );
+        eprintln!("SKIPPED: nginx is absent (apt-get install nginx)");
+    }
+    ok
+}
+
+/// One line of the access log.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Logged {
+    pub method: String,
+    pub uri: String,
+    /// The request's `Range` header, `None` when it had none.
+    pub range: Option<String>,
+    pub status: u16,
+    pub bytes_sent: u64,
+}
+
+impl Logged {
+    /// `bytes=A-B` as `(A, B)`.
+    pub fn byte_range(&self) -> Option<(u64, u64)> {
+        let (a, b) = self
+            .range
+            .as_deref()?
+            .strip_prefix("bytes=")?
+            .split_once('-')?;
+        Some((a.parse().ok()?, b.parse().ok()?))
+    }
+}
+
+/// A running nginx serving `root` on loopback; killed when dropped.
+#[derive(Debug)]
+pub struct Nginx {
+    dir: tempfile::TempDir,
+    addr: SocketAddr,
+    child: Option<Child>,
+}
+
+impl Nginx {
+    /// nginx serving the files of `root` on a free loopback port; `None` (with a
+    /// SKIPPED message) when nginx is not installed.
+    pub fn serve(root: &Path) -> Option<Self> {
+        Self::serve_with(root, "")
+    }
+
+    /// [`Nginx::serve`] with `extra` directives in the `server` block (e.g. a
+    /// `location` that ignores `Range`: `max_ranges 0;`).
+    pub fn serve_with(root: &Path, extra: &str) -> Option<Self> {
+        if !nginx_or_skip() {
+            return None;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        for sub in ["tmp", "logs"] {
+            std::fs::create_dir(dir.path().join(sub)).unwrap();
+        }
+        let mut n = Self {
+            dir,
+            addr: "127.0.0.1:0".parse().unwrap(),
+            child: None,
+        };
+        // A port that was free a moment ago; another process may take it before
+        // nginx binds it, so a failed start tries another.
+        let mut why = String::new();
+        for _ in 0..5 {
+            n.addr = TcpListener::bind("127.0.0.1:0")
+                .unwrap()
+                .local_addr()
+                .unwrap();
+            write_config(n.dir.path(), n.addr, root, extra);
+            match n.start() {
+                Ok(()) => return Some(n),
+                Err(e) => why = e,
+            }
+        }
+        panic!("nginx did not start on any of 5 ports: {why}");
+    }
+
+    /// Starts nginx (again, after [`Nginx::kill`]) on the same port and waits until it
+    /// accepts connections.
+    pub fn start(&mut self) -> Result<(), String> {
+        assert!(self.child.is_none(), "nginx is already running");
+        let d = self.dir.path();
+        let mut child = Command::new(binary())
+            .arg("-p")
+            .arg(d)
+            .arg("-c")
+            .arg(d.join("nginx.conf"))
+            .arg("-e")
+            .arg(d.join("logs/error.log"))
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .map_err(|e| e.to_string())?;
+        let started = Instant::now();
+        while started.elapsed() < Duration::from_secs(10) {
+            if let Ok(Some(status)) = child.try_wait() {
+                return Err(format!(
+                    "nginx exited ({status}): {}",
+                    std::fs::read_to_string(d.join("logs/error.log")).unwrap_or_default()
+                ));
+            }
+            if TcpStream::connect_timeout(&self.addr, Duration::from_millis(100)).is_ok() {
+                self.child = Some(child);
+                return Ok(());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = child.kill();
+        let _ = child.wait();
+        Err("nginx did not accept connections within 10 s".into())
+    }
+
+    /// Kills nginx with SIGKILL (connections drop, as in a crash) and reaps it.
+    pub fn kill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// `http://127.0.0.1:PORT/NAME`: a file of the served directory.
+    pub fn url(&self, name: &str) -> String {
+        format!("http://{}/{name}", self.addr)
+    }
+
+    /// Every request logged so far, in order.
+    pub fn log(&self) -> Vec<Logged> {
+        let text =
+            std::fs::read_to_string(self.dir.path().join("logs/access.log")).unwrap_or_default();
+        text.lines().filter_map(parse_line).collect()
+    }
+
+    /// Empties the access log (nginx appends to the same open file).
+    pub fn clear_log(&self) {
+        let _ = std::fs::OpenOptions::new()
+            .write(true)
+            .truncate(true)
+            .open(self.dir.path().join("logs/access.log"));
+    }
+}
+
+impl Drop for Nginx {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// The log format: tab-separated, the Range header as sent (`-` when none).
+const LOG_FORMAT: &str = "$request_method\\t$uri\\t$http_range\\t$status\\t$body_bytes_sent";
+
+fn parse_line(line: &str) -> Option<Logged> {
+    let f: Vec<&str> = line.split('\t').collect();
+    let [method, uri, range, status, bytes] = f[..] else {
+        return None;
+    };
+    Some(Logged {
+        method: method.to_string(),
+        uri: uri.to_string(),
+        range: (range != "-").then(|| range.to_string()),
+        status: status.parse().ok()?,
+        bytes_sent: bytes.parse().ok()?,
+    })
+}
+
+/// A minimal configuration: one process (`master_process off`: no workers to switch
+/// to another user, so it runs as whoever runs the test and reads their temporary
+/// files), everything it writes inside `dir`.
+fn write_config(dir: &Path, addr: SocketAddr, root: &Path, extra: &str) {
+    let d = dir.display();
+    let conf = format!(
+        r#"daemon off;
+master_process off;
+worker_processes 1;
+pid {d}/nginx.pid;
+error_log {d}/logs/error.log warn;
+events {{ worker_connections 1024; }}
+http {{
+    log_format tessera "{LOG_FORMAT}";
+    access_log {d}/logs/access.log tessera;
+    client_body_temp_path {d}/tmp/client_body;
+    proxy_temp_path {d}/tmp/proxy;
+    fastcgi_temp_path {d}/tmp/fastcgi;
+    uwsgi_temp_path {d}/tmp/uwsgi;
+    scgi_temp_path {d}/tmp/scgi;
+    types {{ application/octet-stream tess; }}
+    default_type application/octet-stream;
+    sendfile on;
+    keepalive_requests 100000;
+    server {{
+        listen {addr};
+        root {root};
+        location / {{
+            add_header Access-Control-Allow-Origin *;
+            add_header Access-Control-Expose-Headers "Content-Range, Content-Length, ETag, Last-Modified";
+        }}
+        {extra}
+    }}
+}}
+"#,
+        root = root.display()
+    );
+    std::fs::write(dir.join("nginx.conf"), conf).unwrap();
+}
