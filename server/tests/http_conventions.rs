@@ -406,6 +406,7 @@ fn h2c_with_prior_knowledge_serves_the_same_responses_as_http1() {
     let f = fixtures();
     let srv = Server::start(&[&f.synth], &[]);
     let rt = runtime();
+    serve_support::install_tls_provider();
     let h2 = reqwest::Client::builder()
         .no_proxy()
         .http2_prior_knowledge()

@@ -26,6 +26,8 @@ pub mod cli_help;
 #[cfg(feature = "testdata")]
 pub mod fixtures;
 #[cfg(feature = "testdata")]
+pub mod s3_server;
+#[cfg(feature = "testdata")]
 pub mod testdata;
 
 pub use error_table::ErrorTable;

@@ -11,7 +11,11 @@ use std::time::Duration;
 /// `tessera-server serve` flags (each also readable from a `TESSERA_*` variable).
 #[derive(Debug, Clone, clap::Args)]
 pub struct ServeArgs {
-    /// Pyramid files (.tess) or directories holding them; datasets are named by file stem.
+    /// Pyramid files (.tess), directories holding them, or object URLs
+    /// (s3://BUCKET/KEY.tess, gs://, az://, file://, or http(s):// to any server that
+    /// answers Range; credentials and endpoint from the AWS_*, GOOGLE_* or AZURE_*
+    /// environment variables, e.g. AWS_ENDPOINT_URL and AWS_ALLOW_HTTP=true); datasets
+    /// are named by file stem.
     pub paths: Vec<PathBuf>,
     /// Address to listen on [default: 127.0.0.1:8080].
     #[arg(long, env = "TESSERA_LISTEN")]
@@ -90,6 +94,10 @@ pub struct ServeArgs {
     /// MiB of made standard-grid tiles kept [default: 64].
     #[arg(long, env = "TESSERA_TILE_CACHE_MIB", value_name = "MIB")]
     pub tile_cache_mib: Option<u64>,
+    /// MiB of object-store blocks kept in memory, shared by every dataset served from
+    /// s3://, gs://, az:// or http(s):// (hits and misses in /metrics) [default: 256].
+    #[arg(long, env = "TESSERA_BLOCK_CACHE_MIB", value_name = "MIB")]
+    pub block_cache_mib: Option<u64>,
     /// The EGM96 geoid grid (GTX) that puts EGM96 heights on the ellipsoid for Cesium
     /// terrain [default: TESSERA_GEOID, then /usr/share/proj/egm96_15.gtx from
     /// Debian's proj-data; without one, such heights are served as-is with a warning].
@@ -123,6 +131,7 @@ struct FileConfig {
     attribution: Option<String>,
     source_cache_mib: Option<u64>,
     tile_cache_mib: Option<u64>,
+    block_cache_mib: Option<u64>,
     geoid: Option<PathBuf>,
 }
 
@@ -175,6 +184,8 @@ pub struct Settings {
     pub tls: Option<TlsFiles>,
     /// Standard-grid tiles: empty-tile status, attribution, cache sizes.
     pub web: WebConfig,
+    /// Capacity of the object-store block cache, in bytes (0: no cache).
+    pub block_cache_bytes: u64,
 }
 
 impl Default for Settings {
@@ -196,6 +207,7 @@ impl Default for Settings {
             cors: CorsOrigins::Any,
             tls: None,
             web: WebConfig::default(),
+            block_cache_bytes: 256 << 20,
         }
     }
 }
@@ -404,6 +416,11 @@ impl Settings {
                     geoid: geoid(args.geoid.clone().or(file.geoid).as_deref())?,
                 }
             },
+            // 0 is allowed here: it turns the cache off (every read goes to the store).
+            block_cache_bytes: args
+                .block_cache_mib
+                .or(file.block_cache_mib)
+                .map_or(d.block_cache_bytes, |m| m.saturating_mul(1 << 20)),
         };
         Ok(s)
     }

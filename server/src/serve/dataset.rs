@@ -1,7 +1,9 @@
 //! The datasets a server holds: one pyramid file each, named by its file stem.
 
 use super::cache::LastModified;
+use super::object_storage::{ObjectStorage, StoreContext};
 use super::storage::{FileStorage, Storage, StorageSource};
+use crate::remote::{self, Location};
 use anyhow::{Context, bail};
 use bytes::Bytes;
 use std::collections::BTreeMap;
@@ -9,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU8, Ordering};
 use tessera_shared::format::{self, IndexEntry};
-use tessera_shared::{Pyramid, TileId};
+use tessera_shared::{Level, MortonRange, Pyramid, TileId};
 
 const UNCHECKED: u8 = 0;
 const GOOD: u8 = 1;
@@ -21,6 +23,7 @@ const UNDECODABLE: u8 = 3;
 #[derive(Debug)]
 pub struct Dataset {
     pub name: String,
+    /// Where the pyramid is: a path, or an object's URL (for messages and logs).
     pub path: PathBuf,
     pub storage: Arc<dyn Storage>,
     pub pyramid: Pyramid<StorageSource>,
@@ -42,6 +45,14 @@ pub struct Corrupt {
     pub first: bool,
 }
 
+/// A requested code and what [`Dataset::records`] found for it: `None` when no
+/// tile is stored there, else the record or why it is corrupt.
+#[derive(Debug)]
+pub struct RangeRecord {
+    pub tile: TileId,
+    pub record: Option<Result<(IndexEntry, Bytes), Corrupt>>,
+}
+
 /// Why a present record could not be served.
 #[derive(Debug, Clone)]
 pub enum RecordError {
@@ -53,9 +64,19 @@ pub enum RecordError {
 }
 
 impl Dataset {
+    /// Opens a local pyramid file.
     pub fn open(name: String, path: &Path) -> anyhow::Result<Self> {
         let storage: Arc<dyn Storage> =
             Arc::new(FileStorage::open(path).with_context(|| path.display().to_string())?);
+        Self::from_storage(name, path.to_path_buf(), storage)
+    }
+
+    /// Opens a pyramid held by `storage`, labelled `path` in messages.
+    pub fn from_storage(
+        name: String,
+        path: PathBuf,
+        storage: Arc<dyn Storage>,
+    ) -> anyhow::Result<Self> {
         let pyramid = Pyramid::open(StorageSource(storage.clone()))
             .with_context(|| path.display().to_string())?;
         // The hash goes verbatim into ETag headers and URLs: refuse the file now rather
@@ -75,8 +96,8 @@ impl Dataset {
             .collect();
         Ok(Self {
             name,
-            path: path.to_path_buf(),
             last_modified: LastModified::new(storage.modified()),
+            path,
             storage,
             pyramid,
             checked,
@@ -100,7 +121,8 @@ impl Dataset {
     }
 
     /// A present tile's index entry and stored record, checksum-checked.
-    /// `Ok(None)` for an absent tile.
+    /// `Ok(None)` for an absent tile. Blocking: for the tile makers' blocking
+    /// threads; async routes use [`Dataset::records`].
     pub fn record(&self, tile: TileId) -> Result<Option<(IndexEntry, Bytes)>, RecordError> {
         let Some(&entry) = self.pyramid.entry(tile) else {
             return Ok(None);
@@ -108,17 +130,108 @@ impl Dataset {
         let bytes = self
             .storage
             .slice(entry.offset, u64::from(entry.length))
-            .map_err(|e| {
-                RecordError::Unavailable(format!(
-                    "dataset {:?} ({}): cannot read {tile}: {e}",
-                    self.name,
-                    self.path.display()
-                ))
-            })?;
-        let corrupt = |first| RecordError::Corrupt(Corrupt { tile, entry, first });
+            .map_err(|e| self.unreadable(&tile.to_string(), &e))?;
+        self.checked(tile, entry, bytes)
+            .map(Some)
+            .map_err(RecordError::Corrupt)
+    }
+
+    fn unreadable(&self, what: &str, e: &std::io::Error) -> RecordError {
+        RecordError::Unavailable(self.unreadable_reason(what, e))
+    }
+
+    fn unreadable_reason(&self, what: &str, e: &std::io::Error) -> String {
+        format!(
+            "dataset {:?} ({}): cannot read {what}: {e}",
+            self.name,
+            self.path.display()
+        )
+    }
+
+    /// The records of `ranges` of `level`, in order: each requested code with its
+    /// entry and checksum-checked record, or `None` when absent. The present records
+    /// of a Morton range are one contiguous byte range (FORMAT.md), and touching
+    /// ranges are merged, so this is one read per run — one ranged GET on a cold
+    /// object store, one `pread` on a local file. `Err` only when the storage
+    /// cannot be read, with the reason (the whole response is then a 503).
+    pub async fn records(
+        &self,
+        level: Level,
+        ranges: &[MortonRange],
+    ) -> Result<Vec<RangeRecord>, String> {
+        let mut out = Vec::new();
+        // Byte spans to read: (start, end, first index into `out`, last + 1).
+        let mut spans: Vec<(u64, u64, usize, usize)> = Vec::new();
+        for r in ranges {
+            for m in r.iter() {
+                let tile =
+                    TileId::from_morton(level, m).expect("ranges are checked against the level");
+                let entry = self.pyramid.entry(tile).copied();
+                if let Some(e) = entry {
+                    let (a, z) = (e.offset, e.offset + u64::from(e.length));
+                    match spans.last_mut() {
+                        Some(s) if s.1 == a => {
+                            s.1 = z;
+                            s.3 = out.len() + 1;
+                        }
+                        _ => spans.push((a, z, out.len(), out.len() + 1)),
+                    }
+                }
+                out.push((tile, entry));
+            }
+        }
+        let mut records: Vec<Option<Result<(IndexEntry, Bytes), Corrupt>>> =
+            (0..out.len()).map(|_| None).collect();
+        let reads = spans
+            .iter()
+            .map(|&(a, z, _, _)| self.storage.read(a, z - a));
+        let read = futures_util::future::join_all(reads).await;
+        for (&(a, _, first, last), bytes) in spans.iter().zip(read) {
+            let bytes = bytes.map_err(|e| self.unreadable_reason(&format!("level {level}"), &e))?;
+            for i in first..last {
+                let (tile, Some(e)) = out[i] else { continue };
+                let from = (e.offset - a) as usize;
+                let record = bytes.slice(from..from + e.length as usize);
+                records[i] = Some(self.checked(tile, e, record));
+            }
+        }
+        Ok(out
+            .into_iter()
+            .zip(records)
+            .map(|((tile, _), record)| RangeRecord { tile, record })
+            .collect())
+    }
+
+    /// One tile's record for an async route: [`Dataset::record`] without blocking.
+    pub async fn record_async(
+        &self,
+        tile: TileId,
+    ) -> Result<Option<(IndexEntry, Bytes)>, RecordError> {
+        let level = tile.level();
+        let m = tile.morton();
+        let one = MortonRange::new(m, m).expect("a single code");
+        let mut got = self
+            .records(level, &[one])
+            .await
+            .map_err(RecordError::Unavailable)?;
+        match got.pop().and_then(|r| r.record) {
+            None => Ok(None),
+            Some(Ok(r)) => Ok(Some(r)),
+            Some(Err(c)) => Err(RecordError::Corrupt(c)),
+        }
+    }
+
+    /// `bytes` as `tile`'s record if it passes its checksum (checked once per record).
+    fn checked(
+        &self,
+        tile: TileId,
+        entry: IndexEntry,
+        bytes: Bytes,
+    ) -> Result<(IndexEntry, Bytes), Corrupt> {
+        let corrupt = |first| Corrupt { tile, entry, first };
         let state = self.state(tile);
         match state.load(Ordering::Relaxed) {
-            GOOD | UNDECODABLE => Ok(Some((entry, bytes))),
+            GOOD | UNDECODABLE => Ok((entry, bytes)),
             CORRUPT => Err(corrupt(false)),
             _ => {
                 let ok = format::checksum(&bytes) == entry.checksum;
@@ -129,7 +242,7 @@ impl Dataset {
                     .compare_exchange(UNCHECKED, new, Ordering::Relaxed, Ordering::Relaxed)
                     .is_ok();
                 if ok {
-                    Ok(Some((entry, bytes)))
+                    Ok((entry, bytes))
                 } else {
                     if first {
                         tracing::error!(dataset = %self.name, %tile, "record fails its checksum; not serving it");
@@ -167,27 +280,41 @@ pub struct Registry {
 }
 
 impl Registry {
-    /// Loads every `.tess` file named, and every `.tess` file directly inside each
-    /// directory named.
-    pub fn load(paths: &[PathBuf]) -> anyhow::Result<Self> {
-        let mut files = Vec::new();
+    /// Loads every `.tess` file named, every `.tess` file directly inside each
+    /// directory named, and every object URL named (`s3://…`, [`remote::locate`]),
+    /// the objects read through `store` (its block cache and metrics).
+    pub fn load(paths: &[PathBuf], store: &Arc<StoreContext>) -> anyhow::Result<Self> {
+        let mut found: Vec<(String, PathBuf, Location)> = Vec::new();
         for p in paths {
+            let raw = p.to_string_lossy();
+            if let Location::Object(o) = remote::locate(&raw, store.options)? {
+                found.push((o.stem(), p.clone(), Location::Object(o)));
+                continue;
+            }
             let meta =
                 std::fs::metadata(p).with_context(|| format!("{}: cannot read", p.display()))?;
-            if meta.is_dir() {
-                let mut found: Vec<PathBuf> = std::fs::read_dir(p)
+            let files = if meta.is_dir() {
+                let mut files: Vec<PathBuf> = std::fs::read_dir(p)
                     .with_context(|| format!("{}: cannot list", p.display()))?
                     .flatten()
                     .map(|e| e.path())
                     .filter(|f| f.extension().is_some_and(|e| e == "tess") && f.is_file())
                     .collect();
-                found.sort();
-                files.extend(found);
+                files.sort();
+                files
             } else {
-                files.push(p.clone());
+                vec![p.clone()]
+            };
+            for f in files {
+                let stem = f
+                    .file_stem()
+                    .and_then(|s| s.to_str())
+                    .unwrap_or("")
+                    .to_string();
+                found.push((stem, f.clone(), Location::Local(f)));
             }
         }
-        if files.is_empty() {
+        if found.is_empty() {
             bail!(
                 "no .tess pyramid files found in {}",
                 paths
@@ -198,24 +325,26 @@ impl Registry {
             );
         }
         let mut datasets = BTreeMap::new();
-        for f in files {
-            let name = f
-                .file_stem()
-                .and_then(|s| s.to_str())
-                .unwrap_or("")
-                .to_string();
+        for (name, label, location) in found {
             if !valid_name(&name) {
                 bail!(
                     "{}: dataset name {name:?} must be letters, digits, '_', '-' or '.'",
-                    f.display()
+                    label.display()
                 );
             }
-            let ds = Dataset::open(name.clone(), &f)?;
+            let ds = match location {
+                Location::Local(f) => Dataset::open(name.clone(), &f)?,
+                Location::Object(o) => {
+                    let storage: Arc<dyn Storage> =
+                        Arc::new(ObjectStorage::open(o, store.clone())?);
+                    Dataset::from_storage(name.clone(), label.clone(), storage)?
+                }
+            };
             if let Some(prev) = datasets.insert(name.clone(), Arc::new(ds)) {
                 bail!(
                     "two datasets are named {name:?}: {} and {}",
                     prev.path.display(),
-                    f.display()
+                    label.display()
                 );
             }
         }

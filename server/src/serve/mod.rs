@@ -8,6 +8,7 @@ pub mod dataset;
 pub mod error;
 pub mod http_range;
 pub mod metrics;
+pub mod object_storage;
 pub mod routes;
 pub mod storage;
 pub mod tls;
@@ -41,6 +42,9 @@ pub struct AppState {
     /// What the registry is loaded from, for reloads.
     pub paths: Vec<PathBuf>,
     pub metrics: Metrics,
+    /// The object-store block cache, metrics and retry settings every object
+    /// dataset shares (kept across reloads).
+    pub store: Arc<object_storage::StoreContext>,
     pub limits: RangeLimits,
     pub cache_max_age: u64,
     pub max_query_bytes: usize,
@@ -64,7 +68,7 @@ impl AppState {
     /// Reopens every dataset from the configured paths and swaps them in at once.
     /// On any error the old datasets stay in service and the error says why.
     pub fn reload(&self) -> anyhow::Result<usize> {
-        let fresh = Registry::load(&self.paths)?;
+        let fresh = Registry::load(&self.paths, &self.store)?;
         log_datasets(&fresh);
         let n = fresh.datasets.len();
         *self
@@ -90,6 +94,8 @@ pub struct TilesServed(pub u64);
 pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
     let api = Router::new()
         .route("/healthz", get(routes::health::healthz))
+        .route("/healthz/live", get(routes::health::live))
+        .route("/healthz/ready", get(routes::health::ready))
         .route("/metrics", get(routes::health::metrics))
         .route(paths::DATASETS, get(routes::datasets::list))
         .route(paths::DATASET, get(routes::datasets::get_one))
@@ -264,14 +270,20 @@ pub async fn shutdown_signal() {
 
 /// The shared state for `settings`' datasets and limits.
 pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
-    let registry = Registry::load(&settings.datasets)?;
-    log_datasets(&registry);
     let metrics = Metrics::new();
+    let store = Arc::new(object_storage::StoreContext::new(
+        settings.block_cache_bytes,
+        crate::remote::StoreOptions::default(),
+        metrics.registry(),
+    ));
+    let registry = Registry::load(&settings.datasets, &store)?;
+    log_datasets(&registry);
     let web = web_cache::WebTiles::new(settings.web.clone(), metrics.registry());
     Ok(Arc::new(AppState {
         registry: RwLock::new(Arc::new(registry)),
         paths: settings.datasets.clone(),
         metrics,
+        store,
         web,
         limits: RangeLimits {
             max_ranges: settings.max_ranges,

@@ -2,6 +2,7 @@
 //! added without touching the routes (DESIGN §4).
 
 use bytes::Bytes;
+use futures_util::future::BoxFuture;
 use std::io;
 use std::path::Path;
 use std::sync::Arc;
@@ -22,6 +23,19 @@ pub trait Storage: Send + Sync + std::fmt::Debug + 'static {
     fn modified(&self) -> Option<SystemTime> {
         None
     }
+    /// [`Storage::slice`] for async callers. The default reads in place: a local
+    /// `pread` is brief, and served records are usually in the page cache. Object
+    /// storage fetches without blocking the caller's runtime.
+    fn read(&self, offset: u64, len: u64) -> BoxFuture<'_, io::Result<Bytes>> {
+        Box::pin(std::future::ready(self.slice(offset, len)))
+    }
+    /// Whether the bytes can be served now (`/healthz/ready`): `Err` with the reason
+    /// when the storage is unreachable or no longer what was opened.
+    fn ready(&self) -> BoxFuture<'_, Result<(), String>> {
+        Box::pin(std::future::ready(self.check_unchanged()))
+    }
+    /// Where the bytes are, for messages: a path or a URL.
+    fn label(&self) -> String;
 }
 
 /// A local file read with positional reads (`pread`) on the descriptor opened at
@@ -34,6 +48,7 @@ pub trait Storage: Send + Sync + std::fmt::Debug + 'static {
 /// path (the safe deploy), until a reload opens the new one.
 #[derive(Debug)]
 pub struct FileStorage {
+    path: std::path::PathBuf,
     file: std::fs::File,
     size: u64,
     modified: Option<SystemTime>,
@@ -44,6 +59,7 @@ impl FileStorage {
         let file = std::fs::File::open(path)?;
         let meta = file.metadata()?;
         Ok(Self {
+            path: path.to_path_buf(),
             size: meta.len(),
             modified: meta.modified().ok(),
             file,
@@ -54,6 +70,10 @@ impl FileStorage {
 impl Storage for FileStorage {
     fn size(&self) -> u64 {
         self.size
+    }
+
+    fn label(&self) -> String {
+        self.path.display().to_string()
     }
 
     fn modified(&self) -> Option<SystemTime> {

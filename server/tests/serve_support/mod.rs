@@ -27,6 +27,13 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use tessera_shared::{Level, Morton, Pyramid, TileId, testdata};
 
+/// reqwest is built without a TLS crypto provider of its own (the server's object
+/// stores install `ring`, server/Cargo.toml): tests that build HTTP clients install
+/// it first. Idempotent.
+pub fn install_tls_provider() {
+    let _ = rustls::crypto::ring::default_provider().install_default();
+}
+
 pub fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_tessera-server"))
 }
@@ -275,6 +282,7 @@ const ENV_VARS: &[&str] = &[
     "TESSERA_ATTRIBUTION",
     "TESSERA_SOURCE_CACHE_MIB",
     "TESSERA_TILE_CACHE_MIB",
+    "TESSERA_BLOCK_CACHE_MIB",
 ];
 
 impl Server {
@@ -360,6 +368,7 @@ impl Server {
             .enable_all()
             .build()
             .unwrap();
+        install_tls_provider();
         let client = reqwest::Client::builder()
             .no_proxy()
             .timeout(Duration::from_secs(60))
@@ -470,10 +479,16 @@ impl Drop for Server {
 /// prints its listening line instead (the old behaviour), without waiting for a
 /// timeout.
 pub fn serve_must_refuse(args: &[&str]) -> String {
+    serve_must_refuse_with(args, &[])
+}
+
+/// [`serve_must_refuse`] with extra environment variables.
+pub fn serve_must_refuse_with(args: &[&str], env: &[(&str, &str)]) -> String {
     let mut child = bin()
         .arg("serve")
         .args(args)
         .args(["--listen", "127.0.0.1:0"])
+        .envs(env.iter().copied())
         .env("NO_COLOR", "1")
         .stdin(Stdio::null())
         .stdout(Stdio::piped())

@@ -136,12 +136,12 @@ pub fn tile(level: Level, x: &str, y: &str) -> ApiResult<TileId> {
 
 /// A present tile's checked record: 404 when the tile is absent (outside the DEM, or
 /// wholly no-data), 500 (and counted) when its checksum fails.
-pub fn stored_record(
+pub async fn stored_record(
     state: &AppState,
     ds: &Dataset,
     tile: TileId,
 ) -> ApiResult<(IndexEntry, Bytes)> {
-    match ds.record(tile) {
+    match ds.record_async(tile).await {
         Ok(Some(found)) => Ok(found),
         Ok(None) => Err(ApiError::not_found(format!(
             "{tile} is absent: it lies outside the DEM or holds no data"

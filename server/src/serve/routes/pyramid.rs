@@ -66,10 +66,12 @@ fn common_headers(h: &mut HeaderMap, etag: &str, lm: LastModified, pin: bool, ma
     cache::set_headers(h, etag, lm, pin, max_age);
 }
 
-fn slice(storage: &dyn Storage, r: ByteRange) -> ApiResult<Bytes> {
+async fn slice(storage: &dyn Storage, r: ByteRange) -> ApiResult<Bytes> {
     storage
-        .slice(r.start, r.byte_count())
-        // The file changed under the server (503 for the dataset), never a crash.
+        .read(r.start, r.byte_count())
+        .await
+        // The file changed under the server, or the object store is down (503 for
+        // the dataset), never a crash.
         .map_err(|e| super::unavailable(&format!("cannot read the pyramid file: {e}")))
 }
 
@@ -98,7 +100,11 @@ fn boundary(etag: &str, ranges: &[ByteRange]) -> String {
 }
 
 /// The chunks of a `multipart/byteranges` body (RFC 9110 §14.6).
-fn multipart(storage: &dyn Storage, ranges: &[ByteRange], boundary: &str) -> ApiResult<Vec<Bytes>> {
+async fn multipart(
+    storage: &dyn Storage,
+    ranges: &[ByteRange],
+    boundary: &str,
+) -> ApiResult<Vec<Bytes>> {
     let size = storage.size();
     let mut chunks = Vec::with_capacity(2 * ranges.len() + 1);
     for (i, &r) in ranges.iter().enumerate() {
@@ -107,7 +113,7 @@ fn multipart(storage: &dyn Storage, ranges: &[ByteRange], boundary: &str) -> Api
             "{sep}--{boundary}\r\nContent-Type: {CONTENT_TYPE}\r\nContent-Range: {}\r\n\r\n",
             r.content_range(size)
         )));
-        chunks.push(slice(storage, r)?);
+        chunks.push(slice(storage, r).await?);
     }
     chunks.push(Bytes::from(format!("\r\n--{boundary}--\r\n")));
     Ok(chunks)
@@ -162,13 +168,13 @@ pub async fn raw(
             let bytes = if size == 0 {
                 Bytes::new()
             } else {
-                slice(storage, whole)?
+                slice(storage, whole).await?
             };
             (StatusCode::OK, Body::from(bytes), size, None, None)
         }
         RangeRequest::Partial(ranges) if ranges.len() == 1 => {
             let r = ranges[0];
-            let bytes = slice(storage, r)?;
+            let bytes = slice(storage, r).await?;
             (
                 StatusCode::PARTIAL_CONTENT,
                 Body::from(bytes),
@@ -186,7 +192,7 @@ pub async fn raw(
             };
             (
                 StatusCode::OK,
-                Body::from(slice(storage, whole)?),
+                Body::from(slice(storage, whole).await?),
                 size,
                 None,
                 None,
@@ -194,7 +200,7 @@ pub async fn raw(
         }
         RangeRequest::Partial(ranges) => {
             let b = boundary(&etag, &ranges);
-            let chunks = multipart(storage, &ranges, &b)?;
+            let chunks = multipart(storage, &ranges, &b).await?;
             let len: u64 = chunks.iter().map(|c| c.len() as u64).sum();
             let body = Body::from_stream(futures_util::stream::iter(
                 chunks.into_iter().map(Ok::<_, Infallible>),
@@ -258,6 +264,10 @@ mod tests {
         fn check_unchanged(&self) -> Result<(), String> {
             Ok(())
         }
+
+        fn label(&self) -> String {
+            "memory".into()
+        }
     }
 
     #[test]
@@ -269,7 +279,10 @@ mod tests {
         ];
         let b = boundary("\"e\"", &ranges);
         assert_ne!(b, boundary("\"e\"", &ranges[..1]));
-        let body: Vec<u8> = multipart(&s, &ranges, &b).unwrap().concat();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        let body: Vec<u8> = rt.block_on(multipart(&s, &ranges, &b)).unwrap().concat();
         assert_eq!(multipart_len(10, &ranges, &b), body.len() as u64);
         let want = format!(
             "--{b}\r\nContent-Type: {CONTENT_TYPE}\r\nContent-Range: bytes 8-9/10\r\n\r\n89\r\n\

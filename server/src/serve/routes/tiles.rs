@@ -5,7 +5,6 @@
 //! exact length is known up front and sent as `Content-Length`.
 
 use super::{Params, Segments, dataset, level, pinned, stored_record, tile, unavailable};
-use crate::serve::dataset::RecordError;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
@@ -18,7 +17,7 @@ use std::convert::Infallible;
 use std::sync::Arc;
 use tessera_shared::range_query;
 use tessera_shared::wire::{self, CONTENT_TYPE};
-use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId};
+use tessera_shared::{ErrorTable, Level, Morton, MortonRange};
 
 /// What to put in each frame: whole records or their error tables only.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -58,7 +57,7 @@ impl Outside {
     }
 }
 
-fn stream(
+async fn stream(
     state: &AppState,
     name: &str,
     level_raw: &str,
@@ -93,11 +92,17 @@ fn stream(
     let mut chunks: Vec<Bytes> = Vec::new();
     let (mut tiles, mut errors) = (0u64, 0u64);
     let mut outside = Outside::default();
+    let mut found = ds
+        .records(level, &ranges)
+        .await
+        .map_err(|reason| unavailable(&reason))?
+        .into_iter();
     for r in &ranges {
         for m in r.iter() {
-            let tile = TileId::from_morton(level, m).expect("ranges are checked against the level");
-            match ds.record(tile) {
-                Ok(Some((e, bytes))) => {
+            let got = found.next().expect("one result per requested code");
+            debug_assert_eq!(got.tile.morton(), m);
+            match got.record {
+                Some(Ok((e, bytes))) => {
                     outside.close();
                     match payload {
                         Payload::Records => {
@@ -118,9 +123,8 @@ fn stream(
                     }
                     tiles += 1;
                 }
-                Ok(None) => outside.absent(m.get()),
-                Err(RecordError::Unavailable(reason)) => return Err(unavailable(&reason)),
-                Err(RecordError::Corrupt(c)) => {
+                None => outside.absent(m.get()),
+                Some(Err(c)) => {
                     outside.close();
                     state.metrics.corrupt_read(c.first);
                     let msg = format!("{}: record fails its checksum; not sent", c.tile);
@@ -170,7 +174,7 @@ pub async fn ranges(
     Params(query): Params,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    stream(&state, &name, &level, &query, &headers, Payload::Records)
+    stream(&state, &name, &level, &query, &headers, Payload::Records).await
 }
 
 /// `GET /v1/datasets/{name}/levels/{level}/errors?ranges=…`
@@ -188,6 +192,7 @@ pub async fn errors(
         &headers,
         Payload::ErrorTables,
     )
+    .await
 }
 
 /// `GET /v1/datasets/{name}/tiles/{level}/{x}/{y}`: one stored record.
@@ -200,7 +205,7 @@ pub async fn single(
     let ds = dataset(&state, &name)?;
     let level = level(&ds, &level_raw)?;
     let tile = tile(level, &x, &y)?;
-    let (entry, bytes) = stored_record(&state, &ds, tile)?;
+    let (entry, bytes) = stored_record(&state, &ds, tile).await?;
     let pin = pinned(&ds, &query);
     // The record's own checksum identifies its bytes: the strongest possible ETag.
     let etag = format!("\"{:016x}\"", entry.checksum);

@@ -71,7 +71,7 @@ pub async fn png(
     let encoding = Encoding::from_query(query.get("encoding").map(String::as_str))?;
     let level = level(&ds, &z)?;
     let tile = tile(level, &x, y)?;
-    let (_, record) = stored_record(&state, &ds, tile)?;
+    let (_, record) = stored_record(&state, &ds, tile).await?;
     let pin = pinned(&ds, &query);
     let etag = cache::etag(
         ds.content_hash(),
