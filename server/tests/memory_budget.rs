@@ -130,6 +130,49 @@ fn a_sparse_tile_grid_builds_inside_the_memory_budget() {
     assert_eq!(v.tiles, report.tiles);
 }
 
+/// The distributed build holds no more than a whole one: each part of the sparse
+/// grid above and their assembly stay inside 64 MiB, and the assembly is the single
+/// build's file.
+#[test]
+fn parts_and_their_assembly_stay_inside_the_memory_budget() {
+    use tessera_server::build::parts::{PartSpec, assemble, build_part};
+    let _one = SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("wide.png");
+    write_png(&input, 131_073, 65);
+    let budget = 64u64 << 20;
+    let opts = BuildOptions {
+        tile_size: 64,
+        memory_budget: budget,
+        ..BuildOptions::default()
+    };
+    let spec = InputSpec::one(input.to_str().unwrap());
+    let parts = dir.path().join("parts");
+    for k in 0..4 {
+        let (report, peak) = peak_during(|| build_part(&spec, &parts, PartSpec { k, n: 4 }, &opts));
+        report.unwrap();
+        assert!(
+            peak as u64 <= budget,
+            "part {k} allocated {peak} bytes at its peak, over the {budget}-byte budget"
+        );
+    }
+    let out = dir.path().join("assembled.tess");
+    let (report, peak) = peak_during(|| assemble(&parts, &out, &opts));
+    report.unwrap();
+    assert!(
+        peak as u64 <= budget,
+        "assembling allocated {peak} bytes at its peak, over the {budget}-byte budget"
+    );
+    let single = dir.path().join("single.tess");
+    build_inputs(&spec, &single, &opts).unwrap();
+    assert!(
+        std::fs::read(&single).unwrap() == std::fs::read(&out).unwrap(),
+        "the assembled pyramid differs from the single build's"
+    );
+}
+
 /// A PNG whose header claims 120 × 16 777 215 samples in a 14 KB file: the old
 /// build allocated 34 GB for the claim and aborted. Nothing may be allocated on the
 /// header's word; the error names the file and says the size is implausible.
