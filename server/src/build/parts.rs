@@ -326,7 +326,8 @@ pub struct PartReport {
 
 /// Builds part `spec` of `inputs` into `dir` (created if missing) as
 /// `dir/part-KKKK-of-NNNN.tesspart`, replacing an earlier file of that name only
-/// once the new one is complete.
+/// once the new one is complete. The input is spooled in the temporary folder
+/// (`TMPDIR`), not in `dir`.
 pub fn build_part(
     inputs: &ingest::InputSpec,
     dir: &Path,
@@ -343,7 +344,10 @@ pub fn build_part(
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create the parts folder {}", dir.display()))?;
     }
-    let prepared = super::prepare(inputs, dir, opts)?;
+    // The input is spooled (and reprojected) in TMPDIR, node-local scratch in an
+    // Indexed Job: N parts would otherwise put N copies of it on the shared folder.
+    let scratch = std::env::temp_dir();
+    let prepared = super::prepare(inputs, &scratch, opts)?;
     let geometry = prepared.geometry;
     let split = Split::new(&geometry, spec.n);
     let tops = split.tops(spec.k);
@@ -351,7 +355,7 @@ pub fn build_part(
     let target = dir.join(spec.file_name());
     let mut writer = PartWriter::create(&target, spec, &geometry, split.level, tops.clone())?;
     let mut digest = Xxh3::new();
-    let loaded = prepared.load(dir, opts, started, Some(&mut digest))?;
+    let loaded = prepared.load(&scratch, opts, started, Some(&mut digest))?;
     let raster = loaded.dem.raster();
     let subtree_tiles: u64 = (split.level.get()..=geometry.finest().get())
         .map(|l| {
