@@ -270,6 +270,20 @@ fn k_comes_from_the_job_completion_index() {
         .output()
         .unwrap();
     assert!(!o.status.success(), "K must be below N");
+    // Parts go to a folder, never to an object URL (nor to a local folder named "s3:").
+    let o = bin()
+        .current_dir(tmp.path())
+        .arg("build")
+        .args(SYNTH)
+        .args(["--part", "0/4", "-o", "s3://bucket/parts"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains("local (or mounted) folder"),
+        "{stderr}"
+    );
+    assert!(!tmp.path().join("s3:").exists());
 }
 
 fn partials(dir: &Path) -> Vec<String> {

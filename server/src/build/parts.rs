@@ -335,6 +335,12 @@ pub fn build_part(
     opts: &BuildOptions,
 ) -> anyhow::Result<PartReport> {
     let started = Instant::now();
+    ensure!(
+        !dir.to_string_lossy().contains("://"),
+        "{}: --part writes its part file into a local (or mounted) folder; an object URL \
+         is for the pyramid itself (-o of a whole build or of --assemble)",
+        dir.display()
+    );
     if !dir.is_dir() {
         ensure!(
             !dir.exists(),
