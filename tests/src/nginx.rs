@@ -4,6 +4,10 @@
 //! as the current user), serving a directory. Its access log records every request's
 //! `Range` header, so a test can count the Range requests a client made.
 //!
+//! [`Nginx::balance`] starts it instead as a round-robin load balancer in front of
+//! upstream servers (the stateless replicas test); the log then also records which
+//! upstreams each request went to and what they answered.
+//!
 //! Without `/usr/sbin/nginx` (or `$TESSERA_NGINX`) a test prints `SKIPPED`, or fails
 //! when `CI` is set, so CI can never pass by skipping (as `gdal_or_skip`).
 
@@ -34,7 +38,7 @@ pub fn nginx_or_skip() -> bool {
 }
 
 /// One line of the access log.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Logged {
     pub method: String,
     pub uri: String,
@@ -42,6 +46,16 @@ pub struct Logged {
     pub range: Option<String>,
     pub status: u16,
     pub bytes_sent: u64,
+    /// `$upstream_addr`: the upstreams tried, in order (`A, B` when A failed and B was
+    /// asked next); `None` for a file served by nginx itself.
+    pub upstream: Option<String>,
+    /// `$upstream_status`: what each of them answered (`502, 200` when the first
+    /// failed and the second answered).
+    pub upstream_status: Option<String>,
+    /// `$msec`: when the request ended (was logged), in seconds since the epoch.
+    pub ended: f64,
+    /// `$request_time`: seconds from its first byte read to its last byte sent.
+    pub took: f64,
 }
 
 impl Logged {
@@ -53,6 +67,23 @@ impl Logged {
             .strip_prefix("bytes=")?
             .split_once('-')?;
         Some((a.parse().ok()?, b.parse().ok()?))
+    }
+
+    /// When nginx read the request's first byte, in seconds since the epoch (to the
+    /// millisecond).
+    pub fn started(&self) -> f64 {
+        self.ended - self.took
+    }
+
+    /// The upstreams tried, in order (empty for a file served by nginx itself).
+    pub fn upstreams(&self) -> Vec<SocketAddr> {
+        self.upstream
+            .as_deref()
+            .unwrap_or_default()
+            .split(',')
+            .flat_map(|group| group.split(" : ")) // internal redirects
+            .filter_map(|a| a.trim().parse().ok())
+            .collect()
     }
 }
 
@@ -74,6 +105,22 @@ impl Nginx {
     /// [`Nginx::serve`] with `extra` directives in the `server` block (e.g. a
     /// `location` that ignores `Range`: `max_ranges 0;`).
     pub fn serve_with(root: &Path, extra: &str) -> Option<Self> {
+        Self::launch(|dir, addr| static_config(dir, addr, root, extra))
+    }
+
+    /// nginx on a free loopback port as a round-robin load balancer in front of
+    /// `upstreams` (plain HTTP), each listed with `params` (passive health, e.g.
+    /// `max_fails=1 fail_timeout=60s`): a request an upstream refuses, drops before
+    /// answering, times out or answers 502/503 goes to the next one
+    /// (`proxy_next_upstream error timeout http_502 http_503`, two tries), as
+    /// deploy/nginx/nginx.conf does (without its cache). `None` (with a SKIPPED
+    /// message) when nginx is not installed.
+    pub fn balance(upstreams: &[SocketAddr], params: &str) -> Option<Self> {
+        Self::launch(|dir, addr| balancer_config(dir, addr, upstreams, params))
+    }
+
+    /// Writes `config(dir, addr)` as nginx.conf for a free port and starts nginx.
+    fn launch(config: impl Fn(&Path, SocketAddr) -> String) -> Option<Self> {
         if !nginx_or_skip() {
             return None;
         }
@@ -94,7 +141,11 @@ impl Nginx {
                 .unwrap()
                 .local_addr()
                 .unwrap();
-            write_config(n.dir.path(), n.addr, root, extra);
+            std::fs::write(
+                n.dir.path().join("nginx.conf"),
+                config(n.dir.path(), n.addr),
+            )
+            .unwrap();
             match n.start() {
                 Ok(()) => return Some(n),
                 Err(e) => why = e,
@@ -178,29 +229,48 @@ impl Drop for Nginx {
     }
 }
 
-/// The log format: tab-separated, the Range header as sent (`-` when none).
-const LOG_FORMAT: &str = "$request_method\\t$uri\\t$http_range\\t$status\\t$body_bytes_sent";
+/// The log format: tab-separated, the Range header as sent (`-` when none), then the
+/// upstreams tried and their answers (`-` when nginx served the request itself), when
+/// it ended and how long it took.
+const LOG_FORMAT: &str = "$request_method\\t$uri\\t$http_range\\t$status\\t$body_bytes_sent\\t$upstream_addr\\t$upstream_status\\t$msec\\t$request_time";
 
 fn parse_line(line: &str) -> Option<Logged> {
     let f: Vec<&str> = line.split('\t').collect();
-    let [method, uri, range, status, bytes] = f[..] else {
+    let [
+        method,
+        uri,
+        range,
+        status,
+        bytes,
+        upstream,
+        upstream_status,
+        ended,
+        took,
+    ] = f[..]
+    else {
         return None;
     };
+    let field = |v: &str| (v != "-").then(|| v.to_string());
     Some(Logged {
         method: method.to_string(),
         uri: uri.to_string(),
-        range: (range != "-").then(|| range.to_string()),
+        range: field(range),
         status: status.parse().ok()?,
         bytes_sent: bytes.parse().ok()?,
+        upstream: field(upstream),
+        upstream_status: field(upstream_status),
+        ended: ended.parse().ok()?,
+        took: took.parse().ok()?,
     })
 }
 
-/// A minimal configuration: one process (`master_process off`: no workers to switch
-/// to another user, so it runs as whoever runs the test and reads their temporary
-/// files), everything it writes inside `dir`.
-fn write_config(dir: &Path, addr: SocketAddr, root: &Path, extra: &str) {
+/// What every configuration starts with: one process (`master_process off`: no
+/// workers to switch to another user, so it runs as whoever runs the test and reads
+/// their temporary files), everything it writes inside `dir`; then the `http` block
+/// up to its servers.
+fn preamble(dir: &Path) -> String {
     let d = dir.display();
-    let conf = format!(
+    format!(
         r#"daemon off;
 master_process off;
 worker_processes 1;
@@ -215,10 +285,48 @@ http {{
     fastcgi_temp_path {d}/tmp/fastcgi;
     uwsgi_temp_path {d}/tmp/uwsgi;
     scgi_temp_path {d}/tmp/scgi;
-    types {{ application/octet-stream tess; }}
+    keepalive_requests 100000;
+"#
+    )
+}
+
+/// The load balancer: `upstreams` round robin, with `params` on each.
+fn balancer_config(dir: &Path, addr: SocketAddr, upstreams: &[SocketAddr], params: &str) -> String {
+    let servers = upstreams
+        .iter()
+        .map(|u| format!("        server {u} {params};"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    format!(
+        r#"{preamble}    upstream replicas {{
+{servers}
+        keepalive 32;
+    }}
+    server {{
+        listen {addr};
+        location / {{
+            proxy_pass http://replicas;
+            proxy_http_version 1.1;
+            proxy_set_header Connection "";
+            proxy_set_header Host $host;
+            proxy_next_upstream error timeout http_502 http_503;
+            proxy_next_upstream_tries 2;
+            proxy_connect_timeout 2s;
+            proxy_read_timeout 60s;
+        }}
+    }}
+}}
+"#,
+        preamble = preamble(dir)
+    )
+}
+
+/// The static host: the files of `root`, with `extra` directives in its `server`.
+fn static_config(dir: &Path, addr: SocketAddr, root: &Path, extra: &str) -> String {
+    format!(
+        r#"{preamble}    types {{ application/octet-stream tess; }}
     default_type application/octet-stream;
     sendfile on;
-    keepalive_requests 100000;
     server {{
         listen {addr};
         root {root};
@@ -230,7 +338,7 @@ http {{
     }}
 }}
 "#,
+        preamble = preamble(dir),
         root = root.display()
-    );
-    std::fs::write(dir.join("nginx.conf"), conf).unwrap();
+    )
 }
