@@ -350,8 +350,11 @@ fn recovers_after_nginx_is_killed_and_restarted() {
         nginx.start().unwrap();
         nginx
     });
-    let (frames, summary) = run_flight(&opts);
+    // Joined even when the flight fails, so that nginx (restarted by the thread) is
+    // killed before the test ends rather than left running.
+    let flight = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_flight(&opts)));
     let nginx = restarter.join().unwrap();
+    let (frames, summary) = flight.unwrap_or_else(|e| std::panic::resume_unwind(e));
     assert_no_holes(&frames);
     assert!(summary.stream.failures > 0, "the outage was not noticed");
     let last = frames.last().unwrap();

@@ -234,7 +234,12 @@ impl Streamer {
         let (backend, info) = match source {
             TileSource::Server { url, dataset } => {
                 let url = url.trim_end_matches('/').to_string();
-                let info = rt.block_on(describe(&client, &url, dataset))?;
+                // The document on a connection of its own (as the probe streamer of
+                // old did): the tile requests start on a new connection, which the
+                // latency tests' proxy holds, as it holds only a connection's first
+                // response or one after a pause.
+                let probe = http_client(config.request_timeout)?;
+                let info = rt.block_on(describe(&probe, &url, dataset))?;
                 (
                     Backend::Server {
                         url,

@@ -191,12 +191,20 @@ impl StaticFile {
     /// The dataset's document as the server would send it for this file (API.md):
     /// everything the client learns of a dataset comes from the file's header here.
     pub fn describe(&self, name: &str) -> DatasetInfo {
-        DatasetInfo::new(
-            name,
-            self.pyramid.metadata(),
-            self.pyramid.header().version,
-            self.pyramid.source().total,
-        )
+        let p = &self.pyramid;
+        // A host that does not say the file's length (`Content-Range: …/*`): where
+        // the last level's records end.
+        let bytes = match p.source().total {
+            u64::MAX => p
+                .geometry()
+                .levels()
+                .filter_map(|l| p.level_entry(l))
+                .map(|e| e.records_offset + e.records_len)
+                .max()
+                .unwrap_or(0),
+            total => total,
+        };
+        DatasetInfo::new(name, p.metadata(), p.header().version, bytes)
     }
 
     /// The index entry of `tile`, `None` when it has no record (absent).
