@@ -28,7 +28,9 @@ mkdir -p "$RESULTS"
 WORK=$(mktemp -d "${TMPDIR:-/tmp}/tessera-bench.XXXXXX")
 BENCH_PIDS=()
 bench_cleanup() {
-  for p in "${BENCH_PIDS[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
+  # Processes spawned in command substitutions ($(serve …)) are known only by the
+  # pid file: the subshell's BENCH_PIDS does not reach this one.
+  for p in "${BENCH_PIDS[@]}" $(cat "$WORK/pids" 2>/dev/null); do kill -TERM "$p" 2>/dev/null || true; done
   wait 2>/dev/null || true
   rm -rf "$WORK"
 }
@@ -42,6 +44,7 @@ spawn() {
   shift 2
   "$@" > "$out" 2> "$err" &
   BENCH_PIDS+=($!)
+  echo "$!" >> "$WORK/pids"
 }
 
 # wait_listening FILE: waits for "listening on URL" in FILE and prints the URL.
@@ -60,9 +63,11 @@ wait_listening() {
 
 # serve FILE...: starts `tessera-server serve` on a free loopback port; prints its URL.
 serve() {
-  local n=${#BENCH_PIDS[@]}
-  spawn "$WORK/serve$n.out" "$WORK/serve$n.log" "$SERVER_BIN" serve "$@" --listen 127.0.0.1:0
-  wait_listening "$WORK/serve$n.out"
+  # A fresh name: called in $(…), BENCH_PIDS does not count this subshell's spawns.
+  local out
+  out=$(mktemp "$WORK/serve.XXXXXX.out")
+  spawn "$out" "${out%.out}.log" "$SERVER_BIN" serve "$@" --listen 127.0.0.1:0
+  wait_listening "$out"
 }
 
 # build_moon N OUT: the moon N² mosaic as a pyramid (elevation = value − 10000).
