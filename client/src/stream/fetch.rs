@@ -200,20 +200,30 @@ pub(super) async fn fetch(
     }
     .await;
     // Latency is to the last byte; the flight is finished once every tile is decoded.
-    let latency = sent.elapsed();
-    let mut result = result;
+    finish_decoded(&tx, id, sent.elapsed(), result, decodes, &url).await;
+}
+
+/// Reports a request once its decodes are done: the first failure (the request's
+/// own, else the first decode's) is the one reported and blamed.
+async fn finish_decoded(
+    tx: &mpsc::Sender<Event>,
+    id: u64,
+    latency: Duration,
+    mut result: Result<u64, Failure>,
+    decodes: Vec<tokio::task::JoinHandle<Result<(), Failure>>>,
+    from: &str,
+) {
     for d in decodes {
         let failed = match d.await {
             Ok(Ok(())) => continue,
-            Ok(Err((e, blame))) => (format!("{url}: {e}"), blame),
-            Err(e) => (format!("{url}: decoding task failed: {e}"), Blame::Request),
+            Ok(Err((e, blame))) => (format!("{from}: {e}"), blame),
+            Err(e) => (format!("{from}: decoding task failed: {e}"), Blame::Request),
         };
-        // The first failure is the one reported and blamed.
         if result.is_ok() {
             result = Err(failed);
         }
     }
-    finish_after(&tx, id, latency, result);
+    finish_after(tx, id, latency, result);
 }
 
 /// What [`super::Streamer::last_error`] says of a record the server reports corrupt: the
@@ -451,17 +461,5 @@ pub(super) async fn fetch_range(
         }
     }
     .await;
-    let latency = sent.elapsed();
-    let mut result = result;
-    for d in decodes {
-        let failed = match d.await {
-            Ok(Ok(())) => continue,
-            Ok(Err((e, blame))) => (format!("{from}: {e}"), blame),
-            Err(e) => (format!("{from}: decoding task failed: {e}"), Blame::Request),
-        };
-        if result.is_ok() {
-            result = Err(failed);
-        }
-    }
-    finish_after(&tx, id, latency, result);
+    finish_decoded(&tx, id, sent.elapsed(), result, decodes, &from).await;
 }
