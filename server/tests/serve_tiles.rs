@@ -111,6 +111,66 @@ fn range_stream_carries_the_stored_records_in_morton_order() {
     assert_eq!(tiles, 6);
 }
 
+/// Once every record of a request has passed its checksum, the server reads each
+/// record while it writes the response (into a reused buffer) instead of all of
+/// them up front: the second response to the same request must be the first one
+/// byte for byte, headers included, with absent tiles and gaps between ranges
+/// (bigtujunga, where present) and over many ranges at once.
+#[test]
+fn a_stream_of_checked_records_is_byte_for_byte_the_first() {
+    let f = fixtures();
+    let mut sets = vec![(f.synth.clone(), "synth")];
+    if let Some(b) = &f.bigtujunga {
+        sets.push((b.clone(), "bigtujunga"));
+    }
+    for (path, name) in sets {
+        let p = open(&path);
+        let srv = Server::start(&[&path], &[]);
+        for l in p.geometry().levels() {
+            let slots = l.tile_slots();
+            let mut requests = vec![split_level(l, 5)];
+            if slots >= 16 {
+                requests.push(vec![
+                    MortonRange::new(Morton::from_raw(1), Morton::from_raw(slots / 4)).unwrap(),
+                    MortonRange::single(Morton::from_raw(slots / 2 + 1)),
+                    MortonRange::new(Morton::from_raw(slots - 5), Morton::from_raw(slots - 1))
+                        .unwrap(),
+                ]);
+            }
+            for ranges in requests {
+                let url = format!(
+                    "/v1/datasets/{name}/levels/{l}/tiles?ranges={}",
+                    ranges_param(&ranges)
+                );
+                let first = srv.get(&url).expect(200);
+                for _ in 0..2 {
+                    let again = srv.get(&url).expect(200);
+                    assert!(again.body == first.body, "{url}: the bodies differ");
+                    for h in ["content-length", "etag", "cache-control", "content-type"] {
+                        assert_eq!(again.header(h), first.header(h), "{url}: {h}");
+                    }
+                }
+                assert_eq!(
+                    first.must("content-length"),
+                    first.body.len().to_string(),
+                    "{url}"
+                );
+                // And it is the stream of the stored records.
+                let frames = decode_stream(&first);
+                let (body, tiles, errors, _) = split_trailer(&frames);
+                assert_eq!((tiles, errors), (body.len() as u64, 0), "{url}");
+                for fr in body {
+                    let Frame::Tile { morton, record, .. } = fr else {
+                        panic!("{url}: {fr:?}");
+                    };
+                    let t = TileId::from_morton(l, *morton).unwrap();
+                    assert_eq!(*record, p.read_record(t).unwrap().unwrap(), "{url}: {t}");
+                }
+            }
+        }
+    }
+}
+
 /// On a non-square DEM, the trailer names exactly the requested codes without a tile.
 #[test]
 fn trailer_reports_exactly_the_absent_codes() {

@@ -253,6 +253,12 @@ impl Dataset {
         }
     }
 
+    /// Whether `tile`'s record has passed its checksum (it is then served without
+    /// hashing it again: records are immutable).
+    pub fn verified(&self, tile: TileId) -> bool {
+        matches!(self.state(tile).load(Ordering::Relaxed), GOOD | UNDECODABLE)
+    }
+
     /// Marks a record that passed its checksum but does not decode; `true` the first
     /// time (so it is counted once as a distinct corrupt record).
     pub fn mark_undecodable(&self, tile: TileId) -> bool {

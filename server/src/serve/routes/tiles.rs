@@ -1,10 +1,19 @@
 //! Tile records: Morton-range streams, error tables only, and single tiles.
 //!
-//! The range stream is assembled from `Bytes` views of the memory-mapped file (the
-//! stored records, never re-encoded) interleaved with 32-byte frame headers, so its
-//! exact length is known up front and sent as `Content-Length`.
+//! A range stream is the stored records (never re-encoded), each behind its 32-byte
+//! frame header, then a trailer; its exact length comes from the index, so it is
+//! sent with `Content-Length`. From a local file whose records in the ranges have
+//! all passed their checksum (the steady state), each frame (header and record in
+//! one buffer) is read as hyper asks for the next body chunk, into a reused buffer
+//! ([`Storage::framed`](crate::serve::storage::Storage::framed)): the record is
+//! copied from the page cache into a buffer still in the CPU's cache and from there
+//! into the socket, instead of every record of the response being read up front into
+//! megabytes of fresh memory (BENCHMARKS.md "Serving"). Otherwise (object storage, a
+//! record not yet checked) the ranges are read up front, one read per range, and
+//! checked, as [`Dataset::records`](crate::serve::dataset::Dataset::records) does.
 
 use super::{Params, Segments, dataset, level, pinned, stored_record, tile, unavailable};
+use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
@@ -12,12 +21,13 @@ use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::Response;
 use bytes::Bytes;
+use futures_util::StreamExt;
 use std::collections::HashMap;
-use std::convert::Infallible;
 use std::sync::Arc;
+use tessera_shared::format::IndexEntry;
 use tessera_shared::range_query;
-use tessera_shared::wire::{self, CONTENT_TYPE};
-use tessera_shared::{ErrorTable, Level, Morton, MortonRange};
+use tessera_shared::wire::{self, CONTENT_TYPE, FRAME_HEADER_LEN};
+use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId};
 
 /// What to put in each frame: whole records or their error tables only.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -57,6 +67,86 @@ impl Outside {
     }
 }
 
+/// A piece of a response body: bytes at hand, or a checked record to read when
+/// hyper asks for it (behind its frame header in a range stream).
+enum Frame {
+    Ready(Bytes),
+    Record {
+        head: Option<[u8; FRAME_HEADER_LEN]>,
+        offset: u64,
+        len: u32,
+    },
+}
+
+impl Frame {
+    fn len(&self) -> usize {
+        match self {
+            Frame::Ready(b) => b.len(),
+            Frame::Record { head, len, .. } => head.map_or(0, |h| h.len()) + *len as usize,
+        }
+    }
+}
+
+/// A body of `frames`, each record read (into a reused buffer) only when hyper asks
+/// for the next chunk. A read that fails (the file truncated since the request
+/// started) cuts the body short, which the client sees as a truncated response: the
+/// head with its `Content-Length` is already sent.
+fn body(ds: &Dataset, frames: Vec<Frame>) -> Body {
+    let storage = ds.storage.clone();
+    let name = ds.name.clone();
+    Body::from_stream(futures_util::stream::iter(frames).map(move |f| match f {
+        Frame::Ready(b) => Ok(b),
+        Frame::Record { head, offset, len } => storage
+            .framed(head.as_ref().map_or(&[], |h| &h[..]), offset, u64::from(len))
+            .inspect_err(|e| {
+                tracing::warn!(dataset = %name, error = %e, "a record could not be read while streaming; response cut short");
+            }),
+    }))
+}
+
+/// `tile`'s index entry if its record can be read while the response is written: a
+/// local file, and the record has already passed its checksum.
+fn deferred_record(ds: &Dataset, tile: TileId) -> Option<IndexEntry> {
+    if !ds.storage.reads_while_writing() || !ds.verified(tile) {
+        return None;
+    }
+    ds.pyramid.entry(tile).copied()
+}
+
+/// The tile frames of `ranges` as records to read while the response is written,
+/// and the sub-ranges that hold no tile; `None` unless the storage is a local file
+/// and every present record has already passed its checksum (a first read checks
+/// it, up front).
+fn deferred(ds: &Dataset, level: Level, ranges: &[MortonRange]) -> Option<(Vec<Frame>, Outside)> {
+    if !ds.storage.reads_while_writing() {
+        return None;
+    }
+    let mut frames = Vec::new();
+    let mut outside = Outside::default();
+    for r in ranges {
+        for m in r.iter() {
+            let tile = TileId::from_morton(level, m).expect("ranges are checked against the level");
+            let Some(e) = ds.pyramid.entry(tile) else {
+                outside.absent(m.get());
+                continue;
+            };
+            if !ds.verified(tile) {
+                return None;
+            }
+            outside.close();
+            frames.push(Frame::Record {
+                head: Some(wire::tile_header(
+                    level, m, e.checksum, e.min, e.max, e.length,
+                )),
+                offset: e.offset,
+                len: e.length,
+            });
+        }
+        outside.close();
+    }
+    Some((frames, outside))
+}
+
 async fn stream(
     state: &AppState,
     name: &str,
@@ -88,16 +178,61 @@ async fn stream(
             state.cache_max_age,
         ));
     }
+    let deferred = match payload {
+        Payload::Records => deferred(&ds, level, &ranges),
+        Payload::ErrorTables => None,
+    };
+    let (mut frames, tiles, errors, outside) = match deferred {
+        Some((frames, outside)) => {
+            let tiles = frames.len() as u64;
+            (frames, tiles, 0, outside)
+        }
+        None => read_up_front(state, &ds, level, &ranges, payload).await?,
+    };
+    frames.push(Frame::Ready(Bytes::from(wire::trailer_frame(
+        level,
+        tiles,
+        errors,
+        &outside.ranges,
+    ))));
+    let len: usize = frames.iter().map(Frame::len).sum();
+    let mut r = Response::new(body(&ds, frames));
+    let h = r.headers_mut();
+    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(CONTENT_TYPE));
+    h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
+    if errors == 0 {
+        cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
+    } else {
+        // A body with Error frames is not the dataset's content (whose hash comes from
+        // the checksums the records should have): no cache may keep it or revalidate it.
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    }
+    if payload == Payload::Records {
+        r.extensions_mut().insert(TilesServed(tiles));
+    }
+    Ok(r)
+}
+
+/// The frames of `ranges` read now, one read per range, each record checked: tile
+/// (or error-table) frames, error frames for records that fail their checksum, and
+/// the counts of both with the sub-ranges that hold no tile.
+async fn read_up_front(
+    state: &AppState,
+    ds: &Dataset,
+    level: Level,
+    ranges: &[MortonRange],
+    payload: Payload,
+) -> ApiResult<(Vec<Frame>, u64, u64, Outside)> {
     let table_len = ErrorTable::byte_len(ds.pyramid.geometry().tile_log2());
     let mut chunks: Vec<Bytes> = Vec::new();
     let (mut tiles, mut errors) = (0u64, 0u64);
     let mut outside = Outside::default();
     let mut found = ds
-        .records(level, &ranges)
+        .records(level, ranges)
         .await
         .map_err(|reason| unavailable(&reason))?
         .into_iter();
-    for r in &ranges {
+    for r in ranges {
         for m in r.iter() {
             let got = found.next().expect("one result per requested code");
             debug_assert_eq!(got.tile.morton(), m);
@@ -140,31 +275,8 @@ async fn stream(
         }
         outside.close();
     }
-    chunks.push(Bytes::from(wire::trailer_frame(
-        level,
-        tiles,
-        errors,
-        &outside.ranges,
-    )));
-    let len: usize = chunks.iter().map(Bytes::len).sum();
-    let body = Body::from_stream(futures_util::stream::iter(
-        chunks.into_iter().map(Ok::<_, Infallible>),
-    ));
-    let mut r = Response::new(body);
-    let h = r.headers_mut();
-    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(CONTENT_TYPE));
-    h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
-    if errors == 0 {
-        cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
-    } else {
-        // A body with Error frames is not the dataset's content (whose hash comes from
-        // the checksums the records should have): no cache may keep it or revalidate it.
-        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
-    }
-    if payload == Payload::Records {
-        r.extensions_mut().insert(TilesServed(tiles));
-    }
-    Ok(r)
+    let frames = chunks.into_iter().map(Frame::Ready).collect();
+    Ok((frames, tiles, errors, outside))
 }
 
 /// `GET /v1/datasets/{name}/levels/{level}/tiles?ranges=…`
@@ -205,7 +317,14 @@ pub async fn single(
     let ds = dataset(&state, &name)?;
     let level = level(&ds, &level_raw)?;
     let tile = tile(level, &x, &y)?;
-    let (entry, bytes) = stored_record(&state, &ds, tile).await?;
+    // A record checked before is read as the body is written (after a 304 check that
+    // then needs no read); otherwise read and checked now.
+    let (entry, bytes) = if let Some(e) = deferred_record(&ds, tile) {
+        (e, None)
+    } else {
+        let (e, bytes) = stored_record(&state, &ds, tile).await?;
+        (e, Some(bytes))
+    };
     let pin = pinned(&ds, &query);
     // The record's own checksum identifies its bytes: the strongest possible ETag.
     let etag = format!("\"{:016x}\"", entry.checksum);
@@ -213,7 +332,15 @@ pub async fn single(
     {
         return Ok(r);
     }
-    let mut r = Response::new(Body::from(bytes));
+    let frame = match bytes {
+        Some(b) => Frame::Ready(b),
+        None => Frame::Record {
+            head: None,
+            offset: entry.offset,
+            len: entry.length,
+        },
+    };
+    let mut r = Response::new(body(&ds, vec![frame]));
     let h = r.headers_mut();
     h.insert(
         header::CONTENT_TYPE,
