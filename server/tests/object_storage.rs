@@ -334,3 +334,32 @@ fn build_uploads_the_verified_pyramid_or_nothing() {
     assert!(err.contains("s3://no-such-bucket/x.tess"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+#[test]
+fn http_and_file_urls_serve_the_same_records() {
+    let Some((s3, _)) = store_with_synth() else {
+        return;
+    };
+    let f = fixtures();
+    let local = Server::start(&[&f.synth], &[]);
+    // Plain HTTP with Range (object_store's HTTP store; moto answers anonymous GETs),
+    // and a file:// URL.
+    let http = format!("{}/tessera/synth.tess", s3.endpoint());
+    let file = format!("file://{}", f.synth.canonicalize().unwrap().display());
+    for url in [http, file] {
+        let remote = Server::start(&[Path::new(&url)], &[]);
+        for path in [
+            "/v1/datasets/synth",
+            "/v1/datasets/synth/levels/3/tiles?ranges=0-63",
+            "/v1/datasets/synth/levels/4/errors?ranges=100-255",
+            "/v1/datasets/synth/tiles/2/1/3",
+        ] {
+            assert_eq!(
+                remote.get(path).expect(200).body,
+                local.get(path).expect(200).body,
+                "{url}: {path}"
+            );
+        }
+        remote.get("/healthz/ready").expect(200);
+    }
+}

@@ -148,7 +148,7 @@ impl S3Server {
         std::fs::write(&file, bytes).expect("a temporary file");
         self.boto3(
             &format!(
-                "s3.put_object(Bucket={bucket:?}, Key={key:?}, Body=open(sys.argv[1], 'rb').read())"
+                "s3.put_object(Bucket={bucket:?}, Key={key:?}, ACL='public-read', Body=open(sys.argv[1], 'rb').read())"
             ),
             Some(&file),
         );
