@@ -43,7 +43,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tempfile::NamedTempFile;
-use tessera_shared::format::{self, IndexEntry};
+use tessera_shared::format::{self, INDEX_ENTRY_LEN, IndexEntry};
 use tessera_shared::{CellMask, Level, Metadata, Morton, TileGeometry, TileId};
 use xxhash_rust::xxh3::Xxh3;
 
@@ -58,7 +58,7 @@ pub const VERSION: u32 = 1;
 /// Fixed header at the start of a part file.
 pub const HEADER_LEN: usize = 64;
 /// The frame before each record: Morton code, length and index summary.
-pub const FRAME_LEN: usize = 32;
+pub const FRAME_LEN: usize = INDEX_ENTRY_LEN;
 /// Most parts one build may have (a Kubernetes Indexed Job's completions are
 /// limited to about this many).
 pub const MAX_PARTS: u32 = 100_000;
@@ -659,30 +659,34 @@ struct Frame {
 }
 
 impl Frame {
+    /// The pyramid index entry's layout (FORMAT.md), with the Morton code in the
+    /// offset's place: one encoding for both.
+    fn as_entry(self) -> IndexEntry {
+        IndexEntry {
+            offset: self.m,
+            length: self.length,
+            min: self.min,
+            max: self.max,
+            checksum: self.checksum,
+            full_res_error: self.full_res_error,
+            flags: self.flags,
+        }
+    }
+
     fn to_bytes(self) -> [u8; FRAME_LEN] {
-        let mut b = [0u8; FRAME_LEN];
-        b[0..8].copy_from_slice(&self.m.to_le_bytes());
-        b[8..12].copy_from_slice(&self.length.to_le_bytes());
-        b[12..14].copy_from_slice(&self.min.to_le_bytes());
-        b[14..16].copy_from_slice(&self.max.to_le_bytes());
-        b[16..24].copy_from_slice(&self.checksum.to_le_bytes());
-        b[24..28].copy_from_slice(&self.full_res_error.to_le_bytes());
-        b[28..32].copy_from_slice(&self.flags.to_le_bytes());
-        b
+        self.as_entry().to_bytes()
     }
 
     fn parse(b: &[u8; FRAME_LEN]) -> Self {
-        let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]);
-        let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().expect("4 bytes"));
-        let u64_at = |o: usize| u64::from_le_bytes(b[o..o + 8].try_into().expect("8 bytes"));
+        let e = IndexEntry::parse(b);
         Self {
-            m: u64_at(0),
-            length: u32_at(8),
-            min: u16_at(12),
-            max: u16_at(14),
-            checksum: u64_at(16),
-            full_res_error: f32::from_bits(u32_at(24)),
-            flags: u32_at(28),
+            m: e.offset,
+            length: e.length,
+            min: e.min,
+            max: e.max,
+            checksum: e.checksum,
+            full_res_error: e.full_res_error,
+            flags: e.flags,
         }
     }
 
