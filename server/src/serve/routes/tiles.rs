@@ -24,7 +24,6 @@ use bytes::Bytes;
 use futures_util::StreamExt;
 use std::collections::HashMap;
 use std::sync::Arc;
-use tessera_shared::format::IndexEntry;
 use tessera_shared::range_query;
 use tessera_shared::wire::{self, CONTENT_TYPE, FRAME_HEADER_LEN};
 use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId};
@@ -67,12 +66,12 @@ impl Outside {
     }
 }
 
-/// A piece of a response body: bytes at hand, or a checked record to read when
-/// hyper asks for it (behind its frame header in a range stream).
+/// A piece of a range stream: bytes at hand, or a checked record to read, behind its
+/// frame header, when hyper asks for it.
 enum Frame {
     Ready(Bytes),
     Record {
-        head: Option<[u8; FRAME_HEADER_LEN]>,
+        head: [u8; FRAME_HEADER_LEN],
         offset: u64,
         len: u32,
     },
@@ -82,35 +81,26 @@ impl Frame {
     fn len(&self) -> usize {
         match self {
             Frame::Ready(b) => b.len(),
-            Frame::Record { head, len, .. } => head.map_or(0, |h| h.len()) + *len as usize,
+            Frame::Record { len, .. } => FRAME_HEADER_LEN + *len as usize,
         }
     }
 }
 
-/// A body of `frames`, each record read (into a reused buffer) only when hyper asks
-/// for the next chunk. A read that fails (the file truncated since the request
-/// started) cuts the body short, which the client sees as a truncated response: the
-/// head with its `Content-Length` is already sent.
+/// A range stream of `frames`, each record read (into a reused buffer) only when
+/// hyper asks for the next chunk. A read that fails (the file truncated since the
+/// request started) cuts the body short, which the client sees as a truncated
+/// stream: the head with its `Content-Length` is already sent.
 fn body(ds: &Dataset, frames: Vec<Frame>) -> Body {
     let storage = ds.storage.clone();
     let name = ds.name.clone();
     Body::from_stream(futures_util::stream::iter(frames).map(move |f| match f {
         Frame::Ready(b) => Ok(b),
         Frame::Record { head, offset, len } => storage
-            .framed(head.as_ref().map_or(&[], |h| &h[..]), offset, u64::from(len))
+            .framed(&head, offset, u64::from(len))
             .inspect_err(|e| {
                 tracing::warn!(dataset = %name, error = %e, "a record could not be read while streaming; response cut short");
             }),
     }))
-}
-
-/// `tile`'s index entry if its record can be read while the response is written: a
-/// local file, and the record has already passed its checksum.
-fn deferred_record(ds: &Dataset, tile: TileId) -> Option<IndexEntry> {
-    if !ds.storage.reads_while_writing() || !ds.verified(tile) {
-        return None;
-    }
-    ds.pyramid.entry(tile).copied()
 }
 
 /// The tile frames of `ranges` as records to read while the response is written,
@@ -135,9 +125,7 @@ fn deferred(ds: &Dataset, level: Level, ranges: &[MortonRange]) -> Option<(Vec<F
             }
             outside.close();
             frames.push(Frame::Record {
-                head: Some(wire::tile_header(
-                    level, m, e.checksum, e.min, e.max, e.length,
-                )),
+                head: wire::tile_header(level, m, e.checksum, e.min, e.max, e.length),
                 offset: e.offset,
                 len: e.length,
             });
@@ -317,14 +305,7 @@ pub async fn single(
     let ds = dataset(&state, &name)?;
     let level = level(&ds, &level_raw)?;
     let tile = tile(level, &x, &y)?;
-    // A record checked before is read as the body is written (after a 304 check that
-    // then needs no read); otherwise read and checked now.
-    let (entry, bytes) = if let Some(e) = deferred_record(&ds, tile) {
-        (e, None)
-    } else {
-        let (e, bytes) = stored_record(&state, &ds, tile).await?;
-        (e, Some(bytes))
-    };
+    let (entry, bytes) = stored_record(&state, &ds, tile).await?;
     let pin = pinned(&ds, &query);
     // The record's own checksum identifies its bytes: the strongest possible ETag.
     let etag = format!("\"{:016x}\"", entry.checksum);
@@ -332,15 +313,7 @@ pub async fn single(
     {
         return Ok(r);
     }
-    let frame = match bytes {
-        Some(b) => Frame::Ready(b),
-        None => Frame::Record {
-            head: None,
-            offset: entry.offset,
-            len: entry.length,
-        },
-    };
-    let mut r = Response::new(body(&ds, vec![frame]));
+    let mut r = Response::new(Body::from(bytes));
     let h = r.headers_mut();
     h.insert(
         header::CONTENT_TYPE,
