@@ -10,9 +10,14 @@
 # limit (nginx's default closes a connection after 1000 requests; Tessera never does).
 # Then the real request pattern: `tessera load --clients 64` in both request modes.
 # wrk, nginx, the clients and the server share the machine's cores.
+# CPU per row (issue 16 item 7): user + system seconds of the server's processes
+# (Tessera's one; nginx's master and workers) from /proc/PID/stat before and after
+# the wrk run, wrk's own (GNU time), and every CPU's busy seconds (/proc/stat), so
+# that CPU per payload byte is compared in the same run and other load shows.
 # Appends to $RESULTS/serve.jsonl {server, request, tiles_per_request, connections,
-# run, duration_s, requests, errors, p50_ms, p99_ms, mean_tile_bytes, wrk_bytes} and
-# to $RESULTS/load.jsonl {mode, run, …`tessera load --json`}.
+# run, duration_s, requests, errors, p50_ms, p99_ms, mean_tile_bytes, wrk_bytes,
+# server_cpu_s, wrk_cpu_s, machine_cpu_s} and to $RESULTS/load.jsonl {mode, run,
+# …`tessera load --json`}.
 #   ROW_SECONDS (default 4) per wrk row, LOAD_SECONDS (default 10) per load run.
 source "$(dirname "$0")/common.sh"
 row=${ROW_SECONDS:-4}
@@ -24,7 +29,10 @@ ulimit -n 65536 2>/dev/null || ulimit -n "$(ulimit -Hn)"
 
 ds=moon8k level=4 side=16
 build_moon 8192 "$WORK/$ds.tess"
-url=$(serve "$WORK/$ds.tess")
+# Not `url=$(serve …)`: in a subshell the server's PID would not reach BENCH_PIDS.
+serve "$WORK/$ds.tess" > "$WORK/url"
+url=$(cat "$WORK/url")
+tessera_pid=${BENCH_PIDS[-1]}
 
 # Export every finest tile through the single-tile route, one curl over one connection.
 static=$WORK/static
@@ -70,6 +78,7 @@ CONF
 } > "$WORK/nginx.conf"
 spawn "$WORK/nginx.out" "$WORK/nginx/error.log" "$nginx_bin" -p "$WORK/nginx" -e "$WORK/nginx/error.log" \
   -c "$WORK/nginx.conf" -g 'daemon off;'
+nginx_pid=${BENCH_PIDS[-1]}
 for _ in $(seq 200); do curl -sf -o /dev/null "http://127.0.0.1:$port/$level/0/0.bin" && break; sleep 0.05; done
 cmp -s <(curl -sf "http://127.0.0.1:$port/$level/3/5.bin") <(curl -sf "$url/v1/datasets/$ds/tiles/$level/3/5") \
   || { echo "nginx does not serve the exported tiles" >&2; cat "$WORK/nginx/error.log" >&2; exit 1; }
@@ -111,17 +120,52 @@ LUA
 for s in batch single static; do cat "$WORK/report.lua" >> "$WORK/$s.lua"; done
 export DS=$ds LEVEL=$level SIDE=$side
 
+hz=$(getconf CLK_TCK)
+# cpu_ticks PID...: user + system clock ticks the processes have used so far (fields
+# 14 and 15 of /proc/PID/stat, counted after the parenthesised command name).
+cpu_ticks() {
+  local t=0 p f
+  for p in "$@"; do
+    f=$(cat "/proc/$p/stat")
+    f=${f##*) }
+    t=$((t + $(awk '{print $12 + $13}' <<< "$f")))
+  done
+  echo "$t"
+}
+# machine_ticks: busy clock ticks of all CPUs (user nice system irq softirq steal).
+machine_ticks() { awk '/^cpu / {print $2 + $3 + $4 + $7 + $8 + $9}' /proc/stat; }
+# server_pids SERVER: the processes whose CPU a row counts.
+server_pids() {
+  case "$1" in
+    tessera) echo "$tessera_pid" ;;
+    nginx) echo "$nginx_pid" $(cat /proc/"$nginx_pid"/task/*/children) ;;
+  esac
+}
+
 # wrk_row SERVER REQUEST TILES CONNECTIONS RUN BASE_URL: one wrk run, one record.
 wrk_row() {
   local server=$1 request=$2 tiles=$3 c=$4 run=$5 base=$6
-  BATCH=$tiles wrk -t2 -c"$c" -d"${row}s" --timeout 60s -s "$WORK/$request.lua" "$base" > "$WORK/wrk.out"
+  local pids s0 s1 m0 m1
+  pids=$(server_pids "$server")
+  # shellcheck disable=SC2086 # one PID per word
+  s0=$(cpu_ticks $pids)
+  m0=$(machine_ticks)
+  BATCH=$tiles /usr/bin/time -f '%U %S' -o "$WORK/wrk.time" \
+    wrk -t2 -c"$c" -d"${row}s" --timeout 60s -s "$WORK/$request.lua" "$base" > "$WORK/wrk.out"
+  # shellcheck disable=SC2086
+  s1=$(cpu_ticks $pids)
+  m1=$(machine_ticks)
   local non2xx
   non2xx=$(awk '/Non-2xx/ {print $NF}' "$WORK/wrk.out")
   record serve "$(tail -n1 "$WORK/wrk.out" | jq -c --arg server "$server" --arg request "$request" \
     --argjson tiles "$tiles" --argjson c "$c" --argjson run "$run" --argjson mean "$mean_bytes" \
     --argjson non2xx "${non2xx:-0}" \
+    --argjson server_cpu "$(awk -v t=$((s1 - s0)) -v hz="$hz" 'BEGIN {print t / hz}')" \
+    --argjson machine_cpu "$(awk -v t=$((m1 - m0)) -v hz="$hz" 'BEGIN {print t / hz}')" \
+    --argjson wrk_cpu "$(awk '{print $1 + $2}' "$WORK/wrk.time")" \
     '{server: $server, request: $request, tiles_per_request: $tiles, connections: $c, run: $run,
-      mean_tile_bytes: $mean} + . + {errors: (.errors + $non2xx)}')"
+      mean_tile_bytes: $mean} + . + {errors: (.errors + $non2xx), server_cpu_s: $server_cpu,
+      wrk_cpu_s: $wrk_cpu, machine_cpu_s: $machine_cpu}')"
 }
 
 for run in $(seq "$RUNS"); do

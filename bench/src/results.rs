@@ -70,6 +70,20 @@ pub struct Serve {
     pub p50_ms: f64,
     pub p99_ms: f64,
     pub mean_tile_bytes: f64,
+    /// Bytes wrk read during the row, headers and responses still in flight at its
+    /// end included (wrk counts every read).
+    #[serde(default)]
+    pub wrk_bytes: Option<f64>,
+    /// User + system CPU seconds of the server's processes during the row (nginx:
+    /// master and workers); absent in results from before it was recorded.
+    #[serde(default)]
+    pub server_cpu_s: Option<f64>,
+    /// wrk's own CPU seconds.
+    #[serde(default)]
+    pub wrk_cpu_s: Option<f64>,
+    /// Busy CPU seconds of the whole machine during the row (every process).
+    #[serde(default)]
+    pub machine_cpu_s: Option<f64>,
 }
 
 impl Serve {
@@ -84,6 +98,36 @@ impl Serve {
     /// Tile payload in MB (10⁶ bytes) per second, headers not counted.
     pub fn payload_mb_per_s(&self) -> f64 {
         self.tiles_per_s() * self.mean_tile_bytes / 1e6
+    }
+
+    /// GB (10⁹ bytes) the CPU of the row was spent on: what wrk read (responses
+    /// still in flight when the row ends count; with megabyte responses at 1024
+    /// connections that is most of them), else the completed requests' tile payload.
+    /// Headers are under 0.3% of either.
+    fn delivered_gb(&self) -> f64 {
+        self.wrk_bytes.unwrap_or_else(|| {
+            self.requests * f64::from(self.tiles_per_request) * self.mean_tile_bytes
+        }) / 1e9
+    }
+
+    /// The server's CPU seconds per GB delivered; `None` where not recorded or
+    /// nothing was delivered.
+    pub fn server_cpu_s_per_gb(&self) -> Option<f64> {
+        let gb = self.delivered_gb();
+        self.server_cpu_s.filter(|_| gb > 0.0).map(|s| s / gb)
+    }
+
+    /// wrk's CPU seconds per GB delivered.
+    pub fn wrk_cpu_s_per_gb(&self) -> Option<f64> {
+        let gb = self.delivered_gb();
+        self.wrk_cpu_s.filter(|_| gb > 0.0).map(|s| s / gb)
+    }
+
+    /// CPU seconds of everything but the server and wrk during the row, per second:
+    /// the other load on the machine (cores' worth).
+    pub fn other_cores(&self) -> Option<f64> {
+        let other = self.machine_cpu_s? - self.server_cpu_s? - self.wrk_cpu_s?;
+        Some((other / self.duration_s).max(0.0))
     }
 }
 
@@ -728,5 +772,27 @@ mod tests {
         assert_eq!(s.requests_per_s(), 100.0);
         assert_eq!(s.tiles_per_s(), 1600.0);
         assert_eq!(s.payload_mb_per_s(), 240.0);
+        // Older results have no CPU figures.
+        assert_eq!(s.server_cpu_s_per_gb(), None);
+        assert_eq!(s.other_cores(), None);
+        let s: Serve = serde_json::from_str(
+            r#"{"server":"nginx","request":"static","tiles_per_request":1,"connections":64,"run":1,
+               "duration_s":10,"requests":20000,"errors":0,"p50_ms":3,"p99_ms":9,"mean_tile_bytes":150000,
+               "server_cpu_s":0.9,"wrk_cpu_s":8,"machine_cpu_s":19.5}"#,
+        )
+        .expect("valid");
+        // 20 000 tiles of 150 kB = 3 GB; 0.9 s ÷ 3 GB.
+        assert!((s.server_cpu_s_per_gb().expect("recorded") - 0.3).abs() < 1e-12);
+        assert!((s.wrk_cpu_s_per_gb().expect("recorded") - 8.0 / 3.0).abs() < 1e-12);
+        assert!((s.other_cores().expect("recorded") - 1.06).abs() < 1e-12);
+        // What wrk read, where recorded: 4.5 GB (responses in flight at the end).
+        let s: Serve = serde_json::from_str(
+            r#"{"server":"tessera","request":"batch","tiles_per_request":64,"connections":1024,"run":1,
+               "duration_s":4,"requests":100,"errors":0,"p50_ms":3600,"p99_ms":4000,"mean_tile_bytes":150000,
+               "wrk_bytes":4.5e9,"server_cpu_s":1.8,"wrk_cpu_s":2.7,"machine_cpu_s":8}"#,
+        )
+        .expect("valid");
+        assert!((s.server_cpu_s_per_gb().expect("recorded") - 0.4).abs() < 1e-12);
+        assert!((s.wrk_cpu_s_per_gb().expect("recorded") - 0.6).abs() < 1e-12);
     }
 }
