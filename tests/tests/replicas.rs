@@ -31,9 +31,9 @@ use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
 use std::process::{Child, ChildStdout, Command, ExitStatus, Stdio};
 use std::time::{Duration, SystemTime};
-use streaming_support::{assert_no_holes, glide, options, pyramid, run_flight};
+use streaming_support::{assert_no_holes, glide, options, pyramid, run_flight, small_load};
 use tessera_client::app::fly::{FlySummary, FrameRecord};
-use tessera_client::app::load_test::{LoadOptions, LoadReport, load};
+use tessera_client::app::load_test::LoadReport;
 use tessera_client::stream::{RequestMode, StreamConfig, TileSource};
 use tessera_e2e::nginx::{Logged, Nginx, nginx_or_skip};
 use tessera_shared::s3_server::S3Server;
@@ -223,19 +223,12 @@ impl Cluster {
 /// `tessera load` with `clients` against `server` for `duration` (the options of the
 /// other load tests: 30 fps, τ = 2, 640×360, 30 m spacing).
 fn load_against(server: SocketAddr, clients: u32, duration: Duration) -> LoadReport {
-    load(&LoadOptions {
-        source: TileSource::server(format!("http://{server}"), "terrain"),
+    small_load(
+        TileSource::server(format!("http://{server}"), "terrain"),
         clients,
         duration,
-        mode: RequestMode::Ranges,
-        fps: 30.0,
-        tau: 2.0,
-        width: 640,
-        height: 360,
-        spacing: Some(30.0),
-        progress: false,
-    })
-    .unwrap()
+        RequestMode::Ranges,
+    )
 }
 
 /// The front's log lines for tile streams (what the clients ask for).

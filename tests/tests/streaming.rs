@@ -13,7 +13,7 @@
 mod streaming_support;
 
 use std::time::Duration;
-use streaming_support::{assert_no_holes, glide, options, run_flight, start_server};
+use streaming_support::{assert_no_holes, glide, options, run_flight, small_load, start_server};
 use tessera_client::app::fly::{FrameRecord, fly};
 use tessera_proxy::Delay;
 
@@ -172,24 +172,16 @@ fn keeps_drawing_through_150_ms_of_latency() {
 /// request, in range mode tiles come in batches, and neither sees errors.
 #[test]
 fn load_generator_batches_in_range_mode_only() {
-    use tessera_client::app::load_test::{LoadOptions, load};
     use tessera_client::stream::RequestMode;
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
     let run = |mode| {
-        load(&LoadOptions {
-            source: tessera_client::stream::TileSource::server(format!("http://{addr}"), "terrain"),
-            clients: 3,
-            duration: Duration::from_millis(1500),
+        small_load(
+            tessera_client::stream::TileSource::server(format!("http://{addr}"), "terrain"),
+            3,
+            Duration::from_millis(1500),
             mode,
-            fps: 30.0,
-            tau: 2.0,
-            width: 640,
-            height: 360,
-            spacing: Some(30.0),
-            progress: false,
-        })
-        .unwrap()
+        )
     };
     let single = run(RequestMode::Single);
     let ranges = run(RequestMode::Ranges);

@@ -15,9 +15,9 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 use streaming_support::{
-    assert_no_holes, options, pyramid, run_flight, start_server, start_server_for,
+    assert_recovered, options, pyramid, run_flight, start_server, start_server_for,
 };
-use tessera_client::app::fly::{FlyOptions, FrameRecord};
+use tessera_client::app::fly::FlyOptions;
 
 /// A long fast leg that keeps needing new tiles, then a still view to settle on:
 /// the flight of the outage tests (its path file lives in the returned directory).
@@ -31,20 +31,6 @@ fn outage_flight(addr: SocketAddr) -> (tempfile::TempDir, FlyOptions) {
     .unwrap();
     let opts = options(addr, path.to_string_lossy().into_owned(), 300);
     (dir, opts)
-}
-
-/// After an outage: no holes, the outage noticed, and the last frame back within τ
-/// with nothing left to fetch.
-fn assert_recovered(frames: &[FrameRecord], summary: &tessera_client::app::fly::FlySummary) {
-    assert_no_holes(frames);
-    assert!(summary.stream.failures > 0, "the outage was not noticed");
-    let last = frames.last().unwrap();
-    assert!(
-        last.select.deficit.is_some_and(|d| d <= 1.0),
-        "no recovery after the restart: deficit {:?}",
-        last.select.deficit
-    );
-    assert_eq!(last.wanted, 0);
 }
 
 #[test]

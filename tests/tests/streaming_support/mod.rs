@@ -122,3 +122,40 @@ pub fn assert_no_holes(frames: &[FrameRecord]) -> usize {
     }
     first
 }
+
+/// After an outage: no holes, the outage noticed, and the last frame back within τ
+/// with nothing left to fetch.
+pub fn assert_recovered(frames: &[FrameRecord], summary: &tessera_client::app::fly::FlySummary) {
+    assert_no_holes(frames);
+    assert!(summary.stream.failures > 0, "the outage was not noticed");
+    let last = frames.last().unwrap();
+    assert!(
+        last.select.deficit.is_some_and(|d| d <= 1.0),
+        "no recovery after the restart: deficit {:?}",
+        last.select.deficit
+    );
+    assert_eq!(last.wanted, 0);
+}
+
+/// `tessera load` from `source` with the small settings the streaming tests share
+/// (640×360 at 30 fps, τ = 2 px, 30 m spacing, no progress line).
+pub fn small_load(
+    source: TileSource,
+    clients: u32,
+    duration: Duration,
+    mode: tessera_client::stream::RequestMode,
+) -> tessera_client::app::load_test::LoadReport {
+    tessera_client::app::load_test::load(&tessera_client::app::load_test::LoadOptions {
+        source,
+        clients,
+        duration,
+        mode,
+        fps: 30.0,
+        tau: 2.0,
+        width: 640,
+        height: 360,
+        spacing: Some(30.0),
+        progress: false,
+    })
+    .unwrap()
+}
