@@ -18,10 +18,6 @@ use tessera_shared::{Level, Pyramid};
 
 const BUCKET: &str = "tessera";
 
-fn env(s3: &S3Server) -> Vec<(String, String)> {
-    s3.env()
-}
-
 fn refs(env: &[(String, String)]) -> Vec<(&str, &str)> {
     env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect()
 }
@@ -71,7 +67,7 @@ fn every_record_served_from_s3_equals_the_local_files() {
         return;
     };
     let f = fixtures();
-    let e = env(&s3);
+    let e = s3.env();
     let remote = Server::start_with(&[Path::new("s3://tessera/synth.tess")], &[], &refs(&e));
     let local = Server::start(&[&f.synth], &[]);
     let p = serve_support::open(&f.synth);
@@ -133,7 +129,7 @@ fn a_cold_morton_range_is_one_ranged_get() {
     let Some((s3, _)) = store_with_synth() else {
         return;
     };
-    let e = env(&s3);
+    let e = s3.env();
     let p = serve_support::open(&fixtures().synth);
     let finest = p.geometry().finest();
     for cache in ["0", "64"] {
@@ -167,7 +163,7 @@ fn a_killed_store_is_a_503_with_a_reason_until_it_is_back() {
     let Some((mut s3, bytes)) = store_with_synth() else {
         return;
     };
-    let e = env(&s3);
+    let e = s3.env();
     // No block cache, so every request goes to the store.
     let server = Server::start_with(
         &[Path::new("s3://tessera/synth.tess")],
@@ -255,7 +251,7 @@ fn a_truncated_object_is_refused_and_a_replaced_one_is_noticed() {
     let Some((s3, bytes)) = store_with_synth() else {
         return;
     };
-    let e = env(&s3);
+    let e = s3.env();
     s3.put(BUCKET, "cut.tess", &bytes[..bytes.len() - 4096]);
     let err = serve_support::serve_must_refuse_with(&["s3://tessera/cut.tess"], &refs(&e));
     assert!(err.contains("s3://tessera/cut.tess"), "{err}");
@@ -304,7 +300,7 @@ fn build_uploads_the_verified_pyramid_or_nothing() {
         return;
     };
     s3.create_bucket(BUCKET);
-    let e = env(&s3);
+    let e = s3.env();
     let dir = tempfile::tempdir().unwrap();
     let local = dir.path().join("up.tess");
     let run = |input: &str, out: &str| {

@@ -28,7 +28,7 @@
 
 use super::coarse::Aggregator;
 use super::raster::{DepthCounts, Raster, depth};
-use super::writer::{SINK_BUFFER, partial_prefix, remove_stale_partials};
+use super::writer::{SINK_BUFFER, partial_prefix, publish, remove_stale_partials};
 use super::{
     BuildOptions, BuildReport, Loaded, Node, Sink, Tiling, bar, count_tiles, create_output,
     finish_output, level_counts, memory, meta_reserve,
@@ -889,14 +889,7 @@ impl PartWriter {
             .check(interrupt)
             .context("re-reading the written part")?;
         interrupt.check()?;
-        std::fs::set_permissions(
-            partial.path(),
-            std::os::unix::fs::PermissionsExt::from_mode(0o644),
-        )?;
-        partial
-            .persist(&target)
-            .map_err(|e| e.error)
-            .with_context(|| format!("cannot move the finished part to {}", target.display()))?;
+        publish(partial, &target, "part")?;
         Ok(file_len)
     }
 }

@@ -394,15 +394,21 @@ impl PyramidWriter {
             "the written pyramid's metadata differs from what was written"
         );
         interrupt.check()?;
-        // Temporary files are private (0600); a finished pyramid is an ordinary file.
-        std::fs::set_permissions(
-            partial.path(),
-            std::os::unix::fs::PermissionsExt::from_mode(0o644),
-        )?;
-        partial
-            .persist(&target)
-            .map_err(|e| e.error)
-            .with_context(|| format!("cannot move the finished pyramid to {}", target.display()))?;
+        publish(partial, &target, "pyramid")?;
         Ok((meta, at))
     }
+}
+
+/// Renames a finished, verified temporary file into place as an ordinary file:
+/// temporary files are private (0600), a finished pyramid or part is not.
+pub(super) fn publish(partial: NamedTempFile, target: &Path, what: &str) -> anyhow::Result<()> {
+    std::fs::set_permissions(
+        partial.path(),
+        std::os::unix::fs::PermissionsExt::from_mode(0o644),
+    )?;
+    partial
+        .persist(target)
+        .map_err(|e| e.error)
+        .with_context(|| format!("cannot move the finished {what} to {}", target.display()))?;
+    Ok(())
 }
