@@ -14,9 +14,10 @@ use super::storage::Storage;
 use crate::remote::block_cache::{self, BLOCK, BlockCache};
 use crate::remote::{self, ObjectLocation, StoreOptions};
 use bytes::Bytes;
-use futures_util::future::BoxFuture;
+use futures_util::future::{BoxFuture, Either};
 use object_store::{GetOptions, GetRange, ObjectStoreExt};
 use prometheus::{Histogram, HistogramOpts, IntCounter, IntCounterVec, IntGauge, Opts, Registry};
+use std::future::Ready;
 use std::io;
 use std::ops::Range;
 use std::sync::{Arc, Mutex};
@@ -273,7 +274,9 @@ impl ObjectStorage {
         &self,
         offset: u64,
         len: u64,
-    ) -> io::Result<impl Future<Output = io::Result<Bytes>> + Send + 'static> {
+    ) -> io::Result<
+        Either<Ready<io::Result<Bytes>>, impl Future<Output = io::Result<Bytes>> + Send + 'static>,
+    > {
         let range = offset
             .checked_add(len)
             .filter(|&end| end <= self.size)
@@ -310,8 +313,16 @@ impl ObjectStorage {
             .into_iter()
             .map(|(b, bytes)| (b * BLOCK, bytes))
             .collect();
+        let uncovered = move |range: &Range<u64>| {
+            io::Error::other(format!("bytes {}..{} not covered", range.start, range.end))
+        };
+        if gets.is_empty() {
+            // All cached: answered here, without a trip through the I/O runtime.
+            let bytes = block_cache::assemble(&range, cached).ok_or_else(|| uncovered(&range));
+            return Ok(Either::Left(std::future::ready(bytes)));
+        }
         let (ctx, id) = (self.ctx.clone(), self.id);
-        Ok(async move {
+        Ok(Either::Right(async move {
             let fetched = futures_util::future::join_all(gets).await;
             let mut pieces = cached;
             for f in fetched {
@@ -320,10 +331,8 @@ impl ObjectStorage {
                 ctx.cache.insert(id, at, &bytes);
                 pieces.push((at, bytes));
             }
-            block_cache::assemble(&range, pieces).ok_or_else(|| {
-                io::Error::other(format!("bytes {}..{} not covered", range.start, range.end))
-            })
-        })
+            block_cache::assemble(&range, pieces).ok_or_else(|| uncovered(&range))
+        }))
     }
 
     /// Marks the object changed when that is why a read failed.
@@ -351,14 +360,20 @@ impl Storage for ObjectStorage {
     }
 
     fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes> {
-        let fut = self.read_range(offset, len)?;
-        self.settle(remote::block_on(fut))
+        let got = match self.read_range(offset, len)? {
+            Either::Left(cached) => cached.into_inner(),
+            Either::Right(fetch) => remote::block_on(fetch),
+        };
+        self.settle(got)
     }
 
     fn read(&self, offset: u64, len: u64) -> BoxFuture<'_, io::Result<Bytes>> {
         Box::pin(async move {
-            let fut = self.read_range(offset, len)?;
-            self.settle(remote::run(fut).await)
+            let got = match self.read_range(offset, len)? {
+                Either::Left(cached) => cached.into_inner(),
+                Either::Right(fetch) => remote::run(fetch).await,
+            };
+            self.settle(got)
         })
     }
 
