@@ -9,6 +9,7 @@ use tessera_client::app::fly::{self, FlyOptions};
 use tessera_client::app::headless::{Draws, RenderSetup};
 use tessera_client::app::{load_test, window};
 use tessera_client::render::gpu::Backend;
+use tessera_client::render::normals::NormalSource;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
 use tessera_client::select::Policy;
 use tessera_client::stream::{RequestMode, StreamConfig, TileSource};
@@ -131,6 +132,11 @@ enum Command {
         /// Tiles held on the GPU (texture-array layers).
         #[arg(long, default_value_t = 256)]
         gpu_tiles: u32,
+        /// Where tiles' normal maps are built: a GPU compute pass over the uploaded
+        /// heights (an upload is only texture copies), or the CPU at upload (the
+        /// reference, for side-by-side measurement).
+        #[arg(long, value_enum, default_value_t = NormalSource::Gpu)]
+        normals: NormalSource,
         /// Turn off prefetching (the enlarged, predicted view).
         #[arg(long)]
         no_prefetch: bool,
@@ -342,6 +348,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 width > 0 && height > 0,
                 "--width and --height must be positive"
             );
+            normals,
             let budget = std::time::Duration::from_secs_f64(budget_ms / 1e3);
             let render = out.as_ref().map(|dir| RenderSetup {
                 opts: RenderOptions {
@@ -364,6 +371,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 write_frames: !no_frames,
                 upload_budget: budget,
                 settle,
+                    normals,
                 reference_cache,
             });
             // Headless runs write their statistics beside the frames by default.
@@ -415,6 +423,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             file,
             path,
             fps,
+                    normals,
             tau,
             frames,
             viewport,

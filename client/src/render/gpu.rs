@@ -19,6 +19,8 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     pub adapter: wgpu::AdapterInfo,
     pub limits: wgpu::Limits,
+    /// What the device can do beyond WebGL 2 (compute shaders for normal maps).
+    pub downlevel: wgpu::DownlevelCapabilities,
     /// Uncaptured errors and device loss, reported by wgpu's callbacks.
     errors: Arc<Mutex<Vec<String>>>,
 }
@@ -104,6 +106,7 @@ impl Gpu {
             queue,
             adapter: adapter.get_info(),
             limits,
+            downlevel: adapter.get_downlevel_capabilities(),
             errors,
         })
     }

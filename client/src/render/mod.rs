@@ -26,6 +26,7 @@
 
 mod capture;
 pub mod gpu;
+mod gpu_normals;
 pub mod instances;
 pub mod normals;
 mod pipeline;
@@ -83,6 +84,11 @@ pub struct RenderOptions {
     pub view: DebugView,
     pub parallax: Parallax,
     pub backend: Backend,
+    /// Where normal maps are built (GPU unless asked otherwise).
+    pub normals: normals::NormalSource,
+    /// Draw patches morphed as selection says ([`crate::select::morph`]); off
+    /// (`tessera fly --no-morph`), every patch at its own LOD, and LOD changes pop.
+    pub morph: bool,
 }
 
 impl Default for RenderOptions {
@@ -94,6 +100,8 @@ impl Default for RenderOptions {
             view: DebugView::Shaded,
             parallax: Parallax::None,
             backend: Backend::Auto,
+            normals: normals::NormalSource::Gpu,
+            morph: true,
         }
     }
 }
@@ -118,6 +126,8 @@ pub struct Renderer {
     height_range: (f64, f64),
     heights: wgpu::Texture,
     normals: wgpu::Texture,
+    /// The compute pass building normal maps; `None` on the CPU path.
+    normal_pass: Option<gpu_normals::NormalPass>,
     masks: wgpu::Texture,
     globals: wgpu::Buffer,
     bind_group: wgpu::BindGroup,

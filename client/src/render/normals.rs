@@ -1,5 +1,7 @@
 //! Normal maps from height differences, one per tile, built when the tile is
-//! uploaded.
+//! uploaded: on the GPU by default (`gpu_normals.rs`, `normals.wgsl`), or here on
+//! the CPU — this module's [`normal_map`] is also the reference the GPU's maps
+//! are tested against.
 //!
 //! Central differences over the tile's own samples; on a border the missing
 //! neighbour sample comes from the adjacent tile of the same level when it is
@@ -9,6 +11,18 @@
 //! sample spacings, so shading there is close but not identical (DECISIONS.md).
 
 use glam::DVec2;
+
+/// Where normal maps are built.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NormalSource {
+    /// A compute pass over the uploaded heights (an upload is only texture copies);
+    /// the CPU path where the device has no compute shaders.
+    #[default]
+    Gpu,
+    /// On the CPU at upload, with the tile's decoded neighbours (the reference).
+    Cpu,
+}
 
 /// The four neighbours' heights (north, east, south, west), each `(T+1)²` samples.
 pub type Neighbours<'a> = [Option<&'a [u16]>; 4];

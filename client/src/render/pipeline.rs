@@ -4,7 +4,8 @@
 //! them.
 
 use super::slots::SlotTable;
-use super::{DrawStats, RenderOptions, Renderer, capture, gpu::Gpu, instances};
+use super::normals::NormalSource;
+use super::{DrawStats, RenderOptions, Renderer, capture, gpu::Gpu, gpu_normals, instances};
 use crate::camera::Camera;
 use crate::select::{Patch, World};
 use anyhow::Context;
@@ -96,7 +97,27 @@ impl Renderer {
             })
         };
         let heights = array("heights", wgpu::TextureFormat::R16Unorm, samples);
-        let normals = array("normals", wgpu::TextureFormat::Rg8Snorm, samples);
+        let normals = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("normals"),
+            size: wgpu::Extent3d {
+                width: samples,
+                height: samples,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            // Written by the normal-map compute pass (gpu_normals.rs).
+            format: gpu_normals::NORMAL_FORMAT,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_DST
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::STORAGE_BINDING,
+            view_formats: &[],
+        });
+        let normal_pass = (opts.normals == NormalSource::Gpu
+            && gpu_normals::NormalPass::supported(&gpu.downlevel))
+        .then(|| gpu_normals::NormalPass::new(device, &heights, &normals));
         // One texel per cell: 1.0 where the cell is terrain (FORMAT.md "Validity mask").
         let masks = array("cell masks", wgpu::TextureFormat::R8Unorm, cells);
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
@@ -244,6 +265,7 @@ impl Renderer {
             height_range,
             heights,
             normals,
+            normal_pass,
             masks,
             globals,
             bind_group,
@@ -305,6 +327,8 @@ impl Renderer {
     /// the GPU.
     pub fn draw(&mut self, camera: &Camera, patches: &[Patch]) -> anyhow::Result<DrawStats> {
         let started = Instant::now();
+        // Normal maps of tiles uploaded one by one since the last frame.
+        self.flush_normals();
         self.write_globals(camera);
         let g = self.world.geometry;
         let batches = Batches::build(&g, patches, |p| self.slots.get(p.tile));

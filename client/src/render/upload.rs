@@ -1,17 +1,55 @@
-//! Uploading decoded tiles into their GPU slots: heights, a normal map built with
-//! the tile's decoded neighbours, and the tile's validity mask (one byte per cell,
-//! 255 = terrain), which the fragment shader reads to discard non-terrain cells.
+//! Uploading decoded tiles into their GPU slots: heights, the tile's validity
+//! mask (one byte per cell, 255 = terrain), which the fragment shader reads to
+//! discard non-terrain cells, and a normal map — computed on the GPU from the
+//! slots' heights ([`super::gpu_normals`]), so that an upload is only texture
+//! copies, or, with [`NormalSource::Cpu`], built here with the tile's decoded
+//! neighbours ([`normals::normal_map`]).
 
-use super::{Renderer, normals};
+use super::normals::{self, NormalSource};
+use super::{Renderer, gpu_normals::NORMAL_FORMAT};
 use crate::select::Wanted;
 use crate::stream::pool::TilePool;
 use std::time::{Duration, Instant};
 use tessera_shared::TileId;
 
+/// Writes one texture-array layer: `side × side` texels of `bytes_per_texel` each.
+fn write_layer(
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    slot: u32,
+    data: &[u8],
+    side: u32,
+    bytes_per_texel: u32,
+) {
+    queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d {
+                x: 0,
+                y: 0,
+                z: slot,
+            },
+            aspect: wgpu::TextureAspect::All,
+        },
+        data,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(side * bytes_per_texel),
+            rows_per_image: Some(side),
+        },
+        wgpu::Extent3d {
+            width: side,
+            height: side,
+            depth_or_array_layers: 1,
+        },
+    );
+}
+
 impl Renderer {
-    /// Uploads a decoded tile (heights, a normal map built with its decoded
-    /// neighbours, and its cell mask) into a slot. `false` when every slot is in
-    /// use this frame.
+    /// Uploads a decoded tile (heights and cell mask; its normal map is computed
+    /// on the GPU at the next flush, or here on the CPU path) into a slot. `false`
+    /// when every slot is in use this frame.
     pub fn upload(&mut self, pool: &TilePool, tile: TileId) -> bool {
         let Some(resident) = pool.get(tile) else {
             return false;
@@ -20,7 +58,40 @@ impl Renderer {
             return false;
         };
         let g = self.world.geometry;
-        let samples = g.tile_samples();
+        let side = g.tile_samples() as u32;
+        let queue = &self.gpu.queue;
+        write_layer(
+            queue,
+            &self.heights,
+            slot,
+            bytemuck::cast_slice(&resident.heights),
+            side,
+            2,
+        );
+        // T × T cells (one fewer per side than samples).
+        debug_assert_eq!(resident.mask.side(), g.tile_size());
+        write_layer(
+            queue,
+            &self.masks,
+            slot,
+            &resident.mask.to_bytes_per_cell(),
+            g.tile_size(),
+            1,
+        );
+        if let Some(pass) = self.normal_pass.as_mut() {
+            pass.queue(tile);
+        } else {
+            let map = self.cpu_normal_map(pool, tile, &resident.heights);
+            let texel = NORMAL_FORMAT.block_copy_size(None).unwrap_or(4);
+            write_layer(queue, &self.normals, slot, &map, side, texel);
+        }
+        true
+    }
+
+    /// The [`NormalSource::Cpu`] path: `tile`'s normal map from its heights and
+    /// its decoded same-level neighbours, as texels of the normal texture.
+    fn cpu_normal_map(&self, pool: &TilePool, tile: TileId, heights: &[u16]) -> Vec<u8> {
+        let g = self.world.geometry;
         let same_level = |dx: i64, dy: i64| {
             let (x, y) = (i64::from(tile.x()) + dx, i64::from(tile.y()) + dy);
             let t = TileId::new(tile.level(), u32::try_from(x).ok()?, u32::try_from(y).ok()?)?;
@@ -34,60 +105,23 @@ impl Renderer {
         ];
         // Metres between this level's samples, east–west and north–south.
         let metres = self.world.spacing * g.spacing(tile.level()) as f64;
-        let normal_map = normals::normal_map(
-            &resident.heights,
-            samples,
+        let map = normals::normal_map(
+            heights,
+            g.tile_samples(),
             &neighbours,
             metres,
             self.world.quant.scale,
         );
-        let write = |texture: &wgpu::Texture, data: &[u8], side: u32, bytes_per_texel: u32| {
-            self.gpu.queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d {
-                        x: 0,
-                        y: 0,
-                        z: slot,
-                    },
-                    aspect: wgpu::TextureAspect::All,
-                },
-                data,
-                wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(side * bytes_per_texel),
-                    rows_per_image: Some(side),
-                },
-                wgpu::Extent3d {
-                    width: side,
-                    height: side,
-                    depth_or_array_layers: 1,
-                },
-            );
-        };
-        let side = samples as u32;
-        write(
-            &self.heights,
-            bytemuck::cast_slice(&resident.heights),
-            side,
-            2,
-        );
-        write(&self.normals, bytemuck::cast_slice(&normal_map), side, 2);
-        // T × T cells (one fewer per side than samples).
-        debug_assert_eq!(resident.mask.side(), g.tile_size());
-        write(
-            &self.masks,
-            &resident.mask.to_bytes_per_cell(),
-            g.tile_size(),
-            1,
-        );
-        true
+        // Rgba8Snorm texels: (x, z) as the shader reads them; y is implied.
+        map.iter()
+            .flat_map(|&[x, z]| [x as u8, z as u8, 0, 0])
+            .collect()
     }
 
     /// Uploads the wanted tiles that are decoded but not on the GPU, within
     /// `budget` (at least one, so a slow frame still makes progress): coarse levels
-    /// first so ancestors arrive before descendants, then the most wanted.
+    /// first so ancestors arrive before descendants, then the most wanted. Their
+    /// normal maps are then computed in one GPU pass (submitted, not awaited).
     /// Returns how many were uploaded.
     pub fn upload_wanted(&mut self, pool: &TilePool, wanted: &[Wanted], budget: Duration) -> u32 {
         let started = Instant::now();
@@ -110,6 +144,16 @@ impl Renderer {
                 uploads += 1;
             }
         }
+        self.flush_normals();
         uploads
+    }
+
+    /// Where this renderer builds normal maps.
+    pub fn normal_source(&self) -> NormalSource {
+        if self.normals_on_gpu() {
+            NormalSource::Gpu
+        } else {
+            NormalSource::Cpu
+        }
     }
 }

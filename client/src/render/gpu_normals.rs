@@ -1,0 +1,337 @@
+//! Normal maps computed on the GPU (`normals.wgsl`), from the heights already in
+//! their texture-array slots, so that uploading a tile is only texture copies.
+//!
+//! Uploads queue their tile; the next flush (the end of
+//! [`Renderer::upload_wanted`], or the next frame drawn) computes, in one compute
+//! pass, the whole normal map of every queued tile and the border ring of each of
+//! their resident same-level neighbours. A shared border therefore ends up with
+//! the normal computed from both tiles' samples whichever tile arrived first, as
+//! the CPU reference ([`super::normals::normal_map`]) computes it when both are
+//! decoded. Slots are resolved at the flush, not at upload: a tile evicted in the
+//! meantime is skipped, and a slot reused by a later upload is read with its
+//! new contents (queue writes land before the pass).
+
+use super::Renderer;
+use std::collections::HashSet;
+use tessera_shared::TileId;
+
+/// The storage-capable format of the normal texture: WebGPU has no `Rg8Snorm`
+/// storage textures. The fragment shader reads `.rg` (x, z); `.b` holds y.
+pub(super) const NORMAL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Snorm;
+
+/// A slot number meaning "no neighbour resident".
+const NONE: u32 = u32::MAX;
+
+/// One tile to (re)compute, as `normals.wgsl` reads it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct Job {
+    /// Slot, 1 = border ring only, unused, unused.
+    tile: [u32; 4],
+    /// North, east, south and west neighbours' slots, or [`NONE`].
+    neighbours: [u32; 4],
+    /// Metres between samples east–west and north–south, metres per quantum.
+    params: [f32; 4],
+}
+
+/// The compute pipelines and the tiles waiting for their normal maps.
+#[derive(Debug)]
+pub(super) struct NormalPass {
+    whole: wgpu::ComputePipeline,
+    ring: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    heights: wgpu::TextureView,
+    normals: wgpu::TextureView,
+    header: wgpu::Buffer,
+    /// The job buffer, its capacity in jobs and its bind group (rebuilt when it grows).
+    jobs: Option<(wgpu::Buffer, u64, wgpu::BindGroup)>,
+    /// Tiles uploaded since the last flush.
+    pending: Vec<TileId>,
+}
+
+impl NormalPass {
+    /// Whether this device can run the pass (GL ES 3.0 devices cannot).
+    pub(super) fn supported(downlevel: &wgpu::DownlevelCapabilities) -> bool {
+        downlevel
+            .flags
+            .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+    }
+
+    /// The pass over the `heights` (R16Unorm) and `normals` ([`NORMAL_FORMAT`],
+    /// with storage usage) texture arrays.
+    pub(super) fn new(
+        device: &wgpu::Device,
+        heights: &wgpu::Texture,
+        normals: &wgpu::Texture,
+    ) -> Self {
+        let buffer = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("normal maps"),
+            entries: &[
+                buffer(0),
+                buffer(1),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: NORMAL_FORMAT,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("normals.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("normals.wgsl").into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("normal maps"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = |entry| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                cache: None,
+            })
+        };
+        let view = |t: &wgpu::Texture| {
+            t.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            })
+        };
+        Self {
+            whole: pipeline("whole"),
+            ring: pipeline("ring"),
+            heights: view(heights),
+            normals: view(normals),
+            header: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("normal jobs header"),
+                size: 16,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            layout,
+            jobs: None,
+            pending: Vec::new(),
+        }
+    }
+
+    /// Queues `tile`'s normal map (its heights were just written).
+    pub(super) fn queue(&mut self, tile: TileId) {
+        self.pending.push(tile);
+    }
+}
+
+/// `tile`'s same-level neighbour `(dx, dy)` tiles away, if inside the level.
+fn neighbour(tile: TileId, dx: i64, dy: i64) -> Option<TileId> {
+    let (x, y) = (i64::from(tile.x()) + dx, i64::from(tile.y()) + dy);
+    TileId::new(tile.level(), u32::try_from(x).ok()?, u32::try_from(y).ok()?)
+}
+
+/// North, east, south, west (the order of [`super::normals::Neighbours`]).
+const SIDES: [(i64, i64); 4] = [(0, -1), (1, 0), (0, 1), (-1, 0)];
+
+impl Renderer {
+    /// Whether normal maps are computed on the GPU (else on the CPU at upload).
+    pub fn normals_on_gpu(&self) -> bool {
+        self.normal_pass.is_some()
+    }
+
+    /// Computes the normal maps of the tiles uploaded since the last flush (and
+    /// the border rings of their resident neighbours) in one submitted compute
+    /// pass, without waiting for it. Nothing to do on the CPU path.
+    pub fn flush_normals(&mut self) {
+        let Some(pass) = self.normal_pass.as_mut() else {
+            return;
+        };
+        if pass.pending.is_empty() {
+            return;
+        }
+        let mut seen = HashSet::new();
+        let whole: Vec<(TileId, u32)> = std::mem::take(&mut pass.pending)
+            .into_iter()
+            .filter(|&t| seen.insert(t))
+            .filter_map(|t| Some((t, self.slots.get(t)?)))
+            .collect();
+        let whole_tiles: HashSet<TileId> = whole.iter().map(|&(t, _)| t).collect();
+        let mut ring: Vec<(TileId, u32)> = Vec::new();
+        for &(t, _) in &whole {
+            for (dx, dy) in SIDES {
+                if let Some(n) = neighbour(t, dx, dy)
+                    && !whole_tiles.contains(&n)
+                    && seen.insert(n)
+                    && let Some(slot) = self.slots.get(n)
+                {
+                    ring.push((n, slot));
+                }
+            }
+        }
+        if whole.is_empty() {
+            return;
+        }
+        let g = self.world.geometry;
+        let scale = self.world.quant.scale as f32;
+        let job = |(tile, slot): (TileId, u32), ring_only: bool| {
+            let metres = self.world.spacing * g.spacing(tile.level()) as f64;
+            let neighbours = SIDES.map(|(dx, dy)| {
+                neighbour(tile, dx, dy)
+                    .and_then(|n| self.slots.get(n))
+                    .unwrap_or(NONE)
+            });
+            Job {
+                tile: [slot, u32::from(ring_only), 0, 0],
+                neighbours,
+                params: [metres.x as f32, metres.y as f32, scale, 0.0],
+            }
+        };
+        let jobs: Vec<Job> = whole
+            .iter()
+            .map(|&w| job(w, false))
+            .chain(ring.iter().map(|&r| job(r, true)))
+            .collect();
+        let device = &self.gpu.device;
+        let queue = &self.gpu.queue;
+        let needed = jobs.len() as u64;
+        if pass.jobs.as_ref().is_none_or(|(_, cap, _)| *cap < needed) {
+            let cap = needed.next_power_of_two().max(16);
+            let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("normal jobs"),
+                size: cap * size_of::<Job>() as u64,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("normal maps"),
+                layout: &pass.layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: pass.header.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: wgpu::BindingResource::TextureView(&pass.heights),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: wgpu::BindingResource::TextureView(&pass.normals),
+                    },
+                ],
+            });
+            pass.jobs = Some((buffer, cap, bind_group));
+        }
+        let Some((buffer, _, bind_group)) = &pass.jobs else {
+            return;
+        };
+        let (whole_n, total) = (whole.len() as u32, jobs.len() as u32);
+        queue.write_buffer(
+            &pass.header,
+            0,
+            bytemuck::cast_slice(&[whole_n, total, 0, 0]),
+        );
+        queue.write_buffer(buffer, 0, bytemuck::cast_slice(&jobs));
+        let n = g.tile_samples() as u32;
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("normal maps"),
+        });
+        {
+            let mut cpass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("normal maps"),
+                timestamp_writes: None,
+            });
+            cpass.set_bind_group(0, bind_group, &[]);
+            cpass.set_pipeline(&pass.whole);
+            cpass.dispatch_workgroups(n.div_ceil(8), n.div_ceil(8), whole_n);
+            if total > whole_n {
+                cpass.set_pipeline(&pass.ring);
+                cpass.dispatch_workgroups((4 * n).div_ceil(64), 1, total - whole_n);
+            }
+        }
+        queue.submit([encoder.finish()]);
+    }
+
+    /// The normal map in `slot` as (x, z) signed bytes, row by row (what the
+    /// fragment shader reads), after computing any queued normal maps.
+    pub fn read_normals(&mut self, slot: u32) -> anyhow::Result<Vec<[i8; 2]>> {
+        self.flush_normals();
+        let n = self.world.geometry.tile_samples() as u32;
+        let row = n * 4;
+        let padded =
+            row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let device = &self.gpu.device;
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("normals readback"),
+            size: u64::from(padded) * u64::from(n),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("normals readback"),
+        });
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.normals,
+                mip_level: 0,
+                origin: wgpu::Origin3d {
+                    x: 0,
+                    y: 0,
+                    z: slot,
+                },
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(padded),
+                    rows_per_image: Some(n),
+                },
+            },
+            wgpu::Extent3d {
+                width: n,
+                height: n,
+                depth_or_array_layers: 1,
+            },
+        );
+        self.gpu.queue.submit([encoder.finish()]);
+        let data = super::readback::map_read(&self.gpu, &buffer)?;
+        let mut out = Vec::with_capacity((n * n) as usize);
+        for v in 0..n as usize {
+            for texel in data[v * padded as usize..][..row as usize].chunks_exact(4) {
+                out.push([texel[0] as i8, texel[1] as i8]);
+            }
+        }
+        Ok(out)
+    }
+}
