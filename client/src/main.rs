@@ -115,6 +115,16 @@ enum Command {
         /// of the same flight (same dataset, camera, viewport and view).
         #[arg(long, value_name = "DIR", requires = "quality")]
         reference_cache: Option<PathBuf>,
+        /// Measure popping: settle every frame (everything the selection asks for
+        /// resident), and compare consecutive frames pixel by pixel, split by
+        /// whether the selection changed (mean and p99 change; in the summary's
+        /// render.popping). Fly slowly (e.g. a high --fps) for meaningful figures.
+        #[arg(long, requires = "out", conflicts_with_all = ["reference", "quality"])]
+        popping: bool,
+        /// Draw every patch at its own LOD, without geomorphing towards the next
+        /// coarser one (LOD changes then pop; for measuring what morphing does).
+        #[arg(long)]
+        no_morph: bool,
         /// Debug view.
         #[arg(long, value_enum, default_value_t = DebugView::Shaded)]
         view: DebugView,
@@ -332,6 +342,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             no_frames,
             settle,
             reference_cache,
+            popping,
+            no_morph,
             view,
             parallax,
             policy,
@@ -358,12 +370,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     view,
                     parallax,
                     backend,
+                    morph: !no_morph,
                 },
                 out_dir: dir.clone(),
                 draws: if reference {
                     Draws::Reference
                 } else if quality {
                     Draws::Quality
+                } else if popping {
+                    Draws::Popping
                 } else {
                     Draws::Selection
                 },
@@ -410,6 +425,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     view,
                     parallax,
                     backend,
+                    morph: !no_morph,
                 };
                 return window::run(&opts, render);
             }

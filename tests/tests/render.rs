@@ -12,6 +12,7 @@ use std::sync::OnceLock;
 use tessera_client::camera::Camera;
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::{RenderOptions, Renderer, quality, reference};
+use tessera_client::select::morph::{self, Morph};
 use tessera_client::select::{Patch, SelectParams, Selector};
 use tessera_client::tessellate;
 use tessera_e2e::{Moon, Rng};
@@ -86,7 +87,8 @@ fn cameras(m: &Moon, count: usize) -> Vec<Camera> {
     random_cameras(m, 7, count, (0.3, 0.4), (500.0, 8000.0), (0.75, 0.5))
 }
 
-/// Every (inner LOD, edge LOD) combination on every side, on tiles of every level.
+/// Every (inner LOD, edge LOD) combination on every side, on tiles of every level,
+/// at morph factors from none through in-between to full (geomorphing).
 fn all_edge_combinations(m: &Moon) -> Vec<Patch> {
     let g = m.world.geometry;
     let mut tiles: Vec<_> = m.tables.keys().copied().collect();
@@ -112,12 +114,19 @@ fn all_edge_combinations(m: &Moon) -> Vec<Patch> {
                 // The other three edges at random LODs ≤ n.
                 let mut edges = [0; 4].map(|_| 1 << (rng.uniform() * f64::from(k + 1)) as u32);
                 edges[side] = e;
+                let mut factor = || match (rng.uniform() * 4.0) as u32 {
+                    0 => 0,
+                    1 => morph::FULL,
+                    _ => (rng.uniform() * f64::from(morph::FULL)) as u16,
+                };
+                let morph = Morph::new(factor(), [0; 4].map(|_| factor())).unwrap();
                 patches.push(Patch {
                     tile,
                     origin,
                     size,
                     inner: n,
                     edges,
+                    morph,
                 });
             }
         }
@@ -130,13 +139,18 @@ fn check_capture(backend: Backend) {
     let r = renderer(m, backend);
     let patches = all_edge_combinations(m);
     let captured = r.capture_vertices(&patches).unwrap();
-    let mut vertices = 0;
+    let (mut vertices, mut moved) = (0, 0);
     for (p, got) in patches.iter().zip(&captured) {
         let expected = tessellate::vertices(&m.world.geometry, p, &m.heights[&p.tile]);
         assert_eq!(got, &expected, "{backend:?}: patch {p:?}");
         vertices += got.len();
+        moved += got
+            .iter()
+            .filter(|v| v.h != u32::from(v.q) * morph::HEIGHT_UNITS)
+            .count();
     }
     assert!(vertices > 20_000, "{vertices}");
+    assert!(moved > 2_000, "only {moved} morphed vertices");
 }
 
 #[test]
@@ -214,6 +228,18 @@ fn check_cracks(backend: Backend) {
         levels.extend(s.tiles.iter().map(|t| t.level().get()));
     }
     assert!(snapped > 20, "only {snapped} snapped edges");
+    // And morphing (on by default) has slid patches and shared sides part way.
+    let (mut inner, mut sides) = (0, 0);
+    for c in &cams {
+        for p in sel.select(c, &m.tables).patches {
+            inner += usize::from(p.morph.inner > 0 && p.morph.inner < morph::FULL);
+            sides += p.morph.edges.iter().filter(|&&f| f > 0).count();
+        }
+    }
+    assert!(
+        inner > 20 && sides > 20,
+        "morphed: {inner} patches, {sides} sides"
+    );
     assert!(levels.len() >= 3, "levels drawn: {levels:?}");
     let sky = render_frames(&mut r, m, &cams, false);
     assert_eq!(sky, vec![0; cams.len()], "sky (crack) pixels per frame");

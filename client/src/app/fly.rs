@@ -115,6 +115,10 @@ pub struct RenderSummary {
     pub median_mse: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub total_crack_pixels: Option<usize>,
+    /// With `--popping`: per-pixel change between consecutive frames, where the
+    /// selection changed and where it did not.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub popping: Option<crate::report::popping::PoppingSummary>,
 }
 
 impl FlySummary {
@@ -171,6 +175,7 @@ impl RenderSummary {
                 .then(|| median(&quality.iter().filter_map(|r| r.mse).collect::<Vec<_>>())),
             total_crack_pixels: measured
                 .then(|| quality.iter().filter_map(|r| r.crack_pixels).sum()),
+            popping: None,
         }
     }
 }
@@ -402,9 +407,10 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         max_stream_us: stream_us.last().copied().unwrap_or(0.0),
         stream: streamer.stats,
         last_error: streamer.last_error.take(),
-        render: headless
-            .as_ref()
-            .map(|h| RenderSummary::from_records(h.renderer.gpu.describe(), &rendered)),
+        render: headless.as_ref().map(|h| RenderSummary {
+            popping: h.popping(),
+            ..RenderSummary::from_records(h.renderer.gpu.describe(), &rendered)
+        }),
         latencies_ms: std::mem::take(&mut streamer.latencies_ms),
     })
 }

@@ -6,6 +6,7 @@ use crate::camera::Camera;
 use crate::render::reference::{finest_tiles_in_view, full_resolution_patches};
 use crate::render::slots::OnGpu;
 use crate::render::{Parallax, RenderOptions, Renderer, png_out, quality};
+use crate::report::popping::{Popping, PoppingSummary, SelectionKey};
 use crate::select::{Selection, Wanted, World};
 use crate::stream::Streamer;
 use crate::stream::pool::TilePool;
@@ -48,6 +49,9 @@ pub enum Draws {
     Reference,
     /// Both; they are compared per frame, and references go to `out_dir/reference/`.
     Quality,
+    /// The selection, settled at every frame (everything it asks for resident),
+    /// and the popping metric over consecutive frames ([`crate::report::popping`]).
+    Popping,
 }
 
 /// Rendering figures of one frame (flattened into `stats.jsonl`).
@@ -72,6 +76,10 @@ pub struct RenderRecord {
     pub crack_pixels: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference_triangles: Option<u64>,
+    /// With `--popping`: whether the selection differs from the previous frame's
+    /// (tiles or LODs; `null` for the first frame).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selection_changed: Option<bool>,
 }
 
 #[derive(Debug)]
@@ -79,6 +87,7 @@ pub struct Headless {
     pub renderer: Renderer,
     setup: RenderSetup,
     heights: (f64, f64),
+    popping: Popping,
 }
 
 impl Headless {
@@ -94,18 +103,24 @@ impl Headless {
             renderer,
             setup,
             heights,
+            popping: Popping::default(),
         })
     }
 
     /// Whether frame `frame` needs every finest tile in view (fetched before it).
     pub fn needs_reference(&self, frame: u32) -> bool {
-        self.setup.draws != Draws::Selection
+        matches!(self.setup.draws, Draws::Reference | Draws::Quality)
             && frame.is_multiple_of(self.setup.quality_every.max(1))
     }
 
     /// Whether frame `frame` waits for its selection to converge ([`RenderSetup::settle`]).
     pub fn settles(&self, frame: u32) -> bool {
-        self.setup.settle && self.needs_reference(frame)
+        (self.setup.settle && self.needs_reference(frame)) || self.setup.draws == Draws::Popping
+    }
+
+    /// With [`Draws::Popping`], the figures so far.
+    pub fn popping(&self) -> Option<PoppingSummary> {
+        (self.setup.draws == Draws::Popping).then(|| self.popping.summary())
     }
 
     /// What selection may draw: tiles that are decoded and uploaded.
@@ -153,6 +168,10 @@ impl Headless {
         let image = self.renderer.read_rgba()?;
         if self.setup.write_frames {
             write_frame(&self.setup.out_dir.join(&name), &image, w, h)?;
+        }
+        if self.setup.draws == Draws::Popping {
+            let key = SelectionKey::new(&sel.tiles, &sel.patches);
+            rec.selection_changed = self.popping.add(image.clone(), key)?;
         }
         if self.setup.draws == Draws::Quality && measured {
             let (reference, tris) = self.reference_image(camera, pool)?;

@@ -146,6 +146,7 @@ impl Renderer {
                             x: u64::from(w[0]),
                             y: u64::from(w[1]),
                             q: w[2] as u16,
+                            h: w[3],
                         }
                     })
                     .collect(),

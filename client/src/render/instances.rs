@@ -9,18 +9,23 @@ pub const LODS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
 
 /// Two `vec4<u32>` as the shader reads them (`terrain.wgsl`):
 /// `a = (slot | level << 16, origin x | origin y << 16, size, inner)`,
-/// `b = (edges N | E << 8 | S << 16 | W << 24, tile origin x, tile origin y, stride)`.
+/// `b = (edges N | E << 8 | S << 16 | W << 24, tile origin x, tile origin y, stride)`,
+/// `c = (interior morph, morph N | E << 16, morph S | W << 16, 0)` (factors in
+/// `0..=`[`crate::select::morph::FULL`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Instance {
     pub a: [u32; 4],
     pub b: [u32; 4],
+    pub c: [u32; 4],
 }
 
 impl Instance {
+    /// The instance of patch `p` in GPU slot `slot`, morphed as `p.morph` says.
     pub fn new(g: &TileGeometry, p: &Patch, slot: u32) -> Self {
         let (gx, gy) = g.origin(p.tile);
         let e = p.edges;
+        let m = p.morph.edges.map(u32::from);
         Self {
             a: [
                 slot | u32::from(p.tile.level().get()) << 16,
@@ -33,6 +38,12 @@ impl Instance {
                 gx as u32,
                 gy as u32,
                 g.spacing(p.tile.level()) as u32,
+            ],
+            c: [
+                u32::from(p.morph.inner),
+                m[0] | m[1] << 16,
+                m[2] | m[3] << 16,
+                0,
             ],
         }
     }
@@ -48,16 +59,24 @@ pub struct Batches {
 }
 
 impl Batches {
+    /// `morph`: draw the patches' morph factors, or every patch unmorphed.
     pub fn build(
         g: &TileGeometry,
         patches: &[Patch],
+        morph: bool,
         slot_of: impl Fn(&Patch) -> Option<u32>,
     ) -> Self {
         let mut b = Self::default();
         let mut keyed: Vec<(u32, Instance)> = Vec::with_capacity(patches.len());
         for p in patches {
             match slot_of(p) {
-                Some(slot) => keyed.push((p.inner.trailing_zeros(), Instance::new(g, p, slot))),
+                Some(slot) => {
+                    let mut inst = Instance::new(g, p, slot);
+                    if !morph {
+                        inst.c = [0; 4];
+                    }
+                    keyed.push((p.inner.trailing_zeros(), inst));
+                }
                 None => b.skipped += 1,
             }
         }
@@ -112,6 +131,7 @@ mod tests {
             size: 128,
             inner,
             edges: [inner, inner / 2, 1, inner],
+            morph: crate::select::morph::Morph::new(inner as u16 * 4, [1, 2, 3, 256]).unwrap(),
         };
         let patches = [
             p(16, [384, 128]),
@@ -119,7 +139,9 @@ mod tests {
             p(16, [0, 384]),
             p(64, [128, 0]),
         ];
-        let b = Batches::build(&g, &patches, |p| (p.origin[0] != 128).then_some(7));
+        let b = Batches::build(&g, &patches, true, |p| (p.origin[0] != 128).then_some(7));
+        let unmorphed = Batches::build(&g, &patches, false, |_| Some(7));
+        assert!(unmorphed.instances.iter().all(|i| i.c == [0; 4]));
         assert_eq!(b.skipped, 1);
         assert_eq!(b.draws(), vec![(1, 0, 1), (16, 1, 2)]);
         let i = b.instances[1];
@@ -137,6 +159,11 @@ mod tests {
             [16, 8, 1, 16]
         );
         assert_eq!((i.b[1], i.b[2], i.b[3]), (3 * 512, 512, 1));
+        assert_eq!(i.c[0], 64);
+        assert_eq!(
+            [i.c[1] & 0xffff, i.c[1] >> 16, i.c[2] & 0xffff, i.c[2] >> 16],
+            [1, 2, 3, 256]
+        );
         let (data, ranges) = index_buffers();
         assert_eq!(ranges[6].len(), 6 * 64 * 64);
         assert_eq!(data.len(), ranges[6].end as usize);

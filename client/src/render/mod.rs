@@ -86,6 +86,9 @@ pub struct RenderOptions {
     pub backend: Backend,
     /// Where normal maps are built (GPU unless asked otherwise).
     pub normals: normals::NormalSource,
+    /// Draw patches morphed as selection says ([`crate::select::morph`]); off
+    /// (`tessera fly --no-morph`), every patch at its own LOD, and LOD changes pop.
+    pub morph: bool,
 }
 
 impl Default for RenderOptions {
@@ -98,6 +101,7 @@ impl Default for RenderOptions {
             parallax: Parallax::None,
             backend: Backend::Auto,
             normals: normals::NormalSource::Gpu,
+            morph: true,
         }
     }
 }

@@ -82,6 +82,7 @@ pub fn full_resolution_patches(
                         size,
                         inner: size,
                         edges: [size; 4],
+                        morph: crate::select::morph::Morph::NONE,
                     });
                 }
             }

@@ -39,11 +39,15 @@ struct Globals {
 //   a = (slot | level << 16, origin x | origin y << 16, size in tile cells, inner LOD)
 //   b = (edge LODs north | east << 8 | south << 16 | west << 24,
 //        tile origin x, tile origin y (finest samples), finest samples per tile sample)
+//   c = (interior morph, morph north | east << 16, morph south | west << 16, 0),
+//       factors in 0..=256 (`select/morph.rs`)
 struct TerrainVertex {
-    // Global finest-grid coordinates and the quantized height: the contract.
+    // Global finest-grid coordinates, the quantized sample and the morphed height
+    // in 1/512 quantization steps: the contract.
     x: u32,
     y: u32,
     q: u32,
+    h: u32,
     // Tile sample coordinates (for the height and normal maps).
     u: u32,
     v: u32,
@@ -54,7 +58,21 @@ fn snap(index: u32, n: u32, e: u32) -> u32 {
     return index / step * step;
 }
 
-fn terrain_vertex(a: vec4<u32>, b: vec4<u32>, vid: u32) -> TerrainVertex {
+// Geomorphing (`select/morph.rs`): the height moved `f`/256 of the way from `q`
+// to the average of `lo` and `hi`, in integers (exact, as `morph::mix`).
+fn mix_height(q: u32, lo: u32, hi: u32, f: u32) -> u32 {
+    return 2u * q * (256u - f) + (lo + hi) * f;
+}
+
+fn sample_q(a: vec4<u32>, p: vec2<u32>) -> u32 {
+    let step = a.z / a.w;
+    let u = (a.y & 0xffffu) + p.x * step;
+    let v = (a.y >> 16u) + p.y * step;
+    let texel = textureLoad(heights, vec2<i32>(i32(u), i32(v)), i32(a.x & 0xffffu), 0).r;
+    return u32(round(texel * 65535.0));
+}
+
+fn terrain_vertex(a: vec4<u32>, b: vec4<u32>, c: vec4<u32>, vid: u32) -> TerrainVertex {
     let n = a.w;
     let w = n + 1u;
     let i = vid % w;
@@ -87,6 +105,40 @@ fn terrain_vertex(a: vec4<u32>, b: vec4<u32>, vid: u32) -> TerrainVertex {
     out.q = u32(round(texel * 65535.0));
     out.u = u;
     out.v = v;
+    // Morphing (as `tessellate::morph_target`): on a side, odd on the side's own
+    // grid by the side's factor; inside, odd on the patch grid by the patch's.
+    var lo = vec2<u32>(ia, jb);
+    var hi = vec2<u32>(ia, jb);
+    var f = 0u;
+    if (j == 0u || j == n) {
+        let e = select(south, north, j == 0u);
+        let per = n / max(e, 1u);
+        let fe = select(c.z & 0xffffu, c.y & 0xffffu, j == 0u);
+        if (e >= 2u && (ia / per) % 2u == 1u) {
+            lo = vec2<u32>(ia - per, jb);
+            hi = vec2<u32>(ia + per, jb);
+            f = fe;
+        }
+    } else if (i == 0u || i == n) {
+        let e = select(east, west, i == 0u);
+        let per = n / max(e, 1u);
+        let fe = select(c.y >> 16u, c.z >> 16u, i == 0u);
+        if (e >= 2u && (jb / per) % 2u == 1u) {
+            lo = vec2<u32>(ia, jb - per);
+            hi = vec2<u32>(ia, jb + per);
+            f = fe;
+        }
+    } else if (i % 2u == 1u || j % 2u == 1u) {
+        // Towards the n/2 grid, whose cells split north-west → south-east.
+        lo = vec2<u32>(i - i % 2u, j - j % 2u);
+        hi = vec2<u32>(i + i % 2u, j + j % 2u);
+        f = c.x;
+    }
+    if (f > 0u) {
+        out.h = mix_height(out.q, sample_q(a, lo), sample_q(a, hi), f);
+    } else {
+        out.h = out.q * 512u;
+    }
     return out;
 }
 
@@ -118,9 +170,14 @@ struct VsOut {
 };
 
 @vertex
-fn vs_main(@builtin(vertex_index) vid: u32, @location(0) a: vec4<u32>, @location(1) b: vec4<u32>) -> VsOut {
-    let t = terrain_vertex(a, b, vid);
-    let h = height_m(f32(t.q));
+fn vs_main(
+    @builtin(vertex_index) vid: u32,
+    @location(0) a: vec4<u32>,
+    @location(1) b: vec4<u32>,
+    @location(2) c: vec4<u32>,
+) -> VsOut {
+    let t = terrain_vertex(a, b, c, vid);
+    let h = height_m(f32(t.h) / 512.0);
     let rel = relative(t.x, t.y, h);
     var out: VsOut;
     out.clip = g.view_proj * vec4<f32>(rel, 1.0);
@@ -289,9 +346,10 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
 struct CaptureJob {
     a: vec4<u32>,
     b: vec4<u32>,
+    c: vec4<u32>,
 };
 @group(1) @binding(0) var<storage, read> jobs: array<CaptureJob>;
-// (x, y, q, unused) per job.
+// (x, y, q, h) per job.
 @group(1) @binding(1) var<storage, read_write> captured: array<vec4<u32>>;
 // (vertex index of each job); jobs[k] captures vertex vids[k].
 @group(1) @binding(2) var<storage, read> vids: array<u32>;
@@ -302,6 +360,6 @@ fn capture(@builtin(global_invocation_id) id: vec3<u32>) {
     if (k >= arrayLength(&vids)) {
         return;
     }
-    let t = terrain_vertex(jobs[k].a, jobs[k].b, vids[k]);
-    captured[k] = vec4<u32>(t.x, t.y, t.q, 0u);
+    let t = terrain_vertex(jobs[k].a, jobs[k].b, jobs[k].c, vids[k]);
+    captured[k] = vec4<u32>(t.x, t.y, t.q, t.h);
 }

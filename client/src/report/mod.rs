@@ -42,6 +42,7 @@
 
 pub mod contact_sheet;
 pub mod flight;
+pub mod popping;
 // The raster, font and plots live in `tessera-charts`, shared with the benchmarks.
 pub use tessera_charts::{canvas, font, plot};
 

@@ -169,3 +169,33 @@ pub fn assign(world: &World, patches: &mut [Patch]) {
         }
     }
 }
+
+/// Calls `f` once for every shared side group (at least once; twice when two
+/// equal patches lead it): the members as `(patch, side)`, and every patch's side
+/// in finest samples. The groups are those [`assign`] gave one spacing each.
+pub fn for_each_group(
+    world: &World,
+    patches: &mut [Patch],
+    mut f: impl FnMut(&mut [Patch], &[(usize, usize)], &[u64]),
+) {
+    if patches.is_empty() {
+        return;
+    }
+    let index = Index::new(world, patches);
+    let keys: Vec<(u32, u64, u64)> = patches.iter().map(|p| global(world, p)).collect();
+    let sizes: Vec<u64> = keys.iter().map(|k| 1u64 << k.0).collect();
+    let mut nb = Vec::new();
+    let mut group = Vec::new();
+    for (i, &key) in keys.iter().enumerate() {
+        for side in 0..4 {
+            index.neighbours(key, side, &mut nb);
+            if nb.is_empty() || nb.iter().any(|&j| sizes[j] > sizes[i]) {
+                continue;
+            }
+            group.clear();
+            group.push((i, side));
+            group.extend(nb.iter().map(|&j| (j, opposite(side))));
+            f(patches, &group, &sizes);
+        }
+    }
+}

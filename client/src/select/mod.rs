@@ -11,9 +11,12 @@
 //!    enough, with hysteresis from the previous frame (Kang §4.4, Alg. 1–2).
 //! 3. [`edge_lod`]: edge LODs so that both sides of every shared edge produce the
 //!    same vertices (Kang §4.3), across tiles and pyramid levels too.
+//! 4. [`morph`]: how far each patch, and each shared side, has morphed towards
+//!    the next coarser LOD (CDLOD geomorphing), so that LOD changes do not pop.
 
 pub mod edge_lod;
 pub mod metric;
+pub mod morph;
 pub mod quadtree;
 pub mod tiles;
 
@@ -226,6 +229,8 @@ pub struct Patch {
     pub inner: u32,
     /// Edge LODs (north, east, south, west), each a power of two `≤ inner`.
     pub edges: [u32; 4],
+    /// How far the patch has morphed towards LOD `inner/2` ([`morph`]).
+    pub morph: morph::Morph,
 }
 
 impl Patch {
@@ -324,6 +329,7 @@ impl Selector {
         let mut patches = Vec::new();
         let mut max_rho = 0f64;
         let mut next_state = HashMap::with_capacity(choice.drawn.len());
+        let mut rhos = HashMap::with_capacity(choice.drawn.len());
         for &tile in &choice.drawn {
             let rho = choice.rhos.remove(&tile).unwrap_or_else(|| {
                 let table = tables.table(tile).expect("drawn tiles are resident");
@@ -348,9 +354,11 @@ impl Selector {
             );
             max_rho = max_rho.max(r);
             next_state.insert(tile, state);
+            rhos.insert(tile, rho);
         }
         self.quadtrees = next_state;
         edge_lod::assign(&self.world, &mut patches);
+        morph::assign(&self.world, self.params.tau, &mut patches, &rhos);
         // A hole has no bound on its error, and neither has a stand-in whose error
         // box holds the eye: say "missing" rather than print a number.
         let bounded = choice.missing == 0 && max_rho.is_finite();

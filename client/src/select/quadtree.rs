@@ -80,6 +80,7 @@ pub fn build(
             size,
             inner: 1 << l,
             edges: [1 << l; 4],
+            morph: super::morph::Morph::NONE,
         });
     }
     (state, max_rho)

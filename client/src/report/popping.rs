@@ -1,0 +1,267 @@
+//! The popping metric (issue 17 item 3): how much the picture jumps when the
+//! selection changes, against how much it moves anyway.
+//!
+//! Along a slow, settled flight (everything the selection asks for is resident, so
+//! only the level of detail changes the picture), each pair of consecutive frames
+//! gives a per-pixel change: the absolute difference summed over R, G and B (0–765,
+//! reported on the 0–255 scale of one channel, i.e. divided by 3). Pairs are split
+//! by whether the selection changed between them (any drawn tile, or any patch's
+//! inner or edge LOD; morph factors do not count, they change every frame by
+//! design), and each class gets the mean and the 99th percentile of its per-pixel
+//! changes. The *popping excess* is the changed class's mean minus the unchanged
+//! class's: what LOD changes add to the motion of the camera.
+
+use crate::select::Patch;
+use tessera_shared::TileId;
+
+/// A patch as far as popping goes: tile, origin, size, inner and edge LODs.
+type PatchLod = (TileId, [u32; 2], u32, u32, [u32; 4]);
+
+/// What decides the geometry a frame draws, up to morphing: compared between
+/// consecutive frames.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SelectionKey {
+    tiles: Vec<TileId>,
+    patches: Vec<PatchLod>,
+}
+
+impl SelectionKey {
+    pub fn new(tiles: &[TileId], patches: &[Patch]) -> Self {
+        let mut tiles = tiles.to_vec();
+        tiles.sort_unstable();
+        let mut patches: Vec<_> = patches
+            .iter()
+            .map(|p| (p.tile, p.origin, p.size, p.inner, p.edges))
+            .collect();
+        patches.sort_unstable();
+        Self { tiles, patches }
+    }
+}
+
+/// Largest per-pixel change: 255 on each of three channels.
+const MAX_CHANGE: usize = 3 * 255;
+
+/// Per-pixel changes of a class of frame pairs, as a histogram (exact mean and
+/// quantiles in constant memory, whatever the frame size and count).
+#[derive(Clone, Debug)]
+pub struct ChangeHistogram {
+    counts: Vec<u64>,
+    pairs: u32,
+}
+
+impl Default for ChangeHistogram {
+    fn default() -> Self {
+        Self {
+            counts: vec![0; MAX_CHANGE + 1],
+            pairs: 0,
+        }
+    }
+}
+
+impl ChangeHistogram {
+    /// Adds the per-pixel changes between two RGBA8 frames of the same size.
+    pub fn add(&mut self, before: &[u8], after: &[u8]) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            before.len() == after.len() && before.len().is_multiple_of(4),
+            "frames differ in size ({} and {} bytes)",
+            before.len(),
+            after.len()
+        );
+        for (p, q) in before.chunks_exact(4).zip(after.chunks_exact(4)) {
+            let d: usize = (0..3).map(|c| usize::from(p[c].abs_diff(q[c]))).sum();
+            self.counts[d] += 1;
+        }
+        self.pairs += 1;
+        Ok(())
+    }
+
+    fn pixels(&self) -> u64 {
+        self.counts.iter().sum()
+    }
+
+    /// Mean per-pixel change, 0–255 scale (`None` without pixels).
+    pub fn mean(&self) -> Option<f64> {
+        let n = self.pixels();
+        (n > 0).then(|| {
+            let sum: f64 = self
+                .counts
+                .iter()
+                .enumerate()
+                .map(|(d, &c)| d as f64 * c as f64)
+                .sum();
+            sum / n as f64 / 3.0
+        })
+    }
+
+    /// The smallest change that at least `q` of the pixels do not exceed (0–255
+    /// scale; `None` without pixels).
+    pub fn quantile(&self, q: f64) -> Option<f64> {
+        let n = self.pixels();
+        if n == 0 {
+            return None;
+        }
+        let need = (q.clamp(0.0, 1.0) * n as f64).ceil().max(1.0) as u64;
+        let mut seen = 0;
+        for (d, &c) in self.counts.iter().enumerate() {
+            seen += c;
+            if seen >= need {
+                return Some(d as f64 / 3.0);
+            }
+        }
+        Some(MAX_CHANGE as f64 / 3.0)
+    }
+}
+
+/// The figures of one flight.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PoppingSummary {
+    /// Frame pairs across which the selection changed, and those across which it
+    /// did not.
+    pub changed_pairs: u32,
+    pub unchanged_pairs: u32,
+    /// Mean and 99th percentile of the per-pixel change (0–255), each class.
+    pub changed_mean: Option<f64>,
+    pub changed_p99: Option<f64>,
+    pub unchanged_mean: Option<f64>,
+    pub unchanged_p99: Option<f64>,
+    /// `changed_mean − unchanged_mean`: what LOD changes add.
+    pub excess_mean: Option<f64>,
+}
+
+/// Consecutive frames of a flight, classified and measured.
+#[derive(Clone, Debug, Default)]
+pub struct Popping {
+    last: Option<(Vec<u8>, SelectionKey)>,
+    changed: ChangeHistogram,
+    unchanged: ChangeHistogram,
+}
+
+impl Popping {
+    /// Adds the next frame (RGBA8, the same size every frame) and what it drew.
+    /// Returns whether its selection differs from the previous frame's (`None` for
+    /// the first frame).
+    pub fn add(&mut self, rgba: Vec<u8>, key: SelectionKey) -> anyhow::Result<Option<bool>> {
+        let changed = match &self.last {
+            Some((before, prev)) => {
+                let changed = *prev != key;
+                let class = if changed {
+                    &mut self.changed
+                } else {
+                    &mut self.unchanged
+                };
+                class.add(before, &rgba)?;
+                Some(changed)
+            }
+            None => None,
+        };
+        self.last = Some((rgba, key));
+        Ok(changed)
+    }
+
+    pub fn summary(&self) -> PoppingSummary {
+        let (c, u) = (&self.changed, &self.unchanged);
+        let (changed_mean, unchanged_mean) = (c.mean(), u.mean());
+        PoppingSummary {
+            changed_pairs: c.pairs,
+            unchanged_pairs: u.pairs,
+            changed_mean,
+            changed_p99: c.quantile(0.99),
+            unchanged_mean,
+            unchanged_p99: u.quantile(0.99),
+            excess_mean: changed_mean.zip(unchanged_mean).map(|(a, b)| a - b),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::Level;
+
+    fn frame(w: usize, h: usize, f: impl Fn(usize, usize) -> [u8; 3]) -> Vec<u8> {
+        (0..w * h)
+            .flat_map(|i| {
+                let [r, g, b] = f(i % w, i / w);
+                [r, g, b, 255]
+            })
+            .collect()
+    }
+
+    fn key(inner: u32) -> SelectionKey {
+        let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
+        let p = Patch {
+            tile,
+            origin: [0, 0],
+            size: 64,
+            inner,
+            edges: [inner; 4],
+            morph: crate::select::morph::Morph::NONE,
+        };
+        SelectionKey::new(&[tile], &[p])
+    }
+
+    #[test]
+    fn figures_are_the_hand_computed_ones_and_a_changed_region_shows() {
+        // 10×10 frames. Frame 1: every pixel's red +3 (camera motion, selection
+        // unchanged). Frame 2: as frame 1, and a 2×5 region (10 pixels) changes by
+        // (30, 60, 90) with the LOD (selection changed).
+        let base = frame(10, 10, |x, y| [(x * 10) as u8, (y * 10) as u8, 100]);
+        let moved = frame(10, 10, |x, y| [(x * 10 + 3) as u8, (y * 10) as u8, 100]);
+        let popped = frame(10, 10, |x, y| {
+            let [r, g, b] = [(x * 10 + 3) as u8, (y * 10) as u8, 100u8];
+            if (4..6).contains(&x) && y < 5 {
+                [r + 30, g + 60, b + 90]
+            } else {
+                [r, g, b]
+            }
+        });
+        let mut p = Popping::default();
+        assert_eq!(p.add(base, key(8)).unwrap(), None);
+        assert_eq!(p.add(moved, key(8)).unwrap(), Some(false));
+        assert_eq!(p.add(popped, key(16)).unwrap(), Some(true));
+        let s = p.summary();
+        assert_eq!((s.changed_pairs, s.unchanged_pairs), (1, 1));
+        // Unchanged: every pixel changes by 3 summed, 1 on the 0–255 scale.
+        assert_eq!(s.unchanged_mean, Some(1.0));
+        assert_eq!(s.unchanged_p99, Some(1.0));
+        // Changed: 10 of 100 pixels by 180 (60 per channel), the rest by 0.
+        assert_eq!(s.changed_mean, Some(6.0));
+        assert_eq!(s.changed_p99, Some(60.0));
+        assert_eq!(s.excess_mean, Some(5.0));
+        // The region is what makes it: 1 pixel in 100 would leave p99 at 0.
+        let mut h = ChangeHistogram::default();
+        let one = frame(
+            10,
+            10,
+            |x, y| if (x, y) == (0, 0) { [9, 0, 0] } else { [0; 3] },
+        );
+        h.add(&frame(10, 10, |_, _| [0; 3]), &one).unwrap();
+        assert_eq!(h.quantile(0.99), Some(0.0));
+        assert_eq!(h.quantile(1.0), Some(3.0));
+        assert!(h.add(&[0; 8], &[0; 12]).is_err());
+    }
+
+    #[test]
+    fn selections_differ_by_lod_or_tiles_but_not_by_morph_or_order() {
+        let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
+        let p = |inner, m| Patch {
+            tile,
+            origin: [0, 0],
+            size: 64,
+            inner,
+            edges: [inner; 4],
+            morph: crate::select::morph::Morph::new(m, [m; 4]).unwrap(),
+        };
+        let q = |inner| Patch {
+            origin: [64, 0],
+            ..p(inner, 0)
+        };
+        let a = SelectionKey::new(&[tile], &[p(8, 0), q(4)]);
+        assert_eq!(a, SelectionKey::new(&[tile], &[q(4), p(8, 200)]));
+        assert_ne!(a, SelectionKey::new(&[tile], &[p(8, 0), q(8)]));
+        assert_ne!(a, SelectionKey::new(&[], &[p(8, 0), q(4)]));
+        let mut snapped = q(4);
+        snapped.edges[1] = 2;
+        assert_ne!(a, SelectionKey::new(&[tile], &[p(8, 0), snapped]));
+    }
+}
