@@ -63,7 +63,8 @@ enum Command {
     Fly {
         #[command(flatten)]
         source: SourceArgs,
-        /// canyon, pass, orbit, or a path JSON file.
+        /// canyon, pass, orbit, descent (from the whole dataset down to 100 m in 6 s),
+        /// or a path JSON file (paths.rs documents the format).
         #[arg(long, default_value = "canyon")]
         path: String,
         #[arg(long, default_value_t = 600)]
@@ -196,17 +197,22 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Pictures of a headless flight: stats.png (plots over time) and
-    /// contact_sheet.png (12 frames), plus a short summary.
+    /// Pictures of a headless flight: stats.png (plots over time), and with --frames
+    /// contact_sheet.png (12 frames) and flight.png (an animated PNG of the frames,
+    /// 480 px wide), plus a short summary.
     Report {
         /// The flight's stats.jsonl.
         stats: PathBuf,
-        /// The frames directory (frame_NNNNN.png) for the contact sheet.
+        /// The frames directory (frame_NNNNN.png) for the contact sheet and the
+        /// animation.
         #[arg(long)]
         frames: Option<PathBuf>,
-        /// Where to write stats.png and contact_sheet.png.
+        /// Where to write stats.png, contact_sheet.png and flight.png.
         #[arg(long, short, default_value = ".")]
         out: PathBuf,
+        /// Frames per second the frames were flown at (the animation's pace).
+        #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        fps: u32,
     },
     /// Print the size, levels and height range of a local pyramid file.
     Inspect {
@@ -464,10 +470,33 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Report { stats, frames, out } => {
+        Command::Report {
+            stats,
+            frames,
+            out,
+            fps,
+        } => {
+            use tessera_client::report::animation;
             let summary =
                 tessera_client::report::flight::write_report(&stats, frames.as_deref(), &out)?;
             println!("{summary}");
+            if let Some(dir) = &frames {
+                let file = out.join("flight.png");
+                let opts = animation::AnimationOptions {
+                    fps,
+                    ..animation::AnimationOptions::default()
+                };
+                let a = animation::write_animation(&animation::frame_files(dir)?, &file, opts)?;
+                println!(
+                    "{}: {} frames of {}×{} (every {}), {:.1} MB",
+                    file.display(),
+                    a.frames,
+                    a.width,
+                    a.height,
+                    a.step,
+                    a.bytes as f64 / 1e6
+                );
+            }
             Ok(())
         }
         Command::Inspect { file } => {

@@ -149,7 +149,7 @@ fn axis_weights(src: u32, dst: u32) -> Vec<(usize, Vec<u64>)> {
 }
 
 /// Resamples an RGBA8 image to `dw`×`dh` by area averaging, rounding to nearest.
-fn area_resample(src: &[u8], sw: u32, sh: u32, dw: u32, dh: u32) -> Vec<u8> {
+pub(super) fn area_resample(src: &[u8], sw: u32, sh: u32, dw: u32, dh: u32) -> Vec<u8> {
     let (xw, yw) = (axis_weights(sw, dw), axis_weights(sh, dh));
     let (sw, dw) = (sw as usize, dw as usize);
     // Horizontal pass: each value is a sum of weights × bytes, weights adding up to `sw`.

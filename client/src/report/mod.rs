@@ -1,5 +1,6 @@
 //! Pictures of a headless fly-through, for people to look at: a contact sheet of
-//! rendered frames and line plots of per-frame statistics.
+//! rendered frames, line plots of per-frame statistics and an animated PNG of the
+//! frames ([`animation`]).
 //!
 //! Everything here is plain CPU raster code on RGBA8 buffers (no GPU, no
 //! dependencies): functions return `(rgba, width, height)` and the caller writes
@@ -40,6 +41,7 @@
 //! # }
 //! ```
 
+pub mod animation;
 pub mod contact_sheet;
 pub mod flight;
 pub mod popping;
