@@ -144,6 +144,19 @@ enum Command {
         /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
         #[arg(long, default_value = "512MiB", value_parser = parse_bytes)]
         memory: u64,
+        /// Also build the imagery pyramid of this image (GeoTIFF, or PNG/JPEG with a world
+        /// file and .prj; any CRS, reprojected onto the DEM's grid) as OUTPUT with the
+        /// extension .tessimg: the DEM's tiles, levels and Morton layout, a JPEG per tile.
+        /// The DEM needs a CRS the projection library knows (its own or --crs). If the
+        /// imagery fails, neither file is left.
+        #[arg(long, value_name = "IMAGE", conflicts_with_all = ["part", "assemble"])]
+        imagery: Option<PathBuf>,
+        /// The bands of --imagery (1-based) that become red, green and blue, e.g. 3,2,1
+        /// for Landsat true colour; one band for grey. Default: 1,2,3 (or 1 of a
+        /// one-band image). Bands wider than 8 bits are stretched from their 2nd to 98th
+        /// percentile.
+        #[arg(long, value_name = "R,G,B", requires = "imagery")]
+        bands: Option<String>,
         /// No progress bars, and only errors in the log.
         #[arg(short, long)]
         quiet: bool,
@@ -295,10 +308,21 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             quiet,
             part,
             assemble,
+            imagery,
+            bands,
         } => {
             // Flag errors before anything is read.
             let part = part
                 .map(|p| PartSpec::parse(&p, std::env::var("JOB_COMPLETION_INDEX").ok().as_deref()))
+                .transpose()?;
+            // The image is read and checked before anything is written.
+            let imagery = imagery
+                .map(|p| {
+                    if output.to_string_lossy().contains("://") {
+                        anyhow::bail!("--imagery: the output must be a local file");
+                    }
+                    tessera_server::imagery::Prepared::open(&p, bands.as_deref())
+                })
                 .transpose()?;
             let opts = BuildOptions {
                 tile_size,
@@ -380,6 +404,16 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 r.seconds,
                 r.samples as f64 / r.seconds / 1e6
             );
+            if let Some(prepared) = &imagery {
+                let i = tessera_server::imagery::build_beside(prepared, &output, &opts.interrupt)?;
+                println!(
+                    "built {}: {} imagery tiles of {}² texels, {:.1} MB",
+                    i.path.display(),
+                    i.records,
+                    i.metadata.texels,
+                    i.file_bytes as f64 / 1e6
+                );
+            }
             Ok(ExitCode::SUCCESS)
         }
         Command::Serve(args) => {

@@ -31,6 +31,10 @@ impl VerifyReport {
 /// against the records (content hash recomputed, heights equal to the quantized
 /// extremes). Structural damage is an `Err`; everything else is listed in the report.
 pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
+    // An imagery pyramid (`.tessimg`) has its own record checks.
+    if crate::imagery::verify::is_imagery(path)? {
+        return crate::imagery::verify::verify(path);
+    }
     let p = Pyramid::open_file(path)?;
     let g = *p.geometry();
     let tiles: Vec<TileId> = g

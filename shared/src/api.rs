@@ -23,6 +23,9 @@ pub mod routes {
     /// Morton-range error tables; query `ranges=`.
     pub const ERRORS: &str = "/v1/datasets/{name}/levels/{level}/errors";
     pub const TILE: &str = "/v1/datasets/{name}/tiles/{level}/{x}/{y}";
+    /// Morton-range stream of imagery records (same framing as [`TILES`]); query
+    /// `ranges=`. Only for datasets whose document has `imagery`.
+    pub const IMAGERY_TILES: &str = "/v1/datasets/{name}/imagery/levels/{level}/tiles";
     /// PNG height tiles; the last segment is `{y}.png` (axum captures it whole).
     pub const WEB_TILE: &str = "/v1/datasets/{name}/{z}/{x}/{y}";
     /// TileJSON of a standard grid (`webmercator`, `crs84`); query `encoding=`, `size=`.
@@ -94,6 +97,9 @@ pub struct DatasetInfo {
     /// Size of the pyramid file in bytes.
     pub bytes: u64,
     pub links: DatasetLinks,
+    /// The dataset's imagery pyramid (issue 17 item 5), absent when it has none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imagery: Option<crate::imagery::ImageryInfo>,
 }
 
 /// Where a dataset's resources are, relative to the server; `{level}`, `{ranges}`,
@@ -154,6 +160,7 @@ impl DatasetInfo {
                 tile: at(routes::TILE),
                 png: format!("{}.png?encoding=terrarium", at(routes::WEB_TILE)),
             },
+            imagery: None,
         }
     }
 }

@@ -9,10 +9,19 @@
 //! Because every level's records are contiguous and in Morton order, a Morton range
 //! of one level is one byte range of the file (DESIGN §3).
 
+use crate::imagery::ImageryMetadata;
 use crate::metadata::Metadata;
 use xxhash_rust::xxh3::Xxh3;
 
 pub const MAGIC: [u8; 8] = *b"TESSPYR\0";
+/// The magic of an imagery pyramid ([`crate::imagery`]): the same container, so that a
+/// DEM reader refuses it by its first bytes.
+pub const IMAGERY_MAGIC: [u8; 8] = *b"TESSIMG\0";
+/// Header flag: the file is an imagery pyramid (its magic is [`IMAGERY_MAGIC`], its
+/// metadata an [`ImageryMetadata`], its records images). Set exactly when the magic
+/// says so; [`FileHeader::to_bytes`] writes the magic from it. Bit 16, not 0: the low
+/// bits stay reserved (and refused by `verify`) in DEM pyramids.
+pub const FILE_IMAGERY: u32 = 1 << 16;
 /// The version this build writes.
 pub const VERSION: u32 = 2;
 /// The oldest version this build reads.
@@ -57,6 +66,19 @@ pub fn decode_metadata_of(bytes: &[u8], version: u32) -> Result<Metadata, String
         return decode_exact::<crate::metadata::v1::Metadata>(bytes).map(Metadata::from);
     }
     decode_exact(bytes)
+}
+
+/// An imagery pyramid's metadata as stored in its header.
+pub fn encode_imagery_metadata(meta: &ImageryMetadata) -> Vec<u8> {
+    bincode::serde::encode_to_vec(meta, bincode_config())
+        .expect("metadata always serializes: it has no maps or unsized types")
+}
+
+/// An imagery pyramid's metadata, checked ([`ImageryMetadata::check`]).
+pub fn decode_imagery_metadata(bytes: &[u8]) -> Result<ImageryMetadata, String> {
+    let meta: ImageryMetadata = decode_exact(bytes)?;
+    meta.check()?;
+    Ok(meta)
 }
 
 fn decode_exact<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
@@ -131,6 +153,16 @@ impl ContentHasher {
         Self(h)
     }
 
+    /// For an imagery pyramid: its metadata with an empty hash, then its records'
+    /// checksums, exactly as for a DEM pyramid.
+    pub fn imagery(meta: &ImageryMetadata) -> Self {
+        let mut unhashed = meta.clone();
+        unhashed.content_hash.clear();
+        let mut h = Xxh3::new();
+        h.update(&encode_imagery_metadata(&unhashed));
+        Self(h)
+    }
+
     pub fn record(&mut self, checksum: u64) {
         self.0.update(&checksum.to_le_bytes());
     }
@@ -166,7 +198,12 @@ pub struct FileHeader {
 impl FileHeader {
     pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
         let mut b = [0u8; HEADER_LEN];
-        b[0..8].copy_from_slice(&MAGIC);
+        let magic = if self.flags & FILE_IMAGERY == 0 {
+            &MAGIC
+        } else {
+            &IMAGERY_MAGIC
+        };
+        b[0..8].copy_from_slice(magic);
         b[8..12].copy_from_slice(&self.version.to_le_bytes());
         b[12..16].copy_from_slice(&self.flags.to_le_bytes());
         b[16..24].copy_from_slice(&self.meta_offset.to_le_bytes());
@@ -187,8 +224,14 @@ impl FileHeader {
                 b.len()
             ));
         }
-        if b[0..8] != MAGIC {
-            return Err("not a Tessera pyramid (bad magic)".into());
+        let imagery = match &b[0..8] {
+            m if *m == MAGIC => false,
+            m if *m == IMAGERY_MAGIC => true,
+            _ => return Err("not a Tessera pyramid (bad magic)".into()),
+        };
+        // The magic and the flag say the same thing: a file that disagrees is damaged.
+        if imagery != (u32_at(b, 12) & FILE_IMAGERY != 0) {
+            return Err("header flags contradict the magic (damaged header)".into());
         }
         let version = u32_at(b, 8);
         if !(OLDEST_READABLE..=VERSION).contains(&version) {

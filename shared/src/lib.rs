@@ -12,6 +12,7 @@ pub mod codec;
 pub mod error_table;
 pub mod format;
 pub mod fuzzing;
+pub mod imagery;
 pub mod mask;
 pub mod metadata;
 pub mod morton;

@@ -6,6 +6,7 @@ use crate::error_table::ErrorTable;
 use crate::format::{
     self, FileHeader, HEADER_LEN, INDEX_ENTRY_LEN, IndexEntry, LEVEL_ENTRY_LEN, LevelEntry,
 };
+use crate::imagery::ImageryMetadata;
 use crate::metadata::Metadata;
 use crate::morton::MortonRange;
 use crate::tile::{GeometryError, Level, TileGeometry, TileId};
@@ -112,6 +113,8 @@ pub struct Pyramid<S> {
     geometry: TileGeometry,
     levels: Vec<LevelEntry>,
     index: Vec<Vec<IndexEntry>>,
+    /// Set for an imagery pyramid ([`Pyramid::open_imagery`]); `meta` is then its DEM's.
+    imagery: Option<ImageryMetadata>,
 }
 
 impl Pyramid<FileSource> {
@@ -127,7 +130,19 @@ impl<S: ByteSource> Pyramid<S> {
     /// Checks the header checksum and that the indices describe a well-formed file:
     /// every present tile is one the geometry says exists, and each level's records are
     /// contiguous in Morton order inside that level's record range.
+    ///
+    /// A DEM pyramid only: an imagery pyramid is refused ([`Pyramid::open_imagery`]).
     pub fn open(source: S) -> Result<Self, ReadError> {
+        Self::open_kind(source, Kind::Dem)
+    }
+
+    /// Opens an imagery pyramid ([`crate::imagery`]) with the same checks; its
+    /// [`Pyramid::metadata`] is the DEM's it was built for, [`Pyramid::imagery`] its own.
+    pub fn open_imagery(source: S) -> Result<Self, ReadError> {
+        Self::open_kind(source, Kind::Imagery)
+    }
+
+    fn open_kind(source: S, kind: Kind) -> Result<Self, ReadError> {
         let file_len = source.size()?;
         let header = read_header(&source, file_len)?;
         let region = source.read_vec(
@@ -145,7 +160,7 @@ impl<S: ByteSource> Pyramid<S> {
                     ReadError::Structure(format!("{what} lies outside the header region"))
                 })
         };
-        let layout = Layout::read(header, file_len, |o, l, w| {
+        let layout = Layout::read(header, file_len, kind, |o, l, w| {
             slice(o, l, w).map(<[u8]>::to_vec)
         })?;
         let mut index = Vec::new();
@@ -171,6 +186,7 @@ impl<S: ByteSource> Pyramid<S> {
             meta,
             geometry,
             levels,
+            imagery,
         } = layout;
         Ok(Self {
             source,
@@ -179,11 +195,17 @@ impl<S: ByteSource> Pyramid<S> {
             geometry,
             levels,
             index,
+            imagery,
         })
     }
 
     pub fn metadata(&self) -> &Metadata {
         &self.meta
+    }
+
+    /// An imagery pyramid's own metadata; `None` for a DEM pyramid.
+    pub fn imagery(&self) -> Option<&ImageryMetadata> {
+        self.imagery.as_ref()
     }
 
     pub fn geometry(&self) -> &TileGeometry {
@@ -282,12 +304,21 @@ fn read_header<S: ByteSource>(source: &S, file_len: u64) -> Result<FileHeader, R
     Ok(header)
 }
 
+/// Which kind of pyramid a caller expects (the header's magic and flag say which
+/// one a file is).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Dem,
+    Imagery,
+}
+
 /// The small parts of a header region: header, metadata, geometry and level table.
 struct Layout {
     header: FileHeader,
     meta: Metadata,
     geometry: TileGeometry,
     levels: Vec<LevelEntry>,
+    imagery: Option<ImageryMetadata>,
 }
 
 impl Layout {
@@ -296,13 +327,33 @@ impl Layout {
     fn read(
         header: FileHeader,
         file_len: u64,
+        kind: Kind,
         read: impl Fn(u64, u64, &str) -> Result<Vec<u8>, ReadError>,
     ) -> Result<Self, ReadError> {
-        let meta = format::decode_metadata_of(
-            &read(header.meta_offset, header.meta_len, "metadata")?,
-            header.version,
-        )
-        .map_err(ReadError::Metadata)?;
+        let is_imagery = header.flags & format::FILE_IMAGERY != 0;
+        match (kind, is_imagery) {
+            (Kind::Dem, true) => {
+                return Err(ReadError::Structure(
+                    "this is an imagery pyramid (.tessimg), not a DEM pyramid".into(),
+                ));
+            }
+            (Kind::Imagery, false) => {
+                return Err(ReadError::Structure(
+                    "this is a DEM pyramid, not an imagery pyramid".into(),
+                ));
+            }
+            _ => {}
+        }
+        let meta_bytes = read(header.meta_offset, header.meta_len, "metadata")?;
+        let (meta, imagery) = if is_imagery {
+            let imagery =
+                format::decode_imagery_metadata(&meta_bytes).map_err(ReadError::Metadata)?;
+            (imagery.dem.clone(), Some(imagery))
+        } else {
+            let meta = format::decode_metadata_of(&meta_bytes, header.version)
+                .map_err(ReadError::Metadata)?;
+            (meta, None)
+        };
         let geometry = TileGeometry::new(meta.width, meta.height, meta.tile_size)?;
         if header.level_count != u32::from(geometry.level_count())
             || meta.levels != geometry.level_count()
@@ -344,6 +395,7 @@ impl Layout {
             meta,
             geometry,
             levels,
+            imagery,
         })
     }
 }
@@ -413,8 +465,25 @@ impl<'g> IndexCheck<'g> {
 /// is what lets a build verify its output under `--memory` (DESIGN §8).
 pub fn check_streaming<S: ByteSource>(
     source: &S,
-    mut each: impl FnMut(TileId, &IndexEntry, &[u8]) -> Result<(), ReadError>,
+    each: impl FnMut(TileId, &IndexEntry, &[u8]) -> Result<(), ReadError>,
 ) -> Result<Metadata, ReadError> {
+    check_streaming_kind(source, Kind::Dem, each).map(|l| l.meta)
+}
+
+/// [`check_streaming`] of an imagery pyramid: returns its own metadata.
+pub fn check_streaming_imagery<S: ByteSource>(
+    source: &S,
+    each: impl FnMut(TileId, &IndexEntry, &[u8]) -> Result<(), ReadError>,
+) -> Result<ImageryMetadata, ReadError> {
+    check_streaming_kind(source, Kind::Imagery, each)
+        .map(|l| l.imagery.expect("an imagery layout has imagery metadata"))
+}
+
+fn check_streaming_kind<S: ByteSource>(
+    source: &S,
+    kind: Kind,
+    mut each: impl FnMut(TileId, &IndexEntry, &[u8]) -> Result<(), ReadError>,
+) -> Result<Layout, ReadError> {
     let file_len = source.size()?;
     let header = read_header(source, file_len)?;
     let region_end = header.records_offset;
@@ -441,7 +510,7 @@ pub fn check_streaming<S: ByteSource>(
     if h.digest() != header.checksum {
         return Err(ReadError::HeaderChecksum);
     }
-    let layout = Layout::read(header, file_len, |off, len, what| {
+    let layout = Layout::read(header, file_len, kind, |off, len, what| {
         in_region(off, len, what)?;
         Ok(source.read_vec(off, len as usize)?)
     })?;
@@ -474,7 +543,7 @@ pub fn check_streaming<S: ByteSource>(
         }
         check.finish()?;
     }
-    Ok(layout.meta)
+    Ok(layout)
 }
 
 #[cfg(test)]

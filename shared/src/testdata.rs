@@ -197,6 +197,26 @@ pub const DEMS: &[DemFacts] = &[
     },
 ];
 
+/// A file of the real imagery beside the DEMs (`../shared/data/imagery/`, Landsat 7
+/// over Olinda with its DEM; see its README), or `None` (after a visible message) when
+/// absent outside CI, as [`dem_or_skip`].
+///
+/// # Panics
+/// When the file is absent and `CI` is set.
+pub fn imagery_or_skip(name: &str) -> Option<PathBuf> {
+    let path = dem_dir().join("../imagery").join(name);
+    if path.is_file() {
+        return Some(path);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "test data {} is missing and CI is set: the shared imagery must be present",
+        path.display()
+    );
+    eprintln!("SKIPPED: {} is not present", path.display());
+    None
+}
+
 /// The facts for `name`.
 ///
 /// # Panics

@@ -248,12 +248,15 @@ impl PyramidWriter {
     ///
     /// Every pass streams (index a chunk at a time, hashes fed incrementally), so
     /// finishing costs a few MiB whatever the number of tiles.
-    pub fn finish(
+    ///
+    /// `meta` is a DEM's [`Metadata`] or an imagery pyramid's
+    /// [`ImageryMetadata`](tessera_shared::imagery::ImageryMetadata): [`FileMeta`].
+    pub fn finish<M: FileMeta>(
         self,
-        mut meta: Metadata,
+        mut meta: M,
         interrupt: &super::interrupt::Interrupt,
         mut progress: impl FnMut(u64),
-    ) -> anyhow::Result<(Metadata, u64)> {
+    ) -> anyhow::Result<(M, u64)> {
         let Self {
             geometry,
             target,
@@ -295,7 +298,7 @@ impl PyramidWriter {
         drop(files);
         // The metadata's own numbers are final, so its content hash can be fed as the
         // index is rewritten: record checksums, levels ascending, Morton order.
-        let mut content = format::ContentHasher::new(&meta);
+        let mut content = meta.content_hasher();
         let mut chunk = Vec::new();
         for (l, level) in geometry.levels().enumerate() {
             interrupt.check()?;
@@ -323,8 +326,8 @@ impl PyramidWriter {
                 m += n;
             }
         }
-        meta.content_hash = content.finish();
-        let meta_bytes = format::encode_metadata(&meta);
+        meta.set_content_hash(content.finish());
+        let meta_bytes = meta.encode();
         if meta_bytes.len() as u64 > meta_reserve {
             bail!(
                 "metadata ({} bytes) outgrew its reserved space",
@@ -356,7 +359,7 @@ impl PyramidWriter {
             .context("writing the metadata")?;
         let mut header = FileHeader {
             version: VERSION,
-            flags: 0,
+            flags: M::HEADER_FLAGS,
             meta_offset,
             meta_len: meta_bytes.len() as u64,
             level_table_offset,
@@ -384,7 +387,7 @@ impl PyramidWriter {
         out.sync_all().context("syncing the pyramid to disk")?;
         // Verify what is on disk before it becomes visible at the output path.
         let source = FileSource::open(partial.path())?;
-        let written = reader::check_streaming(&source, |_, _, _| {
+        let written = M::check_written(&source, &mut |_, _, _| {
             progress(1);
             Ok(())
         })
@@ -396,6 +399,65 @@ impl PyramidWriter {
         interrupt.check()?;
         publish(partial, &target, "pyramid")?;
         Ok((meta, at))
+    }
+}
+
+/// What sees each checked record while a written file is re-read.
+pub type EachRecord<'a> =
+    dyn FnMut(tessera_shared::TileId, &IndexEntry, &[u8]) -> Result<(), reader::ReadError> + 'a;
+
+/// What a pyramid file's header describes it with: a DEM's [`Metadata`], or an
+/// imagery pyramid's metadata (same container, FORMAT.md "Imagery pyramids").
+pub trait FileMeta: PartialEq + Sized {
+    /// The header's flags (and so its magic).
+    const HEADER_FLAGS: u32;
+    /// The content hash fed with this metadata (its hash empty).
+    fn content_hasher(&self) -> format::ContentHasher;
+    fn set_content_hash(&mut self, hash: String);
+    /// The bytes stored in the header region.
+    fn encode(&self) -> Vec<u8>;
+    /// Checks a whole written file of this kind, returning the metadata it holds.
+    fn check_written(
+        source: &FileSource,
+        each: &mut EachRecord<'_>,
+    ) -> Result<Self, reader::ReadError>;
+}
+
+impl FileMeta for Metadata {
+    const HEADER_FLAGS: u32 = 0;
+    fn content_hasher(&self) -> format::ContentHasher {
+        format::ContentHasher::new(self)
+    }
+    fn set_content_hash(&mut self, hash: String) {
+        self.content_hash = hash;
+    }
+    fn encode(&self) -> Vec<u8> {
+        format::encode_metadata(self)
+    }
+    fn check_written(
+        source: &FileSource,
+        each: &mut EachRecord<'_>,
+    ) -> Result<Self, reader::ReadError> {
+        reader::check_streaming(source, each)
+    }
+}
+
+impl FileMeta for tessera_shared::imagery::ImageryMetadata {
+    const HEADER_FLAGS: u32 = format::FILE_IMAGERY;
+    fn content_hasher(&self) -> format::ContentHasher {
+        format::ContentHasher::imagery(self)
+    }
+    fn set_content_hash(&mut self, hash: String) {
+        self.content_hash = hash;
+    }
+    fn encode(&self) -> Vec<u8> {
+        format::encode_imagery_metadata(self)
+    }
+    fn check_written(
+        source: &FileSource,
+        each: &mut EachRecord<'_>,
+    ) -> Result<Self, reader::ReadError> {
+        reader::check_streaming_imagery(source, each)
     }
 }
 

@@ -132,6 +132,12 @@ fn parse_nodata(raw: &str) -> Option<f64> {
     parsed
 }
 
+/// The georeferencing of any open TIFF, multi-band ones included (the imagery
+/// pyramid's source, `crate::imagery::source`), in GDAL's corner convention.
+pub fn georef_of(decoder: &mut Decoder<Box<dyn TiffInput>>) -> Option<tessera_shared::GeoRef> {
+    read_georef(decoder)
+}
+
 /// Reads an ASCII (or byte) tag as text, without the crate's strict NUL handling.
 fn ascii_tag(decoder: &mut Decoder<Reader>, tag: Tag) -> anyhow::Result<Option<String>> {
     let mut ifd = decoder.image_ifd();

@@ -1,0 +1,209 @@
+//! Imagery pyramids (issue 17 item 5): the texture hierarchy of Yang §3, "grid LOD
+//! and texture LOD corresponding each other".
+//!
+//! An imagery pyramid is a sibling file of a DEM pyramid (`NAME.tessimg` beside
+//! `NAME.tess`, DECISIONS "Imagery pyramids") in the same container (FORMAT.md
+//! "Imagery pyramids"): the same header, level table and dense Morton indices, with
+//! the magic `TESSIMG\0` and header flag [`crate::format::FILE_IMAGERY`], so that
+//! every reader of DEM pyramids refuses it instead of misreading it. It has exactly
+//! the DEM's levels, tiles and presence: the imagery of tile `(L, m)` is record `m`
+//! of level `L`, one image of `texels × texels` RGB texels covering the same ground
+//! as the DEM tile's `T × T` cells, so a client fetches, pools and draws a tile's
+//! imagery with its geometry. Records are baseline JPEG.
+
+use crate::metadata::Metadata;
+use serde::{Deserialize, Serialize};
+
+/// How imagery records are encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ImageEncoding {
+    /// Baseline JPEG, 8-bit RGB (`image/jpeg`).
+    Jpeg,
+}
+
+impl ImageEncoding {
+    pub const fn media_type(self) -> &'static str {
+        match self {
+            Self::Jpeg => "image/jpeg",
+        }
+    }
+}
+
+/// The largest texel count per tile side a build writes (and a reader accepts):
+/// 2048² RGBA is 16 MiB per GPU slot, already more than a client wants.
+pub const MAX_TEXELS: u32 = 2048;
+/// The smallest: below this a JPEG's 8×8 blocks are most of the tile.
+pub const MIN_TEXELS: u32 = 16;
+
+/// What an imagery pyramid's header holds in place of a DEM's [`Metadata`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImageryMetadata {
+    /// The DEM pyramid's metadata exactly as its file stores it, content hash
+    /// included: it fixes the tile geometry and names the DEM this imagery drapes.
+    pub dem: Metadata,
+    /// Texels per tile side, the same at every level. Texel `(u, v)` of a tile is
+    /// centred at tile sample coordinates `((u + ½)·T/texels, (v + ½)·T/texels)`
+    /// (north row first), so UV `(i/T, j/T)` is sample `(i, j)`.
+    pub texels: u32,
+    pub encoding: ImageEncoding,
+    /// The source bands (1-based) that became R, G and B.
+    pub bands: [u16; 3],
+    /// Per output channel, the source values mapped to 0 and 255 (linear between,
+    /// clamped outside): the 2–98 percentile stretch, or `[0, 255]` for 8-bit data.
+    pub stretch: [[f64; 2]; 3],
+    /// Ground size of a finest-level texel in the DEM CRS's units, `[x, y]`.
+    pub texel_size: [f64; 2],
+    /// The source image: file name, size, bands, CRS.
+    pub source: String,
+    pub generator: String,
+    /// XXH3-64 of this metadata with an empty hash and every record's checksum, as
+    /// for DEM pyramids (FORMAT.md): the imagery's identity for ETags and caches.
+    pub content_hash: String,
+}
+
+impl ImageryMetadata {
+    /// Checks the numbers a reader relies on.
+    pub fn check(&self) -> Result<(), String> {
+        if !(MIN_TEXELS..=MAX_TEXELS).contains(&self.texels) {
+            return Err(format!(
+                "imagery texels per tile {} outside {MIN_TEXELS}..={MAX_TEXELS}",
+                self.texels
+            ));
+        }
+        self.dem
+            .check_content_hash()
+            .map_err(|e| format!("the DEM's {e}"))?;
+        let own = Metadata {
+            content_hash: self.content_hash.clone(),
+            ..self.dem.clone()
+        };
+        own.check_content_hash()
+    }
+}
+
+/// What the dataset document (`GET /v1/datasets/{name}`, [`crate::api::DatasetInfo`])
+/// says of a dataset's imagery.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImageryInfo {
+    /// Texels per tile side (every level).
+    pub texels: u32,
+    /// Ground size of a finest-level texel, `[x, y]` in the DEM CRS's units.
+    pub texel_size: [f64; 2],
+    /// Media type of each record.
+    pub media_type: String,
+    pub bands: [u16; 3],
+    pub source: String,
+    /// The imagery pyramid's own content hash (ETags of imagery responses).
+    pub content_hash: String,
+    /// Size of the imagery pyramid file in bytes.
+    pub bytes: u64,
+    /// Morton-range stream of imagery records; `{level}` and `{ranges}` to fill.
+    pub tiles: String,
+}
+
+impl ImageryInfo {
+    pub fn new(name: &str, meta: &ImageryMetadata, bytes: u64) -> Self {
+        Self {
+            texels: meta.texels,
+            texel_size: meta.texel_size,
+            media_type: meta.encoding.media_type().to_string(),
+            bands: meta.bands,
+            source: meta.source.clone(),
+            content_hash: meta.content_hash.clone(),
+            bytes,
+            tiles: format!(
+                "{}?ranges={{ranges}}",
+                crate::api::fill(crate::api::routes::IMAGERY_TILES, &[("name", name)])
+            ),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn meta() -> ImageryMetadata {
+        let mut dem = crate::fixtures::metadata(129, 129, 64);
+        dem.content_hash = "0123456789abcdef".into();
+        ImageryMetadata {
+            dem,
+            texels: 256,
+            encoding: ImageEncoding::Jpeg,
+            bands: [3, 2, 1],
+            stretch: [[0.0, 255.0]; 3],
+            texel_size: [22.5, 22.5],
+            source: "L7_ETMs.tif".into(),
+            generator: "test".into(),
+            content_hash: "fedcba9876543210".into(),
+        }
+    }
+
+    #[test]
+    fn check_refuses_bad_texels_and_hashes() {
+        assert!(meta().check().is_ok());
+        let mut m = meta();
+        m.texels = 4;
+        assert!(m.check().unwrap_err().contains("texels"));
+        let mut m = meta();
+        m.dem.content_hash = "x\"".into();
+        assert!(m.check().unwrap_err().contains("DEM"));
+        let mut m = meta();
+        m.content_hash.clear();
+        assert!(m.check().is_err());
+    }
+
+    /// The magic follows the flag, and a header whose magic and flag disagree is
+    /// refused: a DEM reader can never take an imagery file for a DEM.
+    #[test]
+    fn the_imagery_magic_and_flag_go_together() {
+        use crate::format::{FILE_IMAGERY, FileHeader, IMAGERY_MAGIC, MAGIC};
+        let h = FileHeader {
+            version: crate::format::VERSION,
+            flags: FILE_IMAGERY,
+            meta_offset: 64,
+            meta_len: 10,
+            level_table_offset: 64,
+            level_count: 1,
+            index_entry_len: 32,
+            records_offset: 4096,
+            checksum: 7,
+        };
+        let mut b = h.to_bytes();
+        assert_eq!(b[..8], IMAGERY_MAGIC);
+        assert_eq!(FileHeader::parse(&b).unwrap(), h);
+        b[..8].copy_from_slice(&MAGIC);
+        assert!(FileHeader::parse(&b).unwrap_err().contains("contradict"));
+        let dem = FileHeader { flags: 0, ..h };
+        let mut b = dem.to_bytes();
+        assert_eq!(b[..8], MAGIC);
+        b[..8].copy_from_slice(&IMAGERY_MAGIC);
+        assert!(FileHeader::parse(&b).is_err());
+    }
+
+    #[test]
+    fn metadata_round_trips_and_is_checked_on_decode() {
+        let m = meta();
+        let bytes = crate::format::encode_imagery_metadata(&m);
+        assert_eq!(crate::format::decode_imagery_metadata(&bytes).unwrap(), m);
+        let mut bad = meta();
+        bad.texels = 1 << 20;
+        let bytes = crate::format::encode_imagery_metadata(&bad);
+        assert!(crate::format::decode_imagery_metadata(&bytes).is_err());
+        // A DEM's metadata is not an imagery pyramid's.
+        let dem = crate::format::encode_metadata(&m.dem);
+        assert!(crate::format::decode_imagery_metadata(&dem).is_err());
+    }
+
+    #[test]
+    fn info_links_the_imagery_stream() {
+        let info = ImageryInfo::new("olinda", &meta(), 99);
+        assert_eq!(
+            info.tiles,
+            "/v1/datasets/olinda/imagery/levels/{level}/tiles?ranges={ranges}"
+        );
+        assert_eq!(info.media_type, "image/jpeg");
+        assert_eq!((info.texels, info.bytes), (256, 99));
+    }
+}
