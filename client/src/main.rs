@@ -12,7 +12,7 @@ use tessera_client::render::gpu::Backend;
 use tessera_client::render::normals::NormalSource;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
 use tessera_client::select::Policy;
-use tessera_client::stream::{RequestMode, StreamConfig, TileSource};
+use tessera_client::stream::{OpenArgs, RequestMode, StreamConfig, TileSource};
 use tessera_shared::Pyramid;
 
 #[derive(Debug, Parser)]
@@ -56,6 +56,8 @@ enum Command {
         /// Print the report as JSON.
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        open: OpenArgs,
     },
     /// Fly a path over a dataset served by `tessera-server serve`, or over a pyramid
     /// file read straight from a static host (--pyramid): selection and streaming at
@@ -160,6 +162,8 @@ enum Command {
         /// Write per-frame statistics here (JSON Lines).
         #[arg(long)]
         stats: Option<PathBuf>,
+        #[command(flatten)]
+        open: OpenArgs,
     },
     /// Time view-dependent selection on a local pyramid, with every error table
     /// resident: the camera flies a path as `tessera fly` does (the eye at the
@@ -305,6 +309,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             viewport,
             spacing,
             json,
+            open,
         } => {
             let (width, height) = parse_viewport(&viewport)?;
             let opts = load_test::LoadOptions {
@@ -321,6 +326,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 height,
                 spacing,
                 progress: !json,
+                open,
             };
             let r = load_test::load(&opts)?;
             if json {
@@ -359,6 +365,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             pool_tiles,
             budget_ms,
             stats,
+            open,
         } => {
             let (vw, vh) = parse_viewport(&viewport)?;
             let (width, height) = (w.unwrap_or(vw), h.unwrap_or(vh));
@@ -415,7 +422,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 pool_tiles,
                 stream: StreamConfig {
                     budget,
-                    ..StreamConfig::default()
+                    ..open.config()
                 },
                 t_offset: 0.0,
                 runtime: None,

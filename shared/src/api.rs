@@ -18,6 +18,8 @@ pub mod routes {
     pub const DATASET: &str = "/v1/datasets/{name}";
     pub const TILEJSON: &str = "/v1/datasets/{name}/tilejson.json";
     pub const PYRAMID: &str = "/v1/datasets/{name}/pyramid";
+    /// Everything a first frame needs in one response ([`crate::bootstrap`]); query `v=`.
+    pub const BOOTSTRAP: &str = "/v1/datasets/{name}/bootstrap";
     /// Morton-range tile stream; query `ranges=` ([`crate::range_query`]).
     pub const TILES: &str = "/v1/datasets/{name}/levels/{level}/tiles";
     /// Morton-range error tables; query `ranges=`.
@@ -100,6 +102,12 @@ pub struct DatasetInfo {
     /// The dataset's imagery pyramid (issue 17 item 5), absent when it has none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imagery: Option<crate::imagery::ImageryInfo>,
+    /// The body the grid lies on and whether the grid is longitude/latitude (issue
+    /// 17 item 4: the globe), absent when the CRS names no known ellipsoid. The
+    /// server fills it from its projection library; [`DatasetInfo::new`] from the
+    /// georeferencing alone ([`crate::body::Body::from_georef`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body: Option<crate::body::Body>,
 }
 
 /// Where a dataset's resources are, relative to the server; `{level}`, `{ranges}`,
@@ -161,6 +169,10 @@ impl DatasetInfo {
                 png: format!("{}.png?encoding=terrarium", at(routes::WEB_TILE)),
             },
             imagery: None,
+            body: meta
+                .georef
+                .as_ref()
+                .and_then(crate::body::Body::from_georef),
         }
     }
 }

@@ -8,6 +8,8 @@
 //! any source of byte ranges ([`reader`]).
 
 pub mod api;
+pub mod body;
+pub mod bootstrap;
 pub mod codec;
 pub mod error_table;
 pub mod format;

@@ -13,12 +13,33 @@ use tessera_shared::api::{DatasetInfo, DatasetList};
 
 /// The JSON description of one dataset (the contract's [`DatasetInfo`]).
 pub fn describe(ds: &Dataset) -> DatasetInfo {
-    DatasetInfo::new(
+    let mut info = DatasetInfo::new(
         &ds.name,
         ds.pyramid.metadata(),
         ds.pyramid.header().version,
         ds.storage.size(),
-    )
+    );
+    info.imagery = ds.imagery.as_ref().and_then(|i| {
+        let meta = i.pyramid.imagery()?;
+        Some(tessera_shared::imagery::ImageryInfo::new(
+            &ds.name,
+            meta,
+            i.storage.size(),
+        ))
+    });
+    // The body from the projection library where it knows the CRS (issue 17 item 4);
+    // otherwise what `DatasetInfo::new` read from the georeferencing stays.
+    if let Some(crs) = ds
+        .pyramid
+        .metadata()
+        .georef
+        .as_ref()
+        .and_then(crate::crs::Crs::of)
+        && let Some((a, b)) = crs.body_radii()
+    {
+        info.body = tessera_shared::body::Body::new(a, b, crs.is_geographic());
+    }
+    info
 }
 
 pub async fn list(State(state): State<Arc<AppState>>) -> impl IntoResponse {
@@ -40,7 +61,12 @@ pub async fn get_one(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
-    let etag = cache::etag(ds.content_hash(), "metadata");
+    // The document names the imagery too: its hash is part of the tag.
+    let variant = ds.imagery.as_ref().map_or_else(
+        || "metadata".to_string(),
+        |i| format!("metadata {}", i.content_hash()),
+    );
+    let etag = cache::etag(ds.content_hash(), &variant);
     if cache::not_modified(&headers, &etag, ds.last_modified) {
         return Ok(cache::not_modified_response(
             &etag,
