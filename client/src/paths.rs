@@ -176,7 +176,7 @@ impl FlyPath {
             let s = u * u * (3.0 - 2.0 * u);
             let altitude = start * (DESCENT_END_AGL_M / start).powf(s);
             let (p0, p1) = DESCENT_PITCH_DEG;
-            let pitch = p0 + (p1 - p0) * s.powf(1.5);
+            let pitch = p0 + (p1 - p0) * s.powf(1.2);
             let back = altitude / (-pitch).to_radians().tan();
             // North is −y on the map: standing back means south of the centre.
             waypoints.push([0.5, 0.5 + back / extent_m.max(1.0)]);

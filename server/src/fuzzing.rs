@@ -35,6 +35,9 @@ pub const TARGETS: &[(&str, Entry)] = &[
     ("wire", |d| {
         shared::wire(d).map(drop).map_err(|e| e.to_string())
     }),
+    ("bootstrap", |d| {
+        shared::bootstrap(d).map(drop).map_err(|e| e.to_string())
+    }),
     ("ranges", |d| ranges(d).map(drop)),
     ("http_range", |d| http_range(d).map(drop)),
     ("vrt", |d| vrt(d).map_err(|e| format!("{e:#}"))),

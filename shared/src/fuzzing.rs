@@ -165,3 +165,10 @@ mod tests {
         assert_eq!(wire(&s).unwrap(), 2);
     }
 }
+
+/// A bootstrap ([`crate::bootstrap`]): decoded and, when accepted, its absent tiles
+/// listed (what a client does with one); the frames and absent tiles counted.
+pub fn bootstrap(data: &[u8]) -> Result<usize, crate::bootstrap::BootstrapError> {
+    let b = crate::bootstrap::Bootstrap::decode(data)?;
+    Ok(b.frames.len() + b.absent().len())
+}

@@ -26,7 +26,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Duration;
 use streaming_support::{
-    assert_no_holes, assert_recovered, glide, options, pyramid, run_flight, small_load,
+    assert_no_holes, assert_recovered, glide, options, pyramid, run_flight, small_load_opened,
     start_server,
 };
 use tessera_client::app::fly::{FlyOptions, FlySummary};
@@ -153,7 +153,12 @@ fn serverless_flight_matches_the_server_flight() {
     let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
     let dir = tempfile::tempdir().unwrap();
     let path = glide(dir.path());
-    let (server_frames, server) = run_flight(&options(addr, path.clone(), 150));
+    // The server opened the old way (its document, then tiles as frames ask), as
+    // a static file is opened: the bootstrap would bring whole levels the static
+    // file fetches only as the view needs them.
+    let mut server_opts = options(addr, path.clone(), 150);
+    server_opts.stream.bootstrap = false;
+    let (server_frames, server) = run_flight(&server_opts);
     let static_opts = serverless(options(addr, path, 150), nginx.url("terrain.tess"));
     let (static_frames, serverless) = run_flight(&static_opts);
     let log = nginx.log();
@@ -373,7 +378,13 @@ fn load_against_nginx_reports_like_the_server() {
     };
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
-    let run = |source| small_load(source, 3, Duration::from_secs(3), RequestMode::Ranges);
+    // The server's clients open the old way, as in the flight comparison above.
+    let open = tessera_client::stream::OpenArgs {
+        no_bootstrap: true,
+        ..Default::default()
+    };
+    let run =
+        |source| small_load_opened(source, 3, Duration::from_secs(3), RequestMode::Ranges, open);
     let server = run(TileSource::server(format!("http://{addr}"), "terrain"));
     let serverless = run(TileSource::pyramid(nginx.url("terrain.tess")));
     eprintln!("server:     {server}\nserverless: {serverless}");

@@ -152,7 +152,11 @@ fn keeps_drawing_through_150_ms_of_latency() {
         ))
         .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let (frames, summary) = run_flight(&options(proxy.addr(), glide(dir.path()), 180));
+    // Opened the old way (the dataset's document): the root comes with the first
+    // frame's requests. (With the bootstrap it is there at frame 0: tests/bootstrap.rs.)
+    let mut opts = options(proxy.addr(), glide(dir.path()), 180);
+    opts.stream.bootstrap = false;
+    let (frames, summary) = run_flight(&opts);
     let first = assert_no_holes(&frames);
     // The root cannot arrive before one delayed round trip (9 frames at 60 fps).
     assert!(
@@ -212,7 +216,10 @@ fn the_deficit_is_missing_rather_than_huge_while_tiles_are_missing() {
     let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
     let dir = tempfile::tempdir().unwrap();
     let mut buf = Vec::new();
-    let opts = options(addr, glide(dir.path()), 120);
+    // Opened the old way, so that the first frames have nothing yet (the bootstrap
+    // would have the coarsest levels resident at frame 0).
+    let mut opts = options(addr, glide(dir.path()), 120);
+    opts.stream.bootstrap = false;
     fly(&opts, Some(&mut buf)).unwrap();
     let lines: Vec<serde_json::Value> = String::from_utf8(buf)
         .unwrap()

@@ -101,7 +101,10 @@ fn flight_draws_ancestors_of_tiles_that_always_arrive_damaged() {
         .block_on(tessera_proxy::corrupting(server, faults.clone()))
         .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let opts = options(proxy.addr(), glide(dir.path()), 150);
+    // Opened the old way: the bootstrap would bring levels 0–3 whole, undamaged
+    // (the proxy damages tile streams only), before any frame asks for them.
+    let mut opts = options(proxy.addr(), glide(dir.path()), 150);
+    opts.stream.bootstrap = false;
     let started = Instant::now();
     let (frames, summary) = run_flight(&opts);
     let elapsed = started.elapsed();
@@ -266,7 +269,10 @@ fn flight_draws_level_one_when_the_root_record_is_corrupt() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (server, _task) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &file);
     let (proxy, log) = rt.block_on(tessera_proxy::logging(server)).unwrap();
-    let opts = options(proxy.addr(), glide(dir.path()), 150);
+    // Opened the old way: with the bootstrap, levels 1–3 are resident from frame 0
+    // and the root's error frame comes in the bootstrap (tests/bootstrap.rs).
+    let mut opts = options(proxy.addr(), glide(dir.path()), 150);
+    opts.stream.bootstrap = false;
     let (frames, summary) = run_flight(&opts);
 
     // Drawn: from the first frame with tiles on, every frame draws, never the root.

@@ -21,6 +21,8 @@ pub struct LoadOptions {
     pub height: u32,
     pub spacing: Option<f64>,
     pub progress: bool,
+    /// `--no-bootstrap`, `--http2`.
+    pub open: crate::stream::OpenArgs,
 }
 
 /// What the clients saw, together.
@@ -109,7 +111,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 pool_tiles: 512,
                 stream: StreamConfig {
                     mode: opts.mode,
-                    ..StreamConfig::default()
+                    ..opts.open.config()
                 },
                 // Staggered starts: each client begins at a different point of its path.
                 t_offset: f64::from(i) * 1.7,

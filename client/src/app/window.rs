@@ -79,7 +79,7 @@ impl State {
         display: Box<dyn wgpu::wgt::WgpuHasDisplayHandle>,
     ) -> anyhow::Result<Self> {
         let (
-            streamer,
+            mut streamer,
             super::fly::DatasetView {
                 world,
                 min_height: min_h,
@@ -145,6 +145,9 @@ impl State {
             near: 1.0,
             far: 4.0 * extent + 1e5,
         };
+        // What the open fetched (the bootstrap's levels) is drawn from the first frame.
+        let mut pool = TilePool::new(opts.pool_tiles);
+        streamer.preload(&mut pool);
         Ok(Self {
             window,
             surface,
@@ -152,7 +155,7 @@ impl State {
             renderer,
             presenter,
             streamer,
-            pool: TilePool::new(opts.pool_tiles),
+            pool,
             selector: Selector::new(
                 world,
                 SelectParams {

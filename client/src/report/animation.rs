@@ -32,7 +32,7 @@ impl Default for AnimationOptions {
     fn default() -> Self {
         Self {
             max_width: 480,
-            max_frames: 90,
+            max_frames: 240,
             fps: 30,
         }
     }

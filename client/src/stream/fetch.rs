@@ -23,7 +23,7 @@ pub(super) struct Decoded {
 }
 
 impl Decoded {
-    fn new(tile: TileId, rec: codec::TileRecord) -> Self {
+    pub(super) fn new(tile: TileId, rec: codec::TileRecord) -> Self {
         Self {
             tile,
             errors: rec.errors,

@@ -31,6 +31,22 @@
 //! marked absent in the pool: they are never asked for again, and selection
 //! neither waits for them nor counts them as holes.
 //!
+//! A server source opens with one request, the dataset's bootstrap (API.md,
+//! [`tessera_shared::bootstrap`]): its document, the records of its coarsest levels
+//! and the error tables of the next ones. The records are decoded during the open
+//! and put in the pool before the first frame ([`Streamer::preload`]), so frame 0
+//! draws the root level instead of empty sky, and the first frame's requests already
+//! name the tiles its view needs. A server without the route (404) is opened the old
+//! way, with its document alone (`--no-bootstrap` asks for that). A static file's
+//! root level is fetched during the open too when it is small ([`ROOT_PRELOAD`]).
+//!
+//! HTTP/2: with [`StreamConfig::http2`] a server reached over `http://` is spoken to
+//! in h2c with prior knowledge (the server speaks it beside HTTP/1.1 on one port),
+//! so every request shares one connection instead of waiting for one of its own; if
+//! the open fails that way (a proxy in between that speaks only HTTP/1.1), the
+//! client says so and opens again over HTTP/1.1. Over `https://` HTTP/2 is
+//! negotiated by ALPN whenever the server offers it.
+//!
 //! Two backends feed the same streamer ([`TileSource`]): a Tessera server (one
 //! request per batch of Morton ranges, `?ranges=`), and a pyramid file read
 //! serverlessly with HTTP Range ([`source`]): its index is local, so tiles with no
@@ -53,8 +69,16 @@ pub use source::TileSource;
 use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant};
+use tessera_shared::bootstrap::Bootstrap;
 use tessera_shared::codec::RecordLayout;
-use tessera_shared::{Level, Morton, TileGeometry, TileId, api, morton, range_query};
+use tessera_shared::wire::Frame;
+use tessera_shared::{
+    ErrorTable, Level, Morton, TileGeometry, TileId, api, codec, morton, range_query,
+};
+
+/// A static file's root level is fetched during the open (one Range request more,
+/// before the first frame) when its records add up to at most this.
+pub const ROOT_PRELOAD: u64 = 4 << 20;
 
 /// Most codes one trailer may mark absent: far more than one request names
 /// ([`StreamConfig::max_tiles_per_request`]), so a hostile trailer cannot make the
@@ -85,6 +109,11 @@ pub struct StreamConfig {
     /// which a tile is written off and not asked for again; each report before
     /// that backs it off like any failure.
     pub corrupt_attempts: u32,
+    /// Open a server source with its bootstrap (one request; `false`:
+    /// `--no-bootstrap`, the dataset's document alone, then tiles as frames ask).
+    pub bootstrap: bool,
+    /// Speak HTTP/2 to an `http://` server (h2c with prior knowledge, `--http2`).
+    pub http2: bool,
 }
 
 impl Default for StreamConfig {
@@ -98,6 +127,38 @@ impl Default for StreamConfig {
             retry_max: Duration::from_secs(4),
             request_timeout: Duration::from_secs(20),
             corrupt_attempts: 4,
+            bootstrap: true,
+            http2: false,
+        }
+    }
+}
+
+/// How a flight opens its source and speaks to a server (`tessera fly`, `tessera
+/// load`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::Args)]
+pub struct OpenArgs {
+    /// Open a server's dataset the old way: its document alone, then the root and
+    /// every level after it as frames ask, one round trip each, instead of the
+    /// bootstrap (one request carrying the document, the coarsest levels' tiles and
+    /// the next levels' error tables). For side-by-side measurement and servers
+    /// that predate the bootstrap (a 404 falls back by itself).
+    #[arg(long)]
+    pub no_bootstrap: bool,
+    /// Speak HTTP/2 to an http:// server (h2c with prior knowledge): every request on
+    /// one connection, none waiting for a connection of its own. Falls back to
+    /// HTTP/1.1, with a warning, when the open fails that way (a proxy in between
+    /// that speaks only HTTP/1.1). Over https:// HTTP/2 is negotiated by itself.
+    #[arg(long)]
+    pub http2: bool,
+}
+
+impl OpenArgs {
+    /// The default streaming settings with these.
+    pub fn config(self) -> StreamConfig {
+        StreamConfig {
+            bootstrap: !self.no_bootstrap,
+            http2: self.http2,
+            ..StreamConfig::default()
         }
     }
 }
@@ -167,6 +228,14 @@ pub struct Streamer {
     pub last_error: Option<String>,
     /// Time from sending each finished request to its last byte.
     pub latencies_ms: Vec<f64>,
+    /// What the open fetched for the pool: decoded tiles and tiles known absent
+    /// ([`Streamer::preload`]).
+    preloaded: Vec<Decoded>,
+    preload_absent: Vec<TileId>,
+    /// Error tables of the levels under the preloaded ones (the bootstrap's).
+    tables: HashMap<TileId, ErrorTable>,
+    /// Requests and bytes the open took.
+    opened: (u32, u64),
 }
 
 impl std::fmt::Debug for Streamer {
@@ -185,13 +254,16 @@ impl std::fmt::Debug for Streamer {
 
 /// The HTTP client of a streamer. HTTPS goes through rustls with the `ring`
 /// provider, installed here once for the process (reqwest has no provider of its
-/// own; one installed already serves as well).
-fn http_client(timeout: Duration) -> anyhow::Result<reqwest::Client> {
+/// own; one installed already serves as well). With `h2c`, HTTP/2 with prior
+/// knowledge on `http://` URLs.
+fn http_client(timeout: Duration, h2c: bool) -> anyhow::Result<reqwest::Client> {
     static PROVIDER: std::sync::Once = std::sync::Once::new();
     PROVIDER.call_once(|| {
         let _ = rustls::crypto::ring::default_provider().install_default();
     });
-    Ok(reqwest::Client::builder().timeout(timeout).build()?)
+    let b = reqwest::Client::builder().timeout(timeout);
+    let b = if h2c { b.http2_prior_knowledge() } else { b };
+    Ok(b.build()?)
 }
 
 fn own_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
@@ -230,25 +302,23 @@ impl Streamer {
             let h = rt.handle().clone();
             (Some(rt), h)
         };
-        let client = http_client(config.request_timeout)?;
-        let (backend, info) = match source {
+        match source {
             TileSource::Server { url, dataset } => {
                 let url = url.trim_end_matches('/').to_string();
-                // The document on a connection of its own (as the probe streamer of
-                // old did): the tile requests start on a new connection, which the
-                // latency tests' proxy holds, as it holds only a connection's first
-                // response or one after a pause.
-                let probe = http_client(config.request_timeout)?;
-                let info = rt.block_on(describe(&probe, &url, dataset))?;
-                (
-                    Backend::Server {
-                        url,
-                        dataset: dataset.clone(),
-                    },
-                    info,
-                )
+                let h2c = config.http2 && url.starts_with("http://");
+                match Self::open_server(owned, rt.clone(), &url, dataset, &config, h2c) {
+                    Err((e, owned)) if h2c => {
+                        tracing::warn!(
+                            "{url}: cannot open over HTTP/2 with prior knowledge ({e:#}); opening over HTTP/1.1"
+                        );
+                        Self::open_server(owned, rt, &url, dataset, &config, false)
+                            .map_err(|(e, _)| e)
+                    }
+                    r => r.map_err(|(e, _)| e),
+                }
             }
             TileSource::StaticFile { url } => {
+                let client = http_client(config.request_timeout, false)?;
                 let file = rt.block_on(StaticFile::open(&client, url))?;
                 tracing::debug!(
                     "{url}: opened with {} requests, {} bytes",
@@ -256,22 +326,206 @@ impl Streamer {
                     file.open_bytes
                 );
                 let info = file.describe(source.name());
-                (Backend::Static(Arc::new(file)), info)
+                let layout = layout_of(&info)?;
+                let file = Arc::new(file);
+                let opened = (file.open_requests, file.open_bytes);
+                let mut streamer = Self::build(
+                    owned,
+                    rt,
+                    client,
+                    Backend::Static(file.clone()),
+                    layout,
+                    config,
+                );
+                streamer.opened = opened;
+                streamer.preload_static_root(&file);
+                Ok((streamer, info))
             }
+        }
+    }
+
+    /// Opens a server source: the bootstrap, or (`--no-bootstrap`, or a server that
+    /// answers it 404) the dataset's document alone. On failure, the error and the
+    /// runtime back, for a second try.
+    #[allow(clippy::type_complexity)]
+    fn open_server(
+        owned: Option<tokio::runtime::Runtime>,
+        rt: tokio::runtime::Handle,
+        url: &str,
+        dataset: &str,
+        config: &StreamConfig,
+        h2c: bool,
+    ) -> Result<(Self, api::DatasetInfo), (anyhow::Error, Option<tokio::runtime::Runtime>)> {
+        let built = (|| {
+            let client = http_client(config.request_timeout, h2c)?;
+            // The open on a connection of its own (as the probe streamer of old
+            // did): the tile requests start on a new connection, which the latency
+            // tests' proxy holds, as it holds only a connection's first response or
+            // one after a pause.
+            let probe = http_client(config.request_timeout, h2c)?;
+            let boot = if config.bootstrap {
+                rt.block_on(bootstrap(&probe, url, dataset))?
+            } else {
+                None
+            };
+            let (info, boot) = match boot {
+                Some((b, bytes)) => (b.info.clone(), Some((b, bytes))),
+                None => (rt.block_on(describe(&probe, url, dataset))?, None),
+            };
+            let layout = layout_of(&info)?;
+            Ok::<_, anyhow::Error>((client, info, boot, layout))
+        })();
+        let (client, info, boot, layout) = match built {
+            Ok(b) => b,
+            Err(e) => return Err((e, owned)),
         };
-        let geometry = TileGeometry::new(info.width, info.height, info.tile_size)?;
-        let layout = RecordLayout::new(geometry.tile_log2(), info.format_version);
-        let streamer = Self::build(owned, rt, client, backend, layout, config);
+        let backend = Backend::Server {
+            url: url.to_string(),
+            dataset: dataset.to_string(),
+        };
+        let mut streamer = Self::build(owned, rt, client, backend, layout, config.clone());
+        if let Some((b, bytes)) = boot {
+            streamer.opened = (1, bytes);
+            streamer.take_bootstrap(b);
+        }
         Ok((streamer, info))
     }
 
-    /// Requests and bytes it took to open a static file (its header region): 0 for a
-    /// server, whose dataset document is not counted either.
-    pub fn open_cost(&self) -> (u32, u64) {
-        match &self.backend {
-            Backend::Server { .. } => (0, 0),
-            Backend::Static(f) => (f.open_requests, f.open_bytes),
+    /// Decodes a bootstrap's records for [`Streamer::preload`] and keeps its error
+    /// tables. A record that does not decode, or that the server reported corrupt
+    /// (an error frame), is left to the tile stream, which asks for it as frames
+    /// need it and handles it as it handles any bad record.
+    fn take_bootstrap(&mut self, b: Bootstrap) {
+        self.preload_absent = b.absent();
+        let log2 = TileGeometry::new(b.info.width, b.info.height, b.info.tile_size)
+            .map_or(0, |g| g.tile_log2());
+        for f in b.frames {
+            match f {
+                Frame::Tile {
+                    level,
+                    morton,
+                    record,
+                    ..
+                } => {
+                    let Some(tile) = TileId::from_morton(level, morton) else {
+                        continue;
+                    };
+                    match codec::decode_record(&record, self.layout) {
+                        Ok(rec) => self.preloaded.push(Decoded::new(tile, rec)),
+                        Err(e) => {
+                            tracing::warn!("bootstrap: {tile}: {e}; asking for it again");
+                        }
+                    }
+                }
+                Frame::ErrorTable {
+                    level,
+                    morton,
+                    table,
+                    ..
+                } => {
+                    if let (Some(tile), Some(t)) = (
+                        TileId::from_morton(level, morton),
+                        ErrorTable::read_from(&table, log2),
+                    ) {
+                        self.tables.insert(tile, t);
+                    }
+                }
+                Frame::Error {
+                    level,
+                    morton,
+                    message,
+                } => {
+                    tracing::warn!(
+                        "bootstrap: level {level} code {morton}: {message}; left to the tile stream"
+                    );
+                }
+                Frame::Trailer { .. } => {}
+            }
         }
+    }
+
+    /// A static file's root level, fetched and decoded during the open when its
+    /// records are small ([`ROOT_PRELOAD`]): one Range request before the first
+    /// frame instead of one round trip into the flight, counted in the statistics
+    /// as the tile request it is. A failure only leaves the root to the first
+    /// frame's requests.
+    fn preload_static_root(&mut self, file: &Arc<StaticFile>) {
+        let root = Level::new(0).expect("level 0");
+        let mut records: Vec<_> = file
+            .pyramid
+            .geometry()
+            .present_tiles(root)
+            .filter_map(|t| file.entry(t).map(|e| (t, e)))
+            .collect();
+        records.sort_by_key(|(_, e)| e.offset);
+        let bytes: u64 = records.iter().map(|(_, e)| u64::from(e.length)).sum();
+        if records.is_empty() || bytes > ROOT_PRELOAD {
+            return;
+        }
+        let (tx, rx) = mpsc::channel();
+        for run in source::byte_runs(&records) {
+            // Tile requests like a frame's (counted as they are), made before the first.
+            self.stats.requests += 1;
+            self.stats.ranges += 1;
+            self.rt.block_on(fetch_range(
+                self.client.clone(),
+                file.clone(),
+                run.to_vec(),
+                0,
+                self.layout,
+                tx.clone(),
+            ));
+        }
+        drop(tx);
+        for ev in rx {
+            match ev {
+                Event::Tile(d) => {
+                    self.stats.tiles += 1;
+                    self.preloaded.push(*d);
+                }
+                Event::Finished {
+                    bytes, latency_ms, ..
+                } => {
+                    self.stats.responses += 1;
+                    self.stats.bytes += bytes;
+                    self.latencies_ms.push(latency_ms);
+                }
+                Event::Failed { error, .. } | Event::Corrupt { error, .. } => {
+                    tracing::warn!("preloading the root: {error}; left to the first frame");
+                }
+                Event::Absent { .. } => {}
+            }
+        }
+    }
+
+    /// Puts what the open fetched (the bootstrap's records, a static file's root)
+    /// into `pool`, and marks the tiles of those levels that have no record absent.
+    /// Call it once, before the first frame: frame 0 then draws. Returns the tiles
+    /// inserted.
+    pub fn preload(&mut self, pool: &mut TilePool) -> usize {
+        for t in self.preload_absent.drain(..) {
+            pool.mark_absent(t);
+        }
+        // Not counted in `stats.tiles` here: those count what tile requests brought
+        // (a static file's root request counts its own).
+        let n = self.preloaded.len();
+        for d in self.preloaded.drain(..) {
+            pool.insert(d.tile, d.errors, d.heights, d.mask);
+        }
+        n
+    }
+
+    /// Error tables the bootstrap carried for levels whose records it did not:
+    /// where those levels are rough, before any of their records is fetched.
+    pub fn known_tables(&self) -> &HashMap<TileId, ErrorTable> {
+        &self.tables
+    }
+
+    /// Requests and bytes the open took: the bootstrap (1 request) or a static file's
+    /// header region (its root, fetched too, counts as a tile request); 0 for a
+    /// server opened with its document alone, which is not counted.
+    pub fn open_cost(&self) -> (u32, u64) {
+        self.opened
     }
 
     /// A streamer whose fetches run on an existing runtime (the load generator runs
@@ -294,7 +548,8 @@ impl Streamer {
         layout: RecordLayout,
         config: StreamConfig,
     ) -> anyhow::Result<Self> {
-        let client = http_client(config.request_timeout)?;
+        let h2c = config.http2 && server.starts_with("http://");
+        let client = http_client(config.request_timeout, h2c)?;
         let backend = Backend::Server {
             url: server.trim_end_matches('/').to_string(),
             dataset: name.to_string(),
@@ -328,6 +583,10 @@ impl Streamer {
             stats: StreamStats::default(),
             last_error: None,
             latencies_ms: Vec::new(),
+            preloaded: Vec::new(),
+            preload_absent: Vec::new(),
+            tables: HashMap::new(),
+            opened: (0, 0),
         }
     }
 
@@ -641,6 +900,63 @@ impl Streamer {
             issued += 1;
         }
         (issued, false)
+    }
+}
+
+/// The record layout a dataset's document announces.
+fn layout_of(info: &api::DatasetInfo) -> anyhow::Result<RecordLayout> {
+    let geometry = TileGeometry::new(info.width, info.height, info.tile_size)?;
+    Ok(RecordLayout::new(geometry.tile_log2(), info.format_version))
+}
+
+/// Largest bootstrap body read (the server's budgets make one a few MiB).
+const MAX_BOOTSTRAP: usize = 256 << 20;
+
+/// `GET /v1/datasets/{name}/bootstrap` of `server`, decoded and checked, with its
+/// size in bytes; `None` when the server has no such route (404: an older server)
+/// or sends something that is not a bootstrap, which is then said in the log and
+/// the dataset opened the old way.
+async fn bootstrap(
+    client: &reqwest::Client,
+    server: &str,
+    dataset: &str,
+) -> anyhow::Result<Option<(Bootstrap, u64)>> {
+    let url = format!(
+        "{server}{}",
+        api::fill(api::routes::BOOTSTRAP, &[("name", dataset)])
+    );
+    let mut r = client.get(&url).send().await?;
+    let status = r.status();
+    if status == reqwest::StatusCode::NOT_FOUND {
+        // An unknown dataset is a 404 too: the document's request says which.
+        tracing::info!("{url}: 404; opening with the dataset's document");
+        return Ok(None);
+    }
+    if !status.is_success() {
+        let body = r.text().await.unwrap_or_default();
+        anyhow::bail!("{url}: HTTP {status}: {}", body.trim());
+    }
+    let mut body = Vec::new();
+    while let Some(chunk) = r.chunk().await? {
+        body.extend_from_slice(&chunk);
+        anyhow::ensure!(
+            body.len() <= MAX_BOOTSTRAP,
+            "{url}: more than {MAX_BOOTSTRAP} bytes"
+        );
+    }
+    match Bootstrap::decode(&body) {
+        Ok(b) => {
+            anyhow::ensure!(
+                b.info.name == dataset,
+                "{url}: the bootstrap describes dataset {:?}",
+                b.info.name
+            );
+            Ok(Some((b, body.len() as u64)))
+        }
+        Err(e) => {
+            tracing::warn!("{url}: {e}; opening with the dataset's document");
+            Ok(None)
+        }
     }
 }
 

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Duration;
 use tessera_client::app::fly::{FlyOptions, FrameRecord, fly};
-use tessera_client::stream::{StreamConfig, TileSource};
+use tessera_client::stream::{OpenArgs, StreamConfig, TileSource};
 use tessera_server::build::{BuildOptions, build};
 use tessera_server::serve::config::Settings;
 
@@ -145,6 +145,17 @@ pub fn small_load(
     duration: Duration,
     mode: tessera_client::stream::RequestMode,
 ) -> tessera_client::app::load_test::LoadReport {
+    small_load_opened(source, clients, duration, mode, OpenArgs::default())
+}
+
+/// [`small_load`] with the clients opening their source as `open` says.
+pub fn small_load_opened(
+    source: TileSource,
+    clients: u32,
+    duration: Duration,
+    mode: tessera_client::stream::RequestMode,
+    open: OpenArgs,
+) -> tessera_client::app::load_test::LoadReport {
     tessera_client::app::load_test::load(&tessera_client::app::load_test::LoadOptions {
         source,
         clients,
@@ -156,6 +167,7 @@ pub fn small_load(
         height: 360,
         spacing: Some(30.0),
         progress: false,
+        open,
     })
     .unwrap()
 }

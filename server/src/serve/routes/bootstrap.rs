@@ -1,0 +1,164 @@
+//! `GET /v1/datasets/{name}/bootstrap`: the dataset's document, the records of its
+//! coarsest levels and the error tables of the next ones in one response, so that a
+//! client draws its first frame after one round trip (issue 17 item 1; the layout
+//! is [`tessera_shared::bootstrap`]'s, API.md).
+//!
+//! The records are read and checked as the Morton-range stream reads them
+//! ([`Dataset::records`]: one read per level, each record checked against its
+//! checksum once), and framed with the same [`wire`] headers, so a record in the
+//! bootstrap is byte for byte the one the range stream sends. A body holds at most
+//! [`bootstrap::RECORD_BUDGET`] plus the root level plus [`bootstrap::TABLE_BUDGET`],
+//! so it is built in memory, and kept (a few per process) since it is the same for
+//! every client of a dataset version.
+
+use super::datasets::describe;
+use super::{Params, Segments, dataset, pinned, unavailable};
+use crate::serve::dataset::Dataset;
+use crate::serve::error::ApiResult;
+use crate::serve::{AppState, TilesServed, cache};
+use axum::body::Body;
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderValue, header};
+use axum::response::Response;
+use bytes::Bytes;
+use std::sync::{Arc, Mutex, PoisonError};
+use tessera_shared::bootstrap::{self, encode_head, plan_levels};
+use tessera_shared::{ErrorTable, Level, Morton, MortonRange, wire};
+
+/// Built bodies kept, most recent last: one per dataset version asked for lately.
+const KEPT: usize = 8;
+
+/// A built bootstrap: its bytes and the records (and tables) it carries.
+#[derive(Clone)]
+struct Built {
+    key: String,
+    body: Bytes,
+    tiles: u64,
+}
+
+fn kept() -> &'static Mutex<Vec<Built>> {
+    static KEPT_BODIES: Mutex<Vec<Built>> = Mutex::new(Vec::new());
+    &KEPT_BODIES
+}
+
+/// The whole of `level` as one Morton range.
+fn whole(level: Level) -> MortonRange {
+    MortonRange::new(
+        Morton::from_raw(0),
+        Morton::from_raw(level.tile_slots() - 1),
+    )
+    .expect("0 <= slots - 1")
+}
+
+/// Builds the body: `(bytes, tiles and tables carried, error frames)`. `Err` with the
+/// reason when the storage cannot be read.
+async fn build(state: &AppState, ds: &Dataset) -> Result<(Vec<u8>, u64, u64), String> {
+    let p = &ds.pyramid;
+    let g = *p.geometry();
+    let table_len = ErrorTable::byte_len(g.tile_log2());
+    let sizes: Vec<(u64, u64)> = g
+        .levels()
+        .map(|l| {
+            let bytes = p.level_entry(l).map_or(0, |e| e.records_len);
+            (bytes, g.present_tiles(l).count() as u64)
+        })
+        .collect();
+    let (record_levels, table_levels) = plan_levels(&sizes, table_len);
+    let mut body = encode_head(&describe(ds), record_levels, table_levels);
+    let (mut tiles, mut errors) = (0u64, 0u64);
+    for level in (0..table_levels).filter_map(Level::new) {
+        let as_records = level.get() < record_levels;
+        for got in ds.records(level, &[whole(level)]).await? {
+            let m = got.tile.morton();
+            match got.record {
+                None => {}
+                Some(Ok((e, bytes))) => {
+                    tiles += 1;
+                    if as_records {
+                        body.extend_from_slice(&wire::tile_header(
+                            level, m, e.checksum, e.min, e.max, e.length,
+                        ));
+                        body.extend_from_slice(&bytes);
+                    } else {
+                        body.extend(wire::error_table_frame(
+                            level,
+                            m,
+                            e.min,
+                            e.max,
+                            &bytes[..table_len],
+                        ));
+                    }
+                }
+                Some(Err(c)) => {
+                    errors += 1;
+                    state.metrics.corrupt_read(c.first);
+                    let msg = format!("{}: record fails its checksum; not sent", c.tile);
+                    body.extend(wire::error_frame(level, m, c.entry.checksum, &msg));
+                }
+            }
+        }
+    }
+    let root = Level::new(0).expect("level 0");
+    body.extend(wire::trailer_frame(root, tiles, errors, &[]));
+    Ok((body, tiles, errors))
+}
+
+/// `GET /v1/datasets/{name}/bootstrap`
+pub async fn get(
+    State(state): State<Arc<AppState>>,
+    Segments(name): Segments<String>,
+    Params(query): Params,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let ds = dataset(&state, &name)?;
+    let pin = pinned(&ds, &query);
+    let etag = cache::etag(ds.content_hash(), "bootstrap");
+    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    {
+        return Ok(r);
+    }
+    // The document names the dataset, so the key does too.
+    let key = format!("{}\0{}\0{}", ds.name, ds.path.display(), ds.content_hash());
+    let hit = kept()
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .iter()
+        .find(|b| b.key == key)
+        .cloned();
+    let (body, tiles, clean) = match hit {
+        Some(b) => (b.body, b.tiles, true),
+        None => {
+            let (body, tiles, errors) = build(&state, &ds).await.map_err(|r| unavailable(&r))?;
+            let body = Bytes::from(body);
+            if errors == 0 {
+                let mut k = kept().lock().unwrap_or_else(PoisonError::into_inner);
+                k.retain(|b| b.key != key);
+                if k.len() >= KEPT {
+                    k.remove(0);
+                }
+                k.push(Built {
+                    key,
+                    body: body.clone(),
+                    tiles,
+                });
+            }
+            (body, tiles, errors == 0)
+        }
+    };
+    let len = body.len();
+    let mut r = Response::new(Body::from(body));
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static(bootstrap::CONTENT_TYPE),
+    );
+    h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
+    if clean {
+        cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
+    } else {
+        // Error frames are not the dataset's content: no cache may keep this body.
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    }
+    r.extensions_mut().insert(TilesServed(tiles));
+    Ok(r)
+}

@@ -1,0 +1,279 @@
+//! Issue 17 item 1: one round trip to the first drawable frame. The bootstrap
+//! (`GET /v1/datasets/{name}/bootstrap`, API.md) against the routes it stands in
+//! for, its caching, its damage, and flights that open with it (or without it)
+//! through a proxy that adds 150 ms to every response — all over real sockets to a
+//! real server.
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+#[allow(dead_code)] // each test binary uses some of the shared fixtures
+mod streaming_support;
+
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::path::PathBuf;
+use std::time::Duration;
+use streaming_support::{glide, options, run_flight, start_server, start_server_for};
+use tessera_proxy::{Config, Delay, Proxy, RequestLog, Responses};
+use tessera_shared::api::DatasetInfo;
+use tessera_shared::bootstrap::{Bootstrap, BootstrapError};
+use tessera_shared::wire::{self, Frame};
+
+/// A response: status, head (lower-cased names) and body.
+struct Answer {
+    status: u16,
+    head: String,
+    body: Vec<u8>,
+}
+
+impl Answer {
+    fn header(&self, name: &str) -> Option<String> {
+        self.head.lines().find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.trim()
+                .eq_ignore_ascii_case(name)
+                .then(|| v.trim().to_string())
+        })
+    }
+}
+
+/// One `GET` over HTTP/1.0 (no chunking, no keep-alive) with extra header lines.
+fn get(addr: SocketAddr, path: &str, headers: &[(&str, &str)]) -> Answer {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+    let mut req = format!("GET {path} HTTP/1.0\r\nHost: {addr}\r\n");
+    for (k, v) in headers {
+        req.push_str(&format!("{k}: {v}\r\n"));
+    }
+    req.push_str("\r\n");
+    s.write_all(req.as_bytes()).unwrap();
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw).unwrap();
+    let split = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .unwrap_or_else(|| panic!("no response head from {addr}{path}"));
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let status = head.split_whitespace().nth(1).unwrap().parse().unwrap();
+    Answer {
+        status,
+        head,
+        body: raw[split + 4..].to_vec(),
+    }
+}
+
+const BOOT: &str = "/v1/datasets/terrain/bootstrap";
+
+fn fetch_bootstrap(addr: SocketAddr) -> (Answer, Bootstrap) {
+    let a = get(addr, BOOT, &[]);
+    assert_eq!(a.status, 200, "{}", String::from_utf8_lossy(&a.body));
+    assert_eq!(
+        a.header("content-type").as_deref(),
+        Some("application/vnd.tessera.bootstrap")
+    );
+    let b = Bootstrap::decode(&a.body).unwrap();
+    (a, b)
+}
+
+/// The frames of one level's Morton-range stream (`kind` `tiles` or `errors`) of
+/// the whole level, without the trailer.
+fn level_frames(addr: SocketAddr, name: &str, level: u8, kind: &str) -> Vec<Frame> {
+    let last = (1u64 << (2 * u32::from(level))) - 1;
+    let path = format!("/v1/datasets/{name}/levels/{level}/{kind}?ranges=0-{last}");
+    let a = get(addr, &path, &[]);
+    assert_eq!(a.status, 200, "{path}");
+    let mut frames = wire::decode_all(&a.body).unwrap();
+    assert!(matches!(frames.pop(), Some(Frame::Trailer { .. })));
+    frames
+}
+
+/// A 4097² synthetic terrain in 512-cell tiles, named `coarse`: its bootstrap
+/// carries levels 0–1 as records and 2–3 as error tables (the test terrain's
+/// 128-cell tiles fit records of levels 0–3 in the budget, and no table level).
+fn coarse_pyramid(dir: &std::path::Path) -> PathBuf {
+    let out = dir.join("coarse.tess");
+    let opts = tessera_server::build::BuildOptions {
+        tile_size: 512,
+        ..tessera_server::build::BuildOptions::default()
+    };
+    tessera_server::build::build("synthetic:4097:11", &out, &opts).unwrap();
+    out
+}
+
+/// The bootstrap's document is the dataset route's, its records are byte for byte
+/// the Morton-range stream's of the same levels, and its error tables the error
+/// route's: for a pyramid carried as records only, and one with error-table levels.
+#[test]
+fn the_bootstrap_is_what_the_individual_routes_send() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (terrain, _a) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let (coarse, _b) = start_server_for(
+        &rt,
+        "127.0.0.1:0".parse().unwrap(),
+        &coarse_pyramid(dir.path()),
+    );
+    for (addr, name, levels) in [(terrain, "terrain", (4, 4)), (coarse, "coarse", (2, 4))] {
+        let a = get(addr, &format!("/v1/datasets/{name}/bootstrap"), &[]);
+        assert_eq!(a.status, 200, "{name}");
+        let b = Bootstrap::decode(&a.body).unwrap();
+        let doc = get(addr, &format!("/v1/datasets/{name}"), &[]);
+        let info: DatasetInfo = serde_json::from_slice(&doc.body).unwrap();
+        assert_eq!(b.info, info, "{name}");
+        assert_eq!(
+            (b.record_levels, b.table_levels),
+            levels,
+            "{name}: the budgets' levels"
+        );
+        let mut expected = Vec::new();
+        for level in 0..b.record_levels {
+            let frames = level_frames(addr, name, level, "tiles");
+            assert!(!frames.is_empty());
+            expected.extend(frames);
+        }
+        for level in b.record_levels..b.table_levels {
+            expected.extend(level_frames(addr, name, level, "errors"));
+        }
+        assert_eq!(b.frames.len(), expected.len(), "{name}");
+        // Frame equality compares every record and table byte, checksum and min/max.
+        assert!(
+            b.frames == expected,
+            "{name}: the bootstrap's frames differ from the routes'"
+        );
+        assert!(
+            b.absent().is_empty(),
+            "a synthetic terrain has no no-data tile"
+        );
+    }
+}
+
+/// Strong ETag from the content hash, a 304 for it, immutable caching under
+/// `?v=<content hash>`, revalidated caching without.
+#[test]
+fn the_bootstrap_is_cacheable_and_pinned_by_the_content_hash() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let (a, b) = fetch_bootstrap(addr);
+    let etag = a.header("etag").expect("an ETag");
+    assert!(
+        etag.starts_with(&format!("\"{}", b.info.content_hash)) && !etag.starts_with("W/"),
+        "{etag}"
+    );
+    let cc = a.header("cache-control").unwrap();
+    assert!(
+        cc.starts_with("public, max-age=") && !cc.contains("immutable"),
+        "{cc}"
+    );
+    let again = get(addr, BOOT, &[("If-None-Match", &etag)]);
+    assert_eq!(again.status, 304);
+    assert!(again.body.is_empty());
+    assert_eq!(again.header("etag").as_deref(), Some(etag.as_str()));
+    let other = get(addr, BOOT, &[("If-None-Match", "\"0000000000000000\"")]);
+    assert_eq!(other.status, 200);
+    assert_eq!(other.body, a.body, "the same dataset, the same bytes");
+    let pinned = get(addr, &format!("{BOOT}?v={}", b.info.content_hash), &[]);
+    assert_eq!(pinned.status, 200);
+    assert_eq!(
+        pinned.header("cache-control").as_deref(),
+        Some("public, max-age=31536000, immutable")
+    );
+    assert_eq!(pinned.body, a.body);
+    let unknown = get(addr, "/v1/datasets/nosuch/bootstrap", &[]);
+    assert_eq!(unknown.status, 404);
+    assert!(String::from_utf8_lossy(&unknown.body).contains("nosuch"));
+}
+
+/// A body cut short anywhere, or with any frame or the document damaged, is an
+/// error that says what is wrong; never a panic, never a partial bootstrap.
+#[test]
+fn a_truncated_or_damaged_bootstrap_is_an_error_naming_the_problem() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (addr, _server) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let (a, _) = fetch_bootstrap(addr);
+    let body = a.body;
+    let n = body.len();
+    for cut in [0, 5, 23, 24, 100, n / 3, n / 2, n - 33, n - 1] {
+        let e = Bootstrap::decode(&body[..cut]).unwrap_err();
+        assert!(e.to_string().contains("truncated"), "cut at {cut}: {e}");
+    }
+    let damaged = |at: usize| {
+        let mut b = body.clone();
+        b[at] ^= 0x40;
+        Bootstrap::decode(&b).unwrap_err()
+    };
+    assert_eq!(damaged(0), BootstrapError::Magic);
+    assert_eq!(damaged(40), BootstrapError::DocumentChecksum);
+    // A byte inside a record: the frame's checksum names the tile.
+    let e = damaged(n / 2).to_string();
+    assert!(
+        e.contains("fails its checksum") || e.contains("malformed") || e.contains("frame"),
+        "{e}"
+    );
+    // Every 997th byte flipped: each one an error, never a panic.
+    for at in (0..n).step_by(997) {
+        let _ = damaged(at).to_string();
+    }
+}
+
+/// A proxy adding 150 ms before every response, logging every request line.
+fn slow_logged(rt: &tokio::runtime::Runtime, server: SocketAddr) -> (Proxy, RequestLog) {
+    let log = RequestLog::default();
+    let config = Config {
+        responses: Responses::Delay(Delay::new(Duration::from_millis(150))),
+        requests: Some(log.clone()),
+        ..Config::new(server)
+    };
+    (rt.block_on(Proxy::start(config)).unwrap(), log)
+}
+
+/// At +150 ms, a flight opened with the bootstrap draws the root level in frame 0,
+/// and the server saw one request before it (every later one a tile stream asked for
+/// by a frame). Without it (`--no-bootstrap`), frame 0 is empty and the open was the
+/// dataset's document; the flight still works.
+#[test]
+fn frame_zero_is_drawn_after_one_request_and_no_bootstrap_still_flies() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let dir = tempfile::tempdir().unwrap();
+
+    let (proxy, log) = slow_logged(&rt, server);
+    let opts = options(proxy.addr(), glide(dir.path()), 60);
+    let (frames, summary) = run_flight(&opts);
+    let first = &frames[0];
+    assert!(
+        first.select.tiles > 0 && first.select.missing == 0,
+        "frame 0 drew {:?}",
+        first.select
+    );
+    assert_eq!(summary.frames_drawn, summary.frames, "every frame draws");
+    let targets = log.targets();
+    assert_eq!(targets[0], BOOT, "{targets:?}");
+    assert_eq!(
+        targets.len() as u64,
+        1 + summary.stream.requests,
+        "the open made one request, the frames the rest: {targets:?}"
+    );
+    assert!(
+        targets[1..].iter().all(|t| t.contains("/levels/")),
+        "{targets:?}"
+    );
+
+    let (proxy, log) = slow_logged(&rt, server);
+    let mut old = options(proxy.addr(), glide(dir.path()), 60);
+    old.stream.bootstrap = false;
+    let (frames, summary) = run_flight(&old);
+    assert_eq!(
+        frames[0].select.tiles, 0,
+        "without the bootstrap frame 0 has nothing yet"
+    );
+    assert!(
+        summary.frames_drawn > 0,
+        "the flight without the bootstrap drew nothing"
+    );
+    let targets = log.targets();
+    assert_eq!(targets[0], "/v1/datasets/terrain", "{targets:?}");
+    assert!(
+        !targets.iter().any(|t| t.contains("bootstrap")),
+        "{targets:?}"
+    );
+}
