@@ -246,6 +246,9 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let mut selector = Selector::new(world, params);
     let mut ahead = Selector::new(world, params);
     let mut pool = TilePool::new(opts.pool_tiles);
+    // What the open fetched (the bootstrap's coarsest levels, a static file's root)
+    // is resident before the first frame, so frame 0 draws.
+    streamer.preload(&mut pool);
     let mut headless = match &opts.render {
         Some(setup) => Some(Headless::new(
             world,

@@ -101,6 +101,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::DATASET, get(routes::datasets::get_one))
         .route(paths::TILEJSON, get(routes::web_tiles::tilejson))
         .route(paths::PYRAMID, get(routes::pyramid::raw))
+        .route(paths::BOOTSTRAP, get(routes::bootstrap::get))
         .route(paths::TILES, get(routes::tiles::ranges))
         .route(paths::ERRORS, get(routes::tiles::errors))
         .route(paths::TILE, get(routes::tiles::single))
