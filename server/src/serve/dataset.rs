@@ -33,6 +33,9 @@ pub struct Dataset {
     /// Per level and Morton code: whether the record's checksum has been checked.
     /// Records are immutable, so each is hashed once, on first use.
     checked: Vec<Vec<AtomicU8>>,
+    /// The imagery pyramid beside this DEM's (`NAME.tessimg`, issue 17 item 5), itself
+    /// a dataset whose [`Dataset::pyramid`] is opened with `Pyramid::open_imagery`.
+    pub imagery: Option<Arc<Dataset>>,
 }
 
 /// A record that failed its checksum.
@@ -79,6 +82,24 @@ impl Dataset {
     ) -> anyhow::Result<Self> {
         let pyramid = Pyramid::open(StorageSource(storage.clone()))
             .with_context(|| path.display().to_string())?;
+        Self::from_pyramid(name, path, storage, pyramid)
+    }
+
+    /// Opens a local imagery pyramid ([`crate::imagery`]).
+    pub fn open_imagery(name: String, path: &Path) -> anyhow::Result<Self> {
+        let storage: Arc<dyn Storage> =
+            Arc::new(FileStorage::open(path).with_context(|| path.display().to_string())?);
+        let pyramid = Pyramid::open_imagery(StorageSource(storage.clone()))
+            .with_context(|| path.display().to_string())?;
+        Self::from_pyramid(name, path.to_path_buf(), storage, pyramid)
+    }
+
+    fn from_pyramid(
+        name: String,
+        path: PathBuf,
+        storage: Arc<dyn Storage>,
+        pyramid: Pyramid<StorageSource>,
+    ) -> anyhow::Result<Self> {
         // The hash goes verbatim into ETag headers and URLs: refuse the file now rather
         // than fail (or worse, emit a broken header) on every request.
         pyramid
@@ -101,11 +122,15 @@ impl Dataset {
             storage,
             pyramid,
             checked,
+            imagery: None,
         })
     }
 
+    /// The file's own content hash (an imagery pyramid's, not its DEM's).
     pub fn content_hash(&self) -> &str {
-        &self.pyramid.metadata().content_hash
+        self.pyramid
+            .imagery()
+            .map_or(&self.pyramid.metadata().content_hash, |i| &i.content_hash)
     }
 
     /// `Err` with the reason when the file is no longer the one opened (truncated
@@ -339,7 +364,11 @@ impl Registry {
                 );
             }
             let ds = match location {
-                Location::Local(f) => Dataset::open(name.clone(), &f)?,
+                Location::Local(f) => {
+                    let mut ds = Dataset::open(name.clone(), &f)?;
+                    ds.imagery = super::imagery::open_beside(&ds, &f)?;
+                    ds
+                }
                 Location::Object(o) => {
                     let storage: Arc<dyn Storage> =
                         Arc::new(ObjectStorage::open(o, store.clone())?);

@@ -7,6 +7,7 @@ pub mod conventions;
 pub mod dataset;
 pub mod error;
 pub mod http_range;
+pub mod imagery;
 pub mod metrics;
 pub mod object_storage;
 pub mod routes;
@@ -104,6 +105,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::BOOTSTRAP, get(routes::bootstrap::get))
         .route(paths::TILES, get(routes::tiles::ranges))
         .route(paths::ERRORS, get(routes::tiles::errors))
+        .route(paths::IMAGERY_TILES, get(routes::imagery::ranges))
         .route(paths::TILE, get(routes::tiles::single))
         .route(paths::WEB_TILE, get(routes::web_tiles::png))
         .route(paths::GRID_TILEJSON, get(routes::web_grid::tilejson))

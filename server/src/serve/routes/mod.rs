@@ -4,6 +4,7 @@ pub mod bootstrap;
 pub mod cesium;
 pub mod datasets;
 pub mod health;
+pub mod imagery;
 pub mod ogc_api;
 pub mod pyramid;
 pub mod tiles;

@@ -28,11 +28,13 @@ use tessera_shared::range_query;
 use tessera_shared::wire::{self, CONTENT_TYPE, FRAME_HEADER_LEN};
 use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId};
 
-/// What to put in each frame: whole records or their error tables only.
+/// What to put in each frame: whole records or their error tables only, or the
+/// records of the dataset's imagery pyramid (`routes::imagery`).
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Payload {
+pub(super) enum Payload {
     Records,
     ErrorTables,
+    Imagery,
 }
 
 /// Collects the requested codes that hold no tile into maximal sub-ranges.
@@ -135,7 +137,7 @@ fn deferred(ds: &Dataset, level: Level, ranges: &[MortonRange]) -> Option<(Vec<F
     Some((frames, outside))
 }
 
-async fn stream(
+pub(super) async fn stream(
     state: &AppState,
     name: &str,
     level_raw: &str,
@@ -143,16 +145,19 @@ async fn stream(
     headers: &HeaderMap,
     payload: Payload,
 ) -> ApiResult<Response> {
-    let ds = dataset(state, name)?;
+    let mut ds = dataset(state, name)?;
+    if payload == Payload::Imagery {
+        ds = super::imagery::of(&ds)?;
+    }
     let level: Level = level(&ds, level_raw)?;
     let ranges = range_query::parse(query.get("ranges").map(String::as_str), level, state.limits)
         .map_err(|e| ApiError::bad_request(e.to_string()))?;
     let pin = pinned(&ds, query);
     let canonical: Vec<String> = ranges.iter().map(ToString::to_string).collect();
-    let kind = if payload == Payload::Records {
-        "tiles"
-    } else {
-        "errors"
+    let kind = match payload {
+        Payload::Records => "tiles",
+        Payload::ErrorTables => "errors",
+        Payload::Imagery => "imagery",
     };
     let etag = cache::etag(
         ds.content_hash(),
@@ -167,7 +172,7 @@ async fn stream(
         ));
     }
     let deferred = match payload {
-        Payload::Records => deferred(&ds, level, &ranges),
+        Payload::Records | Payload::Imagery => deferred(&ds, level, &ranges),
         Payload::ErrorTables => None,
     };
     let (mut frames, tiles, errors, outside) = match deferred {
@@ -195,7 +200,7 @@ async fn stream(
         // the checksums the records should have): no cache may keep it or revalidate it.
         h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     }
-    if payload == Payload::Records {
+    if payload != Payload::ErrorTables {
         r.extensions_mut().insert(TilesServed(tiles));
     }
     Ok(r)
@@ -228,7 +233,7 @@ async fn read_up_front(
                 Some(Ok((e, bytes))) => {
                     outside.close();
                     match payload {
-                        Payload::Records => {
+                        Payload::Records | Payload::Imagery => {
                             let h = wire::tile_header(level, m, e.checksum, e.min, e.max, e.length);
                             chunks.push(Bytes::copy_from_slice(&h));
                             chunks.push(bytes);
