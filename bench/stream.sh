@@ -5,6 +5,18 @@
 # (`tessera-proxy --delay-ms`, proxy/, holds each response that long before its first
 # byte), prefetch on and off. Appends to $RESULTS/stream.jsonl {dataset, path,
 # latency_ms, prefetch, run, summary}.
+#
+# Then (issue 17 item 1) the open with the bootstrap (one request: document, the
+# coarsest levels' records, the next levels' error tables) against the old open
+# (`--no-bootstrap`: the document, then the root and each level as frames ask), side
+# by side in the same run at 150 ms, prefetch on: appends to
+# $RESULTS/stream_bootstrap.jsonl {dataset, path, latency_ms, bootstrap, run,
+# frame0_tiles, frame0_coarsest_level, first_drawn, summary}.
+#
+# The proxy delays by watching a connection for silence (proxy/src/delay.rs), which
+# is honest for HTTP/1.1, where each response in flight has a connection of its own;
+# under HTTP/2 responses share one connection and those that overlap would not be
+# held, so the client runs HTTP/1.1 here (its default; `--http2` is not measured).
 source "$(dirname "$0")/common.sh"
 [ -x "$PROXY_BIN" ] || { echo "build first: cargo build --release --locked -p tessera-proxy" >&2; exit 1; }
 frames=300
@@ -34,6 +46,24 @@ for run in $(seq "$RUNS"); do
           --argjson run "$run" '{dataset: "moon8192", path: $path, latency_ms: $latency, prefetch: $prefetch, run: $run}')" \
           "$WORK/run.json"
       done
+    done
+  done
+done
+for run in $(seq "$RUNS"); do
+  for path in "${paths[@]}"; do
+    for open in bootstrap no-bootstrap; do
+      log "stream: run $run of $RUNS, $path, +150 ms, $open"
+      flag=()
+      [ "$open" = no-bootstrap ] && flag=(--no-bootstrap)
+      "$CLIENT_BIN" fly --server "${via[150]}" --dataset moon8192 --path "$path" --frames "$frames" \
+        --fps 60 --tau 1 --spacing "$MOON_SPACING" --no-render --stats "$WORK/frames.jsonl" "${flag[@]}" \
+        > "$WORK/run.json" 2> "$WORK/run.log" || { cat "$WORK/run.log" >&2; exit 1; }
+      first=$(jq -s -c '{frame0_tiles: .[0].tiles, frame0_coarsest_level: .[0].coarsest_level,
+        first_drawn: (map(select(.tiles > 0)) | first | .frame)}' "$WORK/frames.jsonl")
+      record stream_bootstrap "$(jq -c --arg path "$path" --argjson run "$run" --argjson first "$first" \
+        --argjson bootstrap "$([ "$open" = bootstrap ] && echo true || echo false)" \
+        '{dataset: "moon8192", path: $path, latency_ms: 150, bootstrap: $bootstrap, run: $run} + $first + {summary: .}' \
+        "$WORK/run.json")"
     done
   done
 done

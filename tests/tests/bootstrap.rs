@@ -277,3 +277,39 @@ fn frame_zero_is_drawn_after_one_request_and_no_bootstrap_still_flies() {
         "{targets:?}"
     );
 }
+
+/// `--http2`: the flight speaks h2c with prior knowledge to the server (which speaks
+/// it beside HTTP/1.1 on one port). Through a proxy that records HTTP/1.1 request
+/// lines, none is seen, and every tile request shares one connection (the open's
+/// own connection aside) instead of one per request in flight.
+#[test]
+fn http2_flights_share_one_connection() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let dir = tempfile::tempdir().unwrap();
+    let (proxy, log) = rt.block_on(tessera_proxy::logging(server)).unwrap();
+    let mut opts = options(proxy.addr(), glide(dir.path()), 90);
+    opts.stream.http2 = true;
+    let (frames, summary) = run_flight(&opts);
+    assert!(frames[0].select.tiles > 0, "frame 0 draws over HTTP/2 too");
+    assert!(
+        summary.stream.requests > 1 && summary.stream.failures == 0,
+        "{:?}",
+        summary.stream
+    );
+    assert!(
+        log.targets().is_empty(),
+        "HTTP/1.1 request lines over --http2: {:?}",
+        log.targets()
+    );
+    assert_eq!(
+        proxy.stats().connections,
+        2,
+        "the open's connection and one for every tile request"
+    );
+    // The same flight over HTTP/1.1 opens a connection per request in flight.
+    let (proxy, log) = rt.block_on(tessera_proxy::logging(server)).unwrap();
+    let (_, summary) = run_flight(&options(proxy.addr(), glide(dir.path()), 90));
+    assert_eq!(log.targets().len() as u64, 1 + summary.stream.requests);
+    assert!(proxy.stats().connections > 2, "{:?}", proxy.stats());
+}
