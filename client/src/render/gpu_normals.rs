@@ -1,7 +1,9 @@
 //! Normal maps computed on the GPU (`normals.wgsl`), from the heights already in
 //! their texture-array slots, so that uploading a tile is only texture copies.
 //!
-//! Uploads queue their tile; the next flush (the end of
+//! Uploads write the tile's heights a second time, into a storage buffer holding
+//! every slot's samples (the pass reads them there: on CPU rasterizers a texel
+//! fetch costs several buffer loads), and queue the tile; the next flush (the end of
 //! [`Renderer::upload_wanted`], or the next frame drawn) computes, in one compute
 //! pass, the whole normal map of every queued tile and the border ring of each of
 //! their resident same-level neighbours. A shared border therefore ends up with
@@ -12,6 +14,8 @@
 //! new contents (queue writes land before the pass).
 
 use super::Renderer;
+use super::gpu::Gpu;
+use super::normals::NormalSource;
 use std::collections::HashSet;
 use tessera_shared::TileId;
 
@@ -40,7 +44,12 @@ pub(super) struct NormalPass {
     whole: wgpu::ComputePipeline,
     ring: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
-    heights: wgpu::TextureView,
+    /// Every slot's heights, `entries` u16 per slot (two per word).
+    heights: wgpu::Buffer,
+    /// `T + 1`: samples per tile side.
+    samples: u32,
+    /// u16 entries per slot: `samples²` rounded up to even (4-byte writes).
+    entries: u64,
     normals: wgpu::TextureView,
     header: wgpu::Buffer,
     /// The job buffer, its capacity in jobs and its bind group (rebuilt when it grows).
@@ -50,19 +59,44 @@ pub(super) struct NormalPass {
 }
 
 impl NormalPass {
-    /// Whether this device can run the pass (GL ES 3.0 devices cannot).
-    pub(super) fn supported(downlevel: &wgpu::DownlevelCapabilities) -> bool {
-        downlevel
+    /// The pass over the `normals` texture array ([`NORMAL_FORMAT`], with storage
+    /// usage; its size gives the slots and samples), when `source` asks for it and
+    /// the device can run it: devices without compute shaders (GL ES 3.0), or
+    /// whose storage buffers cannot hold every slot's heights, fall back to the
+    /// CPU, with a warning.
+    pub(super) fn chosen(source: NormalSource, gpu: &Gpu, normals: &wgpu::Texture) -> Option<Self> {
+        if source != NormalSource::Gpu {
+            return None;
+        }
+        if !gpu
+            .downlevel
             .flags
             .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+        {
+            tracing::warn!(gpu = %gpu.describe(), "no compute shaders: normal maps are built on the CPU");
+            return None;
+        }
+        let samples = normals.width();
+        let entries = (u64::from(samples) * u64::from(samples)).next_multiple_of(2);
+        let bytes = 2 * entries * u64::from(normals.depth_or_array_layers());
+        let limit = gpu
+            .limits
+            .max_storage_buffer_binding_size
+            .min(gpu.limits.max_buffer_size);
+        if bytes > limit {
+            tracing::warn!(gpu = %gpu.describe(), bytes, limit,
+                "every slot's heights exceed a storage buffer: normal maps are built on the CPU");
+            return None;
+        }
+        Some(Self::new(&gpu.device, normals, samples, entries, bytes))
     }
 
-    /// The pass over the `heights` (R16Unorm) and `normals` ([`NORMAL_FORMAT`],
-    /// with storage usage) texture arrays.
-    pub(super) fn new(
+    fn new(
         device: &wgpu::Device,
-        heights: &wgpu::Texture,
         normals: &wgpu::Texture,
+        samples: u32,
+        entries: u64,
+        bytes: u64,
     ) -> Self {
         let buffer = |binding| wgpu::BindGroupLayoutEntry {
             binding,
@@ -79,16 +113,7 @@ impl NormalPass {
             entries: &[
                 buffer(0),
                 buffer(1),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
+                buffer(2),
                 wgpu::BindGroupLayoutEntry {
                     binding: 3,
                     visibility: wgpu::ShaderStages::COMPUTE,
@@ -120,17 +145,21 @@ impl NormalPass {
                 cache: None,
             })
         };
-        let view = |t: &wgpu::Texture| {
-            t.create_view(&wgpu::TextureViewDescriptor {
-                dimension: Some(wgpu::TextureViewDimension::D2Array),
-                ..Default::default()
-            })
-        };
         Self {
             whole: pipeline("whole"),
             ring: pipeline("ring"),
-            heights: view(heights),
-            normals: view(normals),
+            heights: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("heights for normal maps"),
+                size: bytes,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            samples,
+            entries,
+            normals: normals.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            }),
             header: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("normal jobs header"),
                 size: 16,
@@ -143,8 +172,25 @@ impl NormalPass {
         }
     }
 
-    /// Queues `tile`'s normal map (its heights were just written).
-    pub(super) fn queue(&mut self, tile: TileId) {
+    /// Writes `tile`'s heights into `slot` of the pass's buffer and queues its
+    /// normal map.
+    pub(super) fn queue(&mut self, queue: &wgpu::Queue, tile: TileId, slot: u32, heights: &[u16]) {
+        debug_assert_eq!(heights.len() as u64, u64::from(self.samples).pow(2));
+        let offset = u64::from(slot) * self.entries * 2;
+        // Buffer writes come in whole words: an odd count's last sample goes with a pad.
+        let whole = heights.len() / 2 * 2;
+        queue.write_buffer(
+            &self.heights,
+            offset,
+            bytemuck::cast_slice(&heights[..whole]),
+        );
+        if let Some(&last) = heights.get(whole) {
+            queue.write_buffer(
+                &self.heights,
+                offset + 2 * whole as u64,
+                bytemuck::cast_slice(&[last, 0]),
+            );
+        }
         self.pending.push(tile);
     }
 }
@@ -241,7 +287,7 @@ impl Renderer {
                     },
                     wgpu::BindGroupEntry {
                         binding: 2,
-                        resource: wgpu::BindingResource::TextureView(&pass.heights),
+                        resource: pass.heights.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry {
                         binding: 3,
@@ -255,13 +301,14 @@ impl Renderer {
             return;
         };
         let (whole_n, total) = (whole.len() as u32, jobs.len() as u32);
+        let entries = u32::try_from(pass.entries).unwrap_or(u32::MAX);
         queue.write_buffer(
             &pass.header,
             0,
-            bytemuck::cast_slice(&[whole_n, total, 0, 0]),
+            bytemuck::cast_slice(&[whole_n, total, pass.samples, entries]),
         );
         queue.write_buffer(buffer, 0, bytemuck::cast_slice(&jobs));
-        let n = g.tile_samples() as u32;
+        let n = pass.samples;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("normal maps"),
         });

@@ -4,7 +4,6 @@
 //! them.
 
 use super::slots::SlotTable;
-use super::normals::NormalSource;
 use super::{DrawStats, RenderOptions, Renderer, capture, gpu::Gpu, gpu_normals, instances};
 use crate::camera::Camera;
 use crate::select::{Patch, World};
@@ -115,9 +114,7 @@ impl Renderer {
                 | wgpu::TextureUsages::STORAGE_BINDING,
             view_formats: &[],
         });
-        let normal_pass = (opts.normals == NormalSource::Gpu
-            && gpu_normals::NormalPass::supported(&gpu.downlevel))
-        .then(|| gpu_normals::NormalPass::new(device, &heights, &normals));
+        let normal_pass = gpu_normals::NormalPass::chosen(opts.normals, &gpu, &normals);
         // One texel per cell: 1.0 where the cell is terrain (FORMAT.md "Validity mask").
         let masks = array("cell masks", wgpu::TextureFormat::R8Unorm, cells);
         let globals = device.create_buffer(&wgpu::BufferDescriptor {

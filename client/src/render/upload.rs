@@ -79,7 +79,7 @@ impl Renderer {
             1,
         );
         if let Some(pass) = self.normal_pass.as_mut() {
-            pass.queue(tile);
+            pass.queue(queue, tile, slot, &resident.heights);
         } else {
             let map = self.cpu_normal_map(pool, tile, &resident.heights);
             let texel = NORMAL_FORMAT.block_copy_size(None).unwrap_or(4);
