@@ -88,6 +88,9 @@ pub struct Headless {
     setup: RenderSetup,
     heights: (f64, f64),
     popping: Popping,
+    /// With [`Draws::Popping`]: the previous frame's patches, drawn again from
+    /// this frame's camera (the same-camera figures).
+    previous_patches: Option<Vec<crate::select::Patch>>,
 }
 
 impl Headless {
@@ -104,6 +107,7 @@ impl Headless {
             setup,
             heights,
             popping: Popping::default(),
+            previous_patches: None,
         })
     }
 
@@ -172,6 +176,16 @@ impl Headless {
         if self.setup.draws == Draws::Popping {
             let key = SelectionKey::new(&sel.tiles, &sel.patches);
             rec.selection_changed = self.popping.add(image.clone(), key)?;
+            let previous = self.previous_patches.replace(sel.patches.clone());
+            if let (Some(changed), Some(previous)) = (rec.selection_changed, previous) {
+                let d = self.renderer.draw(camera, &previous)?;
+                anyhow::ensure!(
+                    d.skipped == 0,
+                    "the previous frame's tiles are no longer on the GPU; raise --gpu-tiles"
+                );
+                let again = self.renderer.read_rgba()?;
+                self.popping.add_same_camera(&image, &again, changed)?;
+            }
         }
         if self.setup.draws == Draws::Quality && measured {
             let (reference, tris) = self.reference_image(camera, pool)?;

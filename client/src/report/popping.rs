@@ -10,6 +10,14 @@
 //! design), and each class gets the mean and the 99th percentile of its per-pixel
 //! changes. The *popping excess* is the changed class's mean minus the unchanged
 //! class's: what LOD changes add to the motion of the camera.
+//!
+//! That difference of two noisy means is small against the camera's own motion
+//! wherever `τ` is small (a pop then moves the surface by about `τ` pixels), and it
+//! mixes in how the motion itself varies along the flight. So each frame is also
+//! drawn a second time, from the same camera, with the previous frame's patches
+//! (and their morph factors): the change between the two is the pop alone, with
+//! no camera motion in it (*same-camera* figures; on frames where the selection
+//! did not change it is the morph's own drift, 0 without morphing).
 
 use crate::select::Patch;
 use tessera_shared::TileId;
@@ -35,6 +43,19 @@ impl SelectionKey {
             .collect();
         patches.sort_unstable();
         Self { tiles, patches }
+    }
+
+    /// Whether two selections draw the same tiles cut into the same patches, only
+    /// at other LODs (the changes morphing makes continuous; a split, a merge or a
+    /// tile refinement changes the layout).
+    pub fn same_layout(&self, other: &Self) -> bool {
+        self.tiles == other.tiles
+            && self.patches.len() == other.patches.len()
+            && self
+                .patches
+                .iter()
+                .zip(&other.patches)
+                .all(|(a, b)| (a.0, a.1, a.2) == (b.0, b.1, b.2))
     }
 }
 
@@ -126,6 +147,18 @@ pub struct PoppingSummary {
     pub unchanged_p99: Option<f64>,
     /// `changed_mean − unchanged_mean`: what LOD changes add.
     pub excess_mean: Option<f64>,
+    /// The same camera drawn with this frame's patches and with the previous
+    /// frame's: mean and p99 per-pixel change where the selection changed (the
+    /// pop alone) and where it did not (the morph factors' drift).
+    pub same_camera_changed_mean: Option<f64>,
+    pub same_camera_changed_p99: Option<f64>,
+    pub same_camera_unchanged_mean: Option<f64>,
+    pub same_camera_unchanged_p99: Option<f64>,
+    /// The changed pairs whose layout stayed (only inner or edge LODs changed:
+    /// [`SelectionKey::same_layout`]), and their same-camera figures.
+    pub lod_only_pairs: u32,
+    pub same_camera_lod_only_mean: Option<f64>,
+    pub same_camera_lod_only_p99: Option<f64>,
 }
 
 /// Consecutive frames of a flight, classified and measured.
@@ -134,6 +167,11 @@ pub struct Popping {
     last: Option<(Vec<u8>, SelectionKey)>,
     changed: ChangeHistogram,
     unchanged: ChangeHistogram,
+    same_changed: ChangeHistogram,
+    same_unchanged: ChangeHistogram,
+    same_lod_only: ChangeHistogram,
+    /// Whether the last change kept the layout.
+    last_lod_only: bool,
 }
 
 impl Popping {
@@ -144,6 +182,7 @@ impl Popping {
         let changed = match &self.last {
             Some((before, prev)) => {
                 let changed = *prev != key;
+                self.last_lod_only = changed && prev.same_layout(&key);
                 let class = if changed {
                     &mut self.changed
                 } else {
@@ -158,8 +197,29 @@ impl Popping {
         Ok(changed)
     }
 
+    /// Adds a same-camera pair: this frame as drawn (`current`) and drawn again
+    /// with the previous frame's patches (`previous`); `changed` as [`Popping::add`]
+    /// returned it.
+    pub fn add_same_camera(
+        &mut self,
+        current: &[u8],
+        previous: &[u8],
+        changed: bool,
+    ) -> anyhow::Result<()> {
+        if changed && self.last_lod_only {
+            self.same_lod_only.add(previous, current)?;
+        }
+        let class = if changed {
+            &mut self.same_changed
+        } else {
+            &mut self.same_unchanged
+        };
+        class.add(previous, current)
+    }
+
     pub fn summary(&self) -> PoppingSummary {
         let (c, u) = (&self.changed, &self.unchanged);
+        let (sc, su) = (&self.same_changed, &self.same_unchanged);
         let (changed_mean, unchanged_mean) = (c.mean(), u.mean());
         PoppingSummary {
             changed_pairs: c.pairs,
@@ -169,6 +229,13 @@ impl Popping {
             unchanged_mean,
             unchanged_p99: u.quantile(0.99),
             excess_mean: changed_mean.zip(unchanged_mean).map(|(a, b)| a - b),
+            same_camera_changed_mean: sc.mean(),
+            same_camera_changed_p99: sc.quantile(0.99),
+            same_camera_unchanged_mean: su.mean(),
+            same_camera_unchanged_p99: su.quantile(0.99),
+            lod_only_pairs: self.same_lod_only.pairs,
+            same_camera_lod_only_mean: self.same_lod_only.mean(),
+            same_camera_lod_only_p99: self.same_lod_only.quantile(0.99),
         }
     }
 }
@@ -228,6 +295,25 @@ mod tests {
         assert_eq!(s.changed_mean, Some(6.0));
         assert_eq!(s.changed_p99, Some(60.0));
         assert_eq!(s.excess_mean, Some(5.0));
+        assert_eq!(s.same_camera_changed_mean, None);
+        // Same camera: the pop alone (the 10-pixel region), and no drift.
+        let (moved, popped) = (
+            frame(10, 10, |x, y| [(x * 10 + 3) as u8, (y * 10) as u8, 100]),
+            frame(10, 10, |x, y| {
+                let [r, g, b] = [(x * 10 + 3) as u8, (y * 10) as u8, 100u8];
+                if (4..6).contains(&x) && y < 5 {
+                    [r + 30, g + 60, b + 90]
+                } else {
+                    [r, g, b]
+                }
+            }),
+        );
+        p.add_same_camera(&popped, &moved, true).unwrap();
+        p.add_same_camera(&moved, &moved, false).unwrap();
+        let s = p.summary();
+        assert_eq!(s.same_camera_changed_mean, Some(6.0));
+        assert_eq!(s.same_camera_changed_p99, Some(60.0));
+        assert_eq!(s.same_camera_unchanged_mean, Some(0.0));
         // The region is what makes it: 1 pixel in 100 would leave p99 at 0.
         let mut h = ChangeHistogram::default();
         let one = frame(
@@ -263,5 +349,9 @@ mod tests {
         let mut snapped = q(4);
         snapped.edges[1] = 2;
         assert_ne!(a, SelectionKey::new(&[tile], &[p(8, 0), snapped]));
+        // LODs alone keep the layout; another patch or tile does not.
+        assert!(a.same_layout(&SelectionKey::new(&[tile], &[p(16, 0), snapped])));
+        assert!(!a.same_layout(&SelectionKey::new(&[tile], &[p(8, 0)])));
+        assert!(!a.same_layout(&SelectionKey::new(&[], &[p(8, 0), q(4)])));
     }
 }

@@ -358,7 +358,7 @@ impl Selector {
         }
         self.quadtrees = next_state;
         edge_lod::assign(&self.world, &mut patches);
-        morph::assign(&self.world, self.params.tau, &mut patches, &rhos);
+        morph::assign(&self.world, &self.params, &mut patches, &rhos);
         // A hole has no bound on its error, and neither has a stand-in whose error
         // box holds the eye: say "missing" rather than print a number.
         let bounded = choice.missing == 0 && max_rho.is_finite();

@@ -9,16 +9,23 @@
 //! east–west and north–south never move, only heights: the vertex stays on its
 //! finest-grid point, so `relative()` in the shader is unchanged.
 //!
-//! **The factor of a patch's interior** is the largest that keeps its screen-space
-//! error within `τ`. Heights are a convex mix, so the morphed surface is off by at
-//! most `(1 − f)·ε_n + f·ε_{n/2}`, i.e. `ρ ≤ (1 − f)·ρ_n + f·ρ_{n/2}` (with this
-//! crate's conservative `ρ` bounds), and the largest `f` with that bound `≤ τ` is
-//! `(τ − ρ_n)/(ρ_{n/2} − ρ_n)`. As `ρ ∝ 1/d` this is linear in the distance from
-//! the eye: CDLOD's morph band, from `d = ε_n·λ/τ` (where `n` itself is the
-//! coarsest allowed: `f = 0`) to `d = ε_{n/2}·λ/τ` (where selection switches to
-//! `n/2`: `f = 1`, the surface already is the `n/2` surface). Selection's switches
-//! in both directions (`ρ_{n/2}` crossing `τ` coming closer, `τ·(1 − h)` going
-//! away) happen at `f = 1`, so neither pops.
+//! **The factor of a patch's interior** must be 1 where selection switches
+//! between `n/2` and `n` (both there and in the hysteresis zone between, where
+//! either may be drawn, the two must look alike), and 0 where it switches between
+//! `n` and `2n`. Selection (Kang §4.4 with hysteresis `h`) draws `n` rather than
+//! `n/2` once `ρ_{n/2} > τ` coming closer, and keeps it until `ρ_{n/2} ≤ τ·(1 − h)`
+//! going away; so a patch at `n` is drawn as `n/2` (`f = 1`) while `ρ_{n/2} ≤ τ`,
+//! and as itself (`f = 0`) once `ρ_n ≥ τ·(1 − h)`, where an `n/2` patch, had it
+//! been drawn, would be at 0 too. Between the two, `ρ ∝ 1/d` and the factor is
+//! linear in `1/d` (CDLOD's band of distance, here set by the error tables):
+//! with `u = ρ_n/(τ·(1 − h))` and `v = ρ_{n/2}/τ`, `f = v·(1 − u)/(v − u)`. It is
+//! further capped so that the mixed surface keeps `τ`: heights are a convex mix,
+//! off by at most `(1 − f)·ε_n + f·ε_{n/2}`, i.e. `ρ ≤ (1 − f)·ρ_n + f·ρ_{n/2}`, so
+//! `f ≤ (τ − ρ_n)/(ρ_{n/2} − ρ_n)` (equal to 1 at `ρ_{n/2} = τ`, so the cap keeps
+//! both ends). Where `ε_n ≥ (1 − h)·ε_{n/2}` the two hysteresis zones overlap and
+//! no factor suits both: the cap alone is used (1 at `ρ_{n/2} = τ`, 0 at `ρ_n = τ`,
+//! where a patch coming closer switches), and the band is narrow, crossed in a
+//! few frames: LOD `n` is short-lived there whatever is drawn.
 //!
 //! **Edges** (DESIGN §6 invariant 3 at every factor): a vertex on a patch side is
 //! shared with the patches across it, so its factor must be something both sides
@@ -40,7 +47,7 @@
 //! gets about the same factor on either side of a refinement.
 
 use super::metric::TileRho;
-use super::{Patch, World, edge_lod};
+use super::{Patch, SelectParams, World, edge_lod};
 use std::collections::HashMap;
 use tessera_shared::TileId;
 
@@ -81,18 +88,32 @@ pub const fn mix(q: u16, a: u16, b: u16, f: u16) -> u32 {
 pub const HEIGHT_UNITS: u32 = 2 * FULL as u32;
 
 /// The interior factor of a patch drawn at inner LOD `n` whose `ρ` there is
-/// `rho_n` and at `n/2` is `rho_half` (`None` for `n = 1`): the largest factor
-/// whose error bound stays within `tau`, rounded down.
-pub fn patch_factor(tau: f64, rho_n: f64, rho_half: Option<f64>) -> u16 {
+/// `rho_n` and at `n/2` is `rho_half` (`None` for `n = 1`, which has nothing
+/// coarser), with selection's `tau` and `hysteresis`; rounded down.
+pub fn patch_factor(tau: f64, hysteresis: f64, rho_n: f64, rho_half: Option<f64>) -> u16 {
     let Some(rho_half) = rho_half else { return 0 };
     if rho_half <= tau {
         return FULL;
     }
-    if rho_n >= tau || rho_half.is_nan() || rho_n.is_nan() {
+    // n itself misses τ (selection refines it, or it is forced), or NaN: as itself.
+    if rho_n.is_nan() || rho_half.is_nan() || rho_n >= tau {
         return 0;
     }
-    // rho_half > tau > rho_n: the denominator is positive.
-    let f = (tau - rho_n) / (rho_half - rho_n);
+    // Here ρ_n < τ < ρ_{n/2}: in (0, 1).
+    let keeps_tau = (tau - rho_n) / (rho_half - rho_n);
+    let (u, v) = (rho_n / (tau * (1.0 - hysteresis)), rho_half / tau);
+    // Whether the two hysteresis zones are apart (ε_n < (1 − h)·ε_{n/2}): a ratio
+    // of errors, the same at any distance, so the choice never flips as the eye
+    // moves.
+    let f = if rho_n < (1.0 - hysteresis) * rho_half {
+        // Then u < v, and the band runs from 1 (v = 1) to 0 (u = 1).
+        keeps_tau.min(v * (1.0 - u) / (v - u)).max(0.0)
+    } else {
+        // They overlap: no factor suits both; LOD n lives only between
+        // ρ_{n/2} = τ and ρ_n = τ coming closer, and the cap alone runs from 1 to
+        // 0 across exactly that.
+        keeps_tau
+    };
     (f * f64::from(FULL)).floor().clamp(0.0, f64::from(FULL)) as u16
 }
 
@@ -104,14 +125,19 @@ fn node(world: &World, p: &Patch) -> (u32, u32, u32) {
 
 /// Sets every patch's [`Morph`], after the edge LODs are final
 /// ([`edge_lod::assign`]); `rhos` are this frame's `ρ` tables of the drawn tiles.
-pub fn assign(world: &World, tau: f64, patches: &mut [Patch], rhos: &HashMap<TileId, TileRho>) {
+pub fn assign(
+    world: &World,
+    params: &SelectParams,
+    patches: &mut [Patch],
+    rhos: &HashMap<TileId, TileRho>,
+) {
     for p in patches.iter_mut() {
         let f = match rhos.get(&p.tile) {
             Some(rho) => {
                 let (k, i, j) = node(world, p);
                 let l = p.inner.trailing_zeros();
                 let half = (l > 0).then(|| rho.rho(k + l - 1, k, i, j));
-                patch_factor(tau, rho.rho(k + l, k, i, j), half)
+                patch_factor(params.tau, params.hysteresis, rho.rho(k + l, k, i, j), half)
             }
             None => 0,
         };
@@ -173,6 +199,7 @@ mod tests {
                 max_error: 0.0,
             },
             spacing: DVec2::splat(10.0),
+            globe: None,
         };
         let dem = |x: u64, y: u64| {
             let h = (x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503)).wrapping_mul(97);
@@ -304,24 +331,37 @@ mod tests {
     }
 
     #[test]
-    fn the_factor_is_the_largest_that_keeps_tau() {
+    fn the_factor_is_one_and_zero_where_selection_switches_and_keeps_tau() {
+        let h = 0.15;
+        let f = |rn: f64, rh: Option<f64>| patch_factor(1.0, h, rn, rh);
         // n = 1 has nothing coarser.
-        assert_eq!(patch_factor(1.0, 0.5, None), 0);
-        // The coarser LOD meets τ already: fully morphed (selection switches there).
-        assert_eq!(patch_factor(1.0, 0.2, Some(1.0)), FULL);
-        assert_eq!(patch_factor(1.0, 0.2, Some(0.9)), FULL);
-        // Halfway: (1 − 0.5)/(1.5 − 0.5) = 0.5.
-        assert_eq!(patch_factor(1.0, 0.5, Some(1.5)), FULL / 2);
-        // The bound at the chosen factor stays within τ.
-        for (rn, rh) in [(0.3, 1.7), (0.9, 1.1), (0.01, 40.0)] {
-            let f = f64::from(patch_factor(1.0, rn, Some(rh))) / f64::from(FULL);
-            assert!((1.0 - f) * rn + f * rh <= 1.0 + 1e-12, "{rn} {rh} {f}");
-            assert!(f > 0.0);
+        assert_eq!(f(0.5, None), 0);
+        // n/2 meets τ (selection switches there, or keeps n by hysteresis): n/2.
+        assert_eq!(f(0.2, Some(1.0)), FULL);
+        assert_eq!(f(0.2, Some(0.9)), FULL);
+        // n is about to be refined (where 2n, had it been drawn, is at 0): n.
+        assert!(f(0.85, Some(3.0)) < FULL / 8);
+        assert_eq!(f(1.0, Some(1.05)), 0);
+        assert_eq!(f(1.2, Some(3.0)), 0);
+        // Errors too close for both zones (0.9 > 1 − h): from 1 to 0 between the
+        // switches coming closer.
+        assert!(f(0.9, Some(1.01)) > FULL * 8 / 10);
+        assert!(f(0.99, Some(1.1)) < FULL / 8);
+        assert_eq!(f(f64::INFINITY, Some(f64::INFINITY)), 0);
+        assert_eq!(f(0.0, Some(f64::NAN)), 0);
+        // In between: strictly inside, falling as the eye comes closer (ρ ∝ 1/d,
+        // errors 1 and 3), and the mixed bound within τ.
+        let mut last = FULL;
+        for k in 1..60 {
+            let x = 1.0 / 3.0 + f64::from(k) * (0.85 - 1.0 / 3.0) / 60.0;
+            let m = f(x, Some(3.0 * x));
+            assert!(m <= last && m < FULL, "{x}: {m}");
+            let g = f64::from(m) / f64::from(FULL);
+            assert!((1.0 - g) * x + g * 3.0 * x <= 1.0 + 1e-12, "{x}: {g}");
+            last = m;
         }
-        // n itself misses τ (forced), or the eye is inside the box: no morph.
-        assert_eq!(patch_factor(1.0, 1.2, Some(3.0)), 0);
-        assert_eq!(patch_factor(1.0, f64::INFINITY, Some(f64::INFINITY)), 0);
-        assert_eq!(patch_factor(1.0, 0.0, Some(f64::INFINITY)), 0);
+        assert!(last < FULL / 8, "{last}");
+        assert!(f(0.34, Some(1.02)) > FULL * 9 / 10);
     }
 
     #[test]
