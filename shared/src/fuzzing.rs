@@ -144,6 +144,13 @@ fn with_frame_checksums(data: &[u8]) -> Vec<u8> {
     out
 }
 
+/// A bootstrap ([`crate::bootstrap`]): decoded and, when accepted, its absent tiles
+/// listed (what a client does with one); the frames and absent tiles counted.
+pub fn bootstrap(data: &[u8]) -> Result<usize, crate::bootstrap::BootstrapError> {
+    let b = crate::bootstrap::Bootstrap::decode(data)?;
+    Ok(b.frames.len() + b.absent().len())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -164,11 +171,4 @@ mod tests {
         s.extend(wire::trailer_frame(level, 0, 1, &[]));
         assert_eq!(wire(&s).unwrap(), 2);
     }
-}
-
-/// A bootstrap ([`crate::bootstrap`]): decoded and, when accepted, its absent tiles
-/// listed (what a client does with one); the frames and absent tiles counted.
-pub fn bootstrap(data: &[u8]) -> Result<usize, crate::bootstrap::BootstrapError> {
-    let b = crate::bootstrap::Bootstrap::decode(data)?;
-    Ok(b.frames.len() + b.absent().len())
 }

@@ -125,25 +125,24 @@ pub async fn get(
         .iter()
         .find(|b| b.key == key)
         .cloned();
-    let (body, tiles, clean) = match hit {
-        Some(b) => (b.body, b.tiles, true),
-        None => {
-            let (body, tiles, errors) = build(&state, &ds).await.map_err(|r| unavailable(&r))?;
-            let body = Bytes::from(body);
-            if errors == 0 {
-                let mut k = kept().lock().unwrap_or_else(PoisonError::into_inner);
-                k.retain(|b| b.key != key);
-                if k.len() >= KEPT {
-                    k.remove(0);
-                }
-                k.push(Built {
-                    key,
-                    body: body.clone(),
-                    tiles,
-                });
+    let (body, tiles, clean) = if let Some(b) = hit {
+        (b.body, b.tiles, true)
+    } else {
+        let (body, tiles, errors) = build(&state, &ds).await.map_err(|r| unavailable(&r))?;
+        let body = Bytes::from(body);
+        if errors == 0 {
+            let mut k = kept().lock().unwrap_or_else(PoisonError::into_inner);
+            k.retain(|b| b.key != key);
+            if k.len() >= KEPT {
+                k.remove(0);
             }
-            (body, tiles, errors == 0)
+            k.push(Built {
+                key,
+                body: body.clone(),
+                tiles,
+            });
         }
+        (body, tiles, errors == 0)
     };
     let len = body.len();
     let mut r = Response::new(Body::from(body));
