@@ -202,6 +202,7 @@ impl Terrain {
                 geometry: g,
                 quant: p.metadata().quantization,
                 spacing: glam::DVec2::splat(spacing),
+                globe: None,
             },
             pyramid: p,
             tables,

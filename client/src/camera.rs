@@ -5,6 +5,7 @@
 //! sample spacings `sx` east–west and `sy` north–south ([`crate::select::World`];
 //! they differ for a geographic DEM, whose cells are not square on the ground).
 
+use crate::globe::volume::GlobeView;
 use glam::{DMat4, DVec3, DVec4};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,12 +55,30 @@ impl Camera {
     pub fn frustum(&self) -> Frustum {
         Frustum::from_matrix(&self.view_projection())
     }
+
+    /// Projection × view with the eye at the origin of its local frame: on the
+    /// globe that frame is east–up–south at the eye (`globe::frame`), so yaw and
+    /// pitch keep their meaning on the map.
+    pub fn view_projection_at_eye(&self) -> DMat4 {
+        self.projection() * DMat4::look_to_rh(DVec3::ZERO, self.forward(), DVec3::Y)
+    }
+
+    /// The frustum on the globe: planes in the eye's local frame, boxes tested as
+    /// the bounding spheres of their curved shells, and behind-the-limb culling.
+    pub fn frustum_on_globe(&self, view: GlobeView) -> Frustum {
+        Frustum {
+            globe: Some(view),
+            ..Frustum::from_matrix(&self.view_projection_at_eye())
+        }
+    }
 }
 
 /// Six planes `n·p + d ≥ 0` inside (Gribb–Hartmann extraction, depth 0..1).
 #[derive(Clone, Copy, Debug)]
 pub struct Frustum {
     planes: [DVec4; 6],
+    /// On the globe, boxes are flat-world boxes of curved shells ([`GlobeView`]).
+    globe: Option<GlobeView>,
 }
 
 impl Frustum {
@@ -74,12 +93,19 @@ impl Frustum {
             r(3) - r(2),
         ]
         .map(|p| p / p.truncate().length());
-        Self { planes }
+        Self {
+            planes,
+            globe: None,
+        }
     }
 
     /// Whether an axis-aligned box may be visible (false only when it is wholly
     /// outside one plane).
     pub fn intersects_box(&self, min: DVec3, max: DVec3) -> bool {
+        if let Some(view) = &self.globe {
+            let (c, r, hidden) = view.local_sphere(min, max);
+            return !hidden && self.planes.iter().all(|p| p.truncate().dot(c) + p.w >= -r);
+        }
         self.planes.iter().all(|p| {
             let n = p.truncate();
             let v = DVec3::new(

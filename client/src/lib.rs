@@ -16,6 +16,7 @@
 
 pub mod app;
 pub mod camera;
+pub mod globe;
 pub mod lru;
 pub mod paths;
 pub mod render;

@@ -8,6 +8,7 @@ use tessera_client::app::bench_select::{BenchSelect, bench_select};
 use tessera_client::app::fly::{self, FlyOptions};
 use tessera_client::app::headless::{Draws, RenderSetup};
 use tessera_client::app::{load_test, window};
+use tessera_client::globe::GlobeMode;
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::normals::NormalSource;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
@@ -128,6 +129,12 @@ enum Command {
         /// coarser one (LOD changes then pop; for measuring what morphing does).
         #[arg(long)]
         no_morph: bool,
+        /// Draw on the globe: the dataset's longitude/latitude grid on its body's
+        /// ellipsoid (ECEF, camera on the local east-north-up frame, horizon
+        /// culling). auto: the globe for geographic datasets on a known body, flat
+        /// for projected ones (regional: DECISIONS.md); on: the globe or an error.
+        #[arg(long, value_enum, default_value_t = GlobeMode::Off)]
+        globe: GlobeMode,
         /// Debug view.
         #[arg(long, value_enum, default_value_t = DebugView::Shaded)]
         view: DebugView,
@@ -356,6 +363,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             reference_cache,
             popping,
             no_morph,
+            globe,
             view,
             parallax,
             policy,
@@ -428,6 +436,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 runtime: None,
                 progress: None,
                 render,
+                globe,
             };
             if !no_render && out.is_none() {
                 // Neither headless nor --no-render: the windowed client.

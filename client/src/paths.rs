@@ -583,6 +583,7 @@ mod tests {
             quant: pyramid.metadata().quantization,
             spacing: DVec2::splat(7.5),
         };
+            globe: None,
         let size = DVec2::new(300.0, 200.0) * 7.5;
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("corner.json");
@@ -697,6 +698,7 @@ mod tests {
             quant: pyramid.metadata().quantization,
             spacing: DVec2::splat(7.5),
         };
+            globe: None,
         let size = DVec2::new(300.0, 200.0) * 7.5;
         let path = FlyPath::builtin("descent", size.max_element()).unwrap();
         let cameras = path_cameras(&pyramid, &world, "descent", 30.0, 640, 480).unwrap();

@@ -56,6 +56,7 @@ impl Moon {
             geometry: g,
             quant: pyramid.metadata().quantization,
             spacing: glam::DVec2::splat(MOON_SPACING),
+            globe: None,
         };
         Some(Self {
             pyramid,

@@ -66,6 +66,7 @@ impl Dataset {
             geometry: g,
             quant: meta.quantization,
             spacing: World::spacing_from(None, meta.ground_spacing),
+            globe: None,
         };
         Self {
             name,
@@ -327,6 +328,7 @@ fn settled_flight(
             settle: true,
             reference_cache: None,
         }),
+        globe: tessera_client::globe::GlobeMode::Off,
     };
     let (mut frames, summary) = streaming_support::run_flight(&opts);
     assert_eq!(frames.len(), 1);

@@ -373,6 +373,7 @@ fn golden_image_of_the_synthetic_terrain() {
         geometry: g,
         quant: meta.quantization,
         spacing: glam::DVec2::splat(30.0),
+        globe: None,
     };
     let mut pool = tessera_client::stream::pool::TilePool::new(64);
     let mut tables = std::collections::HashMap::new();

@@ -86,6 +86,7 @@ pub fn bench_select(b: &BenchSelect) -> anyhow::Result<BenchSelectReport> {
         geometry: *p.geometry(),
         quant: meta.quantization,
         spacing: World::spacing_from(b.spacing, meta.ground_spacing),
+        globe: None,
     };
     let cameras = paths::path_cameras(&p, &world, b.path, b.fps, b.width, b.height)?;
     // Forward and back, so consecutive frames are always neighbours on the path:

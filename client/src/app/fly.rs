@@ -39,6 +39,8 @@ pub struct FlyOptions {
     pub progress: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
     /// Render headless (`--out`); `None` for selection and streaming only.
     pub render: Option<RenderSetup>,
+    /// Draw on the globe (`--globe`, issue 17 item 4).
+    pub globe: crate::globe::GlobeMode,
 }
 
 /// One line of `--stats` (JSON Lines).
@@ -192,7 +194,7 @@ pub(crate) struct DatasetView {
 pub(crate) fn open(opts: &FlyOptions) -> anyhow::Result<(Streamer, DatasetView)> {
     let (streamer, info) = Streamer::open(&opts.source, opts.stream.clone(), opts.runtime.clone())
         .with_context(|| format!("cannot open {}", opts.source))?;
-    let world = World::from_dataset(&info, opts.spacing)?;
+    let world = World::from_dataset(&info, opts.spacing)?.with_globe(opts.globe, &info)?;
     let view = DatasetView {
         world,
         min_height: info.min_height,

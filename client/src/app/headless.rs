@@ -300,7 +300,7 @@ impl Headless {
     /// is compared with). Returns draw calls and triangles.
     fn draw_reference(&mut self, camera: &Camera, pool: &TilePool) -> anyhow::Result<(u32, u64)> {
         let world = self.renderer.world;
-        let frustum = camera.frustum();
+        let frustum = world.frustum(camera);
         let mut tiles = finest_tiles_in_view(&world, &frustum, self.heights);
         // Absent tiles (wholly no-data) have nothing to draw.
         tiles.retain(|t| !pool.is_absent(*t));
@@ -345,7 +345,7 @@ pub fn fetch_reference_tiles(
     streamer: &mut Streamer,
     timeout: Duration,
 ) -> anyhow::Result<()> {
-    let tiles = finest_tiles_in_view(world, &camera.frustum(), heights);
+    let tiles = finest_tiles_in_view(world, &world.frustum(camera), heights);
     fetch_tiles(&tiles, pool, streamer, timeout)
 }
 

@@ -118,6 +118,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 runtime: Some(rt.handle().clone()),
                 progress: Some(tiles.clone()),
                 render: None,
+                globe: crate::globe::GlobeMode::Off,
             };
             let done = done.clone();
             std::thread::spawn(move || {

@@ -130,6 +130,9 @@ pub struct Renderer {
     normal_pass: Option<gpu_normals::NormalPass>,
     masks: wgpu::Texture,
     globals: wgpu::Buffer,
+    /// Eye-relative globe tables, rewritten each frame on the globe
+    /// (`globe::tables`); one unused entry each on flat datasets.
+    globe_tables: [wgpu::Buffer; 2],
     bind_group: wgpu::BindGroup,
     layout: wgpu::BindGroupLayout,
     capture_layout: wgpu::BindGroupLayout,

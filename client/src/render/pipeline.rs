@@ -24,6 +24,8 @@ struct Globals {
     haze: [f32; 4],
     mode: [u32; 4],
     spacing: [f32; 4],
+    globe: [f32; 4],
+    to_local: [[f32; 4]; 3],
 }
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
@@ -123,6 +125,20 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        // Rows and columns of the padded finest grid on the globe.
+        let entries = match world.globe {
+            Some(_) => world.geometry.padded_samples(),
+            None => 1,
+        };
+        let table = |label| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: entries * 16,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let globe_tables = [table("globe rows"), table("globe columns")];
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("linear clamp"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -137,6 +153,16 @@ impl Renderer {
                 sample_type: wgpu::TextureSampleType::Float { filterable: true },
                 view_dimension: wgpu::TextureViewDimension::D2Array,
                 multisampled: false,
+            },
+            count: None,
+        };
+        let storage_entry = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: all,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
             },
             count: None,
         };
@@ -162,6 +188,8 @@ impl Renderer {
                     count: None,
                 },
                 texture_entry(4),
+                storage_entry(5),
+                storage_entry(6),
             ],
         });
         let array_view = |t: &wgpu::Texture| {
@@ -193,6 +221,14 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 4,
                     resource: wgpu::BindingResource::TextureView(&array_view(&masks)),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: globe_tables[0].as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 6,
+                    resource: globe_tables[1].as_entire_binding(),
                 },
             ],
         });
@@ -265,6 +301,7 @@ impl Renderer {
             normal_pass,
             masks,
             globals,
+            globe_tables,
             bind_group,
             layout,
             capture_layout,
@@ -314,10 +351,34 @@ impl Renderer {
                 0,
             ],
             spacing: [s.x as f32, s.y as f32, 0.0, 0.0],
+            globe: [0.0; 4],
+            to_local: [[0.0; 4]; 3],
         };
+        let globals = self.globe_globals(globals, camera);
         self.gpu
             .queue
             .write_buffer(&self.globals, 0, bytemuck::bytes_of(&globals));
+    }
+
+    /// On the globe, the eye-relative tables for this eye (written to their
+    /// buffers) and the globals that go with them; flat datasets unchanged.
+    fn globe_globals(&self, mut globals: Globals, camera: &Camera) -> Globals {
+        let Some(globe) = self.world.globe else {
+            return globals;
+        };
+        let eye = crate::globe::frame::EyeFrame::of_world(&globe, camera.position);
+        let n = self.world.geometry.padded_samples() as u32;
+        let t = crate::globe::tables::EyeTables::new(&globe, &eye, n, n);
+        let queue = &self.gpu.queue;
+        queue.write_buffer(&self.globe_tables[0], 0, bytemuck::cast_slice(&t.rows));
+        queue.write_buffer(&self.globe_tables[1], 0, bytemuck::cast_slice(&t.cols));
+        globals.globe = [1.0, t.k, 0.0, 0.0];
+        globals.eye_frac[1] = t.eye_height;
+        for (row, r) in globals.to_local.iter_mut().zip(0..3) {
+            let v = t.to_local.row(r);
+            *row = [v.x, v.y, v.z, 0.0];
+        }
+        globals
     }
 
     /// Draws `patches` seen from `camera` into the offscreen target and waits for

@@ -25,6 +25,12 @@ struct Globals {
     // (sx, sy, unused, unused): metres per finest sample east–west (x) and
     // north–south (z); they differ where cells are not square (geographic DEMs).
     spacing: vec4<f32>,
+    // The globe (issue 17 item 4, `client/src/globe/tables.rs`): (1 on, K, unused,
+    // unused), and the rotation from ECEF to the eye's (east, up, south) frame, rows.
+    globe: vec4<f32>,
+    to_local0: vec4<f32>,
+    to_local1: vec4<f32>,
+    to_local2: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> g: Globals;
@@ -34,6 +40,11 @@ struct Globals {
 // One texel per tile cell (T × T): 1 where the cell is terrain, 0 for no-data and
 // the padding beyond the DEM (FORMAT.md "Validity mask").
 @group(0) @binding(4) var masks: texture_2d_array<f32>;
+// Eye-relative globe tables (`globe/tables.rs`), per finest row (A, B, cos φ, sin φ)
+// and per finest column (cos λ − cos λe, sin λ − sin λe, cos λ, sin λ); one
+// unused entry each on flat datasets.
+@group(0) @binding(5) var<storage, read> globe_rows: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> globe_cols: array<vec4<f32>>;
 
 // Per-instance data, packed (see `render/instances.rs`):
 //   a = (slot | level << 16, origin x | origin y << 16, size in tile cells, inner LOD)
@@ -149,6 +160,21 @@ fn height_m(q: f32) -> f32 {
 // Camera-relative position of a finest-grid point: the same integers give the same
 // floats on both sides of a shared edge, so there are no cracks.
 fn relative(x: u32, y: u32, h: f32) -> vec3<f32> {
+    if (g.globe.x > 0.5) {
+        // On the globe: ECEF minus the eye's from the eye-relative tables (every
+        // term about the distance from the eye, so f32 is exact near it), turned
+        // into the eye's local frame.
+        let r = globe_rows[y];
+        let c = globe_cols[x];
+        let dh = h - g.eye_frac.y;
+        let k = g.globe.y;
+        let e = vec3<f32>(
+            r.x * c.z + k * c.x + dh * r.z * c.z,
+            r.x * c.w + k * c.y + dh * r.z * c.w,
+            r.y + dh * r.w,
+        );
+        return vec3<f32>(dot(g.to_local0.xyz, e), dot(g.to_local1.xyz, e), dot(g.to_local2.xyz, e));
+    }
     let dx = f32(i32(x) - g.eye_cell.x) * g.spacing.x - g.eye_frac.x;
     let dz = f32(i32(y) - g.eye_cell.y) * g.spacing.y - g.eye_frac.z;
     return vec3<f32>(dx, h - g.eye_frac.y, dz);

@@ -6,7 +6,6 @@
 //! LOD is a handful of lookups. Level `m`'s value bounds every level `≥ m` too.
 
 use super::{Policy, World};
-use crate::camera::distance_to_box;
 use glam::DVec3;
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{ErrorTable, TileId};
@@ -97,7 +96,7 @@ impl TileRho {
                 // With the eye inside the box, `ε·λ/d` has no bound: infinite, not the
                 // 1e12-odd a clamped distance would make of it (DESIGN §8: reported as
                 // missing, not as a huge number). Comparisons with τ are unchanged.
-                let d = distance_to_box(eye, min, max);
+                let d = world.distance_to_box(eye, min, max);
                 inv_d[i] = if d > 0.0 { 1.0 / d } else { f64::INFINITY };
             }
         }
@@ -192,6 +191,7 @@ mod tests {
                 max_error: 0.0,
             },
             spacing: glam::DVec2::splat(10.0),
+            globe: None,
         }
     }
 

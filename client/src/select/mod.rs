@@ -43,6 +43,9 @@ pub struct World {
     /// Metres between neighbouring finest samples: `x` east–west (between columns),
     /// `y` north–south (between rows, along world `z`).
     pub spacing: DVec2,
+    /// The body and grid when the dataset is drawn on the globe (issue 17 item 4):
+    /// boxes are then curved shells ([`crate::globe::volume`]).
+    pub globe: Option<crate::globe::Globe>,
 }
 
 /// Metres between samples when neither the command line nor the dataset says.
@@ -56,7 +59,41 @@ impl World {
             geometry: TileGeometry::new(info.width, info.height, info.tile_size)?,
             quant: info.quantization,
             spacing: Self::spacing_from(stated, info.ground_spacing),
+            globe: None,
         })
+    }
+
+    /// The same world drawn on the globe of `mode` (`tessera fly --globe`).
+    pub fn with_globe(
+        self,
+        mode: crate::globe::GlobeMode,
+        info: &DatasetInfo,
+    ) -> anyhow::Result<Self> {
+        Ok(Self {
+            globe: crate::globe::Globe::choose(mode, info, self.spacing)?,
+            ..self
+        })
+    }
+
+    /// The camera's frustum: flat, or on the globe (eye-local planes, curved
+    /// boxes, horizon culling).
+    pub fn frustum(&self, camera: &Camera) -> crate::camera::Frustum {
+        match self.globe {
+            None => camera.frustum(),
+            Some(globe) => camera.frustum_on_globe(crate::globe::volume::GlobeView {
+                globe,
+                eye: crate::globe::frame::EyeFrame::of_world(&globe, camera.position),
+            }),
+        }
+    }
+
+    /// Distance from the eye (a map pose) to a flat-world box: the box itself when
+    /// flat, its curved shell's bounding sphere on the globe.
+    pub fn distance_to_box(&self, eye: glam::DVec3, min: glam::DVec3, max: glam::DVec3) -> f64 {
+        match &self.globe {
+            None => crate::camera::distance_to_box(eye, min, max),
+            Some(g) => crate::globe::volume::distance(g, eye, min, max),
+        }
     }
 
     /// Metres between samples: a stated spacing (`--spacing M`, for DEMs without
@@ -315,7 +352,7 @@ impl Selector {
         let started = Instant::now();
         let eye = camera.position;
         let lambda = camera.lambda();
-        let frustum = camera.frustum();
+        let frustum = self.world.frustum(camera);
         let mut choice = tiles::choose(
             &self.world,
             &self.params,
@@ -422,6 +459,7 @@ mod tests {
                 max_error: 0.0,
             },
             spacing: DVec2::splat(10.0),
+            globe: None,
         }
     }
 

@@ -93,6 +93,7 @@ pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
         progress: None,
         render: None,
     }
+    globe: tessera_client::globe::GlobeMode::Off,
 }
 
 pub fn run_flight(opts: &FlyOptions) -> (Vec<FrameRecord>, tessera_client::app::fly::FlySummary) {

@@ -1,0 +1,105 @@
+//! The globe (issue 17 item 4): a geographic dataset (longitude/latitude grid on a
+//! known body, [`tessera_shared::body::Body`]) drawn on its ellipsoid instead of as a
+//! flat sheet.
+//!
+//! Poses stay on the map: the camera's world position `(x, y, z)` is read as finest
+//! grid `(x/sx, z/sy)`, height `y` above the ellipsoid, and its yaw and pitch are
+//! relative to the local east–up–south frame at the eye ([`frame`]). Vertex positions
+//! are made in one place, `relative()` in `terrain.wgsl`, from per-row and per-column
+//! tables that are relative to the eye ([`tables`]), so that they are exact near the
+//! eye and depend only on a vertex's global integers and height. Selection measures
+//! distances to, and culls, bounding spheres of the curved tiles ([`volume`]) and
+//! drops tiles behind the limb ([`horizon`]).
+
+pub mod ellipsoid;
+pub mod frame;
+pub mod grid;
+pub mod horizon;
+pub mod tables;
+pub mod volume;
+
+use ellipsoid::Ellipsoid;
+use glam::{DVec2, DVec3};
+use grid::LonLatGrid;
+use tessera_shared::api::DatasetInfo;
+
+/// Whether to draw on the globe (`tessera fly --globe`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GlobeMode {
+    /// The globe for a geographic dataset on a known body, flat otherwise
+    /// (projected datasets are regional: DECISIONS.md).
+    Auto,
+    /// The globe; an error for a dataset that is not geographic on a known body.
+    On,
+    /// Always flat.
+    #[default]
+    Off,
+}
+
+/// A geographic dataset on its body.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Globe {
+    pub ellipsoid: Ellipsoid,
+    pub grid: LonLatGrid,
+    /// The flat world's metres per finest sample (x east–west, y north–south):
+    /// how map poses `(x, z)` are read back as grid coordinates.
+    pub spacing: DVec2,
+    /// The lowest height of the dataset, metres (for the horizon's occluder).
+    pub min_height: f64,
+}
+
+impl Globe {
+    /// The globe of a dataset document, `None` when it is not geographic on a known
+    /// body or its geotransform is rotated.
+    pub fn of(info: &DatasetInfo, spacing: DVec2) -> Option<Self> {
+        let body = info.body?;
+        if !body.geographic {
+            return None;
+        }
+        Some(Self {
+            ellipsoid: Ellipsoid::new(body.semi_major, body.semi_minor)?,
+            grid: LonLatGrid::from_georef(info.georef.as_ref()?)?,
+            spacing,
+            min_height: info.min_height,
+        })
+    }
+
+    /// What `mode` asks for on this dataset: `Ok(None)` flat.
+    pub fn choose(
+        mode: GlobeMode,
+        info: &DatasetInfo,
+        spacing: DVec2,
+    ) -> anyhow::Result<Option<Self>> {
+        match mode {
+            GlobeMode::Off => Ok(None),
+            GlobeMode::Auto => Ok(Self::of(info, spacing)),
+            GlobeMode::On => Self::of(info, spacing).map(Some).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--globe on: dataset {:?} is not a longitude/latitude grid on a known body \
+                     (its CRS: {})",
+                    info.name,
+                    info.crs.as_deref().unwrap_or("none")
+                )
+            }),
+        }
+    }
+
+    /// ECEF (metres, f64) of finest-grid point `(x, y)` at height `h`: the exact
+    /// position `relative()` approximates.
+    pub fn ecef(&self, x: f64, y: f64, h: f64) -> DVec3 {
+        let (lon, lat) = self.grid.lon_lat(x, y);
+        self.ellipsoid.ecef(lon, lat, h)
+    }
+
+    /// ECEF of a flat-world point `(x, h, z)` (a map pose, a box corner).
+    pub fn ecef_of_world(&self, p: DVec3) -> DVec3 {
+        self.ecef(p.x / self.spacing.x, p.z / self.spacing.y, p.y)
+    }
+
+    /// Radius of a sphere inside the body under every point of the dataset: the
+    /// polar semi-axis lowered by the deepest height below the ellipsoid.
+    pub fn occluder_radius(&self) -> f64 {
+        self.ellipsoid.b + self.min_height.min(0.0)
+    }
+}
