@@ -57,6 +57,7 @@
 //! the same.
 
 mod fetch;
+pub mod imagery;
 pub mod pool;
 pub mod source;
 

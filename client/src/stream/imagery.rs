@@ -1,0 +1,235 @@
+//! A dataset's imagery on the client (issue 17 item 5; Yang §3: texture LOD follows
+//! grid LOD): the imagery of exactly the tiles the geometry has, fetched in the same
+//! Morton-range requests as the heights (API.md, `/imagery/levels/{l}/tiles`),
+//! decoded from JPEG to RGBA off the render thread (a blocking task per response),
+//! and pooled by tile id beside the height pool, LRU, with the same capacity.
+//!
+//! What a renderer uploads is [`Texels`]: `side × side` RGBA8 texels (a texture array
+//! layer of `Rgba8UnormSrgb`), texel `(u, v)` centred at tile sample
+//! `((u + ½)·T/side, (v + ½)·T/side)` (FORMAT.md "Imagery pyramids"), so the
+//! tile's UV `(i/T, j/T)` samples it at its own sample `(i, j)`.
+
+use anyhow::{Context, anyhow, bail};
+use std::collections::{BTreeMap, HashMap};
+use tessera_shared::imagery::ImageryInfo;
+use tessera_shared::wire::{self, Frame};
+use tessera_shared::{Level, MortonRange, TileId, morton, range_query};
+
+/// One tile's imagery, ready for a texture layer.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Texels {
+    pub side: u32,
+    /// `side × side` RGBA8, north row first, alpha 255.
+    pub rgba: Vec<u8>,
+}
+
+/// Decodes one imagery record (a JPEG of `side × side`, the dataset's `texels`).
+pub fn decode(record: &[u8], side: u32) -> anyhow::Result<Texels> {
+    let img = image::load_from_memory_with_format(record, image::ImageFormat::Jpeg)
+        .map_err(|e| anyhow!("imagery record does not decode as JPEG: {e}"))?;
+    if (img.width(), img.height()) != (side, side) {
+        bail!(
+            "imagery record is {}×{}, the dataset says {side}²",
+            img.width(),
+            img.height()
+        );
+    }
+    Ok(Texels {
+        side,
+        rgba: img.to_rgba8().into_raw(),
+    })
+}
+
+/// The Morton ranges, per level, that hold `tiles` (one request per level).
+pub fn ranges_by_level(tiles: &[TileId]) -> BTreeMap<Level, Vec<MortonRange>> {
+    let mut by_level: BTreeMap<Level, Vec<tessera_shared::Morton>> = BTreeMap::new();
+    for t in tiles {
+        by_level.entry(t.level()).or_default().push(t.morton());
+    }
+    by_level
+        .into_iter()
+        .map(|(l, codes)| (l, morton::coalesce(codes)))
+        .collect()
+}
+
+/// Fetches and decodes the imagery of `ranges` of `level` from the server at `base`
+/// (`http://host:port`): one request, the JPEG decodes on a blocking thread. Tiles
+/// without a record (outside ranges) are simply not returned.
+pub async fn fetch(
+    client: &reqwest::Client,
+    base: &str,
+    info: &ImageryInfo,
+    level: Level,
+    ranges: &[MortonRange],
+) -> anyhow::Result<Vec<(TileId, Texels)>> {
+    let url = format!(
+        "{base}{}",
+        info.tiles
+            .replace("{level}", &level.to_string())
+            .replace("{ranges}", &range_query::format(ranges))
+    );
+    let resp = client
+        .get(&url)
+        .send()
+        .await
+        .with_context(|| format!("GET {url}"))?;
+    if !resp.status().is_success() {
+        bail!("GET {url}: {}", resp.status());
+    }
+    let body = resp.bytes().await.with_context(|| format!("GET {url}"))?;
+    let side = info.texels;
+    tokio::task::spawn_blocking(move || {
+        let mut out = Vec::new();
+        for f in wire::decode_all(&body).map_err(|e| anyhow!("{e}"))? {
+            match f {
+                Frame::Tile {
+                    level: l,
+                    morton,
+                    record,
+                    ..
+                } => {
+                    let tile = TileId::from_morton(l, morton)
+                        .ok_or_else(|| anyhow!("frame for a code outside level {l}"))?;
+                    out.push((
+                        tile,
+                        decode(&record, side).with_context(|| tile.to_string())?,
+                    ));
+                }
+                Frame::Error { message, .. } => bail!("server: {message}"),
+                _ => {}
+            }
+        }
+        Ok(out)
+    })
+    .await
+    .context("the imagery decode task failed")?
+    .with_context(|| format!("GET {url}"))
+}
+
+/// Decoded imagery by tile, least recently used first out.
+#[derive(Debug)]
+pub struct ImageryPool {
+    capacity: usize,
+    tiles: HashMap<TileId, (Texels, u64)>,
+    clock: u64,
+}
+
+impl ImageryPool {
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            capacity: capacity.max(1),
+            tiles: HashMap::new(),
+            clock: 0,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.tiles.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tiles.is_empty()
+    }
+
+    pub fn get(&self, tile: TileId) -> Option<&Texels> {
+        self.tiles.get(&tile).map(|(t, _)| t)
+    }
+
+    /// Marks `tiles` used now (they are drawn this frame).
+    pub fn touch(&mut self, tiles: &[TileId]) {
+        self.clock += 1;
+        for t in tiles {
+            if let Some(e) = self.tiles.get_mut(t) {
+                e.1 = self.clock;
+            }
+        }
+    }
+
+    pub fn insert(&mut self, tile: TileId, texels: Texels) {
+        self.clock += 1;
+        if !self.tiles.contains_key(&tile) && self.tiles.len() >= self.capacity {
+            let oldest = self
+                .tiles
+                .iter()
+                .min_by_key(|(_, (_, used))| *used)
+                .map(|(t, _)| *t);
+            if let Some(t) = oldest {
+                self.tiles.remove(&t);
+            }
+        }
+        self.tiles.insert(tile, (texels, self.clock));
+    }
+
+    /// Of `tiles` (those the geometry draws or holds), the ones without imagery yet:
+    /// what to ask for, so that texture LOD follows the geometry's.
+    pub fn missing(&self, tiles: &[TileId]) -> Vec<TileId> {
+        tiles
+            .iter()
+            .copied()
+            .filter(|t| !self.tiles.contains_key(t))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tile(level: u8, x: u32, y: u32) -> TileId {
+        TileId::new(Level::new(level).unwrap(), x, y).unwrap()
+    }
+
+    fn texels(v: u8) -> Texels {
+        Texels {
+            side: 1,
+            rgba: vec![v, v, v, 255],
+        }
+    }
+
+    #[test]
+    fn the_pool_evicts_the_least_recently_drawn() {
+        let mut p = ImageryPool::new(2);
+        let (a, b, c) = (tile(1, 0, 0), tile(1, 1, 0), tile(1, 0, 1));
+        p.insert(a, texels(1));
+        p.insert(b, texels(2));
+        p.touch(&[a]);
+        p.insert(c, texels(3));
+        assert!(p.get(a).is_some() && p.get(c).is_some());
+        assert!(p.get(b).is_none(), "b was the least recently used");
+        assert_eq!(p.missing(&[a, b, c]), vec![b]);
+    }
+
+    #[test]
+    fn ranges_coalesce_per_level() {
+        let r = ranges_by_level(&[tile(1, 0, 0), tile(1, 1, 0), tile(1, 1, 1), tile(0, 0, 0)]);
+        assert_eq!(r[&Level::new(0).unwrap()].len(), 1);
+        // Codes 0, 1 and 3 of level 1: two ranges.
+        let l1: Vec<String> = r[&Level::new(1).unwrap()]
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        assert_eq!(l1, ["0-1", "3-3"]);
+    }
+
+    #[test]
+    fn decode_checks_the_stated_size() {
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+            .encode(
+                &[200u8; 16 * 16 * 3],
+                16,
+                16,
+                image::ExtendedColorType::Rgb8,
+            )
+            .unwrap();
+        let t = decode(&jpeg, 16).unwrap();
+        assert_eq!(t.rgba.len(), 16 * 16 * 4);
+        assert!(
+            t.rgba
+                .chunks(4)
+                .all(|p| p[0].abs_diff(200) <= 2 && p[3] == 255)
+        );
+        assert!(decode(&jpeg, 32).unwrap_err().to_string().contains("16×16"));
+        assert!(decode(b"not a jpeg", 16).is_err());
+    }
+}
