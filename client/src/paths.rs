@@ -17,9 +17,9 @@
 //! `times_s`, in distance otherwise). The `descent` built-in is such a path:
 //!
 //! ```json
-//! { "waypoints": [[0.5, 0.52], [0.5, 0.51], [0.5, 0.5]], "times_s": [0, 3, 6],
+//! { "waypoints": [[0.5, 0.48], [0.5, 0.49], [0.5, 0.5]], "times_s": [0, 3, 6],
 //!   "altitudes_agl_m": [250000, 5000, 100], "pitches_deg": [-88, -60, -10],
-//!   "headings_deg": [0, 0, 0] }
+//!   "headings_deg": [180, 180, 180] }
 //! ```
 //! [`path_cameras`] places every frame's camera over a local pyramid, for benchmarks.
 
@@ -156,7 +156,8 @@ impl FlyPath {
         }
     }
 
-    /// The `descent` built-in over a DEM `extent_m` metres across, heading north.
+    /// The `descent` built-in over a DEM `extent_m` metres across, heading south
+    /// (away from the renderer's north-western sun, so the slopes ahead are lit).
     ///
     /// The camera keeps its gaze on the DEM's centre while it comes down: with
     /// `s` easing from 0 to 1 (smoothstep in time, so it starts and stops gently)
@@ -178,8 +179,8 @@ impl FlyPath {
             let (p0, p1) = DESCENT_PITCH_DEG;
             let pitch = p0 + (p1 - p0) * s.powf(1.2);
             let back = altitude / (-pitch).to_radians().tan();
-            // North is −y on the map: standing back means south of the centre.
-            waypoints.push([0.5, 0.5 + back / extent_m.max(1.0)]);
+            // South is +y on the map: standing back means north of the centre.
+            waypoints.push([0.5, 0.5 - back / extent_m.max(1.0)]);
             times.push(u * DESCENT_S);
             altitudes.push(altitude);
             pitches.push(pitch);
@@ -193,7 +194,7 @@ impl FlyPath {
             times_s: Some(times),
             altitudes_agl_m: Some(altitudes),
             pitches_deg: Some(pitches),
-            headings_deg: Some(vec![0.0; keys + 1]),
+            headings_deg: Some(vec![180.0; keys + 1]),
         }
     }
 
@@ -582,8 +583,8 @@ mod tests {
             geometry: *pyramid.geometry(),
             quant: pyramid.metadata().quantization,
             spacing: DVec2::splat(7.5),
-        };
             globe: None,
+        };
         let size = DVec2::new(300.0, 200.0) * 7.5;
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("corner.json");
@@ -697,8 +698,8 @@ mod tests {
             geometry: *pyramid.geometry(),
             quant: pyramid.metadata().quantization,
             spacing: DVec2::splat(7.5),
-        };
             globe: None,
+        };
         let size = DVec2::new(300.0, 200.0) * 7.5;
         let path = FlyPath::builtin("descent", size.max_element()).unwrap();
         let cameras = path_cameras(&pyramid, &world, "descent", 30.0, 640, 480).unwrap();
@@ -712,7 +713,11 @@ mod tests {
             assert!(w[1].altitude_agl < w[0].altitude_agl);
             assert!(w[1].altitude_agl > w[0].altitude_agl * 5.0 / 6.0);
             assert!(w[1].pitch >= w[0].pitch, "pitch rises");
-            assert_eq!(w[1].yaw, 0.0, "heading north throughout");
+            assert_eq!(
+                w[1].yaw.abs(),
+                std::f64::consts::PI,
+                "heading south throughout"
+            );
         }
         let (last, pose) = (cameras.last().unwrap(), poses.last().unwrap());
         let (fx, fy) = (
