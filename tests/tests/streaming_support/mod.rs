@@ -92,8 +92,8 @@ pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
         runtime: None,
         progress: None,
         render: None,
+        globe: tessera_client::globe::GlobeMode::Off,
     }
-    globe: tessera_client::globe::GlobeMode::Off,
 }
 
 pub fn run_flight(opts: &FlyOptions) -> (Vec<FrameRecord>, tessera_client::app::fly::FlySummary) {
