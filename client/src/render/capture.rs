@@ -8,8 +8,8 @@ use crate::tessellate::Vertex;
 use anyhow::Context;
 use wgpu::util::DeviceExt;
 
-/// The capture pass's own bind group (group 1): the instances, the output and
-/// the vertex indices.
+/// The capture pass's own bind group (group 1): the jobs (instances with the
+/// vertex index in `c[3]`) and the output.
 pub(super) fn bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
         binding,
@@ -23,7 +23,7 @@ pub(super) fn bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout 
     };
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("capture"),
-        entries: &[storage(0, true), storage(1, false), storage(2, true)],
+        entries: &[storage(0, true), storage(1, false)],
     })
 }
 
@@ -34,7 +34,6 @@ impl Renderer {
     pub fn capture_vertices(&self, patches: &[Patch]) -> anyhow::Result<Vec<Vec<Vertex>>> {
         let g = self.world.geometry;
         let mut jobs: Vec<Instance> = Vec::new();
-        let mut vids: Vec<u32> = Vec::new();
         for p in patches {
             let slot = self
                 .slots
@@ -42,11 +41,12 @@ impl Renderer {
                 .with_context(|| format!("tile {} has no GPU slot", p.tile))?;
             let inst = Instance::new(&g, p, slot);
             for vid in 0..(p.inner + 1) * (p.inner + 1) {
-                jobs.push(inst);
-                vids.push(vid);
+                let mut job = inst;
+                job.c[3] = vid;
+                jobs.push(job);
             }
         }
-        anyhow::ensure!(!vids.is_empty(), "no vertices to capture");
+        anyhow::ensure!(!jobs.is_empty(), "no vertices to capture");
         let device = &self.gpu.device;
         let init = |label, contents: &[u8], usage| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -60,12 +60,7 @@ impl Renderer {
             bytemuck::cast_slice(&jobs),
             wgpu::BufferUsages::STORAGE,
         );
-        let vids_buf = init(
-            "capture vids",
-            bytemuck::cast_slice(&vids),
-            wgpu::BufferUsages::STORAGE,
-        );
-        let size = vids.len() as u64 * 16;
+        let size = jobs.len() as u64 * 16;
         let out = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("captured"),
             size,
@@ -89,10 +84,6 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 1,
                     resource: out.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: vids_buf.as_entire_binding(),
                 },
             ],
         });
@@ -120,13 +111,13 @@ impl Renderer {
             pass.set_pipeline(&pipeline);
             pass.set_bind_group(0, &self.bind_group, &[]);
             pass.set_bind_group(1, &group, &[]);
-            let groups = (vids.len() as u32).div_ceil(64);
+            let groups = (jobs.len() as u32).div_ceil(64);
             // Spread over two dimensions past the 65535-workgroup limit.
             let (x, y) = (groups.min(65_535), groups.div_ceil(65_535));
             anyhow::ensure!(
                 y == 1,
                 "too many vertices to capture at once ({})",
-                vids.len()
+                jobs.len()
             );
             pass.dispatch_workgroups(x, 1, 1);
         }

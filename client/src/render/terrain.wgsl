@@ -368,7 +368,9 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     return vec4<f32>(colour, 1.0);
 }
 
-// The vertex-capture pass: one invocation per (instance, vertex).
+// The vertex-capture pass: one invocation per (instance, vertex); the vertex
+// index rides in `c.w`, which instances leave 0 (two storage buffers, not three:
+// lavapipe's GL allows four per stage, group 0 included).
 struct CaptureJob {
     a: vec4<u32>,
     b: vec4<u32>,
@@ -377,15 +379,13 @@ struct CaptureJob {
 @group(1) @binding(0) var<storage, read> jobs: array<CaptureJob>;
 // (x, y, q, h) per job.
 @group(1) @binding(1) var<storage, read_write> captured: array<vec4<u32>>;
-// (vertex index of each job); jobs[k] captures vertex vids[k].
-@group(1) @binding(2) var<storage, read> vids: array<u32>;
 
 @compute @workgroup_size(64)
 fn capture(@builtin(global_invocation_id) id: vec3<u32>) {
     let k = id.x;
-    if (k >= arrayLength(&vids)) {
+    if (k >= arrayLength(&jobs)) {
         return;
     }
-    let t = terrain_vertex(jobs[k].a, jobs[k].b, jobs[k].c, vids[k]);
+    let t = terrain_vertex(jobs[k].a, jobs[k].b, jobs[k].c, jobs[k].c.w);
     captured[k] = vec4<u32>(t.x, t.y, t.q, t.h);
 }
