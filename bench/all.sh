@@ -2,7 +2,7 @@
 # Every benchmark of issue 6 in one run (`./run bench` calls this), then
 # `tessera-bench report`, which rewrites BENCHMARKS.md and bench/plots/*.png from the
 # results. Expects the release binaries built and the tools installed (./run does both).
-#   bench/all.sh [SECTION...]   (default: build select serve stream policy gonzalez ingest webtiles terrain popping)
+#   bench/all.sh [SECTION...]   (default: build select serve stream policy gonzalez ingest webtiles terrain upload popping)
 # RESULTS (default target/bench/results) is emptied first, unless KEEP_RESULTS=1 (to
 # rerun one section and regenerate the report from old results of the others).
 set -euo pipefail
@@ -10,7 +10,7 @@ cd "$(dirname "$0")/.."
 export RESULTS=${RESULTS:-$PWD/target/bench/results}
 export RUNS=${RUNS:-3} QUICK=${QUICK:-0}
 sections=("$@")
-[ ${#sections[@]} -gt 0 ] || sections=(build select serve stream policy gonzalez ingest webtiles terrain popping)
+[ ${#sections[@]} -gt 0 ] || sections=(build select serve stream policy gonzalez ingest webtiles terrain upload popping)
 [ "${KEEP_RESULTS:-0}" = 1 ] || rm -rf "$RESULTS"
 mkdir -p "$RESULTS"
 keep=$(mktemp -d "${TMPDIR:-/tmp}/tessera-bench-keep.XXXXXX")
@@ -30,8 +30,8 @@ for s in "${sections[@]}"; do
     serve) rm -f "$RESULTS/load.jsonl"; bench/serve.sh ;;
     # terrain writes terrain_mesh.jsonl and terrain_serve.jsonl, each replaced only by
     # the part that runs (TERRAIN_MESH=0 or TERRAIN_SERVE=0 keeps the other's).
-    stream | policy | gonzalez | ingest | webtiles | terrain | popping) "bench/$s.sh" ;;
-    *) echo "unknown section '$s' (build select serve stream policy gonzalez ingest webtiles terrain popping)" >&2; exit 2 ;;
+    stream | policy | gonzalez | ingest | webtiles | terrain | upload | popping) "bench/$s.sh" ;;
+    *) echo "unknown section '$s' (build select serve stream policy gonzalez ingest webtiles terrain upload popping)" >&2; exit 2 ;;
   esac
 done
 rm -rf "$RESULTS/reference-cache"

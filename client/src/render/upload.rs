@@ -121,7 +121,9 @@ impl Renderer {
     /// Uploads the wanted tiles that are decoded but not on the GPU, within
     /// `budget` (at least one, so a slow frame still makes progress): coarse levels
     /// first so ancestors arrive before descendants, then the most wanted. Their
-    /// normal maps are then computed in one GPU pass (submitted, not awaited).
+    /// normal maps are computed in one GPU pass when the next frame is drawn
+    /// ([`Renderer::flush_normals`]): submitted here, the pass's time showed up
+    /// in the upload time on lavapipe (BENCHMARKS.md, "Tile uploads").
     /// Returns how many were uploaded.
     pub fn upload_wanted(&mut self, pool: &TilePool, wanted: &[Wanted], budget: Duration) -> u32 {
         let started = Instant::now();
@@ -144,7 +146,6 @@ impl Renderer {
                 uploads += 1;
             }
         }
-        self.flush_normals();
         uploads
     }
 
