@@ -119,13 +119,24 @@ impl TileRho {
                 Policy::Distance => suffix = [size.max_element() / f64::from(1u32 << m); 64],
             }
             let base = m as usize * nodes;
+            // On the globe a mesh of level m also misses the curved surface by the
+            // sag of its cells' chords, `s²/8R` for a cell diagonal `s` (the body's
+            // polar radius: the smaller, the more sag); the error tables only hold
+            // heights' errors.
+            let sag = match (&world.globe, policy) {
+                (Some(g), Policy::ScreenError) => {
+                    let cell = size.length() / f64::from(1u32 << m);
+                    cell * cell / (8.0 * g.ellipsoid.b)
+                }
+                _ => 0.0,
+            };
             // Blocks at depth `fine`, then pool up to the root.
             let mut grid: Vec<f64> = (0..64)
                 .map(|i| {
-                    if suffix[i] == 0.0 {
+                    if suffix[i] + sag == 0.0 || inv_d[i] == 0.0 {
                         0.0
                     } else {
-                        suffix[i] * lambda * inv_d[i]
+                        (suffix[i] + sag) * lambda * inv_d[i]
                     }
                 })
                 .collect();
