@@ -88,8 +88,7 @@ fn level_frames(addr: SocketAddr, name: &str, level: u8, kind: &str) -> Vec<Fram
 }
 
 /// A 4097² synthetic terrain in 512-cell tiles, named `coarse`: its bootstrap
-/// carries levels 0–1 as records and 2–3 as error tables (the test terrain's
-/// 128-cell tiles fit records of levels 0–3 in the budget, and no table level).
+/// carries records of the coarsest levels and error tables of the next ones.
 fn coarse_pyramid(dir: &std::path::Path) -> PathBuf {
     let out = dir.join("coarse.tess");
     let opts = tessera_server::build::BuildOptions {
@@ -100,20 +99,43 @@ fn coarse_pyramid(dir: &std::path::Path) -> PathBuf {
     out
 }
 
+/// The levels the budgets choose for the pyramid `file`
+/// ([`tessera_shared::bootstrap::plan_levels`] over its level table).
+fn planned_levels(file: &std::path::Path) -> (u8, u8) {
+    let p = tessera_shared::Pyramid::open_file(file).unwrap();
+    let g = *p.geometry();
+    let sizes: Vec<(u64, u64)> = g
+        .levels()
+        .map(|l| {
+            let bytes = p.level_entry(l).map_or(0, |e| e.records_len);
+            (bytes, g.present_tiles(l).count() as u64)
+        })
+        .collect();
+    let table = tessera_shared::ErrorTable::byte_len(g.tile_log2());
+    tessera_shared::bootstrap::plan_levels(&sizes, table)
+}
+
 /// The bootstrap's document is the dataset route's, its records are byte for byte
 /// the Morton-range stream's of the same levels, and its error tables the error
-/// route's: for a pyramid carried as records only, and one with error-table levels.
+/// route's: for the test terrain and for a pyramid of larger tiles, whose levels the
+/// byte budgets split into records and error tables (the levels asked for are the
+/// ones `plan_levels` gives for each file).
 #[test]
 fn the_bootstrap_is_what_the_individual_routes_send() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let (terrain, _a) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
-    let (coarse, _b) = start_server_for(
-        &rt,
-        "127.0.0.1:0".parse().unwrap(),
-        &coarse_pyramid(dir.path()),
-    );
-    for (addr, name, levels) in [(terrain, "terrain", (4, 4)), (coarse, "coarse", (2, 4))] {
+    let coarse_file = coarse_pyramid(dir.path());
+    let (coarse, _b) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &coarse_file);
+    for (addr, name, file) in [
+        (
+            terrain,
+            "terrain",
+            streaming_support::pyramid().to_path_buf(),
+        ),
+        (coarse, "coarse", coarse_file.clone()),
+    ] {
+        let levels = planned_levels(&file);
         let a = get(addr, &format!("/v1/datasets/{name}/bootstrap"), &[]);
         assert_eq!(a.status, 200, "{name}");
         let b = Bootstrap::decode(&a.body).unwrap();
@@ -125,6 +147,12 @@ fn the_bootstrap_is_what_the_individual_routes_send() {
             levels,
             "{name}: the budgets' levels"
         );
+        if name == "coarse" {
+            assert!(
+                b.record_levels >= 2 && b.table_levels > b.record_levels,
+                "the coarse pyramid should have records beyond the root and table levels: {levels:?}"
+            );
+        }
         let mut expected = Vec::new();
         for level in 0..b.record_levels {
             let frames = level_frames(addr, name, level, "tiles");
