@@ -52,6 +52,11 @@ pub fn ranges_by_level(tiles: &[TileId]) -> BTreeMap<Level, Vec<MortonRange>> {
         .collect()
 }
 
+/// An HTTP client for [`fetch`], set up as the streamer's (TLS provider, timeout).
+pub fn http_client(timeout: std::time::Duration) -> anyhow::Result<reqwest::Client> {
+    super::http_client(timeout, false)
+}
+
 /// Fetches and decodes the imagery of `ranges` of `level` from the server at `base`
 /// (`http://host:port`): one request, the JPEG decodes on a blocking thread. Tiles
 /// without a record (outside ranges) are simply not returned.
