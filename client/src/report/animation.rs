@@ -32,7 +32,7 @@ impl Default for AnimationOptions {
     fn default() -> Self {
         Self {
             max_width: 480,
-            max_frames: 240,
+            max_frames: 120,
             fps: 30,
         }
     }

@@ -12,7 +12,8 @@
 //! - *ridged* octaves (`(1 − |n|)²`, sharp where the noise crosses zero) make the
 //!   crests; each octave is weighted by the one below it, so fine detail gathers
 //!   on the ridges and the valley floors stay smooth, as erosion leaves them;
-//! - *valleys* cut through the ranges along the zero line of another noise field;
+//! - *valleys* cut through the ranges along a level line of another noise field,
+//!   the one through the terrain's centre (so a valley runs through the middle);
 //! - rolling *hills* (plain fractal octaves) roughen the lowlands a little.
 //!
 //! Octaves halve in wavelength (and turn by 36.87° so no axis is favoured) from
@@ -52,6 +53,8 @@ pub struct Synthetic {
     wavelength: f64,
     /// Octaves from the landform scale down to two samples.
     octaves: u32,
+    /// The valley noise at the terrain's centre (valleys follow its level lines).
+    valley_level: f64,
 }
 
 /// cos and sin of 11.25° and of 33.75°.
@@ -137,12 +140,17 @@ impl Synthetic {
         let wavelength = f64::from(size - 1).clamp(64.0, MAX_WAVELENGTH);
         // Octaves from about half the landform wavelength down to two samples.
         let octaves = ((wavelength / 4.0).log2().floor() as u32).max(1);
-        Ok(Self {
+        let mut s = Self {
             size,
             seed,
             wavelength,
             octaves,
-        })
+            valley_level: 0.0,
+        };
+        let centre = f64::from(size - 1) / 2.0;
+        let (qx, qy) = s.warp(centre, centre);
+        s.valley_level = s.valley_noise(qx, qy);
+        Ok(s)
     }
 
     pub fn size(&self) -> u32 {
@@ -214,13 +222,23 @@ impl Synthetic {
         sum / norm
     }
 
-    /// The height in metres of sample `(x, y)`: between ~150 and ~4500 m.
-    fn height_m(&self, x: f64, y: f64) -> f64 {
+    /// The noise whose level lines are the valleys, at warped coordinates.
+    fn valley_noise(&self, qx: f64, qy: f64) -> f64 {
+        self.noise(2.0 * qx + 7.1, 2.0 * qy - 3.7, VALLEYS)
+    }
+
+    /// Warped coordinates of sample `(x, y)`, in landform wavelengths: the plane
+    /// bent by up to about a tenth of the landform scale.
+    fn warp(&self, x: f64, y: f64) -> (f64, f64) {
         let (px, py) = (x / self.wavelength, y / self.wavelength);
-        // Domain warp: bend the plane by up to about a tenth of the landform scale.
         let wx = self.fbm(1.3 * px, 1.3 * py, 3, 0.5, WARP_X);
         let wy = self.fbm(1.3 * px + 5.2, 1.3 * py + 1.3, 3, 0.5, WARP_Y);
-        let (qx, qy) = (px + 0.25 * wx, py + 0.25 * wy);
+        (px + 0.25 * wx, py + 0.25 * wy)
+    }
+
+    /// The height in metres of sample `(x, y)`: between ~150 and ~4500 m.
+    fn height_m(&self, x: f64, y: f64) -> f64 {
+        let (qx, qy) = self.warp(x, y);
         // Where the ranges stand (1) and where the lowlands lie (0): the ranges
         // rise toward the middle of the terrain and lowlands ring it, so that the
         // whole terrain seen from above reads as a mountain region.
@@ -234,10 +252,11 @@ impl Synthetic {
             self.octaves.saturating_sub(1).max(1),
             RIDGES,
         );
-        // Valleys cut through the ranges where another low-frequency noise
-        // crosses zero, to 35 % of the height the range would have.
-        let river = self.noise(2.0 * qx + 7.1, 2.0 * qy - 3.7, VALLEYS).abs();
-        let carve = 0.35 + 0.65 * smoothstep(0.0, 0.3, river);
+        // Valleys cut through the ranges, to a fifth of the height the range
+        // would have, where another low-frequency noise crosses the value it has
+        // at the terrain's centre: a valley always runs through the middle.
+        let river = (self.valley_noise(qx, qy) - self.valley_level).abs();
+        let carve = 0.2 + 0.8 * smoothstep(0.0, 0.3, river);
         let mountains = 3600.0 * uplift * ridges.powf(1.2) * carve;
         // Rolling hills everywhere, rougher in the ranges.
         let hills = self.fbm(3.0 * qx, 3.0 * qy, self.octaves, 0.5, HILLS);
