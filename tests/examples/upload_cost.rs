@@ -23,7 +23,10 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 fn main() {
     let Some(m) = Moon::build(256) else { return };
-    let runs: usize = std::env::var("RUNS").ok().and_then(|r| r.parse().ok()).unwrap_or(3);
+    let runs: usize = std::env::var("RUNS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(3);
     let meta = m.pyramid.metadata();
     let pool = m.pool();
     let mut tiles: Vec<_> = m.tables.keys().copied().collect();
@@ -61,7 +64,11 @@ fn main() {
             }
             eprintln!(
                 "{{\"run\":{run},\"normals\":\"{}\",\"tiles\":{},\"samples\":{n},\"gpu\":\"{}\",\"upload_ms_per_tile\":{:.3},\"flush_ms_per_tile\":{:.3},\"wait_ms_per_tile\":{:.3}}}",
-                if source == NormalSource::Gpu { "gpu" } else { "cpu" },
+                if source == NormalSource::Gpu {
+                    "gpu"
+                } else {
+                    "cpu"
+                },
                 tiles.len() - 1,
                 r.gpu.describe(),
                 median(upload),
