@@ -2,8 +2,10 @@
 //! their texture-array slots, so that uploading a tile is only texture copies.
 //!
 //! Uploads write the tile's heights a second time, into a storage buffer holding
-//! every slot's samples (the pass reads them there: on CPU rasterizers a texel
-//! fetch costs several buffer loads), and queue the tile; the next flush (the end of
+//! every slot's samples where the device's storage buffers can hold them all
+//! (the pass reads them there: on CPU rasterizers a texel fetch costs several
+//! buffer loads; elsewhere it fetches them from the height texture), and queue
+//! the tile; the next flush (the end of
 //! [`Renderer::upload_wanted`], or the next frame drawn) computes, in one compute
 //! pass, the whole normal map of every queued tile and the border ring of each of
 //! their resident same-level neighbours. A shared border therefore ends up with
@@ -38,14 +40,24 @@ struct Job {
     params: [f32; 4],
 }
 
+/// Where the pass reads heights (`normals_heights_*.wgsl`).
+#[derive(Debug)]
+enum Heights {
+    /// Every slot's heights, `entries` u16 per slot (two per word), written
+    /// at upload beside the texture: buffer loads are cheap on CPU rasterizers.
+    Buffer(wgpu::Buffer),
+    /// The height texture array itself, where the buffer would exceed the
+    /// device's storage-buffer limit.
+    Texture(wgpu::TextureView),
+}
+
 /// The compute pipelines and the tiles waiting for their normal maps.
 #[derive(Debug)]
 pub(super) struct NormalPass {
     whole: wgpu::ComputePipeline,
     ring: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
-    /// Every slot's heights, `entries` u16 per slot (two per word).
-    heights: wgpu::Buffer,
+    heights: Heights,
     /// `T + 1`: samples per tile side.
     samples: u32,
     /// u16 entries per slot: `samples²` rounded up to even (4-byte writes).
@@ -59,12 +71,16 @@ pub(super) struct NormalPass {
 }
 
 impl NormalPass {
-    /// The pass over the `normals` texture array ([`NORMAL_FORMAT`], with storage
-    /// usage; its size gives the slots and samples), when `source` asks for it and
-    /// the device can run it: devices without compute shaders (GL ES 3.0), or
-    /// whose storage buffers cannot hold every slot's heights, fall back to the
-    /// CPU, with a warning.
-    pub(super) fn chosen(source: NormalSource, gpu: &Gpu, normals: &wgpu::Texture) -> Option<Self> {
+    /// The pass from the `heights` texture array into the `normals` one
+    /// ([`NORMAL_FORMAT`], with storage usage; its size gives the slots and
+    /// samples), when `source` asks for it and the device can run it: devices
+    /// without compute shaders (GL ES 3.0) fall back to the CPU, with a warning.
+    pub(super) fn chosen(
+        source: NormalSource,
+        gpu: &Gpu,
+        heights: &wgpu::Texture,
+        normals: &wgpu::Texture,
+    ) -> Option<Self> {
         if source != NormalSource::Gpu {
             return None;
         }
@@ -83,20 +99,34 @@ impl NormalPass {
             .limits
             .max_storage_buffer_binding_size
             .min(gpu.limits.max_buffer_size);
-        if bytes > limit {
-            tracing::warn!(gpu = %gpu.describe(), bytes, limit,
-                "every slot's heights exceed a storage buffer: normal maps are built on the CPU");
-            return None;
-        }
-        Some(Self::new(&gpu.device, normals, samples, entries, bytes))
+        let device = &gpu.device;
+        let source = if bytes <= limit {
+            Heights::Buffer(device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("heights for normal maps"),
+                size: bytes,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }))
+        } else {
+            tracing::info!(
+                bytes,
+                limit,
+                "normal maps read heights from the texture (every slot's would exceed a storage buffer)"
+            );
+            Heights::Texture(heights.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            }))
+        };
+        Some(Self::new(device, source, normals, samples, entries))
     }
 
     fn new(
         device: &wgpu::Device,
+        heights: Heights,
         normals: &wgpu::Texture,
         samples: u32,
         entries: u64,
-        bytes: u64,
     ) -> Self {
         let buffer = |binding| wgpu::BindGroupLayoutEntry {
             binding,
@@ -113,7 +143,19 @@ impl NormalPass {
             entries: &[
                 buffer(0),
                 buffer(1),
-                buffer(2),
+                match heights {
+                    Heights::Buffer(_) => buffer(2),
+                    Heights::Texture(_) => wgpu::BindGroupLayoutEntry {
+                        binding: 2,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
+                },
                 wgpu::BindGroupLayoutEntry {
                     binding: 3,
                     visibility: wgpu::ShaderStages::COMPUTE,
@@ -126,9 +168,15 @@ impl NormalPass {
                 },
             ],
         });
+        let read_heights = match heights {
+            Heights::Buffer(_) => include_str!("normals_heights_buffer.wgsl"),
+            Heights::Texture(_) => include_str!("normals_heights_texture.wgsl"),
+        };
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("normals.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("normals.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(
+                format!("{read_heights}\n{}", include_str!("normals.wgsl")).into(),
+            ),
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("normal maps"),
@@ -148,12 +196,7 @@ impl NormalPass {
         Self {
             whole: pipeline("whole"),
             ring: pipeline("ring"),
-            heights: device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("heights for normal maps"),
-                size: bytes,
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
+            heights,
             samples,
             entries,
             normals: normals.create_view(&wgpu::TextureViewDescriptor {
@@ -172,26 +215,25 @@ impl NormalPass {
         }
     }
 
-    /// Writes `tile`'s heights into `slot` of the pass's buffer and queues its
-    /// normal map.
+    /// Writes `tile`'s heights into `slot` of the pass's buffer, if it reads one,
+    /// and queues its normal map.
     pub(super) fn queue(&mut self, queue: &wgpu::Queue, tile: TileId, slot: u32, heights: &[u16]) {
+        self.pending.push(tile);
+        let Heights::Buffer(buffer) = &self.heights else {
+            return;
+        };
         debug_assert_eq!(heights.len() as u64, u64::from(self.samples).pow(2));
         let offset = u64::from(slot) * self.entries * 2;
         // Buffer writes come in whole words: an odd count's last sample goes with a pad.
         let whole = heights.len() / 2 * 2;
-        queue.write_buffer(
-            &self.heights,
-            offset,
-            bytemuck::cast_slice(&heights[..whole]),
-        );
+        queue.write_buffer(buffer, offset, bytemuck::cast_slice(&heights[..whole]));
         if let Some(&last) = heights.get(whole) {
             queue.write_buffer(
-                &self.heights,
+                buffer,
                 offset + 2 * whole as u64,
                 bytemuck::cast_slice(&[last, 0]),
             );
         }
-        self.pending.push(tile);
     }
 }
 
@@ -287,7 +329,10 @@ impl Renderer {
                     },
                     wgpu::BindGroupEntry {
                         binding: 2,
-                        resource: pass.heights.as_entire_binding(),
+                        resource: match &pass.heights {
+                            Heights::Buffer(b) => b.as_entire_binding(),
+                            Heights::Texture(v) => wgpu::BindingResource::TextureView(v),
+                        },
                     },
                     wgpu::BindGroupEntry {
                         binding: 3,

@@ -6,8 +6,10 @@
 // compute the same normal there (shading is continuous across tiles).
 //
 // Heights are read from a storage buffer holding every slot's samples (two u16
-// per word), not from the height texture: texel fetches cost several times a
-// buffer load on CPU rasterizers (lavapipe), and this pass is load-bound.
+// per word) where the device's storage buffers can hold them all: texel fetches
+// cost several times a buffer load on CPU rasterizers (lavapipe), and this pass
+// is load-bound. Elsewhere (e.g. 256 slots of 513² samples: 135 MB against
+// lavapipe's 128 MiB) they are fetched from the height texture.
 
 // One tile to (re)compute. `tile.x`: its slot. `neighbours`: the slots of the
 // north, east, south and west neighbours, NONE where not resident. `params`:
@@ -22,17 +24,14 @@ const NONE: u32 = 0xffffffffu;
 
 // `header.x`: how many jobs compute a whole tile (they come first; the border
 // jobs follow them); `header.y`: all jobs; `header.z`: samples per tile side;
-// `header.w`: u16 entries per slot in `heights`.
+// `header.w`: u16 entries per slot in the heights buffer (unused with the texture).
 @group(0) @binding(0) var<storage, read> header: vec4<u32>;
 @group(0) @binding(1) var<storage, read> jobs: array<Job>;
-@group(0) @binding(2) var<storage, read> heights: array<u32>;
+// Binding 2, `heights`, and `fn height(slot, u, v) -> f32` (the quantized height at
+// sample (u, v) of a slot) come from normals_heights_buffer.wgsl or
+// normals_heights_texture.wgsl, prepended by gpu_normals.rs.
 @group(0) @binding(3) var normals: texture_storage_2d_array<rgba8snorm, write>;
 
-// The quantized height at sample (u, v) of a slot.
-fn height(slot: u32, u: u32, v: u32) -> f32 {
-    let i = slot * header.w + v * header.z + u;
-    return f32((heights[i >> 1u] >> ((i & 1u) * 16u)) & 0xffffu);
-}
 
 // The height one step towards a side and that step (1, or 0 when there is no
 // sample there: the difference is then one-sided). `inside`: the step stays in

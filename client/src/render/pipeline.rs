@@ -116,7 +116,7 @@ impl Renderer {
                 | wgpu::TextureUsages::STORAGE_BINDING,
             view_formats: &[],
         });
-        let normal_pass = gpu_normals::NormalPass::chosen(opts.normals, &gpu, &normals);
+        let normal_pass = gpu_normals::NormalPass::chosen(opts.normals, &gpu, &heights, &normals);
         // One texel per cell: 1.0 where the cell is terrain (FORMAT.md "Validity mask").
         let masks = array("cell masks", wgpu::TextureFormat::R8Unorm, cells);
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
