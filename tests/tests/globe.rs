@@ -163,7 +163,7 @@ fn quarter_columns(img: &[u8]) -> [u32; 3] {
 /// chord of the other two.
 fn top_edge_bow(img: &[u8], [a, b, c]: [u32; 3]) -> f64 {
     let top = |x: u32| f64::from((0..H).find(|&y| terrain(img, x, y)).unwrap());
-    (top(b) - (top(a) + top(c)) / 2.0).abs()
+    (top(b) - f64::midpoint(top(a), top(c))).abs()
 }
 
 /// The same bow predicted in f64: the dataset's south edge (at the top of the
@@ -179,7 +179,7 @@ fn predicted_bow(world: &World, cam: &Camera, [a, b, c]: [u32; 3]) -> f64 {
             let clip = vp * p.extend(1.0);
             let (nx, ny) = (clip.x / clip.w, clip.y / clip.w);
             (
-                (nx + 1.0) / 2.0 * f64::from(W),
+                f64::midpoint(nx, 1.0) * f64::from(W),
                 (1.0 - ny) / 2.0 * f64::from(H),
             )
         })
@@ -191,7 +191,7 @@ fn predicted_bow(world: &World, cam: &Camera, [a, b, c]: [u32; 3]) -> f64 {
             .unwrap()
             .1
     };
-    (row(b) - (row(a) + row(c)) / 2.0).abs()
+    (row(b) - f64::midpoint(row(a), row(c))).abs()
 }
 
 #[test]

@@ -103,3 +103,44 @@ impl Globe {
         self.ellipsoid.b + self.min_height.min(0.0)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_shared::{GeoRef, RasterType};
+
+    fn info(proj: &str, epsg: Option<u32>) -> DatasetInfo {
+        let mut meta = tessera_shared::fixtures::metadata(4097, 4097, 256);
+        meta.georef = Some(GeoRef {
+            epsg,
+            crs_name: None,
+            proj: Some(proj.into()),
+            wkt: None,
+            geotransform: [51.0, 1.0 / 256.0, 0.0, 25.0, 0.0, -1.0 / 256.0],
+            raster_type: RasterType::PixelIsArea,
+        });
+        DatasetInfo::new("d", &meta, 2, 0)
+    }
+
+    #[test]
+    fn auto_is_the_globe_for_geographic_grids_only_and_on_says_why_not() {
+        let s = DVec2::splat(100.0);
+        let moon = info("+proj=longlat +R=1737400 +no_defs", None);
+        let g = Globe::choose(GlobeMode::Auto, &moon, s).unwrap().unwrap();
+        assert_eq!((g.ellipsoid.a, g.ellipsoid.b), (1_737_400.0, 1_737_400.0));
+        // Sample (0, 0)'s centre is half a sample in from the corner.
+        let (lon, lat) = g.grid.lon_lat(0.0, 0.0);
+        assert!((lon.to_degrees() - (51.0 + 0.5 / 256.0)).abs() < 1e-12);
+        assert!((lat.to_degrees() - (25.0 - 0.5 / 256.0)).abs() < 1e-12);
+        assert_eq!(Globe::choose(GlobeMode::Off, &moon, s).unwrap(), None);
+        let utm = info(
+            "+proj=utm +zone=11 +datum=WGS84 +units=m +no_defs",
+            Some(32611),
+        );
+        assert_eq!(Globe::choose(GlobeMode::Auto, &utm, s).unwrap(), None);
+        let e = Globe::choose(GlobeMode::On, &utm, s)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--globe on") && e.contains("EPSG:32611"), "{e}");
+    }
+}
