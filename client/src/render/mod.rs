@@ -27,6 +27,7 @@
 mod capture;
 pub mod gpu;
 mod gpu_normals;
+mod imagery;
 pub mod instances;
 pub mod normals;
 mod pipeline;
@@ -133,6 +134,9 @@ pub struct Renderer {
     /// Eye-relative globe tables, rewritten each frame on the globe
     /// (`globe::tables`); one unused entry each on flat datasets.
     globe_tables: [wgpu::Buffer; 2],
+    sampler: wgpu::Sampler,
+    /// Draped imagery, a layer per slot (`imagery`).
+    imagery: imagery::ImageryTextures,
     bind_group: wgpu::BindGroup,
     layout: wgpu::BindGroupLayout,
     capture_layout: wgpu::BindGroupLayout,

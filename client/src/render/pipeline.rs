@@ -3,6 +3,7 @@
 //! range per inner LOD), drawing a frame into the offscreen targets, and resizing
 //! them.
 
+use super::imagery::ImageryTextures;
 use super::slots::SlotTable;
 use super::{DrawStats, RenderOptions, Renderer, capture, gpu::Gpu, gpu_normals, instances};
 use crate::camera::Camera;
@@ -190,48 +191,32 @@ impl Renderer {
                 texture_entry(4),
                 storage_entry(5),
                 storage_entry(6),
-            ],
-        });
-        let array_view = |t: &wgpu::Texture| {
-            t.create_view(&wgpu::TextureViewDescriptor {
-                dimension: Some(wgpu::TextureViewDimension::D2Array),
-                ..Default::default()
-            })
-        };
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("terrain"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: globals.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&array_view(&heights)),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&array_view(&normals)),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: wgpu::BindingResource::Sampler(&sampler),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: wgpu::BindingResource::TextureView(&array_view(&masks)),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: globe_tables[0].as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 6,
-                    resource: globe_tables[1].as_entire_binding(),
+                // Imagery (imagery.rs): the layers, and one flag per slot.
+                texture_entry(7),
+                wgpu::BindGroupLayoutEntry {
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    ..texture_entry(8)
                 },
             ],
         });
+        let imagery = ImageryTextures::new(device, layers, 1);
+        let bind_group = bind_group(
+            device,
+            &layout,
+            &BindParts {
+                globals: &globals,
+                heights: &heights,
+                normals: &normals,
+                sampler: &sampler,
+                masks: &masks,
+                globe_tables: &globe_tables,
+                imagery: &imagery,
+            },
+        );
         let capture_layout = capture::bind_group_layout(device);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("terrain.wgsl"),
@@ -302,6 +287,8 @@ impl Renderer {
             masks,
             globals,
             globe_tables,
+            sampler,
+            imagery,
             bind_group,
             layout,
             capture_layout,
@@ -478,6 +465,86 @@ impl Renderer {
         self.opts.width = width;
         self.opts.height = height;
         (self.colour, self.depth) = targets(&self.gpu.device, width, height);
+    }
+}
+
+/// The terrain bind group's resources (group 0 of `terrain.wgsl`).
+struct BindParts<'a> {
+    globals: &'a wgpu::Buffer,
+    heights: &'a wgpu::Texture,
+    normals: &'a wgpu::Texture,
+    sampler: &'a wgpu::Sampler,
+    masks: &'a wgpu::Texture,
+    globe_tables: &'a [wgpu::Buffer; 2],
+    imagery: &'a ImageryTextures,
+}
+
+fn bind_group(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    p: &BindParts<'_>,
+) -> wgpu::BindGroup {
+    fn view(binding: u32, view: &wgpu::TextureView) -> wgpu::BindGroupEntry<'_> {
+        wgpu::BindGroupEntry {
+            binding,
+            resource: wgpu::BindingResource::TextureView(view),
+        }
+    }
+    let array_view = |t: &wgpu::Texture| {
+        t.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        })
+    };
+    let flags = p.imagery.flags.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2),
+        ..Default::default()
+    });
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("terrain"),
+        layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: p.globals.as_entire_binding(),
+            },
+            view(1, &array_view(p.heights)),
+            view(2, &array_view(p.normals)),
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: wgpu::BindingResource::Sampler(p.sampler),
+            },
+            view(4, &array_view(p.masks)),
+            wgpu::BindGroupEntry {
+                binding: 5,
+                resource: p.globe_tables[0].as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 6,
+                resource: p.globe_tables[1].as_entire_binding(),
+            },
+            view(7, &array_view(&p.imagery.texels)),
+            view(8, &flags),
+        ],
+    })
+}
+
+impl Renderer {
+    /// Builds the terrain bind group again (after a texture was replaced).
+    pub(super) fn rebuild_bind_group(&mut self) {
+        self.bind_group = bind_group(
+            &self.gpu.device,
+            &self.layout,
+            &BindParts {
+                globals: &self.globals,
+                heights: &self.heights,
+                normals: &self.normals,
+                sampler: &self.sampler,
+                masks: &self.masks,
+                globe_tables: &self.globe_tables,
+                imagery: &self.imagery,
+            },
+        );
     }
 }
 

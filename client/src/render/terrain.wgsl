@@ -45,6 +45,10 @@ struct Globals {
 // unused entry each on flat datasets.
 @group(0) @binding(5) var<storage, read> globe_rows: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> globe_cols: array<vec4<f32>>;
+// Draped imagery (issue 17 item 5): a layer per slot, and per slot whether its layer
+// holds the slot's tile's imagery (1.0) or not yet (0.0: the hypsometric tint).
+@group(0) @binding(7) var imagery: texture_2d_array<f32>;
+@group(0) @binding(8) var imagery_present: texture_2d<f32>;
 
 // Per-instance data, packed (see `render/instances.rs`):
 //   a = (slot | level << 16, origin x | origin y << 16, size in tile cells, inner LOD)
@@ -323,6 +327,18 @@ fn is_terrain(uv: vec2<f32>, slot: u32) -> bool {
     return textureLoad(masks, cell, i32(slot), 0).r > 0.5;
 }
 
+// The unlit colour at tile sample coordinates `uv`: the tile's imagery where its
+// slot has it, else the hypsometric tint. Imagery texel (u, v) is centred at tile
+// sample ((u + ½)·T/side, …) (FORMAT.md "Imagery pyramids"), so texture coordinate
+// uv / T reads the imagery at sample uv.
+fn surface_colour(uv: vec2<f32>, slot: u32) -> vec3<f32> {
+    if (textureLoad(imagery_present, vec2<i32>(i32(slot), 0), 0).r > 0.5) {
+        let t = uv / f32(g.mode.z);
+        return textureSampleLevel(imagery, linear_clamp, t, i32(slot), 0.0).rgb;
+    }
+    return tint(fine_height(uv, slot));
+}
+
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     // Derivatives first, in uniform control flow.
@@ -343,7 +359,7 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     let n = normal_at(uv, slot);
     let lambert = max(dot(n, g.sun.xyz), 0.0);
     let light = 0.25 + 0.75 * lambert;
-    var colour = tint(fine_height(uv, slot)) * light;
+    var colour = surface_colour(uv, slot) * light;
     if (view == 1u) {
         colour = palette(firstTrailingBit(in.info.z)) * light;
     } else if (view == 2u) {

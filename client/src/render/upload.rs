@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use tessera_shared::TileId;
 
 /// Writes one texture-array layer: `side × side` texels of `bytes_per_texel` each.
-fn write_layer(
+pub(super) fn write_layer(
     queue: &wgpu::Queue,
     texture: &wgpu::Texture,
     slot: u32,
@@ -57,6 +57,7 @@ impl Renderer {
         let Some(slot) = self.slots.allocate(tile) else {
             return false;
         };
+        self.imagery_slot_taken(slot, tile);
         let g = self.world.geometry;
         let side = g.tile_samples() as u32;
         let queue = &self.gpu.queue;

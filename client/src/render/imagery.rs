@@ -1,0 +1,169 @@
+//! Imagery draped over the terrain (issue 17 item 5; Yang §3: texture LOD follows
+//! grid LOD): one `Rgba8Unorm` texture-array layer per GPU slot, the same slot as
+//! the tile's heights, and a one-row flag texture saying which slots hold their
+//! tile's imagery. A slot whose tile changed, or whose imagery has not arrived, has
+//! flag 0 and is shaded with the hypsometric tint (`terrain.wgsl`, `fs_main`).
+//!
+//! `Rgba8Unorm`, not `Srgb`: the colour target is `Rgba8Unorm` and the tint is
+//! written as stored bytes, so the imagery's bytes pass through unchanged.
+
+use super::Renderer;
+use crate::stream::imagery::Texels;
+use tessera_shared::TileId;
+
+pub(super) const IMAGERY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+
+/// The imagery textures and which tile each slot's layer holds.
+#[derive(Debug)]
+pub(super) struct ImageryTextures {
+    pub texels: wgpu::Texture,
+    /// `layers × 1`, `R8Unorm`: 1.0 where the slot's layer is its tile's imagery.
+    pub flags: wgpu::Texture,
+    /// Texels per layer side (1 until [`Renderer::enable_imagery`]).
+    pub side: u32,
+    holds: Vec<Option<TileId>>,
+}
+
+impl ImageryTextures {
+    /// Textures of `side²` texels for `layers` slots, every flag 0.
+    pub fn new(device: &wgpu::Device, layers: u32, side: u32) -> Self {
+        let texels = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("imagery"),
+            size: wgpu::Extent3d {
+                width: side,
+                height: side,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: IMAGERY_FORMAT,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        // Zero-initialised by wgpu: no slot has imagery.
+        let flags = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("imagery flags"),
+            size: wgpu::Extent3d {
+                width: layers,
+                height: 1,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R8Unorm,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        Self {
+            texels,
+            flags,
+            side,
+            holds: vec![None; layers as usize],
+        }
+    }
+
+    fn set_flag(&mut self, queue: &wgpu::Queue, slot: u32, tile: Option<TileId>) {
+        let Some(h) = self.holds.get_mut(slot as usize) else {
+            return;
+        };
+        if *h == tile {
+            return;
+        }
+        *h = tile;
+        queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.flags,
+                mip_level: 0,
+                origin: wgpu::Origin3d {
+                    x: slot,
+                    y: 0,
+                    z: 0,
+                },
+                aspect: wgpu::TextureAspect::All,
+            },
+            &[if tile.is_some() { 255 } else { 0 }],
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: None,
+                rows_per_image: None,
+            },
+            wgpu::Extent3d {
+                width: 1,
+                height: 1,
+                depth_or_array_layers: 1,
+            },
+        );
+    }
+}
+
+impl Renderer {
+    /// Makes room for imagery of `side × side` texels per tile (the dataset's
+    /// `imagery.texels`); every slot starts without.
+    pub fn enable_imagery(&mut self, side: u32) -> anyhow::Result<()> {
+        let dim = self.gpu.limits.max_texture_dimension_2d;
+        anyhow::ensure!(
+            (1..=dim).contains(&side),
+            "imagery of {side} texels per tile side does not fit this GPU's {dim}-texel limit"
+        );
+        let layers = self.imagery.holds.len() as u32;
+        self.imagery = ImageryTextures::new(&self.gpu.device, layers, side);
+        self.rebuild_bind_group();
+        Ok(())
+    }
+
+    /// Texels per tile side of the imagery (`None` without imagery).
+    pub fn imagery_side(&self) -> Option<u32> {
+        (self.imagery.side > 1).then_some(self.imagery.side)
+    }
+
+    /// Whether `tile` is on the GPU with its imagery.
+    pub fn has_imagery(&self, tile: TileId) -> bool {
+        self.slots
+            .get(tile)
+            .is_some_and(|s| self.imagery.holds.get(s as usize) == Some(&Some(tile)))
+    }
+
+    /// Of `tiles`, those on the GPU without their imagery yet.
+    pub fn imagery_missing(&self, tiles: &[TileId]) -> Vec<TileId> {
+        tiles
+            .iter()
+            .copied()
+            .filter(|&t| self.slots.get(t).is_some() && !self.has_imagery(t))
+            .collect()
+    }
+
+    /// Writes `tile`'s imagery into its slot's layer. `false` when the tile has no
+    /// slot, or the texels are not the size [`Renderer::enable_imagery`] set.
+    pub fn upload_imagery(&mut self, tile: TileId, texels: &Texels) -> bool {
+        let Some(slot) = self.slots.get(tile) else {
+            return false;
+        };
+        let side = self.imagery.side;
+        if texels.side != side || texels.rgba.len() != (side * side * 4) as usize {
+            return false;
+        }
+        if self.has_imagery(tile) {
+            return true;
+        }
+        super::upload::write_layer(
+            &self.gpu.queue,
+            &self.imagery.texels,
+            slot,
+            &texels.rgba,
+            side,
+            4,
+        );
+        self.imagery.set_flag(&self.gpu.queue, slot, Some(tile));
+        true
+    }
+
+    /// A slot now holds `tile`'s heights: its imagery layer is stale until
+    /// [`Renderer::upload_imagery`].
+    pub(super) fn imagery_slot_taken(&mut self, slot: u32, tile: TileId) {
+        if self.imagery.holds.get(slot as usize) != Some(&Some(tile)) {
+            self.imagery.set_flag(&self.gpu.queue, slot, None);
+        }
+    }
+}
