@@ -259,8 +259,20 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         )?),
         None => None,
     };
+    // The dataset's imagery, when it has any and frames are drawn: the drawn tiles'
+    // imagery is fetched each frame and uploaded into their slots (Yang §3).
+    let mut imagery = match &mut headless {
+        Some(h) => match streamer.imagery_feed(opts.pool_tiles) {
+            Some(feed) => {
+                h.renderer.enable_imagery(feed.texels())?;
+                Some(feed)
+            }
+            None => None,
+        },
+        None => None,
+    };
     let mut rendered: Vec<(FrameStats, RenderRecord)> = Vec::new();
-    let start = Instant::now();
+    let mut start = Instant::now();
     let (mut within1, mut within2) = (0u32, 0u32);
     let (mut frames_drawn, mut frames_missing) = (0u32, 0u32);
     let mut warmup: Option<u32> = None;
@@ -279,6 +291,16 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             (opts.width, opts.height),
         )
     };
+    if let Some(h) = &mut headless {
+        // Selection draws only what is on the GPU, and a frame uploads after it
+        // selects; so what the open preloaded goes up now, level by level (each
+        // pass can only want the children of what is already up), with the
+        // bootstrap's decoding, before the flight clock starts. Without this,
+        // frame 0 would select from an empty GPU and draw nothing.
+        let camera = camera_at(&pool, opts.t_offset, 1.0);
+        while h.upload_all(&pool, &selector.select(&camera, &h.tables(&pool)).wanted) > 0 {}
+        start = Instant::now();
+    }
     for frame in 0..opts.frames {
         let t = opts.t_offset + f64::from(frame) / opts.fps;
         let settle = headless.as_ref().is_some_and(|h| h.settles(frame));
@@ -348,6 +370,13 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
                         &mut streamer,
                         SETTLE_TIMEOUT,
                     )?;
+                }
+                if let Some(feed) = &mut imagery {
+                    if settle {
+                        feed.settle(&sel.tiles, SETTLE_TIMEOUT);
+                    }
+                    feed.frame(&sel.tiles);
+                    h.renderer.upload_imagery_from(feed.pool(), &sel.tiles);
                 }
                 let mut rec = h.frame(frame, &camera, &sel, &pool)?;
                 rec.converged = sel.wanted.is_empty();
