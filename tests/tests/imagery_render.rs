@@ -31,6 +31,7 @@ use tessera_client::render::{RenderOptions, Renderer};
 use tessera_client::select::{SelectParams, Selector, World};
 use tessera_client::stream::imagery::{self, Texels};
 use tessera_client::stream::pool::TilePool;
+use tessera_client::stream::{StreamConfig, Streamer, TileSource};
 use tessera_server::build::{BuildOptions, build};
 use tessera_shared::api::DatasetInfo;
 use tessera_shared::{FileSource, Pyramid, TileId, testdata};
@@ -260,20 +261,33 @@ fn olinda_from_above_has_the_imagerys_coastline() {
         sel.tiles
     );
 
-    // The imagery of exactly the drawn tiles, through the client's fetch.
+    // The imagery of exactly the drawn tiles, as a flight gets it: the streamer's
+    // feed (opened on the server, as `tessera fly` opens it), settled, then
+    // uploaded into the tiles' slots.
     assert_eq!(r.imagery_missing(&sel.tiles), sel.tiles);
     let frame_without = {
         r.draw(&camera, &sel.patches).unwrap();
         r.read_rgba().unwrap()
     };
-    for (level, ranges) in imagery::ranges_by_level(&sel.tiles) {
-        for (tile, texels) in rt
-            .block_on(imagery::fetch(&client, &base, &im, level, &ranges))
-            .unwrap()
-        {
-            assert!(r.upload_imagery(tile, &texels), "{tile}");
-        }
-    }
+    let (streamer, _) = Streamer::open(
+        &TileSource::server(base.clone(), "olinda"),
+        StreamConfig::default(),
+        Some(rt.handle().clone()),
+    )
+    .unwrap();
+    let mut feed = streamer.imagery_feed(16).expect("the dataset has imagery");
+    assert_eq!(feed.texels(), im.texels);
+    assert!(feed.settle(&sel.tiles, std::time::Duration::from_secs(60)));
+    assert!(feed.last_error.is_none(), "{:?}", feed.last_error);
+    assert_eq!(
+        r.upload_imagery_from(feed.pool(), &sel.tiles) as usize,
+        sel.tiles.len()
+    );
+    // One request per level drawn (texture LOD follows geometry LOD), and no more
+    // once every drawn tile has its imagery.
+    let levels: std::collections::HashSet<_> = sel.tiles.iter().map(|t| t.level()).collect();
+    assert_eq!(feed.requests as usize, levels.len());
+    assert_eq!(feed.frame(&sel.tiles), 0);
     assert!(r.imagery_missing(&sel.tiles).is_empty());
     r.draw(&camera, &sel.patches).unwrap();
     let frame = r.read_rgba().unwrap();

@@ -8,7 +8,7 @@
 //! written as stored bytes, so the imagery's bytes pass through unchanged.
 
 use super::Renderer;
-use crate::stream::imagery::Texels;
+use crate::stream::imagery::{ImageryPool, Texels};
 use tessera_shared::TileId;
 
 pub(super) const IMAGERY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
@@ -157,6 +157,20 @@ impl Renderer {
         );
         self.imagery.set_flag(&self.gpu.queue, slot, Some(tile));
         true
+    }
+
+    /// Uploads the pooled imagery of those of `tiles` (the drawn ones) that are on
+    /// the GPU without it. Returns how many layers were written.
+    pub fn upload_imagery_from(&mut self, pool: &ImageryPool, tiles: &[TileId]) -> u32 {
+        let mut n = 0;
+        for t in self.imagery_missing(tiles) {
+            if let Some(texels) = pool.get(t)
+                && self.upload_imagery(t, texels)
+            {
+                n += 1;
+            }
+        }
+        n
     }
 
     /// A slot now holds `tile`'s heights: its imagery layer is stale until

@@ -10,7 +10,9 @@
 //! tile's UV `(i/T, j/T)` samples it at its own sample `(i, j)`.
 
 use anyhow::{Context, anyhow, bail};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
 use tessera_shared::imagery::ImageryInfo;
 use tessera_shared::wire::{self, Frame};
 use tessera_shared::{Level, MortonRange, TileId, morton, range_query};
@@ -53,7 +55,7 @@ pub fn ranges_by_level(tiles: &[TileId]) -> BTreeMap<Level, Vec<MortonRange>> {
 }
 
 /// An HTTP client for [`fetch`], set up as the streamer's (TLS provider, timeout).
-pub fn http_client(timeout: std::time::Duration) -> anyhow::Result<reqwest::Client> {
+pub fn http_client(timeout: Duration) -> anyhow::Result<reqwest::Client> {
     super::http_client(timeout, false)
 }
 
@@ -109,6 +111,146 @@ pub async fn fetch(
     .await
     .context("the imagery decode task failed")?
     .with_context(|| format!("GET {url}"))
+}
+
+/// How long a tile whose imagery request failed waits before it is asked for again.
+const RETRY_AFTER: Duration = Duration::from_secs(1);
+
+/// One finished imagery request: the tiles it asked for, and what came back.
+type Answer = (Vec<TileId>, anyhow::Result<Vec<(TileId, Texels)>>);
+
+/// A flight's imagery: each frame, the drawn tiles without imagery are asked for
+/// (one request per level, on the streamer's runtime), so that texture LOD follows
+/// the geometry's (Yang §3); answers are pooled when the next frame looks.
+#[derive(Debug)]
+pub struct ImageryFeed {
+    rt: tokio::runtime::Handle,
+    client: reqwest::Client,
+    base: String,
+    info: ImageryInfo,
+    pool: ImageryPool,
+    tx: mpsc::Sender<Answer>,
+    rx: mpsc::Receiver<Answer>,
+    pending: HashSet<TileId>,
+    /// Tiles the server has no imagery record for (the DEM has none): not asked again.
+    none: HashSet<TileId>,
+    retry_at: HashMap<TileId, Instant>,
+    pub requests: u64,
+    pub last_error: Option<String>,
+}
+
+impl ImageryFeed {
+    /// A feed from the server at `base` (`http://host:port`), pooling `capacity` tiles.
+    pub fn new(
+        rt: tokio::runtime::Handle,
+        client: reqwest::Client,
+        base: String,
+        info: ImageryInfo,
+        capacity: usize,
+    ) -> Self {
+        let (tx, rx) = mpsc::channel();
+        Self {
+            rt,
+            client,
+            base,
+            info,
+            pool: ImageryPool::new(capacity),
+            tx,
+            rx,
+            pending: HashSet::new(),
+            none: HashSet::new(),
+            retry_at: HashMap::new(),
+            requests: 0,
+            last_error: None,
+        }
+    }
+
+    /// Texels per tile side.
+    pub fn texels(&self) -> u32 {
+        self.info.texels
+    }
+
+    pub fn pool(&self) -> &ImageryPool {
+        &self.pool
+    }
+
+    /// Pools what has arrived, then asks for the imagery of `tiles` (those drawn this
+    /// frame) that is neither pooled, pending nor waiting to be retried. Returns the
+    /// number of requests sent.
+    pub fn frame(&mut self, tiles: &[TileId]) -> usize {
+        while let Ok((asked, answer)) = self.rx.try_recv() {
+            for t in &asked {
+                self.pending.remove(t);
+            }
+            match answer {
+                Ok(got) => {
+                    let mut have = HashSet::new();
+                    for (t, texels) in got {
+                        have.insert(t);
+                        self.retry_at.remove(&t);
+                        self.pool.insert(t, texels);
+                    }
+                    self.none
+                        .extend(asked.into_iter().filter(|t| !have.contains(t)));
+                }
+                Err(e) => {
+                    tracing::warn!("imagery: {e:#}");
+                    self.last_error = Some(format!("{e:#}"));
+                    let at = Instant::now() + RETRY_AFTER;
+                    self.retry_at.extend(asked.into_iter().map(|t| (t, at)));
+                }
+            }
+        }
+        self.pool.touch(tiles);
+        let now = Instant::now();
+        let want: Vec<TileId> = self
+            .pool
+            .missing(tiles)
+            .into_iter()
+            .filter(|t| {
+                !self.pending.contains(t)
+                    && !self.none.contains(t)
+                    && self.retry_at.get(t).is_none_or(|&at| at <= now)
+            })
+            .collect();
+        let mut sent = 0;
+        for (level, ranges) in ranges_by_level(&want) {
+            let asked: Vec<TileId> = want
+                .iter()
+                .copied()
+                .filter(|t| t.level() == level)
+                .collect();
+            self.pending.extend(asked.iter().copied());
+            let (client, base, info, tx) = (
+                self.client.clone(),
+                self.base.clone(),
+                self.info.clone(),
+                self.tx.clone(),
+            );
+            self.rt.spawn(async move {
+                let answer = fetch(&client, &base, &info, level, &ranges).await;
+                let _ = tx.send((asked, answer));
+            });
+            sent += 1;
+        }
+        self.requests += sent as u64;
+        sent
+    }
+
+    /// Waits (up to `timeout`) until none of `tiles` is pending; `false` on timeout.
+    pub fn settle(&mut self, tiles: &[TileId], timeout: Duration) -> bool {
+        let started = Instant::now();
+        loop {
+            self.frame(tiles);
+            if tiles.iter().all(|t| !self.pending.contains(t)) {
+                return true;
+            }
+            if started.elapsed() >= timeout {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
 }
 
 /// Decoded imagery by tile, least recently used first out.

@@ -237,6 +237,8 @@ pub struct Streamer {
     tables: HashMap<TileId, ErrorTable>,
     /// Requests and bytes the open took.
     opened: (u32, u64),
+    /// The dataset's imagery, if it has any ([`Streamer::imagery_feed`]).
+    imagery: Option<tessera_shared::imagery::ImageryInfo>,
 }
 
 impl std::fmt::Debug for Streamer {
@@ -303,7 +305,7 @@ impl Streamer {
             let h = rt.handle().clone();
             (Some(rt), h)
         };
-        match source {
+        let (mut streamer, info) = match source {
             TileSource::Server { url, dataset } => {
                 let url = url.trim_end_matches('/').to_string();
                 let h2c = config.http2 && url.starts_with("http://");
@@ -342,7 +344,26 @@ impl Streamer {
                 streamer.preload_static_root(&file);
                 Ok((streamer, info))
             }
-        }
+        }?;
+        streamer.imagery.clone_from(&info.imagery);
+        Ok((streamer, info))
+    }
+
+    /// The dataset's imagery, fetched beside the tiles on this streamer's runtime and
+    /// connection ([`imagery::ImageryFeed`]): `None` when the dataset has none or is
+    /// a static file (its imagery pyramid is not read serverlessly).
+    pub fn imagery_feed(&self, capacity: usize) -> Option<imagery::ImageryFeed> {
+        let Backend::Server { url, .. } = &self.backend else {
+            return None;
+        };
+        let info = self.imagery.clone()?;
+        Some(imagery::ImageryFeed::new(
+            self.rt.clone(),
+            self.client.clone(),
+            url.clone(),
+            info,
+            capacity,
+        ))
     }
 
     /// Opens a server source: the bootstrap, or (`--no-bootstrap`, or a server that
@@ -588,6 +609,7 @@ impl Streamer {
             preload_absent: Vec::new(),
             tables: HashMap::new(),
             opened: (0, 0),
+            imagery: None,
         }
     }
 
