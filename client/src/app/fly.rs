@@ -260,9 +260,10 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         None => None,
     };
     // The dataset's imagery, when it has any and frames are drawn: the drawn tiles'
-    // imagery is fetched each frame and uploaded into their slots (Yang §3).
+    // imagery is fetched each frame and uploaded into their slots (Yang §3). Its
+    // pool holds as many tiles as the GPU (a 256² tile is 256 KiB decoded).
     let mut imagery = match &mut headless {
-        Some(h) => match streamer.imagery_feed(opts.pool_tiles) {
+        Some(h) => match streamer.imagery_feed(h.renderer.opts.slots as usize) {
             Some(feed) => {
                 h.renderer.enable_imagery(feed.texels())?;
                 Some(feed)
