@@ -18,8 +18,10 @@
 //! the exact ground point — sub-pixel differences that only matter at the coast.
 //! 95 %: JPEG noise and haze flip a few isolated pixels of mixed texels (surf,
 //! beaches, river mouths). The same comparison against the expected frame shifted
-//! by one tile, or transposed, must fall short of it (checked here), and a frame
-//! drawn with the hypsometric tint (imagery missing) has no cyan sea at all.
+//! by one tile, or transposed, must fall short of it (checked here), and so does
+//! the frame drawn with the hypsometric tint (imagery missing). The frame drawn with
+//! only the root's imagery (the finest tiles read their ancestor's, at their place
+//! in it) must clear it too.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
@@ -89,6 +91,12 @@ fn otsu(values: &[f64]) -> f64 {
         }
     }
     at
+}
+
+fn seaness_of(rgba: &[u8]) -> Vec<f64> {
+    rgba.chunks(4)
+        .map(|p| seaness([f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]))
+        .collect()
 }
 
 /// Sea (true) or land per pixel, by Otsu's threshold on [`seaness`].
@@ -269,6 +277,25 @@ fn olinda_from_above_has_the_imagerys_coastline() {
         r.draw(&camera, &sel.patches).unwrap();
         r.read_rgba().unwrap()
     };
+    // Before the drawn tiles' own imagery arrives: their nearest ancestor's, the
+    // root's, read at each tile's place in it.
+    let root = TileId::new(tessera_shared::Level::new(0).unwrap(), 0, 0).unwrap();
+    assert!(sel.tiles.iter().all(|t| t.level() > root.level()));
+    let root_texels = rt
+        .block_on(imagery::fetch(
+            &client,
+            &base,
+            &im,
+            root.level(),
+            &imagery::ranges_by_level(&[root])[&root.level()],
+        ))
+        .unwrap();
+    assert!(r.upload_imagery(root, &root_texels[0].1));
+    r.resolve_imagery(&sel.tiles);
+    let frame_ancestor = {
+        r.draw(&camera, &sel.patches).unwrap();
+        r.read_rgba().unwrap()
+    };
     let (streamer, _) = Streamer::open(
         &TileSource::server(base.clone(), "olinda"),
         StreamConfig::default(),
@@ -385,6 +412,14 @@ fn olinda_from_above_has_the_imagerys_coastline() {
             w * 100.0
         );
     }
+    // The root's imagery, coarser, still has the coast where it is.
+    let (w, _) = agreement(&classify(&seaness_of(&frame_ancestor)), &expected);
+    eprintln!("drawn with the root's imagery: {:.2} %", w * 100.0);
+    assert!(
+        w >= 0.95,
+        "the ancestor's imagery is misplaced ({:.2} %)",
+        w * 100.0
+    );
     // Without imagery (the tint), the frame's classes do not follow the coast.
     let tint: Vec<f64> = frame_without
         .chunks(4)

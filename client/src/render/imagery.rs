@@ -1,8 +1,10 @@
 //! Imagery draped over the terrain (issue 17 item 5; Yang §3: texture LOD follows
 //! grid LOD): one `Rgba8Unorm` texture-array layer per GPU slot, the same slot as
-//! the tile's heights, and a one-row flag texture saying which slots hold their
-//! tile's imagery. A slot whose tile changed, or whose imagery has not arrived, has
-//! flag 0 and is shaded with the hypsometric tint (`terrain.wgsl`, `fs_main`).
+//! the tile's heights, and a one-row `Rg32Uint` texture saying, per slot, where its
+//! tile's imagery is: its own layer, or — until that arrives — the layer of its
+//! nearest ancestor that has its imagery, with the ancestor level's offset of the
+//! tile (`r` = 1 + the layer, `g` = levels up | x offset << 8 | y offset << 20); `r` =
+//! 0: none, the hypsometric tint (`terrain.wgsl`, `surface_colour`).
 //!
 //! `Rgba8Unorm`, not `Srgb`: the colour target is `Rgba8Unorm` and the tint is
 //! written as stored bytes, so the imagery's bytes pass through unchanged.
@@ -17,12 +19,16 @@ pub(super) const IMAGERY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba
 #[derive(Debug)]
 pub(super) struct ImageryTextures {
     pub texels: wgpu::Texture,
-    /// `layers × 1`, `R8Unorm`: 1.0 where the slot's layer is its tile's imagery.
+    /// `layers × 1`, `Rg32Uint`: where each slot's imagery is (module docs).
     pub flags: wgpu::Texture,
     /// Texels per layer side (1 until [`Renderer::enable_imagery`]).
     pub side: u32,
     holds: Vec<Option<TileId>>,
+    /// What each slot's flag texel says now.
+    source: Vec<[u32; 2]>,
 }
+
+pub(super) const FLAGS_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Uint;
 
 impl ImageryTextures {
     /// Textures of `side²` texels for `layers` slots, every flag 0.
@@ -52,7 +58,7 @@ impl ImageryTextures {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R8Unorm,
+            format: FLAGS_FORMAT,
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
@@ -61,17 +67,31 @@ impl ImageryTextures {
             flags,
             side,
             holds: vec![None; layers as usize],
+            source: vec![[0, 0]; layers as usize],
         }
     }
 
-    fn set_flag(&mut self, queue: &wgpu::Queue, slot: u32, tile: Option<TileId>) {
-        let Some(h) = self.holds.get_mut(slot as usize) else {
+    /// The slot's layer now holds `tile`'s imagery (or nothing).
+    fn set_holds(&mut self, queue: &wgpu::Queue, slot: u32, tile: Option<TileId>) {
+        if let Some(h) = self.holds.get_mut(slot as usize) {
+            *h = tile;
+            let own = if tile.is_some() {
+                [slot + 1, 0]
+            } else {
+                [0, 0]
+            };
+            self.set_source(queue, slot, own);
+        }
+    }
+
+    fn set_source(&mut self, queue: &wgpu::Queue, slot: u32, source: [u32; 2]) {
+        let Some(s) = self.source.get_mut(slot as usize) else {
             return;
         };
-        if *h == tile {
+        if *s == source {
             return;
         }
-        *h = tile;
+        *s = source;
         queue.write_texture(
             wgpu::TexelCopyTextureInfo {
                 texture: &self.flags,
@@ -83,7 +103,7 @@ impl ImageryTextures {
                 },
                 aspect: wgpu::TextureAspect::All,
             },
-            &[if tile.is_some() { 255 } else { 0 }],
+            bytemuck::cast_slice(&source),
             wgpu::TexelCopyBufferLayout {
                 offset: 0,
                 bytes_per_row: None,
@@ -155,7 +175,7 @@ impl Renderer {
             side,
             4,
         );
-        self.imagery.set_flag(&self.gpu.queue, slot, Some(tile));
+        self.imagery.set_holds(&self.gpu.queue, slot, Some(tile));
         true
     }
 
@@ -170,14 +190,45 @@ impl Renderer {
                 n += 1;
             }
         }
+        self.resolve_imagery(tiles);
         n
+    }
+
+    /// Points each of `tiles` (the drawn ones) without its own imagery at its
+    /// nearest ancestor's, when one is on the GPU with it (the shader reads the
+    /// ancestor's layer at the tile's place in it), else at none (the tint). Run
+    /// after uploads and before drawing: an ancestor of a drawn tile keeps its slot
+    /// this frame ([`super::slots::SlotTable::touch`]).
+    pub fn resolve_imagery(&mut self, tiles: &[TileId]) {
+        for &t in tiles {
+            let Some(slot) = self.slots.get(t) else {
+                continue;
+            };
+            if self.has_imagery(t) {
+                continue;
+            }
+            let mut source = [0, 0];
+            let mut a = t;
+            for k in 1..=12u32 {
+                let Some(p) = a.parent() else { break };
+                a = p;
+                if self.has_imagery(a)
+                    && let Some(s) = self.slots.get(a)
+                {
+                    let (px, py) = (t.x() - (a.x() << k), t.y() - (a.y() << k));
+                    source = [s + 1, k | px << 8 | py << 20];
+                    break;
+                }
+            }
+            self.imagery.set_source(&self.gpu.queue, slot, source);
+        }
     }
 
     /// A slot now holds `tile`'s heights: its imagery layer is stale until
     /// [`Renderer::upload_imagery`].
     pub(super) fn imagery_slot_taken(&mut self, slot: u32, tile: TileId) {
         if self.imagery.holds.get(slot as usize) != Some(&Some(tile)) {
-            self.imagery.set_flag(&self.gpu.queue, slot, None);
+            self.imagery.set_holds(&self.gpu.queue, slot, None);
         }
     }
 }

@@ -195,7 +195,7 @@ impl Renderer {
                 texture_entry(7),
                 wgpu::BindGroupLayoutEntry {
                     ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        sample_type: wgpu::TextureSampleType::Uint,
                         view_dimension: wgpu::TextureViewDimension::D2,
                         multisampled: false,
                     },

@@ -45,10 +45,11 @@ struct Globals {
 // unused entry each on flat datasets.
 @group(0) @binding(5) var<storage, read> globe_rows: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> globe_cols: array<vec4<f32>>;
-// Draped imagery (issue 17 item 5): a layer per slot, and per slot whether its layer
-// holds the slot's tile's imagery (1.0) or not yet (0.0: the hypsometric tint).
+// Draped imagery (issue 17 item 5): a layer per slot, and per slot where its tile's
+// imagery is (render/imagery.rs): r = 1 + the layer (0: none yet, the hypsometric
+// tint), g = levels up to the layer's tile | x offset << 8 | y offset << 20 there.
 @group(0) @binding(7) var imagery: texture_2d_array<f32>;
-@group(0) @binding(8) var imagery_present: texture_2d<f32>;
+@group(0) @binding(8) var imagery_source: texture_2d<u32>;
 
 // Per-instance data, packed (see `render/instances.rs`):
 //   a = (slot | level << 16, origin x | origin y << 16, size in tile cells, inner LOD)
@@ -327,14 +328,19 @@ fn is_terrain(uv: vec2<f32>, slot: u32) -> bool {
     return textureLoad(masks, cell, i32(slot), 0).r > 0.5;
 }
 
-// The unlit colour at tile sample coordinates `uv`: the tile's imagery where its
-// slot has it, else the hypsometric tint. Imagery texel (u, v) is centred at tile
-// sample ((u + ½)·T/side, …) (FORMAT.md "Imagery pyramids"), so texture coordinate
-// uv / T reads the imagery at sample uv.
+// The unlit colour at tile sample coordinates `uv`: the tile's imagery (or its
+// nearest ancestor's, at the tile's place in it) where there is one, else the
+// hypsometric tint. Imagery texel (u, v) is centred at tile sample
+// ((u + ½)·T/side, …) (FORMAT.md "Imagery pyramids"), so texture coordinate uv / T
+// reads the imagery at sample uv; k levels up, the tile at offset p of the
+// ancestor's 2^k × 2^k descendants reads (uv / T + p) / 2^k.
 fn surface_colour(uv: vec2<f32>, slot: u32) -> vec3<f32> {
-    if (textureLoad(imagery_present, vec2<i32>(i32(slot), 0), 0).r > 0.5) {
-        let t = uv / f32(g.mode.z);
-        return textureSampleLevel(imagery, linear_clamp, t, i32(slot), 0.0).rgb;
+    let src = textureLoad(imagery_source, vec2<i32>(i32(slot), 0), 0).rg;
+    if (src.x > 0u) {
+        let k = src.y & 0xffu;
+        let p = vec2<f32>(f32((src.y >> 8u) & 0xfffu), f32(src.y >> 20u));
+        let t = (uv / f32(g.mode.z) + p) / f32(1u << k);
+        return textureSampleLevel(imagery, linear_clamp, t, i32(src.x - 1u), 0.0).rgb;
     }
     return tint(fine_height(uv, slot));
 }
