@@ -149,14 +149,14 @@ enum Command {
         /// Graphics API (WGPU_BACKEND=vulkan|gl also works).
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
-        /// Tiles held on the GPU (texture-array layers).
-        #[arg(long, default_value_t = 256)]
-        gpu_tiles: u32,
         /// Where tiles' normal maps are built: a GPU compute pass over the uploaded
         /// heights (an upload is only texture copies), or the CPU at upload (the
         /// reference, for side-by-side measurement).
         #[arg(long, value_enum, default_value_t = NormalSource::Gpu)]
         normals: NormalSource,
+        /// Tiles held on the GPU (texture-array layers).
+        #[arg(long, default_value_t = 256)]
+        gpu_tiles: u32,
         /// Turn off prefetching (the enlarged, predicted view).
         #[arg(long)]
         no_prefetch: bool,
@@ -368,6 +368,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             parallax,
             policy,
             backend,
+            normals,
             gpu_tiles,
             no_prefetch,
             pool_tiles,
@@ -381,7 +382,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 width > 0 && height > 0,
                 "--width and --height must be positive"
             );
-            normals,
             let budget = std::time::Duration::from_secs_f64(budget_ms / 1e3);
             let render = out.as_ref().map(|dir| RenderSetup {
                 opts: RenderOptions {
@@ -391,6 +391,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     view,
                     parallax,
                     backend,
+                    normals,
                     morph: !no_morph,
                 },
                 out_dir: dir.clone(),
@@ -407,7 +408,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 write_frames: !no_frames,
                 upload_budget: budget,
                 settle,
-                    normals,
                 reference_cache,
             });
             // Headless runs write their statistics beside the frames by default.
@@ -447,6 +447,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     view,
                     parallax,
                     backend,
+                    normals,
                     morph: !no_morph,
                 };
                 return window::run(&opts, render);
@@ -461,7 +462,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             file,
             path,
             fps,
-                    normals,
             tau,
             frames,
             viewport,
