@@ -23,6 +23,32 @@ const SAMPLES: u32 = 3;
 /// (corners and edge midpoints) and the radius widened by 1 % plus a metre for the
 /// curvature between samples and rounding.
 pub fn sphere(globe: &Globe, min: DVec3, max: DVec3) -> Sphere {
+    sphere_of(&shell_points(globe, min, max))
+}
+
+fn sphere_of(points: &[DVec3]) -> Sphere {
+    let (lo, hi) = points.iter().fold(
+        (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    let centre = (lo + hi) * 0.5;
+    let r = points
+        .iter()
+        .map(|p| p.distance(centre))
+        .fold(0.0, f64::max);
+    Sphere {
+        centre,
+        radius: r * 1.01 + 1.0,
+    }
+}
+
+/// The shell's boundary samples (corners, edge midpoints, centre), each at the
+/// lowest then the highest height, in ECEF.
+fn shell_points(
+    globe: &Globe,
+    min: DVec3,
+    max: DVec3,
+) -> [DVec3; (SAMPLES * SAMPLES * 2) as usize] {
     let mut points = [DVec3::ZERO; (SAMPLES * SAMPLES * 2) as usize];
     let mut k = 0;
     let last = f64::from(SAMPLES - 1);
@@ -37,19 +63,7 @@ pub fn sphere(globe: &Globe, min: DVec3, max: DVec3) -> Sphere {
             }
         }
     }
-    let (lo, hi) = points.iter().fold(
-        (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
-        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-    );
-    let centre = (lo + hi) * 0.5;
-    let r = points
-        .iter()
-        .map(|p| p.distance(centre))
-        .fold(0.0, f64::max);
-    Sphere {
-        centre,
-        radius: r * 1.01 + 1.0,
-    }
+    points
 }
 
 /// What culling and the error metric need on the globe for one frame.
@@ -74,11 +88,34 @@ impl GlobeView {
     }
 }
 
-/// Distance from the flat-world eye `eye` to the curved box `min..max`: to its
-/// bounding sphere (0 inside).
+/// A lower bound on the distance from the flat-world eye `eye` to the curved box
+/// `min..max` (ρ's `d` must never be overestimated), the larger of two:
+/// - to its bounding sphere (0 inside; tight when the eye is off to the side);
+/// - above the shell: `|E| − max |P|` over the shell's points `P`, by the triangle
+///   inequality through the body's centre (`|E − P| ≥ |E| − |P|`); tight when the
+///   eye is over the box, where the eye is usually inside the sphere (a camera
+///   100 m above a block several kilometres wide), which alone would make ρ
+///   infinite there.
+///
+/// `max |P|` is taken over the samples at the highest height and widened by
+/// `(a − b)·Δφ²` plus a metre: at a fixed height `|P|` only varies with latitude,
+/// monotonically in `|φ|`, so the samples' largest is the largest except where the
+/// box straddles the equator, by at most `(a − b)·Δφ²` for a box `Δφ` tall.
 pub fn distance(globe: &Globe, eye: DVec3, min: DVec3, max: DVec3) -> f64 {
-    let s = sphere(globe, min, max);
-    (globe.ecef_of_world(eye).distance(s.centre) - s.radius).max(0.0)
+    let points = shell_points(globe, min, max);
+    let s = sphere_of(&points);
+    let e = globe.ecef_of_world(eye);
+    let to_sphere = (e.distance(s.centre) - s.radius).max(0.0);
+    let top = points
+        .iter()
+        .skip(1)
+        .step_by(2)
+        .map(|p| p.length())
+        .fold(0.0, f64::max);
+    let (a, b) = (globe.ellipsoid.a, globe.ellipsoid.b);
+    let span = (max.z - min.z).abs() / b;
+    let above = e.length() - top - ((a - b) * span * span + 1.0);
+    to_sphere.max(above)
 }
 
 #[cfg(test)]
@@ -124,5 +161,50 @@ mod tests {
             .ecef(0.0, 0.0, 4000.0)
             .distance(g.ecef(8192.0, 8192.0, 4000.0));
         assert!(s.radius < 0.56 * diag, "{} vs {diag}", s.radius);
+    }
+
+    #[test]
+    fn the_distance_from_above_a_block_is_its_height_gap_and_never_more() {
+        let g = Globe {
+            ellipsoid: Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap(),
+            grid: LonLatGrid {
+                lon0: 8.0,
+                dlon: 1.0 / 1200.0,
+                lat0: 47.0,
+                dlat: -1.0 / 1200.0,
+            },
+            spacing: DVec2::new(63.2, 92.6),
+            min_height: 187.0,
+        };
+        // A 64-sample block (4 × 6 km) from 500 to 700 m, the eye 400 m over its
+        // middle at 1100 m: inside the block's bounding sphere, 400 m above it.
+        let (min, max) = (
+            DVec3::new(0.0, 500.0, 0.0),
+            DVec3::new(64.0 * 63.2, 700.0, 64.0 * 92.6),
+        );
+        let eye = DVec3::new(32.0 * 63.2, 1100.0, 32.0 * 92.6);
+        let s = sphere(&g, min, max);
+        assert!(
+            g.ecef_of_world(eye).distance(s.centre) < s.radius,
+            "the eye is inside the sphere"
+        );
+        let d = distance(&g, eye, min, max);
+        // The true distance to the block: the closest of a dense sample of its
+        // points (the top surface under the eye, 400 m down, is the nearest).
+        let mut nearest = f64::MAX;
+        for j in 0..=64 {
+            for i in 0..=64 {
+                for h in [500.0, 600.0, 700.0] {
+                    let p =
+                        g.ecef_of_world(DVec3::new(f64::from(i) * 63.2, h, f64::from(j) * 92.6));
+                    nearest = nearest.min(p.distance(g.ecef_of_world(eye)));
+                }
+            }
+        }
+        assert!(d <= nearest, "{d} overestimates {nearest}");
+        assert!(
+            d > 0.8 * nearest,
+            "{d} is far below {nearest}: ρ would be needlessly large"
+        );
     }
 }

@@ -936,9 +936,9 @@ fn layout_of(info: &api::DatasetInfo) -> anyhow::Result<RecordLayout> {
 const MAX_BOOTSTRAP: usize = 256 << 20;
 
 /// `GET /v1/datasets/{name}/bootstrap` of `server`, decoded and checked, with its
-/// size in bytes; `None` when the server has no such route (404: an older server)
-/// or sends something that is not a bootstrap, which is then said in the log and
-/// the dataset opened the old way.
+/// size in bytes; `None` when the server has no such route (404: an older server),
+/// answers with a server error (5xx) or sends something that is not a bootstrap,
+/// which is then said in the log and the dataset opened the old way.
 async fn bootstrap(
     client: &reqwest::Client,
     server: &str,
@@ -953,6 +953,17 @@ async fn bootstrap(
     if status == reqwest::StatusCode::NOT_FOUND {
         // An unknown dataset is a 404 too: the document's request says which.
         tracing::info!("{url}: 404; opening with the dataset's document");
+        return Ok(None);
+    }
+    if status.is_server_error() {
+        // The bootstrap only saves round trips: a server in trouble (its storage
+        // away, a 503) is opened the old way, whose tile requests retry with
+        // backoff and report what they could not get (DESIGN §8: never blind).
+        let body = r.text().await.unwrap_or_default();
+        tracing::warn!(
+            "{url}: HTTP {status}: {}; opening with the dataset's document",
+            body.trim()
+        );
         return Ok(None);
     }
     if !status.is_success() {
