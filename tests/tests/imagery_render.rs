@@ -34,32 +34,15 @@ use tessera_client::select::{SelectParams, Selector, World};
 use tessera_client::stream::imagery::{self, Texels};
 use tessera_client::stream::pool::TilePool;
 use tessera_client::stream::{StreamConfig, Streamer, TileSource};
-use tessera_server::build::{BuildOptions, build};
 use tessera_shared::api::DatasetInfo;
-use tessera_shared::{FileSource, Pyramid, TileId, testdata};
+use tessera_shared::{FileSource, Pyramid, TileId};
+
+#[allow(dead_code)] // each test binary uses some of the shared fixtures
+mod streaming_support;
+use streaming_support::{olinda_with_imagery, start_server_for};
 
 const W: u32 = 320;
 const H: u32 = 320;
-
-/// A real server on an ephemeral port of `rt`, serving `dataset`.
-fn start_server(rt: &tokio::runtime::Runtime, dataset: &std::path::Path) -> SocketAddr {
-    let settings = tessera_server::serve::config::Settings {
-        listen: SocketAddr::from(([127, 0, 0, 1], 0)),
-        datasets: vec![dataset.to_path_buf()],
-        ..tessera_server::serve::config::Settings::default()
-    };
-    let state = tessera_server::serve::state(&settings).unwrap();
-    let listener = rt
-        .block_on(tokio::net::TcpListener::bind(settings.listen))
-        .unwrap();
-    let bound = listener.local_addr().unwrap();
-    rt.spawn(async move {
-        let _ =
-            tessera_server::serve::serve_until(listener, state, &settings, std::future::pending())
-                .await;
-    });
-    bound
-}
 
 /// How much bluer than red a colour is, offset into 0..=255: the sea here is cyan
 /// (B > R), the land — dark vegetation, grey town, tan soil — is not.
@@ -169,26 +152,16 @@ fn imagery_at(
 
 #[test]
 fn olinda_from_above_has_the_imagerys_coastline() {
-    let (Some(dem), Some(image)) = (
-        testdata::imagery_or_skip("olinda_dem_utm25s.tif"),
-        testdata::imagery_or_skip("L7_ETMs.tif"),
-    ) else {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(out) = olinda_with_imagery(dir.path()) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("olinda.tess");
-    let opts = BuildOptions {
-        tile_size: 64,
-        crs: Some("EPSG:31985".into()),
-        progress: false,
-        ..BuildOptions::default()
-    };
-    build(dem.to_str().unwrap(), &out, &opts).unwrap();
-    let prepared = tessera_server::imagery::Prepared::open(&image, Some("3,2,1")).unwrap();
-    tessera_server::imagery::build_beside(&prepared, &out, &opts.interrupt).unwrap();
 
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let base = format!("http://{}", start_server(&rt, &out));
+    let base = format!(
+        "http://{}",
+        start_server_for(&rt, SocketAddr::from(([127, 0, 0, 1], 0)), &out).0
+    );
     let client = imagery::http_client(std::time::Duration::from_secs(30)).unwrap();
     let doc = rt
         .block_on(async {

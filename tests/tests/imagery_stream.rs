@@ -8,54 +8,24 @@
 
 use std::net::SocketAddr;
 use tessera_client::stream::imagery::{self, ImageryPool};
-use tessera_server::build::{BuildOptions, build};
 use tessera_shared::api::DatasetInfo;
-use tessera_shared::{FileSource, Pyramid, testdata};
+use tessera_shared::{FileSource, Pyramid};
 
-/// A real server on an ephemeral port of `rt`, serving `dataset`.
-fn start_server(rt: &tokio::runtime::Runtime, dataset: &std::path::Path) -> SocketAddr {
-    let settings = tessera_server::serve::config::Settings {
-        listen: SocketAddr::from(([127, 0, 0, 1], 0)),
-        datasets: vec![dataset.to_path_buf()],
-        ..tessera_server::serve::config::Settings::default()
-    };
-    let state = tessera_server::serve::state(&settings).unwrap();
-    let listener = rt
-        .block_on(tokio::net::TcpListener::bind(settings.listen))
-        .unwrap();
-    let bound = listener.local_addr().unwrap();
-    rt.spawn(async move {
-        let _ =
-            tessera_server::serve::serve_until(listener, state, &settings, std::future::pending())
-                .await;
-    });
-    bound
-}
+#[allow(dead_code)] // each test binary uses some of the shared fixtures
+mod streaming_support;
+use streaming_support::{olinda_with_imagery, start_server_for};
 
 #[test]
 fn the_client_fetches_and_decodes_the_imagery_of_every_tile() {
-    let (Some(dem), Some(image)) = (
-        testdata::imagery_or_skip("olinda_dem_utm25s.tif"),
-        testdata::imagery_or_skip("L7_ETMs.tif"),
-    ) else {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(out) = olinda_with_imagery(dir.path()) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("olinda.tess");
-    let opts = BuildOptions {
-        tile_size: 64,
-        crs: Some("EPSG:31985".into()),
-        progress: false,
-        ..BuildOptions::default()
-    };
-    build(dem.to_str().unwrap(), &out, &opts).unwrap();
-    let prepared = tessera_server::imagery::Prepared::open(&image, Some("3,2,1")).unwrap();
-    tessera_server::imagery::build_beside(&prepared, &out, &opts.interrupt).unwrap();
     let file =
         Pyramid::open_imagery(FileSource::open(&out.with_extension("tessimg")).unwrap()).unwrap();
 
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let addr = start_server(&rt, &out);
+    let addr = start_server_for(&rt, SocketAddr::from(([127, 0, 0, 1], 0)), &out).0;
     let base = format!("http://{addr}");
     let client = imagery::http_client(std::time::Duration::from_secs(30)).unwrap();
     let doc = rt

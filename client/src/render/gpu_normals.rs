@@ -378,52 +378,11 @@ impl Renderer {
     pub fn read_normals(&mut self, slot: u32) -> anyhow::Result<Vec<[i8; 2]>> {
         self.flush_normals();
         let n = self.world.geometry.tile_samples() as u32;
-        let row = n * 4;
-        let padded =
-            row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let device = &self.gpu.device;
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("normals readback"),
-            size: u64::from(padded) * u64::from(n),
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("normals readback"),
-        });
-        encoder.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: &self.normals,
-                mip_level: 0,
-                origin: wgpu::Origin3d {
-                    x: 0,
-                    y: 0,
-                    z: slot,
-                },
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buffer,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(padded),
-                    rows_per_image: Some(n),
-                },
-            },
-            wgpu::Extent3d {
-                width: n,
-                height: n,
-                depth_or_array_layers: 1,
-            },
-        );
-        self.gpu.queue.submit([encoder.finish()]);
-        let data = super::readback::map_read(&self.gpu, &buffer)?;
-        let mut out = Vec::with_capacity((n * n) as usize);
-        for v in 0..n as usize {
-            for texel in data[v * padded as usize..][..row as usize].chunks_exact(4) {
-                out.push([texel[0] as i8, texel[1] as i8]);
-            }
-        }
+        let data = super::readback::read_layer(&self.gpu, &self.normals, slot, (n, n), 4)?;
+        let out = data
+            .chunks_exact(4)
+            .map(|texel| [texel[0] as i8, texel[1] as i8])
+            .collect();
         Ok(out)
     }
 }

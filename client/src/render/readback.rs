@@ -7,48 +7,65 @@ impl Renderer {
     /// The last frame as tightly packed RGBA8 rows.
     pub fn read_rgba(&self) -> anyhow::Result<Vec<u8>> {
         let (w, h) = (self.opts.width, self.opts.height);
-        let row = w * 4;
-        let padded =
-            row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let device = &self.gpu.device;
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: u64::from(padded) * u64::from(h),
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("readback"),
-        });
-        encoder.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: &self.colour,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buffer,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(padded),
-                    rows_per_image: Some(h),
-                },
-            },
-            wgpu::Extent3d {
-                width: w,
-                height: h,
-                depth_or_array_layers: 1,
-            },
-        );
-        self.gpu.queue.submit([encoder.finish()]);
-        let data = map_read(&self.gpu, &buffer)?;
-        let mut out = Vec::with_capacity((row * h) as usize);
-        for y in 0..h as usize {
-            out.extend_from_slice(&data[y * padded as usize..][..row as usize]);
-        }
-        Ok(out)
+        read_layer(&self.gpu, &self.colour, 0, (w, h), 4)
     }
+}
+
+/// Layer `layer` of a `w × h` texture of `texel` bytes per texel, as tightly
+/// packed rows (the copy itself pads rows to wgpu's alignment).
+pub(super) fn read_layer(
+    gpu: &Gpu,
+    texture: &wgpu::Texture,
+    layer: u32,
+    (w, h): (u32, u32),
+    texel: u32,
+) -> anyhow::Result<Vec<u8>> {
+    let row = w * texel;
+    let padded =
+        row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+    let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: u64::from(padded) * u64::from(h),
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    let mut encoder = gpu
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("readback"),
+        });
+    encoder.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d {
+                x: 0,
+                y: 0,
+                z: layer,
+            },
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer: &buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(padded),
+                rows_per_image: Some(h),
+            },
+        },
+        wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+    );
+    gpu.queue.submit([encoder.finish()]);
+    let data = map_read(gpu, &buffer)?;
+    let mut out = Vec::with_capacity((row * h) as usize);
+    for y in 0..h as usize {
+        out.extend_from_slice(&data[y * padded as usize..][..row as usize]);
+    }
+    Ok(out)
 }
 
 /// Maps a buffer for reading after the submitted work, and copies it out.

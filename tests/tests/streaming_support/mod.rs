@@ -1,5 +1,6 @@
-//! Fixtures of the `streaming*` tests: the test pyramid (built once per test binary),
-//! a real server on a runtime of the test's choosing, the flight options and paths
+//! Fixtures of the `streaming*` and `imagery_*` tests: the test pyramid (built once
+//! per test binary), the Olinda DEM with its Landsat imagery, a real server on a
+//! runtime of the test's choosing, the flight options and paths
 //! the tests fly, and invariant 5 (no holes once the root has arrived).
 
 use std::net::SocketAddr;
@@ -56,6 +57,25 @@ pub fn start_server_for(
                 .await;
     });
     (bound, task)
+}
+
+/// The Olinda DEM (64-cell tiles, EPSG:31985) built in `dir` with its Landsat
+/// imagery (bands 3, 2, 1) beside it: the `.tess` path; `None` when the data is
+/// not there (`testdata::imagery_or_skip` says so).
+pub fn olinda_with_imagery(dir: &Path) -> Option<PathBuf> {
+    let dem = tessera_shared::testdata::imagery_or_skip("olinda_dem_utm25s.tif")?;
+    let image = tessera_shared::testdata::imagery_or_skip("L7_ETMs.tif")?;
+    let out = dir.join("olinda.tess");
+    let opts = BuildOptions {
+        tile_size: 64,
+        crs: Some("EPSG:31985".into()),
+        progress: false,
+        ..BuildOptions::default()
+    };
+    build(dem.to_str().unwrap(), &out, &opts).unwrap();
+    let prepared = tessera_server::imagery::Prepared::open(&image, Some("3,2,1")).unwrap();
+    tessera_server::imagery::build_beside(&prepared, &out, &opts.interrupt).unwrap();
+    Some(out)
 }
 
 /// A path JSON file: a short, slow glide that ends still, so the view can settle.
