@@ -11,32 +11,48 @@ pub fn write_png(path: &Path, rgba: &[u8], width: u32, height: u32) -> anyhow::R
         path.display(),
         rgba.len()
     );
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path.file_name().context("PNG path has no file name")?;
-    let tmp = dir.join(format!(
-        ".{}.partial-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| -> anyhow::Result<()> {
-        let file = std::fs::File::create(&tmp)?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    write_atomically(path, |file| {
+        let mut enc = png::Encoder::new(file, width, height);
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_compression(png::Compression::Fast);
         let mut w = enc.write_header()?;
         w.write_image_data(rgba)?;
         w.finish()?;
+        Ok(())
+    })
+    .with_context(|| format!("{}: cannot write PNG", path.display()))
+}
+
+/// Runs `write` on a buffered file at a temporary name beside `path`, then renames
+/// it into place; on any error the temporary file is removed, so `path` is either
+/// the whole new file or untouched (any PNG, still or animated).
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path.file_name().context("the path has no file name")?;
+    let tmp = dir.join(format!(
+        ".{}.partial-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| -> anyhow::Result<()> {
+        let mut file = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        write(&mut file)?;
+        file.into_inner()
+            .map_err(std::io::IntoInnerError::into_error)?;
         std::fs::rename(&tmp, path)?;
         Ok(())
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
-    result.with_context(|| format!("{}: cannot write PNG", path.display()))
+    result
 }
 
 /// Reads an 8-bit RGBA or RGB PNG as RGBA8 (for golden images).

@@ -14,7 +14,6 @@
 use super::contact_sheet::area_resample;
 use crate::render::png_out::read_png;
 use anyhow::Context;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 /// What the animation is made of.
@@ -209,29 +208,25 @@ pub fn write_animation(
             }
         })
         .collect();
-    let file =
-        std::fs::File::create(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let mut encoder = png::Encoder::new(BufWriter::new(file), dw, dh);
-    encoder.set_color(png::ColorType::Indexed);
-    encoder.set_depth(png::BitDepth::Eight);
-    encoder.set_palette(palette.iter().flatten().copied().collect::<Vec<u8>>());
-    encoder.set_compression(png::Compression::High);
-    encoder.set_animated(small.len() as u32, 0)?;
-    let delay = u16::try_from(step).unwrap_or(u16::MAX);
-    let fps = u16::try_from(opts.fps).unwrap_or(u16::MAX);
-    encoder.set_frame_delay(delay, fps)?;
-    let mut writer = encoder
-        .write_header()
-        .with_context(|| format!("{}: cannot write", out.display()))?;
-    for f in &small {
-        let indices: Vec<u8> = f.chunks_exact(4).map(|p| lookup[key(p)]).collect();
-        writer
-            .write_image_data(&indices)
-            .with_context(|| format!("{}: cannot write a frame", out.display()))?;
-    }
-    writer
-        .finish()
-        .with_context(|| format!("{}: cannot finish", out.display()))?;
+    tessera_charts::png::write_atomically(out, |file| {
+        let mut encoder = png::Encoder::new(file, dw, dh);
+        encoder.set_color(png::ColorType::Indexed);
+        encoder.set_depth(png::BitDepth::Eight);
+        encoder.set_palette(palette.iter().flatten().copied().collect::<Vec<u8>>());
+        encoder.set_compression(png::Compression::High);
+        encoder.set_animated(small.len() as u32, 0)?;
+        let delay = u16::try_from(step).unwrap_or(u16::MAX);
+        let fps = u16::try_from(opts.fps).unwrap_or(u16::MAX);
+        encoder.set_frame_delay(delay, fps)?;
+        let mut writer = encoder.write_header()?;
+        for f in &small {
+            let indices: Vec<u8> = f.chunks_exact(4).map(|p| lookup[key(p)]).collect();
+            writer.write_image_data(&indices)?;
+        }
+        writer.finish()?;
+        Ok(())
+    })
+    .with_context(|| format!("{}: cannot write the animation", out.display()))?;
     let bytes = std::fs::metadata(out).map_or(0, |m| m.len());
     Ok(Animation {
         frames: small.len() as u32,

@@ -70,14 +70,7 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
     let (rgba, w, h) = plot_panels(&series, "frame", 1200, 180);
     write_png(&out.join("stats.png"), &rgba, w, h)?;
     if let Some(dir) = frames {
-        let mut names: Vec<_> = std::fs::read_dir(dir)
-            .with_context(|| format!("{}: cannot list frames", dir.display()))?
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .filter(|p| p.extension().is_some_and(|e| e == "png"))
-            .collect();
-        names.sort();
-        anyhow::ensure!(!names.is_empty(), "{}: no frame PNGs", dir.display());
+        let names = super::animation::frame_files(dir)?;
         let picked = pick_evenly_indices(names.len(), 12);
         let mut thumbs = Vec::new();
         let mut labels = Vec::new();
