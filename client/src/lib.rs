@@ -17,6 +17,7 @@
 pub mod app;
 pub mod camera;
 pub mod globe;
+pub mod load;
 pub mod lru;
 pub mod paths;
 pub mod render;
