@@ -6,8 +6,8 @@
 //! own connection upstream. The client's bytes (requests) go upstream unchanged,
 //! their request lines recorded in a [`RequestLog`] when the [`Config`] has one; the
 //! upstream's bytes (responses) come back as [`Responses`] says: unchanged, held for a
-//! [`Delay`] before each response's first byte, or with tile frames damaged as a
-//! [`Faults`] plan says.
+//! [`Delay`] before each response's first byte, held through a [`Stall`] (the server
+//! stops answering for a while), or with tile frames damaged as a [`Faults`] plan says.
 //!
 //! Why a crate of its own: the streaming tests (`tests/tests/streaming*.rs`) and the
 //! latency benchmark (`bench/stream.sh`, through the `tessera-proxy` binary) need
@@ -20,12 +20,14 @@
 mod delay;
 mod faults;
 mod log;
+mod stall;
 #[cfg(test)]
 mod testing;
 
 pub use delay::Delay;
 pub use faults::{Damage, Faults, Recurrence, TILE_STREAM_CONTENT_TYPE};
 pub use log::RequestLog;
+pub use stall::Stall;
 
 use std::io;
 use std::net::{Ipv4Addr, SocketAddr};
@@ -42,6 +44,8 @@ pub enum Responses {
     Relay,
     /// Hold each one before its first byte (added latency).
     Delay(Delay),
+    /// Hold all of them through a time window (the server stops answering).
+    Stall(Stall),
     /// Damage the tile frames of tile streams; the plan also records what it did.
     Damage(Arc<Faults>),
 }
@@ -77,8 +81,9 @@ impl Config {
 pub struct Stats {
     /// Client connections accepted.
     pub connections: u64,
-    /// Responses held by a [`Delay`], each counted when its hold begins (before any of
-    /// its bytes go on), so a test can tell a response is being held without timing it.
+    /// Responses held by a [`Delay`] (or connections held by a [`Stall`]), each counted
+    /// when its hold begins (before any of its bytes go on), so a test can tell a
+    /// response is being held without timing it.
     pub held: u64,
 }
 
@@ -104,8 +109,15 @@ impl Proxy {
     pub async fn start(config: Config) -> io::Result<Self> {
         let listener = TcpListener::bind(config.listen).await?;
         let addr = listener.local_addr()?;
+        // A stall's window is placed from here: the proxy's start.
+        let started = tokio::time::Instant::now();
         let counters = Arc::new(Counters::default());
-        let accept = tokio::spawn(accept_loop(listener, Arc::new(config), counters.clone()));
+        let accept = tokio::spawn(accept_loop(
+            listener,
+            Arc::new(config),
+            started,
+            counters.clone(),
+        ));
         Ok(Self {
             addr,
             counters,
@@ -148,6 +160,17 @@ pub async fn delaying(upstream: SocketAddr, delay: Delay) -> io::Result<Proxy> {
     .await
 }
 
+/// A proxy in front of `upstream` that stops answering for `stall.for_`, from
+/// `stall.after` past now: whatever the upstream sends in that window reaches the client
+/// when it ends.
+pub async fn stalling(upstream: SocketAddr, stall: Stall) -> io::Result<Proxy> {
+    Proxy::start(Config {
+        responses: Responses::Stall(stall),
+        ..Config::new(upstream)
+    })
+    .await
+}
+
 /// A proxy in front of `upstream` that damages tile frames in the responses it relays
 /// as `faults` says (and records in it what it did).
 pub async fn corrupting(upstream: SocketAddr, faults: Arc<Faults>) -> io::Result<Proxy> {
@@ -173,7 +196,12 @@ pub async fn logging(upstream: SocketAddr) -> io::Result<(Proxy, RequestLog)> {
 
 /// Accepts connections until aborted. The connections are tasks of a set owned here,
 /// so aborting this task (dropping the [`Proxy`]) closes them too.
-async fn accept_loop(listener: TcpListener, config: Arc<Config>, counters: Arc<Counters>) {
+async fn accept_loop(
+    listener: TcpListener,
+    config: Arc<Config>,
+    started: tokio::time::Instant,
+    counters: Arc<Counters>,
+) {
     let mut connections = JoinSet::new();
     loop {
         tokio::select! {
@@ -181,7 +209,7 @@ async fn accept_loop(listener: TcpListener, config: Arc<Config>, counters: Arc<C
                 // A failed accept (out of file descriptors, say) drops that client only.
                 let Ok((client, _)) = accepted else { continue };
                 counters.connections.fetch_add(1, Ordering::SeqCst);
-                connections.spawn(connection(client, config.clone(), counters.clone()));
+                connections.spawn(connection(client, config.clone(), started, counters.clone()));
             }
             // Reap finished connections, so a long-running proxy does not accumulate them.
             Some(_) = connections.join_next() => {}
@@ -192,7 +220,12 @@ async fn accept_loop(listener: TcpListener, config: Arc<Config>, counters: Arc<C
 /// One client connection: its own connection upstream, requests one way, responses
 /// the other. It ends when the response side ends (the upstream closed, or the client
 /// stopped reading); when the client only stops sending, the responses still due go on.
-async fn connection(client: TcpStream, config: Arc<Config>, counters: Arc<Counters>) {
+async fn connection(
+    client: TcpStream,
+    config: Arc<Config>,
+    started: tokio::time::Instant,
+    counters: Arc<Counters>,
+) {
     let Ok(server) = TcpStream::connect(config.upstream).await else {
         return; // dropping `client` closes it: to the client, the server is down
     };
@@ -205,6 +238,10 @@ async fn connection(client: TcpStream, config: Arc<Config>, counters: Arc<Counte
                 let _ = tokio::io::copy(&mut sr, &mut cw).await;
             }
             Responses::Delay(delay) => delay::relay_delayed(sr, cw, *delay, &counters.held).await,
+            Responses::Stall(stall) => {
+                let window = stall::Window::new(*stall, started);
+                stall::relay_stalled(sr, cw, window, &counters.held).await;
+            }
             Responses::Damage(faults) => faults::relay_damaging(sr, cw, faults).await,
         }
     };
