@@ -398,7 +398,7 @@ def semantic_checks(name: str, objs: list[dict], universe: dict, tessera_envs: s
                 if "cpu" not in ((c.get("resources") or {}).get("requests") or {}):
                     p(f"{kr._describe(hpa)}: CPU utilization needs a CPU request on {c['name']}")
 
-    # Build Jobs.
+    # Build Jobs (the load test's Jobs have rules of their own: load_job_problems).
     parts_outputs = {}
     for job in jobs:
         d = kr._describe(job)
@@ -407,6 +407,13 @@ def semantic_checks(name: str, objs: list[dict], universe: dict, tessera_envs: s
         args = [str(a) for a in (c.get("command") or []) + (c.get("args") or [])]
         if pod_spec(job).get("restartPolicy") != "Never":
             p(f"{d}: restartPolicy is not Never")
+        if is_load_job(c):
+            for msg, out in load_job_problems(job):
+                if msg:
+                    p(msg)
+                if out:
+                    parts_outputs.setdefault(out[0], []).append((d, out[1]))
+            continue
         if not args or args[0] != "build" or "-o" not in args:
             p(f"{d}: does not run `build ... -o OUT` (args {args})")
             continue
@@ -431,6 +438,100 @@ def semantic_checks(name: str, objs: list[dict], universe: dict, tessera_envs: s
             p(f"{d}: parallelism above completions")
         parts_outputs.setdefault("parts", []).append((d, _expand(arg_after(args, "-o"), env)))
     return problems, parts_outputs
+
+
+def is_load_job(c: dict) -> bool:
+    """A Job container that runs `tessera load` (the client), not `tessera-server build`."""
+    argv = [str(a) for a in (c.get("command") or []) + (c.get("args") or [])]
+    return argv[:2] == ["tessera", "load"] or (argv[:2] == ["bash", "-c"] and "tessera load" in " ".join(argv[2:]))
+
+
+def mount_of(c: dict, spec: dict, path: str) -> tuple[dict, dict] | None:
+    """The volumeMount (and its volume) that `path` lies under, the longest such."""
+    best = None
+    for m in c.get("volumeMounts") or []:
+        mp = m["mountPath"].rstrip("/")
+        if path == mp or path.startswith(mp + "/"):
+            if best is None or len(mp) > len(best["mountPath"].rstrip("/")):
+                best = m
+    if best is None:
+        return None
+    vol = next((v for v in spec.get("volumes") or [] if v["name"] == best["name"]), {})
+    return best, vol
+
+
+def _place(m: dict, vol: dict, path: str) -> str:
+    """Where `path` (under mount `m`) is on its persistent volume: claim:subPath/rest."""
+    claim = (vol.get("persistentVolumeClaim") or {}).get("claimName")
+    rest = path[len(m["mountPath"].rstrip("/")):]
+    return f"{claim}:{(m.get('subPath') or '').strip('/')}{rest}".rstrip("/")
+
+
+def load_job_problems(job: dict) -> list[tuple[str | None, tuple[str, str] | None]]:
+    """The rules of the load test's Jobs (deploy/k8s/load): for the replay, the Indexed
+    Job's completions equal the N of `--shard $(JOB_COMPLETION_INDEX)/N`, all shards
+    run at once and are never rerun alone, the trace is read from a mounted volume and
+    each shard writes its own results directory on a PersistentVolumeClaim; for the
+    merge, it reads those reports. Returns (problem, output) pairs: output is
+    ("load-results", place) for a replay, ("load-merge", place) for the merge."""
+    d = kr._describe(job)
+    spec = job["spec"]
+    pspec = pod_spec(job)
+    c = pspec["containers"][0]
+    argv = [str(a) for a in (c.get("command") or []) + (c.get("args") or [])]
+    out: list = []
+
+    def p(msg):
+        out.append((msg, None))
+
+    if argv[:2] == ["bash", "-c"]:
+        script = " ".join(argv[2:])
+        m = re.search(r"tessera load merge (\S+)/\[0-9\]\*/load\.json", script)
+        if not m:
+            p(f"{d}: the merge does not read DIR/[0-9]*/load.json (the shards' reports only): {script!r}")
+            return out
+        where = mount_of(c, pspec, m.group(1))
+        if where is None or not (where[1].get("persistentVolumeClaim")):
+            p(f"{d}: the merge reads {m.group(1)}, which is not on a PersistentVolumeClaim")
+            return out
+        out.append((None, ("load-merge", _place(*where, m.group(1)))))
+        return out
+    if "merge" in argv[2:3]:
+        p(f"{d}: `tessera load merge` needs the shards' reports listed (a shell glob): run it through bash -c")
+        return out
+    shard = arg_after(argv, "--shard")
+    if shard is None:
+        p(f"{d}: a load Job without --shard K/N (one process would replay the whole trace {spec.get('completions')} times)")
+        return out
+    k, _, n = shard.partition("/")
+    if spec.get("completionMode") != "Indexed":
+        p(f"{d}: --shard needs completionMode: Indexed")
+    if k != "$(JOB_COMPLETION_INDEX)":
+        p(f"{d}: --shard's K is {k!r}, not $(JOB_COMPLETION_INDEX)")
+    if str(spec.get("completions")) != n:
+        p(f"{d}: completions {spec.get('completions')} differs from the N of --shard {shard}")
+    if spec.get("parallelism") != spec.get("completions"):
+        p(f"{d}: parallelism {spec.get('parallelism')} is not completions {spec.get('completions')}: "
+          "the shards are one load only when they all run at once")
+    if spec.get("backoffLimit") != 0 or "backoffLimitPerIndex" in spec:
+        p(f"{d}: a failed shard may be rerun (backoffLimit {spec.get('backoffLimit')!r}, "
+          f"backoffLimitPerIndex {spec.get('backoffLimitPerIndex')!r}): rerun alone it would load the server by itself")
+    trace = arg_after(argv, "--replay")
+    if not trace or mount_of(c, pspec, trace) is None:
+        p(f"{d}: the trace {trace!r} is not on a mounted volume")
+    results = arg_after(argv, "--out")
+    if not results or "$(JOB_COMPLETION_INDEX)" not in results:
+        p(f"{d}: --out {results!r} does not name a directory per shard ($(JOB_COMPLETION_INDEX))")
+        return out
+    parent = results.rsplit("/", 1)[0]
+    where = mount_of(c, pspec, results)
+    if where is None or not where[1].get("persistentVolumeClaim") or where[0].get("readOnly"):
+        p(f"{d}: --out {results} is not on a writable PersistentVolumeClaim")
+        return out
+    if "--json" not in argv:
+        p(f"{d}: no --json (the pod's log should carry the shard's report)")
+    out.append((None, ("load-results", _place(*where, parent))))
+    return out
 
 
 def check_kubernetes(tessera_envs: set[str], envs_from: str) -> dict:
@@ -507,6 +608,11 @@ def check_kubernetes(tessera_envs: set[str], envs_from: str) -> dict:
     R.check(bool(parts) and parts == assemble,
             f"the assemble Job reads the directory the Indexed Job writes ({', '.join(sorted(parts))})",
             f"parts write {parts}, assemble reads {assemble}")
+    results = {v for _, v in all_parts.get("load-results", [])}
+    merged = {v for _, v in all_parts.get("load-merge", [])}
+    R.check(bool(results) and results == merged,
+            f"the load merge Job reads the reports the load replay Job writes ({', '.join(sorted(results))})",
+            f"the shards write under {results}, the merge reads {merged}")
     R.note(f"TESSERA_* names in ConfigMaps checked against {envs_from} ({len(tessera_envs)} names)")
     return rendered
 
@@ -1371,6 +1477,27 @@ def negative_tests(rendered: dict, hadolint: str | None, compose_bin: str | None
         problems, _ = semantic_checks("broken parts", broken, universe, None)
         R.check(any("completions 8" in p for p in problems), "semantic rules catch completions 8 against --part $(JOB_COMPLETION_INDEX)/16",
                 f"found {problems}")
+    load_dir = os.path.join(K8S_DIR, "load", "replay")
+    if rendered.get(load_dir):
+        broken = copy.deepcopy(rendered[load_dir])
+        job = next(o for o in broken if o["kind"] == "Job")
+        job["spec"]["completions"] = 4
+        job["spec"]["backoffLimitPerIndex"] = 1
+        args = job["spec"]["template"]["spec"]["containers"][0]["args"]
+        args[args.index("--out") + 1] = "/results"
+        universe = {(o["kind"], o["metadata"]["name"]): o for o in broken}
+        problems, _ = semantic_checks("broken load replay", broken, universe, None)
+        R.check(any("completions 4" in p for p in problems) and any("parallelism" in p for p in problems)
+                and any("rerun" in p for p in problems) and any("per shard" in p for p in problems),
+                "semantic rules catch a load Job with completions 4 against --shard $(JOB_COMPLETION_INDEX)/8, "
+                "parallelism above it, per-index retries and one --out for all shards", f"found {problems}")
+        broken = copy.deepcopy(rendered[load_dir])
+        args = next(o for o in broken if o["kind"] == "Job")["spec"]["template"]["spec"]["containers"][0]["args"]
+        args[args.index("--shard") + 1] = "0/8"
+        universe = {(o["kind"], o["metadata"]["name"]): o for o in broken}
+        problems, _ = semantic_checks("broken load replay", broken, universe, None)
+        R.check(any("not $(JOB_COMPLETION_INDEX)" in p for p in problems),
+                "semantic rules catch --shard 0/8 (every pod replaying shard 0)", f"found {problems}")
     with tempfile.TemporaryDirectory() as tmp:
         d = os.path.join(tmp, "k")
         os.makedirs(d)
