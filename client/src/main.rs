@@ -54,6 +54,11 @@ enum Command {
         /// ground spacing, measured by the server for each axis; else 100).
         #[arg(long)]
         spacing: Option<f64>,
+        /// Also write the clients' requests to TRACE (JSON Lines, FORMAT.md "Request
+        /// traces"), with each completed answer's status, tiles, bytes and digest,
+        /// for --replay. Needs --server.
+        #[arg(long, value_name = "TRACE")]
+        record: Option<PathBuf>,
         /// Print the report as JSON.
         #[arg(long)]
         json: bool,
@@ -315,6 +320,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tau,
             viewport,
             spacing,
+            record,
             json,
             open,
         } => {
@@ -334,6 +340,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 spacing,
                 progress: !json,
                 open,
+                record,
             };
             let r = load_test::load(&opts)?;
             if json {

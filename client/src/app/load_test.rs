@@ -1,9 +1,21 @@
 //! `tessera load`: many simulated clients flying the built-in paths through the real
 //! selection and streaming code (no rendering), to load-test a server, or a static
 //! host serving a pyramid file (`--pyramid`).
+//!
+//! With `--record TRACE` the clients' requests are also written as a request trace
+//! ([`crate::load::record`]) for `tessera load --replay`, which sends them again
+//! without selection or decoding.
+//!
+//! The clients do the selection and decoding of real clients, so on a small machine
+//! they can use all of it before the server is busy: the report then says the run
+//! was client-bound ([`crate::load::cpu::CpuUse::client_bound`]: the process used at
+//! least 80 % of the cores available to it), and its tiles/s measure the generator.
 
 use super::fly::{FlyOptions, fly};
+use crate::load::cpu::CpuMeter;
+use crate::load::record::{RecordHook, Recorder};
 use crate::stream::{RequestMode, StreamConfig, TileSource};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -23,6 +35,8 @@ pub struct LoadOptions {
     pub progress: bool,
     /// `--no-bootstrap`, `--http2`.
     pub open: crate::stream::OpenArgs,
+    /// `--record TRACE`: also write the clients' requests there (a server source only).
+    pub record: Option<PathBuf>,
 }
 
 /// What the clients saw, together.
@@ -45,6 +59,14 @@ pub struct LoadReport {
     pub latency_ms_p99: f64,
     pub latency_ms_max: f64,
     pub frames_within_2tau: f64,
+    /// The load process's CPU seconds per wall second over the run (cores' worth);
+    /// `null` where it cannot be measured (not Linux: `/proc/self/stat`).
+    pub client_cpu_cores: Option<f64>,
+    /// Cores available to the load process.
+    pub client_cores_available: u32,
+    /// The process used at least 80 % of its cores: the clients, not the server, set
+    /// the pace, and the figures measure the load generator.
+    pub client_bound: bool,
 }
 
 /// The one-line summary `tessera load` prints without `--json`.
@@ -65,19 +87,61 @@ impl std::fmt::Display for LoadReport {
             self.latency_ms_max,
             self.errors,
             100.0 * self.frames_within_2tau
-        )
+        )?;
+        if self.client_bound {
+            write!(
+                f,
+                "\nclient-bound: the load generator used {:.1} of {} cores; use --record and --replay to measure the server",
+                self.client_cpu_cores.unwrap_or(0.0),
+                self.client_cores_available
+            )?;
+        }
+        Ok(())
     }
+}
+
+/// Where a run's trace goes, checked before the run: `--record` needs a Tessera
+/// server (a static host's Range requests are not its routes), and a directory to
+/// write the trace in, so a long run does not end in an error.
+fn recorder_for(opts: &LoadOptions) -> anyhow::Result<Option<(Arc<Recorder>, PathBuf)>> {
+    let Some(path) = &opts.record else {
+        return Ok(None);
+    };
+    let TileSource::Server { url, .. } = &opts.source else {
+        anyhow::bail!(
+            "--record {} needs a --server source: a trace holds a Tessera server's requests, and --pyramid reads a file with Range requests",
+            path.display()
+        );
+    };
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    anyhow::ensure!(
+        dir.is_dir(),
+        "--record {}: directory {} does not exist",
+        path.display(),
+        dir.display()
+    );
+    anyhow::ensure!(
+        !path.is_dir(),
+        "--record {}: is a directory, not a file",
+        path.display()
+    );
+    Ok(Some((Recorder::new(url), path.clone())))
 }
 
 /// Runs the clients (staggered along the built-in paths) and sums their traffic.
 pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
     anyhow::ensure!(opts.clients > 0, "--clients must be at least 1");
+    let recording = recorder_for(opts)?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
     let tiles = Arc::new(AtomicU64::new(0));
     let frames = (opts.duration.as_secs_f64() * opts.fps).ceil() as u32;
     let started = Instant::now();
+    let cpu = CpuMeter::start();
     let done = Arc::new(AtomicU64::new(0));
     let progress = opts.progress.then(|| {
         let (tiles, done, clients) = (tiles.clone(), done.clone(), u64::from(opts.clients));
@@ -111,6 +175,9 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 pool_tiles: 512,
                 stream: StreamConfig {
                     mode: opts.mode,
+                    record: recording
+                        .as_ref()
+                        .map(|(r, _)| RecordHook::new(r.clone(), i)),
                     ..opts.open.config()
                 },
                 // Staggered starts: each client begins at a different point of its path.
@@ -139,6 +206,19 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
         let _ = p.join();
     }
     let seconds = started.elapsed().as_secs_f64();
+    let cpu = cpu.finish();
+    let mode = match opts.mode {
+        RequestMode::Ranges => "ranges",
+        RequestMode::Single => "single",
+    };
+    if let Some((recorder, path)) = &recording {
+        // The fetches still in flight when the clients stopped end with the runtime;
+        // theirs stay without an expectation.
+        drop(rt);
+        recorder
+            .trace(opts.source.name(), opts.clients, seconds, mode)
+            .write(path)?;
+    }
     let mut lat: Vec<f64> = summaries
         .iter()
         .flat_map(|s| s.latencies_ms.iter().copied())
@@ -158,11 +238,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
         summaries.iter().map(|s| s.within_2tau).sum::<f64>() / f64::from(opts.clients);
     Ok(LoadReport {
         clients: opts.clients,
-        mode: match opts.mode {
-            RequestMode::Ranges => "ranges",
-            RequestMode::Single => "single",
-        }
-        .into(),
+        mode: mode.into(),
         seconds,
         requests,
         responses,
@@ -177,5 +253,8 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
         latency_ms_p99: pct(0.99),
         latency_ms_max: pct(1.0),
         frames_within_2tau: within,
+        client_cpu_cores: cpu.map(|c| c.cores_used),
+        client_cores_available: crate::load::cpu::available_cores(),
+        client_bound: cpu.is_some_and(|c| c.client_bound()),
     })
 }

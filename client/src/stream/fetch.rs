@@ -6,6 +6,8 @@
 //! to blame for a failure ([`Blame`]).
 
 use super::source::{StaticFile, Transport, Validators};
+use crate::load::record::RecordHook;
+use crate::load::trace::{RequestKind, StreamDigest};
 use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 use tessera_shared::ByteSource;
@@ -126,7 +128,10 @@ fn spawn_decode(
 }
 
 /// One range request for tiles of `level`: streams the body through the frame
-/// decoder and decodes each record as it completes, off the frame thread.
+/// decoder and decodes each record as it completes, off the frame thread. With
+/// `record`, the request is recorded, and completed with the digest of its frames
+/// once the stream has ended well-formed ([`crate::load::record`]).
+#[allow(clippy::too_many_arguments)]
 pub(super) async fn fetch(
     client: reqwest::Client,
     url: String,
@@ -134,14 +139,18 @@ pub(super) async fn fetch(
     id: u64,
     layout: RecordLayout,
     tx: mpsc::Sender<Event>,
+    record: Option<RecordHook>,
 ) {
     let sent = Instant::now();
+    let recording = record.map(|r| r.sent(RequestKind::Tiles, &url, Some(level)));
+    let mut digest = recording.as_ref().map(|_| StreamDigest::new());
     let mut decodes = Vec::new();
     let whole = |e: &dyn std::fmt::Display| (format!("{url}: {e}"), Blame::Request);
     let result = async {
         let mut resp = client.get(&url).send().await.map_err(|e| whole(&e))?;
-        if !resp.status().is_success() {
-            return Err(whole(&format!("HTTP {}", resp.status())));
+        let status = resp.status();
+        if !status.is_success() {
+            return Err(whole(&format!("HTTP {status}")));
         }
         let mut dec = FrameDecoder::new();
         let mut bytes = 0u64;
@@ -157,6 +166,9 @@ pub(super) async fn fetch(
                 };
                 (format!("{url}: {e}"), blame)
             })? {
+                if let Some(d) = &mut digest {
+                    d.push(&frame);
+                }
                 match frame {
                     Frame::Tile {
                         level: frame_level,
@@ -196,9 +208,15 @@ pub(super) async fn fetch(
         }
         dec.finish()
             .map_err(|e| (format!("{url}: {e}"), Blame::Truncated))?;
-        Ok(bytes)
+        Ok((status.as_u16(), bytes))
     }
     .await;
+    // Read in full and well-formed: the answer a replay expects (a record that then
+    // fails to decode is the client's trouble, not the stream's).
+    if let (Some(r), Some(d), Ok((status, bytes))) = (recording, &digest, &result) {
+        r.complete_stream(*status, *bytes, d);
+    }
+    let result = result.map(|(_, bytes)| bytes);
     // Latency is to the last byte; the flight is finished once every tile is decoded.
     finish_decoded(&tx, id, sent.elapsed(), result, decodes, &url).await;
 }
@@ -258,7 +276,9 @@ fn finish_after(
 }
 
 /// One single-tile request: the body is the stored record; its checksum must match
-/// the one the server sends in `X-Tessera-Checksum`.
+/// the one the server sends in `X-Tessera-Checksum`. With `record`, the request is
+/// recorded, and completed once a record or a 404 (absent) has been read.
+#[allow(clippy::too_many_arguments)]
 pub(super) async fn fetch_one(
     client: reqwest::Client,
     url: String,
@@ -266,8 +286,10 @@ pub(super) async fn fetch_one(
     id: u64,
     layout: RecordLayout,
     tx: mpsc::Sender<Event>,
+    record: Option<RecordHook>,
 ) {
     let sent = Instant::now();
+    let mut recording = record.map(|r| r.sent(RequestKind::Tile, &url, Some(tile.level())));
     let whole = |e: &dyn std::fmt::Display| (format!("{url}: {e}"), Blame::Request);
     let result = async {
         let resp = client.get(&url).send().await.map_err(|e| whole(&e))?;
@@ -283,15 +305,20 @@ pub(super) async fn fetch_one(
         }
         if resp.status() == reqwest::StatusCode::NOT_FOUND {
             // API.md: 404 for an absent tile (outside the DEM or wholly no-data); the
-            // dataset and level were known from its document.
+            // dataset and level were known from its document. Its short body is read,
+            // so the connection goes back to the pool (and a recording digests it).
+            if let (Ok(body), Some(r)) = (resp.bytes().await, recording.take()) {
+                r.complete_body(404, &body);
+            }
             let _ = tx.send(Event::Absent {
                 level: tile.level(),
                 ranges: vec![MortonRange::single(tile.morton())],
             });
             return Ok(0);
         }
-        if !resp.status().is_success() {
-            return Err(whole(&format!("HTTP {}", resp.status())));
+        let status = resp.status();
+        if !status.is_success() {
+            return Err(whole(&format!("HTTP {status}")));
         }
         let want = resp
             .headers()
@@ -303,6 +330,9 @@ pub(super) async fn fetch_one(
                 format!("{url}: record fails its checksum"),
                 Blame::Tile(tile),
             ));
+        }
+        if let Some(r) = recording.take() {
+            r.complete_body(status.as_u16(), &body);
         }
         let rec = codec::decode_record(&body, layout)
             .map_err(|e| (format!("{url}: {e}"), Blame::Tile(tile)))?;

@@ -9,6 +9,8 @@
 //! `((u + ½)·T/side, (v + ½)·T/side)` (FORMAT.md "Imagery pyramids"), so the
 //! tile's UV `(i/T, j/T)` samples it at its own sample `(i, j)`.
 
+use crate::load::record::RecordHook;
+use crate::load::trace::{RequestKind, StreamDigest};
 use anyhow::{Context, anyhow, bail};
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::mpsc;
@@ -69,25 +71,49 @@ pub async fn fetch(
     level: Level,
     ranges: &[MortonRange],
 ) -> anyhow::Result<Vec<(TileId, Texels)>> {
+    fetch_recorded(client, base, info, level, ranges, None).await
+}
+
+/// [`fetch`], recording the request with `record` (`tessera load --record`): it is
+/// completed, with the digest of its frames, once its stream has been read in full
+/// and is well-formed ([`crate::load::record`]).
+async fn fetch_recorded(
+    client: &reqwest::Client,
+    base: &str,
+    info: &ImageryInfo,
+    level: Level,
+    ranges: &[MortonRange],
+    record: Option<RecordHook>,
+) -> anyhow::Result<Vec<(TileId, Texels)>> {
     let url = format!(
         "{base}{}",
         info.tiles
             .replace("{level}", &level.to_string())
             .replace("{ranges}", &range_query::format(ranges))
     );
+    let recording = record.map(|r| r.sent(RequestKind::Imagery, &url, Some(level)));
     let resp = client
         .get(&url)
         .send()
         .await
         .with_context(|| format!("GET {url}"))?;
-    if !resp.status().is_success() {
-        bail!("GET {url}: {}", resp.status());
+    let status = resp.status();
+    if !status.is_success() {
+        bail!("GET {url}: {status}");
     }
     let body = resp.bytes().await.with_context(|| format!("GET {url}"))?;
     let side = info.texels;
     tokio::task::spawn_blocking(move || {
         let mut out = Vec::new();
-        for f in wire::decode_all(&body).map_err(|e| anyhow!("{e}"))? {
+        let frames = wire::decode_all(&body).map_err(|e| anyhow!("{e}"))?;
+        if let Some(r) = recording {
+            let mut digest = StreamDigest::new();
+            for f in &frames {
+                digest.push(f);
+            }
+            r.complete_stream(status.as_u16(), body.len() as u64, &digest);
+        }
+        for f in frames {
             match f {
                 Frame::Tile {
                     level: l,
@@ -135,6 +161,8 @@ pub struct ImageryFeed {
     /// Tiles the server has no imagery record for (the DEM has none): not asked again.
     none: HashSet<TileId>,
     retry_at: HashMap<TileId, Instant>,
+    /// Records the feed's requests (`tessera load --record`; [`ImageryFeed::recording`]).
+    record: Option<RecordHook>,
     pub requests: u64,
     pub last_error: Option<String>,
 }
@@ -160,9 +188,16 @@ impl ImageryFeed {
             pending: HashSet::new(),
             none: HashSet::new(),
             retry_at: HashMap::new(),
+            record: None,
             requests: 0,
             last_error: None,
         }
+    }
+
+    /// Records the feed's requests with `record` (the streamer's, when it records).
+    pub fn recording(mut self, record: Option<RecordHook>) -> Self {
+        self.record = record;
+        self
     }
 
     /// Texels per tile side.
@@ -221,14 +256,15 @@ impl ImageryFeed {
                 .filter(|t| t.level() == level)
                 .collect();
             self.pending.extend(asked.iter().copied());
-            let (client, base, info, tx) = (
+            let (client, base, info, tx, record) = (
                 self.client.clone(),
                 self.base.clone(),
                 self.info.clone(),
                 self.tx.clone(),
+                self.record.clone(),
             );
             self.rt.spawn(async move {
-                let answer = fetch(&client, &base, &info, level, &ranges).await;
+                let answer = fetch_recorded(&client, &base, &info, level, &ranges, record).await;
                 let _ = tx.send((asked, answer));
             });
             sent += 1;

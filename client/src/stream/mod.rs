@@ -115,6 +115,9 @@ pub struct StreamConfig {
     pub bootstrap: bool,
     /// Speak HTTP/2 to an `http://` server (h2c with prior knowledge, `--http2`).
     pub http2: bool,
+    /// Record this client's requests to a server (`tessera load --record`); `None`
+    /// records nothing and costs nothing.
+    pub record: Option<crate::load::record::RecordHook>,
 }
 
 impl Default for StreamConfig {
@@ -130,6 +133,7 @@ impl Default for StreamConfig {
             corrupt_attempts: 4,
             bootstrap: true,
             http2: false,
+            record: None,
         }
     }
 }
@@ -357,13 +361,16 @@ impl Streamer {
             return None;
         };
         let info = self.imagery.clone()?;
-        Some(imagery::ImageryFeed::new(
-            self.rt.clone(),
-            self.client.clone(),
-            url.clone(),
-            info,
-            capacity,
-        ))
+        Some(
+            imagery::ImageryFeed::new(
+                self.rt.clone(),
+                self.client.clone(),
+                url.clone(),
+                info,
+                capacity,
+            )
+            .recording(self.config.record.clone()),
+        )
     }
 
     /// Opens a server source: the bootstrap, or (`--no-bootstrap`, or a server that
@@ -386,13 +393,16 @@ impl Streamer {
             // one after a pause.
             let probe = http_client(config.request_timeout, h2c)?;
             let boot = if config.bootstrap {
-                rt.block_on(bootstrap(&probe, url, dataset))?
+                rt.block_on(bootstrap(&probe, url, dataset, config.record.as_ref()))?
             } else {
                 None
             };
             let (info, boot) = match boot {
                 Some((b, bytes)) => (b.info.clone(), Some((b, bytes))),
-                None => (rt.block_on(describe(&probe, url, dataset))?, None),
+                None => (
+                    rt.block_on(describe(&probe, url, dataset, config.record.as_ref()))?,
+                    None,
+                ),
             };
             let layout = layout_of(&info)?;
             Ok::<_, anyhow::Error>((client, info, boot, layout))
@@ -850,7 +860,9 @@ impl Streamer {
                             &[("name", dataset), ("level", &level.to_string())],
                         );
                         let url = format!("{server}{path}?ranges={}", range_query::format(&ranges));
-                        self.rt.spawn(fetch(client, url, level, id, layout, tx))
+                        let record = self.config.record.clone();
+                        self.rt
+                            .spawn(fetch(client, url, level, id, layout, tx, record))
                     }
                     RequestMode::Single => {
                         let tile = *tiles.iter().next().expect("one tile per request");
@@ -865,7 +877,9 @@ impl Streamer {
                         );
                         self.stats.ranges += 1;
                         let url = format!("{server}{path}");
-                        self.rt.spawn(fetch_one(client, url, tile, id, layout, tx))
+                        let record = self.config.record.clone();
+                        self.rt
+                            .spawn(fetch_one(client, url, tile, id, layout, tx, record))
                     }
                 };
                 self.flights.insert(id, Flight { tiles, task });
@@ -939,19 +953,29 @@ const MAX_BOOTSTRAP: usize = 256 << 20;
 /// size in bytes; `None` when the server has no such route (404: an older server),
 /// answers with a server error (5xx) or sends something that is not a bootstrap,
 /// which is then said in the log and the dataset opened the old way.
+///
+/// With `record`, the request is recorded, and completed with its body once a 2xx
+/// (or the 404 of a server without the route) has been read in full.
 async fn bootstrap(
     client: &reqwest::Client,
     server: &str,
     dataset: &str,
+    record: Option<&crate::load::record::RecordHook>,
 ) -> anyhow::Result<Option<(Bootstrap, u64)>> {
     let url = format!(
         "{server}{}",
         api::fill(api::routes::BOOTSTRAP, &[("name", dataset)])
     );
+    let recording = record.map(|r| r.sent(crate::load::trace::RequestKind::Bootstrap, &url, None));
     let mut r = client.get(&url).send().await?;
     let status = r.status();
     if status == reqwest::StatusCode::NOT_FOUND {
-        // An unknown dataset is a 404 too: the document's request says which.
+        // An unknown dataset is a 404 too: the document's request says which. The
+        // short body is read, so the connection can serve the document's request
+        // (and a recording digests it).
+        if let (Ok(body), Some(rec)) = (r.bytes().await, recording) {
+            rec.complete_body(status.as_u16(), &body);
+        }
         tracing::info!("{url}: 404; opening with the dataset's document");
         return Ok(None);
     }
@@ -978,6 +1002,9 @@ async fn bootstrap(
             "{url}: more than {MAX_BOOTSTRAP} bytes"
         );
     }
+    if let Some(rec) = recording {
+        rec.complete_body(status.as_u16(), &body);
+    }
     match Bootstrap::decode(&body) {
         Ok(b) => {
             anyhow::ensure!(
@@ -994,20 +1021,27 @@ async fn bootstrap(
     }
 }
 
-/// `GET /v1/datasets/{name}` of `server`: the dataset's document (API.md).
+/// `GET /v1/datasets/{name}` of `server`: the dataset's document (API.md). With
+/// `record`, the request is recorded, and completed with its body on a 2xx.
 async fn describe(
     client: &reqwest::Client,
     server: &str,
     dataset: &str,
+    record: Option<&crate::load::record::RecordHook>,
 ) -> anyhow::Result<api::DatasetInfo> {
     let url = format!(
         "{server}{}",
         api::fill(api::routes::DATASET, &[("name", dataset)])
     );
+    let recording = record.map(|r| r.sent(crate::load::trace::RequestKind::Document, &url, None));
     let r = client.get(&url).send().await?;
     let status = r.status();
-    let body = r.text().await?;
+    let bytes = r.bytes().await?;
+    let body = String::from_utf8_lossy(&bytes);
     anyhow::ensure!(status.is_success(), "{url}: HTTP {status}: {body}");
+    if let Some(rec) = recording {
+        rec.complete_body(status.as_u16(), &bytes);
+    }
     serde_json::from_str(&body)
         .with_context(|| format!("{url}: not the dataset description of API.md"))
 }

@@ -189,6 +189,7 @@ pub fn small_load_opened(
         spacing: Some(30.0),
         progress: false,
         open,
+        record: None,
     })
     .unwrap()
 }
