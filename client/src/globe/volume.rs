@@ -104,8 +104,10 @@ impl GlobeView {
 pub fn distance(globe: &Globe, eye: DVec3, min: DVec3, max: DVec3) -> f64 {
     let points = shell_points(globe, min, max);
     let s = sphere_of(&points);
-    let e = globe.ecef_of_world(eye);
+    let frame = EyeFrame::of_world(globe, eye);
+    let e = frame.ecef;
     let to_sphere = (e.distance(s.centre) - s.radius).max(0.0);
+    let beside = local_box_distance(globe, &frame, &points, min.y);
     let top = points
         .iter()
         .skip(1)
@@ -115,7 +117,52 @@ pub fn distance(globe: &Globe, eye: DVec3, min: DVec3, max: DVec3) -> f64 {
     let (a, b) = (globe.ellipsoid.a, globe.ellipsoid.b);
     let span = (max.z - min.z).abs() / b;
     let above = e.length() - top - ((a - b) * span * span + 1.0);
-    to_sphere.max(above)
+    to_sphere.max(above).max(beside)
+}
+
+/// A lower bound on the distance from the eye to the shell through the eye's local
+/// frame: the distance to the box, in east/up/south axes, around the shell's samples,
+/// widened by how far the shell can bulge between them. Tight when the eye is beside
+/// a block (a canyon's wall that rises above the eye), where both other bounds are 0:
+/// the eye is inside the wall block's bounding sphere and below its top.
+///
+/// The shell is the union of radial segments between its lowest and highest height,
+/// so every point lies between two points at those heights over the same position.
+/// A point of a surface of constant height lies within `c²/4ρ` of the box of the
+/// sample cell around it (`c` the cell's diagonal chord, `ρ` the smallest radius of
+/// curvature at that height: a chord of length `c` on a circle of radius `ρ` stands
+/// `c²/8ρ` from its arc; doubled for the cell's two directions), plus a metre for
+/// rounding.
+fn local_box_distance(
+    globe: &Globe,
+    frame: &EyeFrame,
+    points: &[DVec3; (SAMPLES * SAMPLES * 2) as usize],
+    lowest: f64,
+) -> f64 {
+    let (lo, hi) = points.iter().fold(
+        (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
+        |(lo, hi), p| {
+            let l = frame.local(*p);
+            (lo.min(l), hi.max(l))
+        },
+    );
+    // Samples are stored (i, j) row-major, each at the lowest then the highest height.
+    let at = |i: u32, j: u32, top: usize| points[((j * SAMPLES + i) * 2) as usize + top];
+    let mut c = 0f64;
+    for j in 0..SAMPLES - 1 {
+        for i in 0..SAMPLES - 1 {
+            for top in 0..2 {
+                c = c
+                    .max(at(i, j, top).distance(at(i + 1, j + 1, top)))
+                    .max(at(i + 1, j, top).distance(at(i, j + 1, top)));
+            }
+        }
+    }
+    let (a, b) = (globe.ellipsoid.a, globe.ellipsoid.b);
+    let rho = (b * b / a + lowest.min(0.0)).max(1.0);
+    let margin = c * c / (4.0 * rho) + 1.0;
+    let nearest = DVec3::ZERO.clamp(lo - margin, hi + margin);
+    nearest.length()
 }
 
 #[cfg(test)]
@@ -206,5 +253,92 @@ mod tests {
             d > 0.8 * nearest,
             "{d} is far below {nearest}: ρ would be needlessly large"
         );
+    }
+
+    #[test]
+    fn the_distance_beside_a_wall_that_rises_above_the_eye_is_not_zero() {
+        let g = Globe {
+            ellipsoid: Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap(),
+            grid: LonLatGrid {
+                lon0: 8.0,
+                dlon: 1.0 / 3600.0,
+                lat0: 47.0,
+                dlat: -1.0 / 3600.0,
+            },
+            spacing: DVec2::new(21.1, 30.9),
+            min_height: 187.0,
+        };
+        // A 32-sample block (675 × 989 m) from 900 to 2500 m; the eye at 1200 m,
+        // 300 m west of it: inside its bounding sphere and below its top, so the
+        // sphere and the height gap both say 0 (ρ would be infinite).
+        let (min, max) = (
+            DVec3::new(100.0 * 21.1, 900.0, 100.0 * 30.9),
+            DVec3::new(132.0 * 21.1, 2500.0, 132.0 * 30.9),
+        );
+        let eye = DVec3::new(min.x - 300.0, 1200.0, 116.0 * 30.9);
+        let s = sphere(&g, min, max);
+        assert!(g.ecef_of_world(eye).distance(s.centre) < s.radius);
+        let d = distance(&g, eye, min, max);
+        let mut nearest = f64::MAX;
+        for j in 0..=64 {
+            for i in 0..=64 {
+                for k in 0..=16 {
+                    let h = 900.0 + 100.0 * f64::from(k);
+                    let p = g.ecef_of_world(DVec3::new(
+                        min.x + f64::from(i) / 64.0 * (max.x - min.x),
+                        h,
+                        min.z + f64::from(j) / 64.0 * (max.z - min.z),
+                    ));
+                    nearest = nearest.min(p.distance(g.ecef_of_world(eye)));
+                }
+            }
+        }
+        assert!(d <= nearest, "{d} overestimates {nearest}");
+        assert!(d > 0.8 * nearest, "{d} is far below {nearest}");
+    }
+
+    #[test]
+    fn the_local_bound_never_overestimates_on_a_whole_moon_tile() {
+        let g = Globe {
+            ellipsoid: Ellipsoid::new(1_737_400.0, 1_737_400.0).unwrap(),
+            grid: LonLatGrid {
+                lon0: 43.0,
+                dlon: 1.0 / 256.0,
+                lat0: 33.0,
+                dlat: -1.0 / 256.0,
+            },
+            spacing: DVec2::new(100.0, 118.45),
+            min_height: -5547.0,
+        };
+        // The whole 32° dataset and eyes all around it, low and high: the bound
+        // stays below the nearest of a dense sample of the shell.
+        let (min, max) = (
+            DVec3::new(0.0, -6000.0, 0.0),
+            DVec3::new(8192.0 * 100.0, 4000.0, 8192.0 * 118.45),
+        );
+        for (ex, ez, eh) in [
+            (-0.2, 0.5, 1000.0),
+            (0.5, 0.5, 5000.0),
+            (1.3, 1.1, 200_000.0),
+            (0.1, -0.05, 4500.0),
+        ] {
+            let eye = DVec3::new(ex * max.x, eh, ez * max.z);
+            let d = distance(&g, eye, min, max);
+            let e = g.ecef_of_world(eye);
+            let mut nearest = f64::MAX;
+            for j in 0..=128 {
+                for i in 0..=128 {
+                    for h in [-6000.0, 4000.0] {
+                        let p = g.ecef_of_world(DVec3::new(
+                            f64::from(i) / 128.0 * max.x,
+                            h,
+                            f64::from(j) / 128.0 * max.z,
+                        ));
+                        nearest = nearest.min(p.distance(e));
+                    }
+                }
+            }
+            assert!(d <= nearest, "eye {eye}: {d} overestimates {nearest}");
+        }
     }
 }

@@ -122,11 +122,20 @@ impl TileRho {
             // On the globe a mesh of level m also misses the curved surface by the
             // sag of its cells' chords, `s²/8R` for a cell diagonal `s` (the body's
             // polar radius: the smaller, the more sag); the error tables only hold
-            // heights' errors.
+            // heights' errors. Errors are against the finest mesh, whose own chords
+            // sag by `f²/8R` for the finest cell `f`: the excess is `(s² − f²)/8R`,
+            // 0 for the finest mesh, which is then exact wherever the eye is (with
+            // the eye inside a block's box, any error at all makes ρ infinite).
             let sag = match (&world.globe, policy) {
                 (Some(g), Policy::ScreenError) => {
                     let cell = size.length() / f64::from(1u32 << m);
-                    cell * cell / (8.0 * g.ellipsoid.b)
+                    let fine = world.spacing.length();
+                    let excess = cell * cell - fine * fine;
+                    if excess <= 1e-9 * fine * fine {
+                        0.0
+                    } else {
+                        excess / (8.0 * g.ellipsoid.b)
+                    }
                 }
                 _ => 0.0,
             };
@@ -228,6 +237,54 @@ mod tests {
         let above = DVec3::new(2560.0, 205.0 + 1.0, 2560.0);
         let rho = TileRho::new(&world, tile, &table, above, 1000.0, 3, Policy::ScreenError);
         assert!((rho.rho(0, 0, 0, 0) - 5.0 * 1000.0 / 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn on_the_globe_the_finest_mesh_is_exact_and_coarser_ones_sag() {
+        use crate::globe::{Globe, ellipsoid::Ellipsoid, grid::LonLatGrid};
+        // The same 512-cell root tile, 1″ cells in the Alps on WGS 84.
+        let world = World {
+            globe: Some(Globe {
+                ellipsoid: Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap(),
+                grid: LonLatGrid {
+                    lon0: 8.0,
+                    dlon: 1.0 / 3600.0,
+                    lat0: 47.0,
+                    dlat: -1.0 / 3600.0,
+                },
+                spacing: glam::DVec2::new(21.1, 30.9),
+                min_height: 0.0,
+            }),
+            spacing: glam::DVec2::new(21.1, 30.9),
+            ..root_world()
+        };
+        let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
+        let mut table = ErrorTable::empty(9);
+        for n in 0..=9 {
+            for b in 0..64 {
+                table.set_error(n, b % 8, b / 8, 0.0);
+                table.set_block_range(b % 8, b / 8, 100, 200);
+            }
+        }
+        // The eye inside a block's box: the finest mesh has no error against
+        // itself, so ρ is 0 there, not infinite (a canyon flight on the globe
+        // reported every frame "missing" when the finest mesh was charged its own
+        // chords' sag).
+        let inside = DVec3::new(5400.0, 150.0, 7900.0);
+        let rho = TileRho::new(&world, tile, &table, inside, 1000.0, 3, Policy::ScreenError);
+        assert_eq!(rho.rho(9, 0, 0, 0), 0.0);
+        assert_eq!(rho.rho(8, 0, 0, 0), f64::INFINITY);
+        // From above, coarser meshes miss the curve by their chords' excess sag
+        // even where the heights are exact: (s² − f²)/8R, seen from ≤ 2 km.
+        let above = DVec3::new(5400.0, 2200.0, 7900.0);
+        let rho = TileRho::new(&world, tile, &table, above, 1000.0, 3, Policy::ScreenError);
+        let f = world.spacing.length();
+        for m in [0u32, 4, 8] {
+            let s = f * f64::from(1u32 << (9 - m));
+            let sag = (s * s - f * f) / (8.0 * 6_356_752.314_245);
+            assert!(rho.rho(m, 0, 0, 0) >= sag * 1000.0 / 2000.0, "level {m}");
+        }
+        assert_eq!(rho.rho(9, 0, 0, 0), 0.0);
     }
 
     #[test]
