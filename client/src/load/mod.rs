@@ -2,6 +2,11 @@
 //!
 //! - [`trace`]: the request trace `tessera load --record` writes and `--replay`
 //!   reads, its digest of a tile stream, and `--shard K/N`.
+//! - [`schedule`]: when a replay sends each request (as recorded, `--rate`, `--ramp`).
+//! - [`replay`]: the engine: the open model, HDR latency from the scheduled start.
+//! - [`check`]: one answer against its recording (errors by kind).
+//! - [`report`]: the report (`--json`, `DIR/load.json`) and `tessera load merge`.
+//! - [`latency_plot`]: the latency-over-time plot (`DIR/latency.png`).
 //! - [`record`]: `--record`: the full clients' requests collected into a trace.
 //! - [`cpu`]: the load process's own CPU use (is a run client-bound?).
 //!
@@ -10,4 +15,9 @@
 
 pub mod cpu;
 pub mod record;
+pub mod check;
+pub mod latency_plot;
+pub mod replay;
+pub mod report;
+pub mod schedule;
 pub mod trace;

@@ -1,0 +1,611 @@
+//! The replay engine of `tessera load --replay` (issue 18): sends a trace's requests
+//! on an arrival schedule, checks each answer as it streams in, and reports latency
+//! in HDR histograms.
+//!
+//! **The open model.** A scheduler task starts each request at its scheduled instant
+//! (`sleep_until` on an absolute schedule computed from the start, see `schedule`),
+//! whether or not earlier requests have finished. At most `--connections` requests
+//! are in flight on HTTP/1.1 (one per keep-alive connection); when all are busy, the
+//! next request waits for one, and so do those scheduled after it. Latency is recorded
+//! twice: from the *scheduled* instant (corrected for coordinated omission, as wrk2
+//! does: the wait for a connection is the server's fault when it is slow) and from
+//! the actual send (uncorrected, what a closed-loop tool would report). The schedule's
+//! resolution is tokio's timer, 1 ms: requests due within the same millisecond go out
+//! together, so the corrected latency includes up to about 1 ms of timer granularity
+//! that the uncorrected one does not.
+//!
+//! **Cheap per request**, so that one core drives the server as hard as `wrk` does: no
+//! selection and no record decoding, only the shared frame decoder's checksum
+//! verification; request URLs are parsed once up front; one small task per request;
+//! a current-thread runtime unless `threads` > 1.
+//!
+//! **Saturation** (`--rate max`) is a closed loop instead: each of `--connections`
+//! workers sends the next request as soon as its last one finished, for the duration;
+//! latency is then from the send (both histograms are the same).
+
+use super::check::{Check, ErrorKind, Outcome};
+use super::report::{
+    ErrorCounts, Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
+};
+use super::schedule::{Pacing, Schedule};
+use super::trace::{Expect, Shard, Trace};
+use anyhow::Context;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::Semaphore;
+use tokio::time::Instant;
+
+/// HTTP/2: requests in flight per connection (streams). Servers commonly allow 100–250
+/// concurrent streams; 100 stays under all of them.
+pub const STREAMS_PER_CONNECTION: u32 = 100;
+
+/// What to replay and how.
+#[derive(Clone, Debug)]
+pub struct ReplayOptions {
+    /// The whole trace; the engine takes `shard`'s part of it.
+    pub trace: Trace,
+    /// Base URL to send to (`http://host:port`); `None`: the trace header's server.
+    pub server: Option<String>,
+    pub pacing: Pacing,
+    /// HTTP/1.1: at most this many requests in flight, on at most this many keep-alive
+    /// connections. HTTP/2: this many connections, each carrying up to
+    /// [`STREAMS_PER_CONNECTION`] requests. At saturation: this many workers.
+    pub connections: u32,
+    /// HTTP/2 (h2c with prior knowledge on `http://`; negotiated on `https://`).
+    pub http2: bool,
+    pub shard: Shard,
+    /// A request's limit, and the wait for requests still in flight when the schedule
+    /// has ended; those still unanswered then count as `timeout` errors.
+    pub timeout: Duration,
+    /// Runtime threads: 1 (the default) is a current-thread runtime.
+    pub threads: usize,
+    /// A live progress line on stderr every second.
+    pub progress: bool,
+}
+
+impl ReplayOptions {
+    /// The trace as recorded, on 64 HTTP/1.1 connections, 10 s timeout, one thread, no
+    /// progress line.
+    pub fn new(trace: Trace) -> Self {
+        Self {
+            trace,
+            server: None,
+            pacing: Pacing::Recorded,
+            connections: 64,
+            http2: false,
+            shard: Shard::ALL,
+            timeout: Duration::from_secs(10),
+            threads: 1,
+            progress: false,
+        }
+    }
+}
+
+/// A request ready to send.
+#[derive(Debug)]
+struct Prepared {
+    url: reqwest::Url,
+    expect: Option<Expect>,
+    frames: bool,
+}
+
+/// State shared by the scheduler, the request tasks and the progress line.
+#[derive(Debug)]
+struct Shared {
+    requests: Vec<Prepared>,
+    clients: Vec<reqwest::Client>,
+    next_client: AtomicUsize,
+    start: Instant,
+    sent: AtomicU64,
+    completed: AtomicU64,
+    errors: AtomicU64,
+    tiles: AtomicU64,
+    recorder: Mutex<Recorder>,
+}
+
+/// The histograms and counts, behind one lock (uncontended on one thread).
+#[derive(Debug)]
+struct Recorder {
+    /// Set when the run ends: answers arriving later are not counted.
+    closed: bool,
+    /// Requests that finished (answered or failed).
+    finished: u64,
+    completed: u64,
+    tiles: u64,
+    bytes: u64,
+    errors: ErrorCounts,
+    corrected: Latency,
+    uncorrected: Latency,
+    /// Finished seconds.
+    seconds: Vec<Second>,
+    /// The second being filled, its histograms and counts.
+    current: u64,
+    cur_corrected: Latency,
+    cur_uncorrected: Latency,
+    cur: Second,
+}
+
+impl Recorder {
+    fn new() -> Self {
+        Self {
+            closed: false,
+            finished: 0,
+            completed: 0,
+            tiles: 0,
+            bytes: 0,
+            errors: ErrorCounts::default(),
+            corrected: Latency::new(),
+            uncorrected: Latency::new(),
+            seconds: Vec::new(),
+            current: 0,
+            cur_corrected: Latency::new(),
+            cur_uncorrected: Latency::new(),
+            cur: Second::default(),
+        }
+    }
+
+    /// Closes the seconds before `second`.
+    fn roll_to(&mut self, second: u64) {
+        while self.current < second {
+            let done = Second {
+                completed: self.cur.completed,
+                tiles: self.cur.tiles,
+                errors: self.cur.errors,
+                ..Second::new(self.current, &self.cur_corrected, &self.cur_uncorrected)
+            };
+            self.seconds.push(done);
+            self.cur = Second::default();
+            self.cur_corrected.clear();
+            self.cur_uncorrected.clear();
+            self.current += 1;
+        }
+    }
+
+    fn record(&mut self, out: &Outcome, second: u64, corrected: Duration, uncorrected: Duration) {
+        if self.closed {
+            return;
+        }
+        self.roll_to(second);
+        self.finished += 1;
+        let answered = !matches!(out.error, Some(ErrorKind::Connect | ErrorKind::Timeout));
+        if answered {
+            self.completed += 1;
+            self.tiles += u64::from(out.tiles);
+            self.bytes += out.bytes;
+            self.corrected.record(corrected);
+            self.uncorrected.record(uncorrected);
+            self.cur_corrected.record(corrected);
+            self.cur_uncorrected.record(uncorrected);
+            self.cur.completed += 1;
+            self.cur.tiles += u64::from(out.tiles);
+        }
+        if let Some(kind) = out.error {
+            self.errors.add(kind, 1);
+            self.cur.errors += 1;
+        }
+    }
+}
+
+fn bump(per_second: &mut Vec<u64>, second: u64) {
+    let i = second as usize;
+    if per_second.len() <= i {
+        per_second.resize(i + 1, 0);
+    }
+    per_second[i] += 1;
+}
+
+impl Shared {
+    fn second(&self, at: Instant) -> u64 {
+        at.saturating_duration_since(self.start).as_secs()
+    }
+
+    /// Sends request `i`, scheduled at `scheduled`, reads and checks its answer, and
+    /// records it.
+    async fn request(&self, i: usize, scheduled: Instant) {
+        let req = &self.requests[i];
+        let client = if self.clients.len() == 1 {
+            &self.clients[0]
+        } else {
+            &self.clients[self.next_client.fetch_add(1, Relaxed) % self.clients.len()]
+        };
+        let sent = Instant::now();
+        let outcome = match client.get(req.url.clone()).send().await {
+            Err(e) => Outcome {
+                tiles: 0,
+                bytes: 0,
+                error: Some(if e.is_timeout() {
+                    ErrorKind::Timeout
+                } else {
+                    ErrorKind::Connect
+                }),
+            },
+            Ok(mut resp) => {
+                let mut check = Check::new(req.expect.as_ref(), req.frames, resp.status().as_u16());
+                loop {
+                    match resp.chunk().await {
+                        Ok(Some(chunk)) => check.push(&chunk),
+                        Ok(None) => break check.finish(),
+                        Err(e) => {
+                            break check.broken(if e.is_timeout() {
+                                ErrorKind::Timeout
+                            } else {
+                                ErrorKind::Truncated
+                            });
+                        }
+                    }
+                }
+            }
+        };
+        let done = Instant::now();
+        if outcome.error.is_some() {
+            self.errors.fetch_add(1, Relaxed);
+        }
+        if !matches!(outcome.error, Some(ErrorKind::Connect | ErrorKind::Timeout)) {
+            self.completed.fetch_add(1, Relaxed);
+            self.tiles.fetch_add(u64::from(outcome.tiles), Relaxed);
+        }
+        let mut r = self.recorder.lock().expect("recorder lock");
+        // The second is taken under the lock, so seconds only ever move forward.
+        let second = self.second(Instant::now());
+        r.record(&outcome, second, done - scheduled, done - sent);
+    }
+}
+
+/// The HTTP clients: one for HTTP/1.1 (its pool holds `connections` idle
+/// connections), or `connections` for HTTP/2, one connection each, used in turn.
+fn clients(opts: &ReplayOptions, base: &str) -> anyhow::Result<Vec<reqwest::Client>> {
+    static PROVIDER: std::sync::Once = std::sync::Once::new();
+    PROVIDER.call_once(|| {
+        // HTTPS servers: the client crate builds reqwest without a crypto provider of
+        // its own (see Cargo.toml); a second install (already done elsewhere) fails
+        // harmlessly.
+        let _ = rustls::crypto::ring::default_provider().install_default();
+    });
+    let h2c = opts.http2 && base.starts_with("http://");
+    let n = if opts.http2 { opts.connections } else { 1 };
+    let per = if opts.http2 {
+        1
+    } else {
+        opts.connections as usize
+    };
+    (0..n)
+        .map(|_| {
+            let b = reqwest::Client::builder()
+                .timeout(opts.timeout)
+                .pool_max_idle_per_host(per)
+                .tcp_nodelay(true);
+            let b = if h2c { b.http2_prior_knowledge() } else { b };
+            b.build().context("cannot build the HTTP client")
+        })
+        .collect()
+}
+
+/// Replays `opts.trace` (its shard) and reports. Blocking: it runs its own tokio
+/// runtime, so call it from a plain thread (in async code, `spawn_blocking`).
+pub fn replay(opts: &ReplayOptions) -> anyhow::Result<ReplayReport> {
+    anyhow::ensure!(opts.connections >= 1, "--connections must be at least 1");
+    anyhow::ensure!(opts.threads >= 1, "--threads must be at least 1");
+    anyhow::ensure!(!opts.timeout.is_zero(), "--timeout must be above 0");
+    let trace = opts.trace.shard(opts.shard);
+    let base = opts
+        .server
+        .as_deref()
+        .unwrap_or(&trace.header.server)
+        .trim_end_matches('/')
+        .to_string();
+    let requests = trace
+        .requests
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let url = format!("{base}{}", r.target);
+            Ok(Prepared {
+                url: reqwest::Url::parse(&url).with_context(|| {
+                    format!("request {} of the shard: {url:?} is not a URL", i + 1)
+                })?,
+                expect: r.expect.clone(),
+                frames: r.kind.is_frame_stream(),
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let times: Vec<f64> = trace.requests.iter().map(|r| r.t_ms).collect();
+    let schedule = Schedule::new(&opts.pacing, &times, opts.shard.count())
+        .with_context(|| format!("shard {} of the trace", opts.shard))?;
+    let clients = clients(opts, &base)?;
+    let rt = if opts.threads == 1 {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?
+    } else {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(opts.threads)
+            .enable_all()
+            .build()?
+    };
+    let report = rt.block_on(run(opts, requests, clients, schedule));
+    // Requests still in flight (counted as timeouts) are dropped with the runtime.
+    rt.shutdown_background();
+    report
+}
+
+async fn run(
+    opts: &ReplayOptions,
+    requests: Vec<Prepared>,
+    clients: Vec<reqwest::Client>,
+    schedule: Option<Schedule>,
+) -> anyhow::Result<ReplayReport> {
+    let shared = Arc::new(Shared {
+        requests,
+        clients,
+        next_client: AtomicUsize::new(0),
+        start: Instant::now(),
+        sent: AtomicU64::new(0),
+        completed: AtomicU64::new(0),
+        errors: AtomicU64::new(0),
+        tiles: AtomicU64::new(0),
+        recorder: Mutex::new(Recorder::new()),
+    });
+    let progress = opts
+        .progress
+        .then(|| tokio::spawn(progress_line(shared.clone())));
+    let (scheduled_per_s, sent_per_s, backlog) = if let Some(s) = &schedule {
+        open_loop(opts, &shared, s).await
+    } else {
+        let Pacing::Saturation { duration } = opts.pacing else {
+            unreachable!("only saturation has no schedule")
+        };
+        closed_loop(opts, &shared, duration).await
+    };
+    if let Some(p) = progress {
+        p.abort();
+        eprintln!();
+    }
+    let end = Instant::now();
+    let seconds = (end - shared.start).as_secs_f64();
+    let mut r = {
+        let mut rec = shared.recorder.lock().expect("recorder lock");
+        rec.closed = true;
+        // Sent but never finished: the wait for them ran out.
+        let unfinished = shared.sent.load(Relaxed).saturating_sub(rec.finished);
+        rec.errors.add(ErrorKind::Timeout, unfinished);
+        let last = seconds.ceil() as u64;
+        // Close the second in progress too.
+        let current = rec.current;
+        rec.roll_to(last.max(current + 1));
+        let mut timeline = std::mem::take(&mut rec.seconds);
+        let len = timeline
+            .len()
+            .max(scheduled_per_s.len())
+            .max(sent_per_s.len());
+        while timeline.len() < len {
+            let s = timeline.len() as u64;
+            timeline.push(Second::new(s, &Latency::new(), &Latency::new()));
+        }
+        for (i, s) in timeline.iter_mut().enumerate() {
+            s.scheduled = scheduled_per_s.get(i).copied().unwrap_or(0);
+            s.sent = sent_per_s.get(i).copied().unwrap_or(0);
+        }
+        let (mode, from) = match opts.pacing {
+            Pacing::Recorded => (Mode::Recorded, LatencyFrom::Scheduled),
+            Pacing::Constant { .. } => (Mode::Rate, LatencyFrom::Scheduled),
+            Pacing::Ramp { .. } => (Mode::Ramp, LatencyFrom::Scheduled),
+            Pacing::Saturation { .. } => (Mode::Saturation, LatencyFrom::Sent),
+        };
+        let http = if opts.http2 { Http::Http2 } else { Http::Http1 };
+        let sent = shared.sent.load(Relaxed);
+        ReplayReport {
+            target_rate: schedule.as_ref().map(Schedule::mean_rate),
+            shard: opts.shard.to_string(),
+            connections: opts.connections,
+            seconds,
+            scheduled: schedule.as_ref().map_or(sent, Schedule::scheduled),
+            sent,
+            completed: rec.completed,
+            tiles: rec.tiles,
+            bytes: rec.bytes,
+            backlog,
+            errors: rec.errors,
+            latency_ms: rec.corrected.percentiles(),
+            uncorrected_latency_ms: rec.uncorrected.percentiles(),
+            histograms: Histograms::of(&rec.corrected, &rec.uncorrected),
+            timeline,
+            ..ReplayReport::empty(mode, http, from)
+        }
+    };
+    r.set_rates();
+    r.rate_held = r
+        .target_rate
+        .map(|t| rate_held(t, r.completed, r.seconds, r.backlog, r.scheduled));
+    Ok(r)
+}
+
+/// The open model: each arrival at its instant, waiting for a free connection when
+/// all are busy. Returns the requests scheduled and sent per second and the backlog
+/// when the schedule ended.
+async fn open_loop(
+    opts: &ReplayOptions,
+    shared: &Arc<Shared>,
+    schedule: &Schedule,
+) -> (Vec<u64>, Vec<u64>, u64) {
+    let permits = if opts.http2 {
+        opts.connections.saturating_mul(STREAMS_PER_CONNECTION)
+    } else {
+        opts.connections
+    };
+    let sem = Arc::new(Semaphore::new(permits as usize));
+    let start = shared.start;
+    let total = schedule.scheduled();
+    // The backlog is read when the schedule's last instant has passed (plus a timer
+    // tick), by a task of its own, since the scheduler may be waiting for a connection.
+    let end_of_schedule = start + schedule.span() + Duration::from_millis(2);
+    let watcher = {
+        let shared = shared.clone();
+        tokio::spawn(async move {
+            tokio::time::sleep_until(end_of_schedule).await;
+            total.saturating_sub(shared.sent.load(Relaxed))
+        })
+    };
+    let mut scheduled_per_s = Vec::new();
+    let mut sent_per_s = Vec::new();
+    for k in 0..total {
+        let a = schedule.arrival(k);
+        let at = start + a.at;
+        bump(&mut scheduled_per_s, a.at.as_secs());
+        if Instant::now() < at {
+            tokio::time::sleep_until(at).await;
+        }
+        let permit = sem
+            .clone()
+            .acquire_owned()
+            .await
+            .expect("the semaphore is never closed");
+        bump(&mut sent_per_s, shared.second(Instant::now()));
+        shared.sent.fetch_add(1, Relaxed);
+        let sh = shared.clone();
+        tokio::spawn(async move {
+            sh.request(a.request, at).await;
+            drop(permit);
+        });
+    }
+    let backlog = if Instant::now() < end_of_schedule {
+        watcher.abort();
+        0
+    } else {
+        watcher.await.unwrap_or(0)
+    };
+    // Wait for the requests in flight: all permits back, or the timeout.
+    let _ = tokio::time::timeout(opts.timeout, sem.acquire_many(permits)).await;
+    (scheduled_per_s, sent_per_s, backlog)
+}
+
+/// Saturation: `connections` workers, each sending the next request (in trace order,
+/// cycling) as soon as its last one finished, until `duration` has passed.
+async fn closed_loop(
+    opts: &ReplayOptions,
+    shared: &Arc<Shared>,
+    duration: Duration,
+) -> (Vec<u64>, Vec<u64>, u64) {
+    let end = shared.start + duration;
+    let next = Arc::new(AtomicUsize::new(0));
+    let mut workers = tokio::task::JoinSet::new();
+    for _ in 0..opts.connections {
+        let (sh, next) = (shared.clone(), next.clone());
+        workers.spawn(async move {
+            let mut sent_per_s = Vec::new();
+            loop {
+                let now = Instant::now();
+                if now >= end {
+                    break;
+                }
+                let i = next.fetch_add(1, Relaxed) % sh.requests.len();
+                bump(&mut sent_per_s, sh.second(now));
+                sh.sent.fetch_add(1, Relaxed);
+                sh.request(i, now).await;
+            }
+            sent_per_s
+        });
+    }
+    let mut sent_per_s: Vec<u64> = Vec::new();
+    let _ = tokio::time::timeout_at(end + opts.timeout, async {
+        while let Some(Ok(v)) = workers.join_next().await {
+            if sent_per_s.len() < v.len() {
+                sent_per_s.resize(v.len(), 0);
+            }
+            for (a, b) in sent_per_s.iter_mut().zip(v) {
+                *a += b;
+            }
+        }
+    })
+    .await;
+    // Saturation has no schedule: what was sent is what was asked for.
+    (sent_per_s.clone(), sent_per_s, 0)
+}
+
+/// Every second on stderr: elapsed, sent, completed, tiles/s, corrected p99 so far,
+/// errors.
+async fn progress_line(shared: Arc<Shared>) {
+    let mut tick = tokio::time::interval_at(
+        shared.start + Duration::from_secs(1),
+        Duration::from_secs(1),
+    );
+    let mut last_tiles = 0u64;
+    let mut last_at = shared.start;
+    loop {
+        let now = tick.tick().await;
+        let tiles = shared.tiles.load(Relaxed);
+        let dt = (now - last_at).as_secs_f64().max(1e-3);
+        let p99 = shared
+            .recorder
+            .lock()
+            .map_or(0.0, |r| r.corrected.quantile_ms(0.99));
+        eprint!(
+            "\r{:>5.0} s  sent {}  done {}  {:.0} tiles/s  p99 {:.2} ms  errors {}   ",
+            (now - shared.start).as_secs_f64(),
+            shared.sent.load(Relaxed),
+            shared.completed.load(Relaxed),
+            (tiles - last_tiles) as f64 / dt,
+            p99,
+            shared.errors.load(Relaxed),
+        );
+        last_tiles = tiles;
+        last_at = now;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::load::trace::{RequestKind, TRACE_VERSION, TraceHeader, TraceRequest};
+
+    fn trace(server: &str) -> Trace {
+        Trace {
+            header: TraceHeader {
+                tessera_trace: TRACE_VERSION,
+                server: server.into(),
+                dataset: "moon".into(),
+                clients: 2,
+                seconds: 0.05,
+                mode: "ranges".into(),
+            },
+            requests: (0..4)
+                .map(|i| TraceRequest {
+                    client: i % 2,
+                    t_ms: f64::from(i) * 10.0,
+                    kind: RequestKind::Tiles,
+                    target: format!("/v1/datasets/moon/levels/1/tiles?ranges=0-{i}"),
+                    level: Some(1),
+                    expect: None,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn nobody_listening_is_a_connect_error_per_request() {
+        // A port just freed: connections are refused (a real socket, no server).
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let mut opts = ReplayOptions::new(trace(&format!("http://127.0.0.1:{port}")));
+        opts.shard = Shard::new(1, 2).unwrap();
+        opts.connections = 2;
+        let r = replay(&opts).unwrap();
+        assert_eq!(r.mode, Mode::Recorded);
+        assert_eq!((r.scheduled, r.sent, r.completed), (2, 2, 0));
+        assert_eq!(r.errors.connect, 2);
+        assert_eq!(r.errors.total(), 2);
+        assert_eq!(r.shard, "1/2");
+        assert!(r.timeline.iter().map(|s| s.scheduled).sum::<u64>() == 2);
+    }
+
+    #[test]
+    fn a_bad_server_url_names_the_request() {
+        let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
+        opts.server = Some("not a url".into());
+        let e = format!("{:#}", replay(&opts).unwrap_err());
+        assert!(e.contains("request 1") && e.contains("not a URL"), "{e}");
+    }
+}

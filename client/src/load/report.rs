@@ -1,0 +1,803 @@
+//! The report of a replay (issue 18): what `--json` prints and `--out DIR` writes as
+//! `DIR/load.json`, and how the reports of many load processes (`--shard K/N`) add up
+//! into one (`tessera load merge`).
+//!
+//! Latencies are kept in HDR histograms (microseconds, 1 µs to 1 h, 3 significant
+//! digits) and written into the report in HdrHistogram's V2 encoding, base64, so that
+//! merging adds the histograms themselves: the merged percentiles are those of all
+//! the requests, not an average of percentiles.
+
+use super::check::ErrorKind;
+use anyhow::{Context, bail};
+use base64::Engine;
+use hdrhistogram::Histogram;
+use hdrhistogram::serialization::{Deserializer, Serializer, V2Serializer};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::time::Duration;
+
+/// The `tessera_load` value of the reports this build writes and merges.
+pub const REPORT_VERSION: u32 = 1;
+
+/// Largest latency a histogram holds: one hour, in microseconds (longer ones are
+/// recorded as one hour).
+const MAX_MICROS: u64 = 3_600_000_000;
+const SIGNIFICANT_DIGITS: u8 = 3;
+
+/// A latency histogram, in microseconds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Latency(Histogram<u64>);
+
+impl Default for Latency {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Latency {
+    pub fn new() -> Self {
+        Self(
+            Histogram::new_with_bounds(1, MAX_MICROS, SIGNIFICANT_DIGITS)
+                .expect("constant bounds are valid"),
+        )
+    }
+
+    /// Records one latency (below 1 µs counts as 1 µs, above an hour as an hour).
+    pub fn record(&mut self, d: Duration) {
+        let us = u64::try_from(d.as_micros()).unwrap_or(u64::MAX).max(1);
+        self.0.saturating_record(us);
+    }
+
+    /// Records a value in microseconds.
+    pub fn record_micros(&mut self, us: u64) {
+        self.0.saturating_record(us.max(1));
+    }
+
+    pub fn count(&self) -> u64 {
+        self.0.len()
+    }
+
+    /// Adds every value of `other`.
+    pub fn add(&mut self, other: &Self) {
+        // Both have this module's bounds (from_base64 checks), so the addition
+        // cannot fail; saturate rather than panic if it somehow did.
+        if self.0.add(&other.0).is_err() {
+            for v in other.0.iter_recorded() {
+                self.0
+                    .saturating_record_n(v.value_iterated_to(), v.count_at_value());
+            }
+        }
+    }
+
+    /// Empties the histogram, keeping its memory.
+    pub fn clear(&mut self) {
+        self.0.reset();
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// The value at `quantile` (0..=1), in milliseconds (0 when empty).
+    pub fn quantile_ms(&self, quantile: f64) -> f64 {
+        self.0.value_at_quantile(quantile) as f64 / 1e3
+    }
+
+    /// The largest value, in milliseconds.
+    pub fn max_ms(&self) -> f64 {
+        self.0.max() as f64 / 1e3
+    }
+
+    pub fn percentiles(&self) -> Percentiles {
+        Percentiles {
+            p50: self.quantile_ms(0.5),
+            p90: self.quantile_ms(0.9),
+            p99: self.quantile_ms(0.99),
+            p999: self.quantile_ms(0.999),
+            max: self.max_ms(),
+        }
+    }
+
+    /// HdrHistogram's V2 encoding, base64 (standard alphabet, padded).
+    pub fn to_base64(&self) -> String {
+        let mut bytes = Vec::new();
+        V2Serializer::new()
+            .serialize(&self.0, &mut bytes)
+            .expect("writing into a Vec cannot fail");
+        base64::engine::general_purpose::STANDARD.encode(bytes)
+    }
+
+    /// Reads [`Latency::to_base64`]'s encoding.
+    pub fn from_base64(s: &str) -> anyhow::Result<Self> {
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(s)
+            .context("histogram is not base64")?;
+        let h: Histogram<u64> = Deserializer::new()
+            .deserialize(&mut &bytes[..])
+            .map_err(|e| anyhow::anyhow!("histogram is not an HdrHistogram V2 encoding: {e:?}"))?;
+        let mut l = Self::new();
+        l.0.add(&h).map_err(|e| {
+            anyhow::anyhow!(
+                "histogram does not fit 1 µs .. 1 h at {SIGNIFICANT_DIGITS} digits: {e:?}"
+            )
+        })?;
+        Ok(l)
+    }
+}
+
+/// Latency percentiles, milliseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Percentiles {
+    pub p50: f64,
+    pub p90: f64,
+    pub p99: f64,
+    pub p999: f64,
+    pub max: f64,
+}
+
+/// The two histograms of a report or of one second, V2-encoded, base64.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Histograms {
+    /// Latency from each request's scheduled start.
+    pub corrected: String,
+    /// Latency from each request's actual send.
+    pub uncorrected: String,
+}
+
+impl Histograms {
+    pub fn of(corrected: &Latency, uncorrected: &Latency) -> Self {
+        Self {
+            corrected: corrected.to_base64(),
+            uncorrected: uncorrected.to_base64(),
+        }
+    }
+
+    pub fn decode(&self) -> anyhow::Result<(Latency, Latency)> {
+        Ok((
+            Latency::from_base64(&self.corrected).context("corrected histogram")?,
+            Latency::from_base64(&self.uncorrected).context("uncorrected histogram")?,
+        ))
+    }
+}
+
+/// Failed requests by kind (the JSON keys of `errors`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ErrorCounts {
+    pub connect: u64,
+    pub timeout: u64,
+    pub http_status: u64,
+    pub corrupt: u64,
+    pub truncated: u64,
+    pub mismatch: u64,
+}
+
+impl ErrorCounts {
+    pub fn get(&self, kind: ErrorKind) -> u64 {
+        match kind {
+            ErrorKind::Connect => self.connect,
+            ErrorKind::Timeout => self.timeout,
+            ErrorKind::HttpStatus => self.http_status,
+            ErrorKind::Corrupt => self.corrupt,
+            ErrorKind::Truncated => self.truncated,
+            ErrorKind::Mismatch => self.mismatch,
+        }
+    }
+
+    pub fn add(&mut self, kind: ErrorKind, n: u64) {
+        let c = match kind {
+            ErrorKind::Connect => &mut self.connect,
+            ErrorKind::Timeout => &mut self.timeout,
+            ErrorKind::HttpStatus => &mut self.http_status,
+            ErrorKind::Corrupt => &mut self.corrupt,
+            ErrorKind::Truncated => &mut self.truncated,
+            ErrorKind::Mismatch => &mut self.mismatch,
+        };
+        *c += n;
+    }
+
+    pub fn total(&self) -> u64 {
+        ErrorKind::ALL.iter().map(|&k| self.get(k)).sum()
+    }
+
+    fn add_all(&mut self, other: &Self) {
+        for k in ErrorKind::ALL {
+            self.add(k, other.get(k));
+        }
+    }
+}
+
+/// How the replay paced its requests.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    Recorded,
+    Rate,
+    Ramp,
+    Saturation,
+}
+
+impl Mode {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Recorded => "recorded",
+            Self::Rate => "rate",
+            Self::Ramp => "ramp",
+            Self::Saturation => "saturation",
+        }
+    }
+}
+
+/// The HTTP version spoken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Http {
+    #[serde(rename = "1.1")]
+    Http1,
+    #[serde(rename = "2")]
+    Http2,
+}
+
+impl Http {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Http1 => "1.1",
+            Self::Http2 => "2",
+        }
+    }
+}
+
+/// Where latency is measured from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LatencyFrom {
+    /// The request's scheduled start (open model; coordinated-omission corrected).
+    Scheduled,
+    /// The actual send (saturation's closed loop has no schedule: both histograms are
+    /// the same).
+    Sent,
+}
+
+/// One second of the run (second `s` covers `[s, s+1)` s after the start). Requests
+/// count in the second they were scheduled (`scheduled`), sent (`sent`) and completed
+/// (`completed`, `tiles`, `errors`, latencies).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Second {
+    pub second: u64,
+    pub scheduled: u64,
+    pub sent: u64,
+    pub completed: u64,
+    pub tiles: u64,
+    pub errors: u64,
+    /// `None` (null) in a second in which nothing completed.
+    pub corrected_p50_ms: Option<f64>,
+    pub corrected_p99_ms: Option<f64>,
+    pub uncorrected_p50_ms: Option<f64>,
+    pub uncorrected_p99_ms: Option<f64>,
+    /// This second's histograms, so that merged seconds have exact percentiles too.
+    pub histograms: Histograms,
+}
+
+impl Second {
+    /// A second with these counts and latencies (percentiles computed from them).
+    pub fn new(second: u64, corrected: &Latency, uncorrected: &Latency) -> Self {
+        let q = |l: &Latency, q: f64| (!l.is_empty()).then(|| l.quantile_ms(q));
+        Self {
+            second,
+            corrected_p50_ms: q(corrected, 0.5),
+            corrected_p99_ms: q(corrected, 0.99),
+            uncorrected_p50_ms: q(uncorrected, 0.5),
+            uncorrected_p99_ms: q(uncorrected, 0.99),
+            histograms: Histograms::of(corrected, uncorrected),
+            ..Self::default()
+        }
+    }
+}
+
+/// The report of one replay, or of several merged.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ReplayReport {
+    /// Always [`REPORT_VERSION`]; names the file as a load report.
+    pub tessera_load: u32,
+    pub mode: Mode,
+    /// Requests per second the schedule asked of this process (of all, when merged):
+    /// `--rate`, the ramp's or the recording's mean. Null at saturation.
+    pub target_rate: Option<f64>,
+    /// `K/N`; a merged report lists its shards' (`0/2,1/2`).
+    pub shard: String,
+    /// Load processes whose results are in this report.
+    pub shards: u32,
+    /// `--connections` (summed over shards when merged).
+    pub connections: u32,
+    pub http: Http,
+    pub latency_from: LatencyFrom,
+    /// From the start to the last answer (or the end of the wait for it); the longest
+    /// shard's when merged.
+    pub seconds: f64,
+    /// Requests the schedule asked for (at saturation: sent).
+    pub scheduled: u64,
+    /// Requests sent.
+    pub sent: u64,
+    /// Requests answered (whatever the answer: `errors` says which were wrong).
+    pub completed: u64,
+    /// Tile frames received and verified.
+    pub tiles: u64,
+    /// Body bytes received.
+    pub bytes: u64,
+    /// Requests scheduled but not yet sent when the schedule ended.
+    pub backlog: u64,
+    pub errors: ErrorCounts,
+    pub requests_per_s: f64,
+    pub tiles_per_s: f64,
+    pub mb_per_s: f64,
+    /// Whether the server kept up with the schedule (see [`rate_held`]); null at
+    /// saturation. Merged: whether every shard held its share.
+    pub rate_held: Option<bool>,
+    /// Coordinated-omission corrected: from the scheduled start.
+    pub latency_ms: Percentiles,
+    /// From the actual send.
+    pub uncorrected_latency_ms: Percentiles,
+    pub histograms: Histograms,
+    pub timeline: Vec<Second>,
+}
+
+/// Whether a run held its target rate: the answers came at ≥ 95 % of the scheduled
+/// rate (`completed / seconds ≥ 0.95 · target_rate`) and at most 1 % of the scheduled
+/// requests were still waiting to be sent when the schedule ended (`backlog ≤ 0.01 ·
+/// scheduled`). The first catches a server that answers slower than asked; the second
+/// a run whose sends fell behind (every connection busy) even if they caught up
+/// during the final wait.
+pub fn rate_held(
+    target_rate: f64,
+    completed: u64,
+    seconds: f64,
+    backlog: u64,
+    scheduled: u64,
+) -> bool {
+    let achieved = if seconds > 0.0 {
+        completed as f64 / seconds
+    } else {
+        0.0
+    };
+    achieved >= 0.95 * target_rate && backlog as f64 <= 0.01 * scheduled as f64
+}
+
+impl ReplayReport {
+    /// A report of nothing yet: zero counts, empty histograms, shard `0/1`, no target.
+    pub fn empty(mode: Mode, http: Http, latency_from: LatencyFrom) -> Self {
+        let none = Latency::new();
+        Self {
+            tessera_load: REPORT_VERSION,
+            mode,
+            target_rate: None,
+            shard: "0/1".into(),
+            shards: 1,
+            connections: 0,
+            http,
+            latency_from,
+            seconds: 0.0,
+            scheduled: 0,
+            sent: 0,
+            completed: 0,
+            tiles: 0,
+            bytes: 0,
+            backlog: 0,
+            errors: ErrorCounts::default(),
+            requests_per_s: 0.0,
+            tiles_per_s: 0.0,
+            mb_per_s: 0.0,
+            rate_held: None,
+            latency_ms: Percentiles::default(),
+            uncorrected_latency_ms: Percentiles::default(),
+            histograms: Histograms::of(&none, &none),
+            timeline: Vec::new(),
+        }
+    }
+
+    /// Totals / seconds.
+    pub fn set_rates(&mut self) {
+        let per_s = |n: f64| {
+            if self.seconds > 0.0 {
+                n / self.seconds
+            } else {
+                0.0
+            }
+        };
+        self.requests_per_s = per_s(self.completed as f64);
+        self.tiles_per_s = per_s(self.tiles as f64);
+        self.mb_per_s = per_s(self.bytes as f64 / 1e6);
+    }
+
+    /// Reads a report, naming the file and what is wrong with it.
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("report {}: cannot read", path.display()))?;
+        Self::from_json(&text).with_context(|| format!("report {}", path.display()))
+    }
+
+    /// Parses a report: a JSON object with `"tessera_load": 1`.
+    pub fn from_json(text: &str) -> anyhow::Result<Self> {
+        let v: serde_json::Value = serde_json::from_str(text).context("not JSON")?;
+        let Some(version) = v.get("tessera_load") else {
+            bail!("not a tessera load report (no \"tessera_load\" key)");
+        };
+        if version.as_u64() != Some(u64::from(REPORT_VERSION)) {
+            bail!("report version {version} (this build reads version {REPORT_VERSION})");
+        }
+        let r: Self = serde_json::from_value(v).context("not a tessera load report")?;
+        r.histograms.decode()?;
+        Ok(r)
+    }
+
+    /// Writes `dir/load.json` (temp and rename), creating `dir`.
+    pub fn write_json(&self, dir: &Path) -> anyhow::Result<()> {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+        let path = dir.join("load.json");
+        tessera_charts::png::write_atomically(&path, |w| {
+            serde_json::to_writer_pretty(&mut *w, self)?;
+            std::io::Write::write_all(w, b"\n")?;
+            Ok(())
+        })
+        .with_context(|| format!("{}: cannot write", path.display()))
+    }
+}
+
+/// Adds the reports of the shards of one run: counts and errors add, histograms add
+/// exactly (percentiles are recomputed from the sums), seconds align by index and add
+/// the same way; `seconds` is the longest shard's and the rates are totals over it;
+/// `target_rate`, `connections` and `shards` add; `rate_held` is whether every shard
+/// held its share (null if any is null). The reports must agree on mode and HTTP
+/// version.
+pub fn merge(reports: &[ReplayReport]) -> anyhow::Result<ReplayReport> {
+    let Some(first) = reports.first() else {
+        bail!("nothing to merge: no reports");
+    };
+    let mut corrected = Latency::new();
+    let mut uncorrected = Latency::new();
+    let mut seconds: Vec<(Second, Latency, Latency)> = Vec::new();
+    let mut out = ReplayReport {
+        target_rate: Some(0.0),
+        shards: 0,
+        rate_held: Some(true),
+        ..ReplayReport::empty(first.mode, first.http, first.latency_from)
+    };
+    let mut shards = Vec::new();
+    for (i, r) in reports.iter().enumerate() {
+        let n = i + 1;
+        anyhow::ensure!(
+            r.tessera_load == REPORT_VERSION,
+            "report {n}: version {} (this build merges version {REPORT_VERSION})",
+            r.tessera_load
+        );
+        anyhow::ensure!(
+            r.mode == first.mode,
+            "report {n}: mode {} but report 1's is {}; merge the shards of one run",
+            r.mode.name(),
+            first.mode.name()
+        );
+        anyhow::ensure!(
+            r.http == first.http,
+            "report {n}: HTTP/{} but report 1 spoke HTTP/{}",
+            r.http.name(),
+            first.http.name()
+        );
+        let (c, u) = r
+            .histograms
+            .decode()
+            .with_context(|| format!("report {n}"))?;
+        corrected.add(&c);
+        uncorrected.add(&u);
+        shards.push(r.shard.clone());
+        out.shards += r.shards;
+        out.connections += r.connections;
+        out.seconds = out.seconds.max(r.seconds);
+        out.scheduled += r.scheduled;
+        out.sent += r.sent;
+        out.completed += r.completed;
+        out.tiles += r.tiles;
+        out.bytes += r.bytes;
+        out.backlog += r.backlog;
+        out.errors.add_all(&r.errors);
+        out.target_rate = out.target_rate.zip(r.target_rate).map(|(a, b)| a + b);
+        out.rate_held = out.rate_held.zip(r.rate_held).map(|(a, b)| a && b);
+        for s in &r.timeline {
+            let at = s.second as usize;
+            if seconds.len() <= at {
+                seconds.resize_with(at + 1, || {
+                    (Second::default(), Latency::new(), Latency::new())
+                });
+            }
+            let (acc, c, u) = &mut seconds[at];
+            let (sc, su) = s
+                .histograms
+                .decode()
+                .with_context(|| format!("report {n}, second {}", s.second))?;
+            c.add(&sc);
+            u.add(&su);
+            acc.scheduled += s.scheduled;
+            acc.sent += s.sent;
+            acc.completed += s.completed;
+            acc.tiles += s.tiles;
+            acc.errors += s.errors;
+        }
+    }
+    out.shard = shards.join(",");
+    out.latency_ms = corrected.percentiles();
+    out.uncorrected_latency_ms = uncorrected.percentiles();
+    out.histograms = Histograms::of(&corrected, &uncorrected);
+    out.timeline = seconds
+        .into_iter()
+        .enumerate()
+        .map(|(i, (acc, c, u))| Second {
+            scheduled: acc.scheduled,
+            sent: acc.sent,
+            completed: acc.completed,
+            tiles: acc.tiles,
+            errors: acc.errors,
+            ..Second::new(i as u64, &c, &u)
+        })
+        .collect();
+    out.set_rates();
+    Ok(out)
+}
+
+impl std::fmt::Display for ReplayReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let target = match self.target_rate {
+            Some(r) => format!("at {r:.0} requests/s"),
+            None => format!("at saturation on {} connections", self.connections),
+        };
+        let held = match self.rate_held {
+            Some(true) => ", rate held",
+            Some(false) => ", rate NOT held",
+            None => "",
+        };
+        let l = &self.latency_ms;
+        let u = &self.uncorrected_latency_ms;
+        let from = match self.latency_from {
+            LatencyFrom::Scheduled => "from the scheduled start",
+            LatencyFrom::Sent => "from the send (closed loop)",
+        };
+        write!(
+            f,
+            "replay ({} mode, shard {}, HTTP/{}) {target} for {:.1} s: {} of {} requests \
+             answered ({:.0}/s{held}), {} tiles ({:.0} tiles/s), {:.1} MB/s; latency {from} \
+             p50 {:.2} ms, p90 {:.2}, p99 {:.2}, p99.9 {:.2}, max {:.2} (from the send: p50 \
+             {:.2}, p99 {:.2}, p99.9 {:.2}); errors: ",
+            self.mode.name(),
+            self.shard,
+            self.http.name(),
+            self.seconds,
+            self.completed,
+            self.scheduled,
+            self.requests_per_s,
+            self.tiles,
+            self.tiles_per_s,
+            self.mb_per_s,
+            l.p50,
+            l.p90,
+            l.p99,
+            l.p999,
+            l.max,
+            u.p50,
+            u.p99,
+            u.p999,
+        )?;
+        if self.errors.total() == 0 {
+            write!(f, "none")?;
+        } else {
+            let parts: Vec<String> = ErrorKind::ALL
+                .iter()
+                .filter(|&&k| self.errors.get(k) > 0)
+                .map(|&k| format!("{k} {}", self.errors.get(k)))
+                .collect();
+            write!(f, "{}", parts.join(", "))?;
+        }
+        if self.backlog > 0 {
+            write!(f, "; {} not yet sent when the schedule ended", self.backlog)?;
+        }
+        write!(f, ".")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic spread of latencies (µs), long-tailed.
+    fn values(seed: u64, n: usize) -> Vec<u64> {
+        let mut x = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        (0..n)
+            .map(|_| {
+                x = x
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                let r = (x >> 33) % 1_000_000;
+                // Mostly 0.2–2 ms, a tail up to seconds.
+                if r.is_multiple_of(100) {
+                    10_000 + r * 3
+                } else {
+                    200 + r % 1800
+                }
+            })
+            .collect()
+    }
+
+    fn latency(v: &[u64]) -> Latency {
+        let mut l = Latency::new();
+        for &x in v {
+            l.record_micros(x);
+        }
+        l
+    }
+
+    fn report(shard: &str, seed: u64, n: usize, secs: usize) -> ReplayReport {
+        let v = values(seed, n);
+        let c = latency(&v);
+        let u = latency(&v.iter().map(|x| x / 2).collect::<Vec<_>>());
+        let per = n / secs;
+        let timeline = (0..secs)
+            .map(|s| {
+                let part = &v[s * per..(s + 1) * per];
+                Second {
+                    scheduled: per as u64,
+                    sent: per as u64,
+                    completed: per as u64,
+                    tiles: 16 * per as u64,
+                    errors: s as u64,
+                    ..Second::new(s as u64, &latency(part), &latency(&part[..per / 2]))
+                }
+            })
+            .collect();
+        let mut r = ReplayReport {
+            tessera_load: REPORT_VERSION,
+            mode: Mode::Rate,
+            target_rate: Some(n as f64 / secs as f64),
+            shard: shard.into(),
+            shards: 1,
+            connections: 8,
+            http: Http::Http1,
+            latency_from: LatencyFrom::Scheduled,
+            seconds: secs as f64,
+            scheduled: n as u64,
+            sent: n as u64,
+            completed: n as u64 - 3,
+            tiles: 16 * n as u64,
+            bytes: 1000 * n as u64,
+            backlog: 1,
+            errors: ErrorCounts {
+                timeout: 3,
+                corrupt: seed,
+                ..ErrorCounts::default()
+            },
+            requests_per_s: 0.0,
+            tiles_per_s: 0.0,
+            mb_per_s: 0.0,
+            rate_held: Some(true),
+            latency_ms: c.percentiles(),
+            uncorrected_latency_ms: u.percentiles(),
+            histograms: Histograms::of(&c, &u),
+            timeline,
+        };
+        r.set_rates();
+        r
+    }
+
+    #[test]
+    fn a_report_round_trips_through_json() {
+        let r = report("1/4", 7, 3000, 3);
+        let text = serde_json::to_string_pretty(&r).unwrap();
+        let back = ReplayReport::from_json(&text).unwrap();
+        assert_eq!(back, r);
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["tessera_load"], 1);
+        assert_eq!(v["mode"], "rate");
+        assert_eq!(v["http"], "1.1");
+        assert_eq!(v["errors"]["timeout"], 3);
+        assert_eq!(v["errors"]["http_status"], 0);
+        assert!(v["latency_ms"]["p999"].is_f64());
+        let (c, _) = back.histograms.decode().unwrap();
+        assert_eq!(c.count(), 3000);
+        assert_eq!(c.percentiles(), r.latency_ms);
+    }
+
+    #[test]
+    fn bad_reports_say_what_they_are_not() {
+        let err = |s: &str| format!("{:#}", ReplayReport::from_json(s).unwrap_err());
+        assert!(err("not json").contains("not JSON"));
+        assert!(err("{\"tessera_trace\":1}").contains("not a tessera load report"));
+        let text = serde_json::to_string(&report("0/1", 1, 100, 1)).unwrap();
+        assert!(
+            err(&text.replace("\"tessera_load\":1", "\"tessera_load\":2")).contains("version 2")
+        );
+        let broken = text.replacen("\"corrected\":\"", "\"corrected\":\"!!", 1);
+        assert!(err(&broken).contains("corrected histogram"));
+    }
+
+    #[test]
+    fn merged_histograms_equal_one_fed_every_value() {
+        let (a, b) = (values(1, 5000), values(2, 7000));
+        let mut merged = latency(&a);
+        merged.add(&latency(&b));
+        let all = latency(&[a.clone(), b.clone()].concat());
+        assert_eq!(merged.count(), 12_000);
+        for q in [0.0, 0.1, 0.5, 0.9, 0.99, 0.999, 0.9999, 1.0] {
+            assert_eq!(merged.quantile_ms(q), all.quantile_ms(q), "quantile {q}");
+        }
+        assert_eq!(merged.max_ms(), all.max_ms());
+        // And through the base64 V2 encoding.
+        let through = Latency::from_base64(&merged.to_base64()).unwrap();
+        assert_eq!(through, all);
+    }
+
+    #[test]
+    fn merged_reports_add_up() {
+        let a = report("0/2", 3, 4000, 4);
+        let b = report("1/2", 4, 2000, 2);
+        let m = merge(&[a.clone(), b.clone()]).unwrap();
+        assert_eq!(m.shard, "0/2,1/2");
+        assert_eq!(m.shards, 2);
+        assert_eq!(m.connections, 16);
+        assert_eq!(m.scheduled, 6000);
+        assert_eq!(m.completed, a.completed + b.completed);
+        assert_eq!(m.tiles, a.tiles + b.tiles);
+        assert_eq!(m.backlog, 2);
+        assert_eq!(m.errors.timeout, 6);
+        assert_eq!(m.errors.corrupt, 7);
+        assert_eq!(m.seconds, 4.0);
+        assert_eq!(m.target_rate, Some(2000.0));
+        assert!((m.requests_per_s - m.completed as f64 / 4.0).abs() < 1e-9);
+        assert_eq!(m.rate_held, Some(true));
+        // Percentiles are those of all values, not a mix of the shards' percentiles.
+        let all = latency(&[values(3, 4000), values(4, 2000)].concat());
+        assert_eq!(m.latency_ms, all.percentiles());
+        // Seconds align: 0 and 1 have both shards, 2 and 3 only the first.
+        assert_eq!(m.timeline.len(), 4);
+        assert_eq!(m.timeline[1].completed, 1000 + 1000);
+        assert_eq!(m.timeline[1].errors, 2);
+        assert_eq!(m.timeline[3].completed, 1000);
+        let second1 =
+            latency(&[&values(3, 4000)[1000..2000], &values(4, 2000)[1000..2000]].concat());
+        assert_eq!(
+            m.timeline[1].corrected_p99_ms,
+            Some(second1.quantile_ms(0.99))
+        );
+        // A shard that missed its rate makes the run miss it; saturation has none.
+        let mut late = b.clone();
+        late.rate_held = Some(false);
+        assert_eq!(merge(&[a.clone(), late]).unwrap().rate_held, Some(false));
+        // Merging is associative in its totals.
+        let one = merge(&[merge(std::slice::from_ref(&a)).unwrap(), b.clone()]).unwrap();
+        assert_eq!(one.histograms, m.histograms);
+    }
+
+    #[test]
+    fn merge_refuses_reports_of_different_runs() {
+        let a = report("0/2", 3, 100, 1);
+        let mut b = report("1/2", 4, 100, 1);
+        b.mode = Mode::Saturation;
+        assert!(format!("{:#}", merge(&[a.clone(), b]).unwrap_err()).contains("mode saturation"));
+        let mut c = report("1/2", 4, 100, 1);
+        c.http = Http::Http2;
+        assert!(format!("{:#}", merge(&[a, c]).unwrap_err()).contains("HTTP/2"));
+        assert!(merge(&[]).is_err());
+    }
+
+    #[test]
+    fn rate_held_needs_the_rate_and_no_backlog() {
+        assert!(rate_held(100.0, 1000, 10.0, 0, 1000));
+        assert!(rate_held(100.0, 950, 10.0, 10, 1000));
+        assert!(!rate_held(100.0, 940, 10.0, 0, 1000));
+        assert!(!rate_held(100.0, 1000, 10.0, 11, 1000));
+    }
+
+    #[test]
+    fn the_summary_names_the_figures() {
+        let r = report("0/1", 5, 1000, 1);
+        let s = r.to_string();
+        assert!(s.contains("rate mode"), "{s}");
+        assert!(s.contains("rate held"), "{s}");
+        assert!(s.contains(&format!("p99 {:.2}", r.latency_ms.p99)), "{s}");
+        assert!(s.contains("timeout 3, corrupt 5"), "{s}");
+        assert!(!s.contains('\n'));
+    }
+}

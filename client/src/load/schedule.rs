@@ -1,0 +1,564 @@
+//! When a replay sends each request (issue 18): the arrival schedules of `tessera load
+//! --replay` — as recorded, at a constant rate (`--rate N`), in ramping stages
+//! (`--ramp`) — and saturation (`--rate max`), which has no schedule.
+//!
+//! A schedule is a list of instants measured from the start of the run, each with the
+//! trace request to send then. The instants are computed from the start (`k / rate`,
+//! or the inverse of the ramp's cumulative count), never by adding intervals, so a long
+//! run does not drift. Latency is measured from these instants (the open model: see
+//! `replay`).
+
+use std::time::Duration;
+
+/// A request rate, in requests per second: finite and above zero.
+#[derive(Clone, Copy, Debug, PartialEq, PartialOrd)]
+pub struct Rate(f64);
+
+impl Rate {
+    /// `None` unless `per_second` is finite and positive.
+    pub fn new(per_second: f64) -> Option<Self> {
+        (per_second.is_finite() && per_second > 0.0).then_some(Self(per_second))
+    }
+
+    pub fn per_second(self) -> f64 {
+        self.0
+    }
+}
+
+/// `--rate`: a number of requests per second (`500`, `500/s`) or `max` (saturation).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RateArg {
+    PerSecond(Rate),
+    Max,
+}
+
+impl std::str::FromStr for RateArg {
+    type Err = ScheduleError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let t = s.trim();
+        if t.eq_ignore_ascii_case("max") {
+            return Ok(Self::Max);
+        }
+        let n = t.strip_suffix("/s").unwrap_or(t);
+        n.trim()
+            .parse::<f64>()
+            .ok()
+            .and_then(Rate::new)
+            .map(Self::PerSecond)
+            .ok_or_else(|| ScheduleError::Rate(s.to_string()))
+    }
+}
+
+/// One `--ramp` stage (k6's ramping-arrival-rate): over `duration`, the rate moves
+/// linearly from where the previous stage ended to `target`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RampStage {
+    duration: Duration,
+    target: f64,
+}
+
+impl RampStage {
+    /// `None` unless the duration is above zero and the target finite and ≥ 0.
+    pub fn new(duration: Duration, target: f64) -> Option<Self> {
+        (!duration.is_zero() && target.is_finite() && target >= 0.0)
+            .then_some(Self { duration, target })
+    }
+
+    pub fn duration(self) -> Duration {
+        self.duration
+    }
+
+    /// Requests per second at the end of the stage.
+    pub fn target(self) -> f64 {
+        self.target
+    }
+}
+
+/// `--ramp d1:r1,d2:r2,…`: at least one stage.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RampStages(Vec<RampStage>);
+
+impl RampStages {
+    pub fn stages(&self) -> &[RampStage] {
+        &self.0
+    }
+
+    /// The stages with every target multiplied by `factor` (a shard's share).
+    fn scaled(&self, factor: f64) -> Vec<RampStage> {
+        self.0
+            .iter()
+            .map(|s| RampStage {
+                duration: s.duration,
+                target: s.target * factor,
+            })
+            .collect()
+    }
+}
+
+/// Why a `--rate`, `--ramp` or schedule was refused.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ScheduleError {
+    #[error("rate {0:?} is not a number of requests per second above 0 (e.g. 500) or max")]
+    Rate(String),
+    #[error("ramp {0:?} has no stages (expected e.g. 10s:100,20s:400)")]
+    EmptyRamp(String),
+    #[error("ramp stage {stage:?} is not DURATION:RATE (e.g. 10s:100)")]
+    StageSyntax { stage: String },
+    #[error(
+        "ramp stage {stage:?}: duration {duration:?} is not a duration above 0 (e.g. 10s, 2m, 500ms)"
+    )]
+    StageDuration { stage: String, duration: String },
+    #[error("ramp stage {stage:?}: rate {rate:?} is not a number of requests per second ≥ 0")]
+    StageRate { stage: String, rate: String },
+    #[error("the trace has no requests to replay (in this shard)")]
+    NoRequests,
+    #[error("the schedule sends no request: its rate is 0 throughout, or its duration too short")]
+    Empty,
+}
+
+/// Parses `30s`, `2m`, `1500ms` or plain seconds (as the CLI's `--duration`).
+fn parse_duration(s: &str) -> Option<Duration> {
+    let t = s.trim();
+    let (num, mult) = if let Some(n) = t.strip_suffix("ms") {
+        (n, 1e-3)
+    } else if let Some(n) = t.strip_suffix('s') {
+        (n, 1.0)
+    } else if let Some(n) = t.strip_suffix('m') {
+        (n, 60.0)
+    } else {
+        (t, 1.0)
+    };
+    let v = num.trim().parse::<f64>().ok()? * mult;
+    (v.is_finite() && v > 0.0 && v < 1e9).then(|| Duration::from_secs_f64(v))
+}
+
+impl std::str::FromStr for RampStages {
+    type Err = ScheduleError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let mut stages = Vec::new();
+        for stage in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+            let (d, r) = stage
+                .split_once(':')
+                .ok_or_else(|| ScheduleError::StageSyntax {
+                    stage: stage.to_string(),
+                })?;
+            let duration = parse_duration(d).ok_or_else(|| ScheduleError::StageDuration {
+                stage: stage.to_string(),
+                duration: d.to_string(),
+            })?;
+            let bad_rate = || ScheduleError::StageRate {
+                stage: stage.to_string(),
+                rate: r.to_string(),
+            };
+            let r = r.trim();
+            let target = r
+                .strip_suffix("/s")
+                .unwrap_or(r)
+                .trim()
+                .parse::<f64>()
+                .map_err(|_| bad_rate())?;
+            stages.push(RampStage::new(duration, target).ok_or_else(bad_rate)?);
+        }
+        if stages.is_empty() {
+            return Err(ScheduleError::EmptyRamp(s.to_string()));
+        }
+        Ok(Self(stages))
+    }
+}
+
+/// How a replay paces its requests.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Pacing {
+    /// Every request of the trace (its shard) once, at its recorded time.
+    Recorded,
+    /// `rate` requests per second (all shards together) for `duration`, taking the
+    /// trace's requests in order, cycling.
+    Constant { rate: Rate, duration: Duration },
+    /// Stages starting from `start` requests per second (all shards together; 0 without
+    /// `--rate`), taking the trace's requests in order, cycling.
+    Ramp { start: f64, stages: RampStages },
+    /// A closed loop: each connection sends the next request as soon as its last one
+    /// finished, for `duration`.
+    Saturation { duration: Duration },
+}
+
+/// A request to send and when, measured from the start of the run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Arrival {
+    pub at: Duration,
+    /// Index into the replayed requests.
+    pub request: usize,
+}
+
+/// One piece of a piecewise-linear rate: from `r0` to `r1` requests/s over `d` seconds,
+/// starting at `t0` seconds with `n0` arrivals before it (the cumulative count, real).
+#[derive(Clone, Copy, Debug)]
+struct Segment {
+    t0: f64,
+    d: f64,
+    r0: f64,
+    r1: f64,
+    n0: f64,
+}
+
+impl Segment {
+    fn count(&self) -> f64 {
+        (self.r0 + self.r1) * 0.5 * self.d
+    }
+
+    /// The time, within the segment, at which the cumulative count reaches `n0 + x`:
+    /// the root of `r0·τ + (r1 − r0)·τ²/(2d) = x` in `[0, d]`, in the form
+    /// `2x / (r0 + √(r0² + 2(r1 − r0)x/d))`, which is stable when `r1 = r0` (then
+    /// `x/r0`) and when `r0 = 0`.
+    fn time_of(&self, x: f64) -> f64 {
+        let a2 = 2.0 * (self.r1 - self.r0) / self.d;
+        let disc = (self.r0 * self.r0 + a2 * x).max(0.0);
+        let den = self.r0 + disc.sqrt();
+        if den <= 0.0 {
+            return 0.0;
+        }
+        (2.0 * x / den).clamp(0.0, self.d)
+    }
+}
+
+/// An arrival schedule over `requests` trace requests (see [`Pacing`]).
+#[derive(Clone, Debug)]
+pub struct Schedule {
+    kind: Kind,
+    requests: usize,
+    scheduled: u64,
+    span: Duration,
+}
+
+#[derive(Clone, Debug)]
+enum Kind {
+    /// Offsets in seconds, one per request.
+    Recorded(Vec<f64>),
+    /// Piecewise-linear rate (a constant rate is one flat segment).
+    Segments(Vec<Segment>),
+}
+
+impl Schedule {
+    /// The schedule of one shard out of `shards`: `times_ms` are the shard's requests'
+    /// recorded times (non-decreasing, ms after the recording started); rates are the
+    /// total of all shards, so this shard runs `1/shards` of them. `None` for
+    /// [`Pacing::Saturation`], which has no schedule.
+    pub fn new(
+        pacing: &Pacing,
+        times_ms: &[f64],
+        shards: u32,
+    ) -> Result<Option<Self>, ScheduleError> {
+        if times_ms.is_empty() {
+            return Err(ScheduleError::NoRequests);
+        }
+        let share = 1.0 / f64::from(shards.max(1));
+        let segments = |start: f64, stages: &[RampStage]| {
+            let mut segs = Vec::with_capacity(stages.len());
+            let (mut t0, mut n0, mut r0) = (0.0, 0.0, start);
+            for s in stages {
+                let seg = Segment {
+                    t0,
+                    d: s.duration.as_secs_f64(),
+                    r0,
+                    r1: s.target,
+                    n0,
+                };
+                t0 += seg.d;
+                n0 += seg.count();
+                r0 = s.target;
+                segs.push(seg);
+            }
+            segs
+        };
+        let kind = match pacing {
+            Pacing::Saturation { .. } => return Ok(None),
+            Pacing::Recorded => Kind::Recorded(times_ms.iter().map(|t| t / 1e3).collect()),
+            Pacing::Constant { rate, duration } => {
+                let r = rate.per_second() * share;
+                let stage = RampStage {
+                    duration: *duration,
+                    target: r,
+                };
+                Kind::Segments(segments(r, &[stage]))
+            }
+            Pacing::Ramp { start, stages } => {
+                Kind::Segments(segments(start * share, &stages.scaled(share)))
+            }
+        };
+        let (scheduled, span) = match &kind {
+            Kind::Recorded(t) => (
+                t.len() as u64,
+                Duration::from_secs_f64(t.last().copied().unwrap_or(0.0)),
+            ),
+            Kind::Segments(segs) => {
+                let last = segs.last().expect("a ramp has stages");
+                let total = last.n0 + last.count();
+                // Arrival k is sent when the cumulative count reaches k (k = 0, 1, …),
+                // so those with k < total fall inside the schedule. The small epsilon
+                // keeps `rate × duration` = 1000.0000000002 from scheduling a 1001st.
+                let n = (total - 1e-9).ceil().max(0.0) as u64;
+                (n, Duration::from_secs_f64(last.t0 + last.d))
+            }
+        };
+        if scheduled == 0 {
+            return Err(ScheduleError::Empty);
+        }
+        Ok(Some(Self {
+            kind,
+            requests: times_ms.len(),
+            scheduled,
+            span,
+        }))
+    }
+
+    /// How many requests the schedule sends.
+    pub fn scheduled(&self) -> u64 {
+        self.scheduled
+    }
+
+    /// From the start to the end of the schedule (to the last recorded request for a
+    /// recorded one, the sum of the stages otherwise).
+    pub fn span(&self) -> Duration {
+        self.span
+    }
+
+    /// The mean scheduled rate, requests per second (this shard's).
+    pub fn mean_rate(&self) -> f64 {
+        let s = self.span.as_secs_f64();
+        if s > 0.0 {
+            self.scheduled as f64 / s
+        } else {
+            self.scheduled as f64
+        }
+    }
+
+    /// The `k`-th arrival (`k < scheduled()`).
+    pub fn arrival(&self, k: u64) -> Arrival {
+        match &self.kind {
+            Kind::Recorded(t) => Arrival {
+                at: Duration::from_secs_f64(t[k as usize]),
+                request: k as usize,
+            },
+            Kind::Segments(segs) => {
+                let n = k as f64;
+                // The segment in which the cumulative count reaches n.
+                let i = segs.partition_point(|s| s.n0 + s.count() <= n);
+                let s = segs[i.min(segs.len() - 1)];
+                let t = s.t0 + s.time_of(n - s.n0);
+                Arrival {
+                    at: Duration::from_secs_f64(t),
+                    request: (k % self.requests as u64) as usize,
+                }
+            }
+        }
+    }
+
+    /// Every arrival, in order.
+    pub fn arrivals(&self) -> impl Iterator<Item = Arrival> + '_ {
+        (0..self.scheduled).map(|k| self.arrival(k))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn secs(s: f64) -> Duration {
+        Duration::from_secs_f64(s)
+    }
+
+    fn close(a: Duration, b: f64) -> bool {
+        (a.as_secs_f64() - b).abs() < 1e-6
+    }
+
+    #[test]
+    fn a_constant_rate_sends_k_over_rate_cycling_through_the_trace() {
+        let pacing = Pacing::Constant {
+            rate: Rate::new(100.0).unwrap(),
+            duration: secs(2.0),
+        };
+        let s = Schedule::new(&pacing, &[0.0, 5.0, 7.0], 1)
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.scheduled(), 200);
+        assert_eq!(s.span(), secs(2.0));
+        let a: Vec<Arrival> = s.arrivals().collect();
+        assert_eq!(a.len(), 200);
+        for (k, x) in a.iter().enumerate() {
+            assert!(close(x.at, k as f64 / 100.0), "{k}: {:?}", x.at);
+            assert_eq!(x.request, k % 3);
+        }
+        // No drift: the 200th instant is exactly 1.99 s, not a sum of 199 intervals.
+        assert_eq!(a[199].at, secs(1.99));
+    }
+
+    #[test]
+    fn shards_share_the_total_rate() {
+        let pacing = Pacing::Constant {
+            rate: Rate::new(300.0).unwrap(),
+            duration: secs(1.0),
+        };
+        let s = Schedule::new(&pacing, &[0.0], 3).unwrap().unwrap();
+        assert_eq!(s.scheduled(), 100);
+        assert!(close(s.arrival(1).at, 0.01));
+        assert!((s.mean_rate() - 100.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_fractional_count_rounds_up_and_stays_inside_the_span() {
+        let pacing = Pacing::Constant {
+            rate: Rate::new(2.5).unwrap(),
+            duration: secs(1.0),
+        };
+        let s = Schedule::new(&pacing, &[0.0], 1).unwrap().unwrap();
+        // Arrivals at 0, 0.4 and 0.8 s; the next (1.2 s) is past the end.
+        assert_eq!(s.scheduled(), 3);
+        assert!(close(s.arrival(2).at, 0.8));
+    }
+
+    #[test]
+    fn a_ramp_interpolates_the_rate_linearly() {
+        // 0 → 100/s over 10 s: N(t) = 5t², so arrival k is at √(k/5); then 100/s flat.
+        let pacing = Pacing::Ramp {
+            start: 0.0,
+            stages: "10s:100,5s:100".parse().unwrap(),
+        };
+        let s = Schedule::new(&pacing, &[0.0, 1.0], 1).unwrap().unwrap();
+        assert_eq!(s.scheduled(), 500 + 500);
+        assert_eq!(s.span(), secs(15.0));
+        for k in [0u64, 1, 7, 20, 125, 499] {
+            let want = (k as f64 / 5.0).sqrt();
+            assert!(
+                close(s.arrival(k).at, want),
+                "{k}: {:?} vs {want}",
+                s.arrival(k).at
+            );
+        }
+        for k in [500u64, 501, 999] {
+            let want = 10.0 + (k - 500) as f64 / 100.0;
+            assert!(close(s.arrival(k).at, want), "{k}");
+        }
+        assert_eq!(s.arrival(7).request, 1);
+        // Arrivals are in order and ever closer together as the rate climbs.
+        let a: Vec<f64> = s.arrivals().map(|a| a.at.as_secs_f64()).collect();
+        assert!(a.windows(2).all(|w| w[1] >= w[0]));
+        assert!(a[2] - a[1] > a[400] - a[399]);
+    }
+
+    #[test]
+    fn a_ramp_down_from_the_start_rate_and_a_stage_at_zero() {
+        // 200/s → 0 over 2 s (N(t) = 200t − 50t², 200 arrivals), then 0 for 3 s (none).
+        let pacing = Pacing::Ramp {
+            start: 200.0,
+            stages: "2s:0,3s:0".parse().unwrap(),
+        };
+        let s = Schedule::new(&pacing, &[0.0], 2).unwrap().unwrap();
+        // Two shards: 100/s → 0, 100 arrivals; N(t) = 100t − 25t².
+        assert_eq!(s.scheduled(), 100);
+        for k in [1u64, 50, 99] {
+            let n = k as f64;
+            let want = (100.0 - (100.0f64 * 100.0 - 100.0 * n).sqrt()) / 50.0;
+            assert!(close(s.arrival(k).at, want), "{k}");
+        }
+        assert_eq!(s.span(), secs(5.0));
+    }
+
+    #[test]
+    fn recorded_instants_are_the_trace_times() {
+        let s = Schedule::new(&Pacing::Recorded, &[0.0, 12.5, 12.5, 3000.0], 4)
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.scheduled(), 4);
+        let a: Vec<Arrival> = s.arrivals().collect();
+        assert_eq!(a[1].at, secs(0.0125));
+        assert_eq!(a[2].request, 2);
+        assert_eq!(s.span(), secs(3.0));
+    }
+
+    #[test]
+    fn saturation_has_no_schedule_and_empty_ones_are_errors() {
+        let sat = Pacing::Saturation {
+            duration: secs(1.0),
+        };
+        assert!(Schedule::new(&sat, &[0.0], 1).unwrap().is_none());
+        assert_eq!(
+            Schedule::new(&Pacing::Recorded, &[], 1).unwrap_err(),
+            ScheduleError::NoRequests
+        );
+        let zero = Pacing::Ramp {
+            start: 0.0,
+            stages: "5s:0".parse().unwrap(),
+        };
+        assert_eq!(
+            Schedule::new(&zero, &[0.0], 1).unwrap_err(),
+            ScheduleError::Empty
+        );
+    }
+
+    #[test]
+    fn rate_parses_numbers_and_max() {
+        assert_eq!("max".parse::<RateArg>().unwrap(), RateArg::Max);
+        assert_eq!(
+            "250/s".parse::<RateArg>().unwrap(),
+            RateArg::PerSecond(Rate::new(250.0).unwrap())
+        );
+        for bad in ["0", "-3", "fast", "NaN", "inf", ""] {
+            let e = bad.parse::<RateArg>().unwrap_err();
+            assert_eq!(e, ScheduleError::Rate(bad.to_string()));
+            assert!(e.to_string().contains("max"));
+        }
+    }
+
+    #[test]
+    fn the_ramp_parser_names_the_stage_and_the_problem() {
+        let r: RampStages = " 10s:100, 500ms:0 ,2m:40/s".parse().unwrap();
+        assert_eq!(
+            r.stages(),
+            &[
+                RampStage::new(secs(10.0), 100.0).unwrap(),
+                RampStage::new(secs(0.5), 0.0).unwrap(),
+                RampStage::new(secs(120.0), 40.0).unwrap(),
+            ]
+        );
+        let err = |s: &str| s.parse::<RampStages>().unwrap_err();
+        assert_eq!(err(""), ScheduleError::EmptyRamp(String::new()));
+        assert_eq!(err(" , "), ScheduleError::EmptyRamp(" , ".into()));
+        assert_eq!(
+            err("10s:100,20s"),
+            ScheduleError::StageSyntax {
+                stage: "20s".into()
+            }
+        );
+        assert_eq!(
+            err("0s:100"),
+            ScheduleError::StageDuration {
+                stage: "0s:100".into(),
+                duration: "0s".into()
+            }
+        );
+        assert_eq!(
+            err("soon:100"),
+            ScheduleError::StageDuration {
+                stage: "soon:100".into(),
+                duration: "soon".into()
+            }
+        );
+        assert_eq!(
+            err("10s:-1"),
+            ScheduleError::StageRate {
+                stage: "10s:-1".into(),
+                rate: "-1".into()
+            }
+        );
+        assert_eq!(
+            err("10s:lots"),
+            ScheduleError::StageRate {
+                stage: "10s:lots".into(),
+                rate: "lots".into()
+            }
+        );
+        assert!(err("10s:x").to_string().contains("10s:x"));
+    }
+}
