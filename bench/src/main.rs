@@ -88,6 +88,10 @@ fn report(results: &Path, template: &Path, out: &Path, plots: &Path) -> anyhow::
         ("serve", sections::serve::section(r.serve.as_deref(), &ctx)),
         ("load", sections::load::section(r.load.as_deref(), &ctx)),
         (
+            "loadreplay",
+            sections::loadreplay::section(r.loadreplay.as_deref()),
+        ),
+        (
             "policy",
             sections::policy::section(r.policy.as_deref(), &ctx),
         ),

@@ -149,6 +149,43 @@ pub struct Load {
     pub frames_within_2tau: f64,
 }
 
+/// `loadreplay.jsonl` (bench/load.sh, issue 18): one load generator replaying the
+/// targets of one recorded trace, at saturation (`phase` "saturation": closed loop,
+/// `--rate max`) or at a constant arrival rate (`phase` "half": half of Tessera's
+/// saturation requests/s in the same run).
+#[derive(Clone, Debug, Deserialize)]
+pub struct LoadReplay {
+    /// "tessera" (`tessera load --replay`), "wrk", "oha".
+    pub tool: String,
+    pub phase: String,
+    pub run: u32,
+    pub connections: u32,
+    pub seconds: f64,
+    pub requests_per_s: f64,
+    /// Tessera's own count; for wrk and oha requests/s × the trace's mean tiles per
+    /// request.
+    pub tiles_per_s: f64,
+    pub latency_ms_p50: f64,
+    pub latency_ms_p99: f64,
+    pub latency_ms_p999: Option<f64>,
+    /// "closed loop" (from the actual send) or "scheduled" (from the scheduled start:
+    /// coordinated omission corrected).
+    pub latency_from: String,
+    /// The arrival rate asked for (phase "half").
+    #[serde(default)]
+    pub target_rate: Option<f64>,
+    #[serde(default)]
+    pub rate_held: Option<bool>,
+    pub errors: f64,
+    /// User + system CPU seconds of the load generator over the run (GNU time).
+    #[serde(default)]
+    pub tool_cpu_s: Option<f64>,
+    /// The replayed requests (the trace's with a recorded 200 answer) and their mean
+    /// tiles per request.
+    pub trace_requests: u64,
+    pub trace_mean_tiles: f64,
+}
+
 /// One line of a rendered flight's `stats.jsonl` (only what the report uses).
 #[derive(Clone, Debug, Deserialize)]
 pub struct Frame {
@@ -500,6 +537,19 @@ impl Record for Load {
     }
 }
 
+impl Record for LoadReplay {
+    const FILE: &'static str = "loadreplay.jsonl";
+    fn run(&self) -> u32 {
+        self.run
+    }
+    fn key(&self) -> String {
+        format!("{} {}", self.tool, self.phase)
+    }
+    fn check(&self) -> Result<(), String> {
+        positive(&[("seconds", self.seconds)])
+    }
+}
+
 impl Record for PolicyFlight {
     const FILE: &'static str = "policy.jsonl";
     fn run(&self) -> u32 {
@@ -626,6 +676,7 @@ pub struct Results {
     pub build: Option<Vec<Build>>,
     pub serve: Option<Vec<Serve>>,
     pub load: Option<Vec<Load>>,
+    pub loadreplay: Option<Vec<LoadReplay>>,
     pub policy: Option<Vec<PolicyFlight>>,
     pub gonzalez: Option<Vec<Gonzalez>>,
     pub stream: Option<Vec<Stream>>,
@@ -659,6 +710,7 @@ impl Results {
             build: load_jsonl(dir)?,
             serve: load_jsonl(dir)?,
             load: load_jsonl(dir)?,
+            loadreplay: load_jsonl(dir)?,
             policy: load_jsonl(dir)?,
             gonzalez: load_jsonl(dir)?,
             stream: load_jsonl(dir)?,

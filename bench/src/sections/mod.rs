@@ -12,6 +12,7 @@ pub mod gonzalez;
 pub mod gpu;
 pub mod ingest;
 pub mod load;
+pub mod loadreplay;
 pub mod meta;
 pub mod policy;
 pub mod select;
