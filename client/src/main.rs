@@ -137,8 +137,9 @@ enum Command {
         /// Draw on the globe: the dataset's longitude/latitude grid on its body's
         /// ellipsoid (ECEF, camera on the local east-north-up frame, horizon
         /// culling). auto: the globe for geographic datasets on a known body, flat
-        /// for projected ones (regional: DECISIONS.md); on: the globe or an error.
-        #[arg(long, value_enum, default_value_t = GlobeMode::Off)]
+        /// for projected ones (regional: DECISIONS.md); on: the globe or an error;
+        /// off: always flat.
+        #[arg(long, value_enum, default_value_t = GlobeMode::Auto)]
         globe: GlobeMode,
         /// Debug view.
         #[arg(long, value_enum, default_value_t = DebugView::Shaded)]
