@@ -209,6 +209,19 @@ const SETTLE_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// [`fly`] with its records written to the file `stats` (JSON Lines), if any,
 /// after creating the headless output directory ([`RenderSetup::out_dir`]).
+/// The dataset's imagery feed, when it has imagery, with `renderer` made ready to
+/// drape it: one layer per GPU slot, so the feed's pool holds as many tiles.
+pub(super) fn imagery_feed(
+    renderer: &mut crate::render::Renderer,
+    streamer: &Streamer,
+) -> anyhow::Result<Option<crate::stream::imagery::ImageryFeed>> {
+    let Some(feed) = streamer.imagery_feed(renderer.opts.slots as usize) else {
+        return Ok(None);
+    };
+    renderer.enable_imagery(feed.texels())?;
+    Ok(Some(feed))
+}
+
 pub fn fly_to_file(opts: &FlyOptions, stats: Option<&Path>) -> anyhow::Result<FlySummary> {
     if let Some(setup) = &opts.render {
         let dir = &setup.out_dir;
@@ -263,13 +276,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     // imagery is fetched each frame and uploaded into their slots (Yang §3). Its
     // pool holds as many tiles as the GPU (a 256² tile is 256 KiB decoded).
     let mut imagery = match &mut headless {
-        Some(h) => match streamer.imagery_feed(h.renderer.opts.slots as usize) {
-            Some(feed) => {
-                h.renderer.enable_imagery(feed.texels())?;
-                Some(feed)
-            }
-            None => None,
-        },
+        Some(h) => imagery_feed(&mut h.renderer, &streamer)?,
         None => None,
     };
     let mut rendered: Vec<(FrameStats, RenderRecord)> = Vec::new();

@@ -60,6 +60,7 @@ struct State {
     renderer: Renderer,
     presenter: Presenter,
     streamer: Streamer,
+    imagery: Option<crate::stream::imagery::ImageryFeed>,
     pool: TilePool,
     selector: Selector,
     camera: Camera,
@@ -124,7 +125,7 @@ impl State {
         }
         surface.configure(&gpu.device, &config);
         let presenter = Presenter::new(&gpu.device, config.format);
-        let renderer = Renderer::with_gpu(
+        let mut renderer = Renderer::with_gpu(
             gpu,
             world,
             (min_h, max_h),
@@ -134,6 +135,8 @@ impl State {
                 ..render
             },
         )?;
+        // The dataset's imagery, draped on the drawn tiles as it arrives (Yang §3).
+        let imagery = super::fly::imagery_feed(&mut renderer, &streamer)?;
         let extent = world.size_m().max_element();
         let camera = Camera {
             position: DVec3::new(0.1 * extent, max_h + extent / 20.0, 0.1 * extent),
@@ -155,6 +158,7 @@ impl State {
             renderer,
             presenter,
             streamer,
+            imagery,
             pool,
             selector: Selector::new(
                 world,
@@ -261,6 +265,10 @@ impl State {
         self.streamer.frame(&mut self.pool, &sel.wanted, &[]);
         self.renderer.slots.touch(&sel.tiles);
         self.renderer.upload_wanted(&self.pool, &sel.wanted, budget);
+        if let Some(feed) = &mut self.imagery {
+            feed.frame(&sel.tiles);
+            self.renderer.upload_imagery_from(feed.pool(), &sel.tiles);
+        }
         let d = self.renderer.draw(&self.camera, &sel.patches)?;
         let frame = match self.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t)
