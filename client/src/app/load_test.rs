@@ -258,3 +258,81 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
         client_bound: cpu.is_some_and(|c| c.client_bound()),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(client_cpu_cores: Option<f64>, client_bound: bool) -> LoadReport {
+        LoadReport {
+            clients: 64,
+            mode: "ranges".into(),
+            seconds: 20.0,
+            requests: 1000,
+            responses: 990,
+            tiles: 9000,
+            bytes: 90_000_000,
+            errors: 0,
+            requests_per_s: 50.0,
+            tiles_per_s: 450.0,
+            mb_per_s: 4.5,
+            latency_ms_p50: 10.0,
+            latency_ms_p90: 100.0,
+            latency_ms_p99: 1000.0,
+            latency_ms_max: 1500.0,
+            frames_within_2tau: 0.2,
+            client_cpu_cores,
+            client_cores_available: 2,
+            client_bound,
+        }
+    }
+
+    #[test]
+    fn the_summary_labels_client_bound_runs() {
+        let bound = report(Some(1.9), true).to_string();
+        assert!(
+            bound.contains(
+                "client-bound: the load generator used 1.9 of 2 cores; use --record and --replay"
+            ),
+            "{bound}"
+        );
+        let free = report(Some(0.4), false).to_string();
+        assert!(!free.contains("client-bound"), "{free}");
+        let json = serde_json::to_value(report(None, false)).unwrap();
+        assert_eq!(json["client_cpu_cores"], serde_json::Value::Null);
+        assert_eq!(json["client_bound"], false);
+    }
+
+    #[test]
+    fn record_needs_a_server_and_a_directory() {
+        let opts = |source: TileSource, record: &str| LoadOptions {
+            source,
+            clients: 1,
+            duration: Duration::from_secs(1),
+            mode: RequestMode::Ranges,
+            fps: 30.0,
+            tau: 1.0,
+            width: 64,
+            height: 64,
+            spacing: None,
+            progress: false,
+            open: crate::stream::OpenArgs::default(),
+            record: Some(record.into()),
+        };
+        let err = |o: &LoadOptions| format!("{:#}", recorder_for(o).unwrap_err());
+        let pyramid = err(&opts(TileSource::pyramid("file:///x.tess"), "t.jsonl"));
+        assert!(
+            pyramid.contains("--record t.jsonl needs a --server source"),
+            "{pyramid}"
+        );
+        let server = TileSource::server("http://127.0.0.1:1/", "moon");
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("nope/t.jsonl");
+        assert!(err(&opts(server.clone(), missing.to_str().unwrap())).contains("does not exist"));
+        assert!(
+            err(&opts(server.clone(), dir.path().to_str().unwrap())).contains("is a directory")
+        );
+        let ok = recorder_for(&opts(server, "t.jsonl")).unwrap().unwrap();
+        assert_eq!(ok.0.base(), "http://127.0.0.1:1");
+    }
+}
