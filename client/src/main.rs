@@ -9,6 +9,10 @@ use tessera_client::app::fly::{self, FlyOptions};
 use tessera_client::app::headless::{Draws, RenderSetup};
 use tessera_client::app::{load_test, window};
 use tessera_client::globe::GlobeMode;
+use tessera_client::load::replay::{self, ReplayOptions};
+use tessera_client::load::report::{self, ReplayReport};
+use tessera_client::load::schedule::{Pacing, RampStages, RateArg};
+use tessera_client::load::trace::{Shard, Trace};
 use tessera_client::render::gpu::Backend;
 use tessera_client::render::normals::NormalSource;
 use tessera_client::render::{DebugView, Parallax, RenderOptions};
@@ -32,9 +36,15 @@ enum Command {
     /// Load-test a server (or a static host serving a pyramid file, --pyramid): N
     /// simulated clients fly the built-in paths (staggered) through the real
     /// selection and streaming code, without rendering.
+    ///
+    /// Or, with --replay TRACE, send a recorded trace's requests on a schedule (as
+    /// recorded, --rate, --ramp, or --rate max) without selection or decoding,
+    /// checking every answer, with latency from each request's scheduled start;
+    /// `tessera load merge` adds up the reports of --shard K/N processes.
+    #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
     Load {
         #[command(flatten)]
-        source: SourceArgs,
+        source: LoadSourceArgs,
         #[arg(long, default_value_t = 16)]
         clients: u32,
         /// How long, e.g. 30s, 2m.
@@ -64,6 +74,10 @@ enum Command {
         json: bool,
         #[command(flatten)]
         open: OpenArgs,
+        #[command(flatten)]
+        replay: ReplayArgs,
+        #[command(subcommand)]
+        action: Option<LoadAction>,
     },
     /// Fly a path over a dataset served by `tessera-server serve`, or over a pyramid
     /// file read straight from a static host (--pyramid): selection and streaming at
@@ -264,6 +278,177 @@ impl SourceArgs {
     }
 }
 
+/// `tessera load`'s source: as [`SourceArgs`], but none is required by itself, since
+/// `--replay` takes its server from the trace (`--server` overrides it) and needs no
+/// `--dataset`; `run` checks the combinations.
+#[derive(Debug, clap::Args)]
+struct LoadSourceArgs {
+    /// Server base URL, e.g. http://127.0.0.1:8080 (with --replay: instead of the
+    /// server the trace was recorded against).
+    #[arg(long)]
+    server: Option<String>,
+    /// Dataset name on the server (not with --replay: the trace names it).
+    #[arg(long, conflicts_with = "replay")]
+    dataset: Option<String>,
+    /// Read a pyramid file straight from a static host, CDN or object store with
+    /// HTTP Range requests, no Tessera server: http(s)://host/path/file.tess (or
+    /// file:///path/file.tess). The host must answer Range requests with 206.
+    #[arg(long, value_name = "URL", conflicts_with_all = ["server", "dataset", "replay"])]
+    pyramid: Option<String>,
+}
+
+impl LoadSourceArgs {
+    fn source(self) -> anyhow::Result<TileSource> {
+        SourceArgs {
+            server: self.server,
+            dataset: self.dataset,
+            pyramid: self.pyramid,
+        }
+        .source()
+    }
+}
+
+/// `tessera load --replay`'s settings (issue 18).
+#[derive(Debug, clap::Args)]
+struct ReplayArgs {
+    /// Replay the requests of TRACE (written by --record) instead of flying clients:
+    /// only HTTP and the frames' checksums, no selection or decoding. Without --rate
+    /// or --ramp, every request once at its recorded time.
+    #[arg(long, value_name = "TRACE", conflicts_with = "record")]
+    replay: Option<PathBuf>,
+    /// With --replay: a constant arrival rate, requests/s (all --shard processes
+    /// together), for --duration, cycling through the trace; or `max`: saturation,
+    /// each of --connections sending its next request when its last one finished.
+    #[arg(long, value_name = "N|max", requires = "replay")]
+    rate: Option<RateArg>,
+    /// With --replay: ramping arrival rate, stages DURATION:RATE,… (e.g.
+    /// 10s:100,20s:400): over each stage the rate moves linearly from the previous
+    /// stage's (the first from --rate, else 0) to its own; --duration is not used.
+    #[arg(long, value_name = "STAGES", requires = "replay")]
+    ramp: Option<RampStages>,
+    /// With --replay: HTTP/1.1: at most C requests in flight, on C keep-alive
+    /// connections; with --http2: C connections, each carrying up to 100 requests.
+    /// When all are busy, a request waits, and the wait counts in its latency.
+    #[arg(long, value_name = "C", default_value_t = 64, requires = "replay",
+          value_parser = clap::value_parser!(u32).range(1..))]
+    connections: u32,
+    /// With --replay: this process is shard K of N (K from 0): it replays the
+    /// clients c with c % N == K at 1/N of --rate.
+    #[arg(long, value_name = "K/N", default_value = "0/1", requires = "replay")]
+    shard: Shard,
+    /// With --replay: a request's limit, and how long to wait for the requests still
+    /// in flight when the schedule ends (those count as timeout errors).
+    #[arg(long, default_value = "10s", value_parser = parse_duration, requires = "replay")]
+    timeout: std::time::Duration,
+    /// With --replay: runtime threads (1: everything on one core).
+    #[arg(long, default_value_t = 1, requires = "replay",
+          value_parser = clap::value_parser!(u32).range(1..256))]
+    threads: u32,
+    /// With --replay: write DIR/load.json (the report) and DIR/latency.png.
+    #[arg(long, value_name = "DIR", requires = "replay")]
+    out: Option<PathBuf>,
+}
+
+#[derive(Debug, Subcommand)]
+enum LoadAction {
+    /// Add up the reports (load.json) of the --shard K/N processes of one replay:
+    /// counts and errors add, latency histograms add exactly (percentiles from the
+    /// sums), seconds are the longest shard's and rates are totals over them.
+    Merge {
+        /// Reports (DIR/load.json of --out DIR, or --json's output), or their DIRs.
+        #[arg(required = true, value_name = "REPORT")]
+        reports: Vec<PathBuf>,
+        /// Print the merged report as JSON.
+        #[arg(long)]
+        json: bool,
+        /// Write DIR/load.json and DIR/latency.png.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+}
+
+/// Prints a replay's report (JSON or the summary) and writes it under `out`.
+fn emit_replay(r: &ReplayReport, json: bool, out: Option<&std::path::Path>) -> anyhow::Result<()> {
+    if let Some(dir) = out {
+        r.write_dir(dir)?;
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(r)?);
+    } else {
+        println!("{r}");
+    }
+    Ok(())
+}
+
+/// `tessera load --replay TRACE …`.
+fn load_replay(
+    trace: &std::path::Path,
+    server: Option<String>,
+    args: ReplayArgs,
+    duration: std::time::Duration,
+    http2: bool,
+    json: bool,
+) -> anyhow::Result<()> {
+    let pacing = match (args.rate, args.ramp) {
+        (Some(RateArg::Max), Some(_)) => {
+            anyhow::bail!("--ramp needs a starting --rate N, not --rate max")
+        }
+        (Some(RateArg::Max), None) => Pacing::Saturation { duration },
+        (Some(RateArg::PerSecond(rate)), None) => Pacing::Constant { rate, duration },
+        (rate, Some(stages)) => Pacing::Ramp {
+            start: match rate {
+                Some(RateArg::PerSecond(r)) => r.per_second(),
+                _ => 0.0,
+            },
+            stages,
+        },
+        (None, None) => Pacing::Recorded,
+    };
+    let opts = ReplayOptions {
+        server,
+        pacing,
+        connections: args.connections,
+        http2,
+        shard: args.shard,
+        timeout: args.timeout,
+        threads: args.threads as usize,
+        progress: !json,
+        ..ReplayOptions::new(Trace::read(trace)?)
+    };
+    let r = replay::replay(&opts)?;
+    emit_replay(&r, json, args.out.as_deref())
+}
+
+/// `tessera load merge REPORT…`.
+fn load_merge(
+    reports: &[PathBuf],
+    json: bool,
+    out: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    let read = reports
+        .iter()
+        .map(|p| {
+            let file = if p.is_dir() {
+                p.join("load.json")
+            } else {
+                p.clone()
+            };
+            ReplayReport::read(&file)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let merged = report::merge(&read).with_context(|| {
+        format!(
+            "cannot merge {}",
+            reports
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
+    emit_replay(&merged, json, out)
+}
+
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     match run(cli) {
@@ -324,7 +509,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             record,
             json,
             open,
+            replay,
+            action,
         } => {
+            if let Some(LoadAction::Merge { reports, json, out }) = action {
+                return load_merge(&reports, json, out.as_deref());
+            }
+            if let Some(trace) = replay.replay.clone() {
+                return load_replay(&trace, source.server, replay, duration, open.http2, json);
+            }
             let (width, height) = parse_viewport(&viewport)?;
             let opts = load_test::LoadOptions {
                 source: source.source()?,

@@ -11,4 +11,5 @@ fn help_texts_are_stable() {
     for command in ["load", "fly", "bench-select", "report", "inspect"] {
         insta::assert_snapshot!(format!("tessera-{command}"), help_text(bin, &[command]));
     }
+    insta::assert_snapshot!("tessera-load-merge", help_text(bin, &["load", "merge"]));
 }

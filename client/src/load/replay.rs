@@ -2,17 +2,17 @@
 //! on an arrival schedule, checks each answer as it streams in, and reports latency
 //! in HDR histograms.
 //!
-//! **The open model.** A scheduler task starts each request at its scheduled instant
-//! (`sleep_until` on an absolute schedule computed from the start, see `schedule`),
-//! whether or not earlier requests have finished. At most `--connections` requests
-//! are in flight on HTTP/1.1 (one per keep-alive connection); when all are busy, the
-//! next request waits for one, and so do those scheduled after it. Latency is recorded
-//! twice: from the *scheduled* instant (corrected for coordinated omission, as wrk2
-//! does: the wait for a connection is the server's fault when it is slow) and from
-//! the actual send (uncorrected, what a closed-loop tool would report). The schedule's
-//! resolution is tokio's timer, 1 ms: requests due within the same millisecond go out
-//! together, so the corrected latency includes up to about 1 ms of timer granularity
-//! that the uncorrected one does not.
+//! **The open model.** Each request starts at its scheduled instant (an absolute
+//! schedule computed from the start, see `schedule`), whether or not earlier requests
+//! have finished. At most `--connections` requests are in flight on HTTP/1.1 (one per
+//! keep-alive connection); when all are busy, the next request waits for one, and so
+//! do those scheduled after it. Latency is recorded twice: from the *scheduled*
+//! instant (corrected for coordinated omission, as wrk2 does: the wait for a
+//! connection is the server's fault when it is slow) and from the actual send
+//! (uncorrected, what a closed-loop tool would report). The instants are kept by a
+//! thread that sleeps until each (good to tens of microseconds) and hands it to the
+//! runtime; tokio's own timer, 1 ms and rounding up, would have added up to a
+//! millisecond to every corrected latency.
 //!
 //! **Cheap per request**, so that one core drives the server as hard as `wrk` does: no
 //! selection and no record decoding, only the shared frame decoder's checksum
@@ -39,6 +39,9 @@ use tokio::time::Instant;
 /// HTTP/2: requests in flight per connection (streams). Servers commonly allow 100–250
 /// concurrent streams; 100 stays under all of them.
 pub const STREAMS_PER_CONNECTION: u32 = 100;
+
+/// HTTP/2 flow-control window per stream (bytes); the connection's is four times it.
+const H2_STREAM_WINDOW: u32 = 8 << 20;
 
 /// What to replay and how.
 #[derive(Clone, Debug)]
@@ -275,6 +278,12 @@ fn clients(opts: &ReplayOptions, base: &str) -> anyhow::Result<Vec<reqwest::Clie
                 .timeout(opts.timeout)
                 .pool_max_idle_per_host(per)
                 .tcp_nodelay(true);
+            // HTTP/2's default 64 KiB stream window would hold a 300 KiB batch of tiles
+            // to a window update per 64 KiB (round trips the server's Nagle makes up to
+            // 40 ms each); the replay reads every body at once, so the windows are large.
+            let b = b
+                .http2_initial_stream_window_size(H2_STREAM_WINDOW)
+                .http2_initial_connection_window_size(H2_STREAM_WINDOW * 4);
             let b = if h2c { b.http2_prior_knowledge() } else { b };
             b.build().context("cannot build the HTTP client")
         })
@@ -446,15 +455,34 @@ async fn open_loop(
             total.saturating_sub(shared.sent.load(Relaxed))
         })
     };
+    // The instants come from a thread of their own: tokio's timer has a resolution
+    // of 1 ms and rounds up, which would add up to a millisecond to every corrected
+    // latency; a thread's sleep is good to tens of microseconds. It only sleeps and
+    // sends; the sends themselves happen on the runtime, in order.
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<super::schedule::Arrival>();
+    let ticker = {
+        let (schedule, start) = (schedule.clone(), start.into_std());
+        std::thread::Builder::new()
+            .name("replay-schedule".into())
+            .spawn(move || {
+                for k in 0..total {
+                    let a = schedule.arrival(k);
+                    let at = start + a.at;
+                    let now = std::time::Instant::now();
+                    if at > now {
+                        std::thread::sleep(at - now);
+                    }
+                    if tx.send(a).is_err() {
+                        break;
+                    }
+                }
+            })
+    };
     let mut scheduled_per_s = Vec::new();
     let mut sent_per_s = Vec::new();
-    for k in 0..total {
-        let a = schedule.arrival(k);
+    while let Some(a) = rx.recv().await {
         let at = start + a.at;
         bump(&mut scheduled_per_s, a.at.as_secs());
-        if Instant::now() < at {
-            tokio::time::sleep_until(at).await;
-        }
         let permit = sem
             .clone()
             .acquire_owned()
@@ -467,6 +495,9 @@ async fn open_loop(
             sh.request(a.request, at).await;
             drop(permit);
         });
+    }
+    if let Ok(t) = ticker {
+        let _ = t.join();
     }
     let backlog = if Instant::now() < end_of_schedule {
         watcher.abort();

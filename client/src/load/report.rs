@@ -427,6 +427,13 @@ impl ReplayReport {
         Ok(r)
     }
 
+    /// Writes `dir/load.json` and `dir/latency.png` (each through a temporary file
+    /// renamed into place), creating `dir`.
+    pub fn write_dir(&self, dir: &Path) -> anyhow::Result<()> {
+        self.write_json(dir)?;
+        super::latency_plot::write(self, &dir.join("latency.png"))
+    }
+
     /// Writes `dir/load.json` (temp and rename), creating `dir`.
     pub fn write_json(&self, dir: &Path) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir)
