@@ -154,3 +154,77 @@ fn no_imagery_or_imagery_of_another_dem_is_not_served() {
         assert!(e.contains("no imagery"), "{name}: {e}");
     }
 }
+
+/// A pyramid in object storage serves the imagery object beside it
+/// (`s3://…/olinda.tessimg`) exactly as a local one does, and one without (or with
+/// a stale one, built for another DEM) serves none. A real S3 server on loopback.
+#[test]
+fn imagery_beside_a_pyramid_in_object_storage_is_served_like_a_local_ones() {
+    use tessera_shared::s3_server::S3Server;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("olinda.tess");
+    let plain = dir.path().join("plain.tess");
+    // Imagery of the same ground built for a DEM of other metadata (its CRS written
+    // another way, so another content hash): stale beside `plain`.
+    let donor = dir.path().join("donor.tess");
+    let utm = "+proj=utm +zone=25 +south +ellps=GRS80 +units=m +no_defs";
+    if !build_with_imagery(&out, "EPSG:31985")
+        || !build(&plain, "EPSG:31985", &[])
+        || !build_with_imagery(&donor, utm)
+    {
+        return;
+    }
+    let Some(s3) = S3Server::start_or_skip() else {
+        return;
+    };
+    s3.create_bucket("tessera");
+    let read = |p: &Path| std::fs::read(p).unwrap();
+    s3.put("tessera", "olinda.tess", &read(&out));
+    s3.put(
+        "tessera",
+        "olinda.tessimg",
+        &read(&out.with_extension("tessimg")),
+    );
+    // `plain` has no imagery of its own, and gets the donor's beside it.
+    s3.put("tessera", "plain.tess", &read(&plain));
+    s3.put(
+        "tessera",
+        "plain.tessimg",
+        &read(&donor.with_extension("tessimg")),
+    );
+    let env = s3.env();
+    let env: Vec<(&str, &str)> = env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let remote = Server::start_with(
+        &[
+            Path::new("s3://tessera/olinda.tess"),
+            Path::new("s3://tessera/plain.tess"),
+        ],
+        &[],
+        &env,
+    );
+    let local = Server::start(&[&out], &[]);
+
+    let doc = remote.get("/v1/datasets/olinda").expect(200).json();
+    let want = local.get("/v1/datasets/olinda").expect(200).json();
+    assert_eq!(
+        doc["imagery"]["content_hash"],
+        want["imagery"]["content_hash"]
+    );
+    let img =
+        Pyramid::open_imagery(FileSource::open(&out.with_extension("tessimg")).unwrap()).unwrap();
+    for level in img.geometry().levels() {
+        let path = format!(
+            "/v1/datasets/olinda/imagery/levels/{level}/tiles?ranges=0-{}",
+            level.tile_slots() - 1
+        );
+        let (a, b) = (remote.get(&path).expect(200), local.get(&path).expect(200));
+        assert_eq!(a.body, b.body, "{path}: S3 and the local file differ");
+        assert_eq!(a.header("etag"), b.header("etag"), "{path}");
+        assert!(!split_trailer(&decode_stream(&a)).0.is_empty(), "{path}");
+    }
+    let doc = remote.get("/v1/datasets/plain").expect(200).json();
+    assert!(doc.get("imagery").is_none(), "{doc}");
+    remote
+        .get("/v1/datasets/plain/imagery/levels/0/tiles?ranges=0")
+        .error(404);
+}

@@ -55,6 +55,24 @@ impl ObjectLocation {
         let file = self.key.filename().unwrap_or("");
         file.rsplit_once('.').map_or(file, |(s, _)| s).to_string()
     }
+
+    /// The object beside this one in the same store with `extension` instead of its
+    /// own (`s3://b/dem.tess` → `s3://b/dem.tessimg`), as a local file's sibling
+    /// (`Path::with_extension`). `None` when the file name has no extension to
+    /// replace, or the URL does not end with it (a query string, as in a presigned
+    /// URL, cannot be carried over to another object).
+    pub fn sibling(&self, extension: &str) -> Option<Self> {
+        let file = self.key.filename()?;
+        let (stem, _) = file.rsplit_once('.').filter(|(s, _)| !s.is_empty())?;
+        let key = self.key.as_ref();
+        let dir = &key[..key.len() - file.len()];
+        let url = self.url.strip_suffix(file)?;
+        Some(Self {
+            url: format!("{url}{stem}.{extension}"),
+            store: self.store.clone(),
+            key: Path::from(format!("{dir}{stem}.{extension}")),
+        })
+    }
 }
 
 /// Retries and timeouts of store requests.
@@ -268,6 +286,24 @@ mod tests {
         ] {
             assert!(!is_url(path), "{path}");
         }
+    }
+
+    #[test]
+    fn a_sibling_replaces_the_file_names_extension_only() {
+        let at = |url: &str| match locate(url, StoreOptions::default()).expect(url) {
+            Location::Object(o) => o,
+            Location::Local(_) => panic!("{url}: not an object"),
+        };
+        let s = at("s3://bucket/dir.v2/moon8k.tess")
+            .sibling("tessimg")
+            .expect("has an extension");
+        assert_eq!(s.url, "s3://bucket/dir.v2/moon8k.tessimg");
+        assert_eq!(s.key.as_ref(), "dir.v2/moon8k.tessimg");
+        let s = at("https://cdn.example.org/p/a.b.tess")
+            .sibling("tessimg")
+            .unwrap();
+        assert_eq!(s.url, "https://cdn.example.org/p/a.b.tessimg");
+        assert_eq!(s.stem(), "a.b");
     }
 
     #[test]

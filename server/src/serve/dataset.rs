@@ -89,9 +89,19 @@ impl Dataset {
     pub fn open_imagery(name: String, path: &Path) -> anyhow::Result<Self> {
         let storage: Arc<dyn Storage> =
             Arc::new(FileStorage::open(path).with_context(|| path.display().to_string())?);
+        Self::imagery_from_storage(name, path.to_path_buf(), storage)
+    }
+
+    /// Opens an imagery pyramid in any storage (a local file, an object), `path`
+    /// naming it in messages.
+    pub fn imagery_from_storage(
+        name: String,
+        path: PathBuf,
+        storage: Arc<dyn Storage>,
+    ) -> anyhow::Result<Self> {
         let pyramid = Pyramid::open_imagery(StorageSource(storage.clone()))
             .with_context(|| path.display().to_string())?;
-        Self::from_pyramid(name, path.to_path_buf(), storage, pyramid)
+        Self::from_pyramid(name, path, storage, pyramid)
     }
 
     fn from_pyramid(
@@ -370,9 +380,14 @@ impl Registry {
                     ds
                 }
                 Location::Object(o) => {
+                    let beside = o.sibling(crate::imagery::EXTENSION);
                     let storage: Arc<dyn Storage> =
                         Arc::new(ObjectStorage::open(o, store.clone())?);
-                    Dataset::from_storage(name.clone(), label.clone(), storage)?
+                    let mut ds = Dataset::from_storage(name.clone(), label.clone(), storage)?;
+                    if let Some(beside) = beside {
+                        ds.imagery = super::imagery::open_beside_object(&ds, beside, store)?;
+                    }
+                    ds
                 }
             };
             if let Some(prev) = datasets.insert(name.clone(), Arc::new(ds)) {
