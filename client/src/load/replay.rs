@@ -633,6 +633,36 @@ mod tests {
     }
 
     #[test]
+    fn a_server_that_never_answers_falls_behind_and_times_out() {
+        // A listening socket that never accepts: connections open (the kernel's
+        // backlog) and requests go out, but no answer ever comes.
+        let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = silent.local_addr().unwrap().port();
+        let mut opts = ReplayOptions::new(trace(&format!("http://127.0.0.1:{port}")));
+        // 10 requests over 0.5 s on one connection, each given 300 ms.
+        opts.pacing = Pacing::Constant {
+            rate: super::super::schedule::Rate::new(20.0).unwrap(),
+            duration: Duration::from_millis(500),
+        };
+        opts.connections = 1;
+        opts.timeout = Duration::from_millis(300);
+        let r = replay(&opts).unwrap();
+        drop(silent);
+        assert_eq!(r.mode, Mode::Rate);
+        assert_eq!((r.scheduled, r.sent, r.completed), (10, 10, 0));
+        assert_eq!(r.errors.timeout, 10);
+        assert_eq!(r.errors.total(), 10);
+        // One connection held 300 ms per request: when the schedule ended (0.5 s)
+        // only the first two had been sent.
+        assert!(r.backlog >= 6, "backlog {}", r.backlog);
+        assert_eq!(r.rate_held, Some(false));
+        assert_eq!(r.target_rate, Some(20.0));
+        // Ten sends 300 ms apart: the run lasted about 3 s, not the schedule's 0.5.
+        assert!(r.seconds >= 2.9, "{}", r.seconds);
+        assert_eq!(r.latency_ms, super::super::report::Percentiles::default());
+    }
+
+    #[test]
     fn a_bad_server_url_names_the_request() {
         let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
         opts.server = Some("not a url".into());
