@@ -2,7 +2,7 @@
 # Every benchmark of issue 6 in one run (`./run bench` calls this), then
 # `tessera-bench report`, which rewrites BENCHMARKS.md and bench/plots/*.png from the
 # results. Expects the release binaries built and the tools installed (./run does both).
-#   bench/all.sh [SECTION...]   (default: build select serve stream policy gonzalez ingest webtiles terrain upload popping)
+#   bench/all.sh [SECTION...]   (default: build select serve load stream policy gonzalez ingest webtiles terrain upload popping)
 # RESULTS (default target/bench/results) is emptied first, unless KEEP_RESULTS=1 (to
 # rerun one section and regenerate the report from old results of the others).
 set -euo pipefail
@@ -10,7 +10,7 @@ cd "$(dirname "$0")/.."
 export RESULTS=${RESULTS:-$PWD/target/bench/results}
 export RUNS=${RUNS:-3} QUICK=${QUICK:-0}
 sections=("$@")
-[ ${#sections[@]} -gt 0 ] || sections=(build select serve stream policy gonzalez ingest webtiles terrain upload popping)
+[ ${#sections[@]} -gt 0 ] || sections=(build select serve load stream policy gonzalez ingest webtiles terrain upload popping)
 [ "${KEEP_RESULTS:-0}" = 1 ] || rm -rf "$RESULTS"
 mkdir -p "$RESULTS"
 keep=$(mktemp -d "${TMPDIR:-/tmp}/tessera-bench-keep.XXXXXX")
@@ -20,7 +20,8 @@ started=$(date -u +%Y-%m-%dT%H:%M:%SZ)
 t0=$(date +%s)
 for s in "${sections[@]}"; do
   echo "== bench: $s" >&2
-  rm -f "$RESULTS/$s.jsonl"
+  # (load's results are loadreplay.jsonl: load.jsonl is serve's full-client runs.)
+  [ "$s" = load ] || rm -f "$RESULTS/$s.jsonl"
   case "$s" in
     build) KEEP_SYNTH=$keep/synth.tess bench/build.sh ;;
     select)
@@ -28,15 +29,18 @@ for s in "${sections[@]}"; do
       SYNTH=$keep/synth.tess SYNTH_NAME=$name bench/select.sh
       rm -f "$keep/synth.tess" ;;
     serve) rm -f "$RESULTS/load.jsonl"; bench/serve.sh ;;
+    # Issue 18: tessera load --record, then --replay against wrk and oha.
+    load) rm -f "$RESULTS/loadreplay.jsonl" "$RESULTS/loadreplay_record.json"; bench/load.sh ;;
     # terrain writes terrain_mesh.jsonl and terrain_serve.jsonl, each replaced only by
     # the part that runs (TERRAIN_MESH=0 or TERRAIN_SERVE=0 keeps the other's).
     stream | policy | gonzalez | ingest | webtiles | terrain | upload | popping) "bench/$s.sh" ;;
-    *) echo "unknown section '$s' (build select serve stream policy gonzalez ingest webtiles terrain upload popping)" >&2; exit 2 ;;
+    *) echo "unknown section '$s' (build select serve load stream policy gonzalez ingest webtiles terrain upload popping)" >&2; exit 2 ;;
   esac
 done
 rm -rf "$RESULTS/reference-cache"
 
 version() { "$@" 2>&1 | head -n1 || true; }
+oha_bin=${OHA:-$(command -v oha || echo "${XDG_CACHE_HOME:-$HOME/.cache}/tessera/oha/bin/oha")}
 renderer=$(jq -r '.summary.render.gpu // empty' "$RESULTS/gonzalez.jsonl" 2>/dev/null | head -n1 || true)
 jq -n \
   --arg started "$started" --arg finished "$(date -u +%Y-%m-%dT%H:%M:%SZ)" \
@@ -51,12 +55,13 @@ jq -n \
   --arg gdal "$(version gdal_translate --version)" \
   --arg nginx "$(version "$(command -v nginx || echo /usr/sbin/nginx)" -v)" \
   --arg wrk "$(version wrk -v)" \
+  --arg oha "$([ -x "$oha_bin" ] && version "$oha_bin" --version)" \
   --arg renderer "$renderer" \
   --argjson runs "$RUNS" --argjson quick "$([ "$QUICK" = 1 ] && echo true || echo false)" \
   --arg sections "${sections[*]}" \
   '{started: $started, finished: $finished, seconds: $seconds, commit: $commit, dirty: $dirty,
     cpu: $cpu, cores: $cores, memory_gib: $memory, os: $os, rustc: $rustc, gdal: $gdal,
-    nginx: $nginx, wrk: $wrk, renderer: $renderer, runs: $runs, quick: $quick,
+    nginx: $nginx, wrk: $wrk, oha: $oha, renderer: $renderer, runs: $runs, quick: $quick,
     sections: ($sections | split(" "))}' > "$RESULTS/meta.json"
 
 echo "== bench: report" >&2

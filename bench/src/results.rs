@@ -29,6 +29,9 @@ pub struct Meta {
     pub gdal: Option<String>,
     pub nginx: Option<String>,
     pub wrk: Option<String>,
+    /// bench/load.sh's peer (absent from results older than issue 18).
+    #[serde(default)]
+    pub oha: Option<String>,
     /// The wgpu adapter the rendering benchmarks ran on.
     pub renderer: Option<String>,
     /// Repeats per measurement.

@@ -146,10 +146,11 @@ pub fn section(meta: Option<&Meta>) -> String {
         (
             "peers",
             format!(
-                "GDAL {}, nginx {}, wrk {}",
+                "GDAL {}, nginx {}, wrk {}, oha {}",
                 or_none(&m.gdal),
                 or_none(&m.nginx),
-                or_none(&m.wrk)
+                or_none(&m.wrk),
+                or_none(&m.oha)
             ),
         ),
         (
@@ -190,6 +191,7 @@ mod tests {
             gdal: Some("GDAL 3.6.2, released 2023/01/02".into()),
             nginx: Some(String::new()),
             wrk: Some("wrk 4.1.0 [epoll] Copyright (C) 2012 Will Glozer".into()),
+            oha: None,
             renderer: Some("llvmpipe (LLVM 15.0.6, 256 bits)".into()),
             runs,
             quick,
