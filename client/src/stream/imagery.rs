@@ -145,6 +145,16 @@ const RETRY_AFTER: Duration = Duration::from_secs(1);
 /// One finished imagery request: the tiles it asked for, and what came back.
 type Answer = (Vec<TileId>, anyhow::Result<Vec<(TileId, Texels)>>);
 
+/// Where a feed's imagery comes from.
+#[derive(Clone, Debug)]
+enum Origin {
+    /// A server at this base URL (`http://host:port`): the imagery route.
+    Server(String),
+    /// A `.tessimg` file read serverlessly (HTTP Range, `file://`), beside the
+    /// pyramid file the heights come from.
+    File(std::sync::Arc<super::source::StaticFile>),
+}
+
 /// A flight's imagery: each frame, the drawn tiles without imagery are asked for
 /// (one request per level, on the streamer's runtime), so that texture LOD follows
 /// the geometry's (Yang §3); answers are pooled when the next frame looks.
@@ -152,7 +162,7 @@ type Answer = (Vec<TileId>, anyhow::Result<Vec<(TileId, Texels)>>);
 pub struct ImageryFeed {
     rt: tokio::runtime::Handle,
     client: reqwest::Client,
-    base: String,
+    origin: Origin,
     info: ImageryInfo,
     pool: ImageryPool,
     tx: mpsc::Sender<Answer>,
@@ -176,11 +186,33 @@ impl ImageryFeed {
         info: ImageryInfo,
         capacity: usize,
     ) -> Self {
+        Self::with_origin(rt, client, Origin::Server(base), info, capacity)
+    }
+
+    /// A feed reading the imagery pyramid `file` serverlessly, pooling `capacity`
+    /// tiles; `info` describes it ([`ImageryInfo::new`] of its metadata).
+    pub(crate) fn from_file(
+        rt: tokio::runtime::Handle,
+        client: reqwest::Client,
+        file: std::sync::Arc<super::source::StaticFile>,
+        info: ImageryInfo,
+        capacity: usize,
+    ) -> Self {
+        Self::with_origin(rt, client, Origin::File(file), info, capacity)
+    }
+
+    fn with_origin(
+        rt: tokio::runtime::Handle,
+        client: reqwest::Client,
+        origin: Origin,
+        info: ImageryInfo,
+        capacity: usize,
+    ) -> Self {
         let (tx, rx) = mpsc::channel();
         Self {
             rt,
             client,
-            base,
+            origin,
             info,
             pool: ImageryPool::new(capacity),
             tx,
@@ -256,15 +288,22 @@ impl ImageryFeed {
                 .filter(|t| t.level() == level)
                 .collect();
             self.pending.extend(asked.iter().copied());
-            let (client, base, info, tx, record) = (
+            let (client, origin, info, tx, record) = (
                 self.client.clone(),
-                self.base.clone(),
+                self.origin.clone(),
                 self.info.clone(),
                 self.tx.clone(),
                 self.record.clone(),
             );
             self.rt.spawn(async move {
-                let answer = fetch_recorded(&client, &base, &info, level, &ranges, record).await;
+                let answer = match &origin {
+                    Origin::Server(base) => {
+                        fetch_recorded(&client, base, &info, level, &ranges, record).await
+                    }
+                    Origin::File(file) => {
+                        fetch_from_file(&client, file, info.texels, level, &ranges).await
+                    }
+                };
                 let _ = tx.send((asked, answer));
             });
             sent += 1;
@@ -287,6 +326,60 @@ impl ImageryFeed {
             std::thread::sleep(Duration::from_millis(2));
         }
     }
+}
+
+/// Reads and decodes the imagery records of `ranges` of `level` from an imagery
+/// pyramid file (serverless): the tiles' index entries grouped into runs contiguous
+/// in the file, one read per run ([`super::source::byte_runs`]), each record checked
+/// against its index checksum before it is decoded off the I/O threads. Tiles
+/// without a record are not returned, as with [`fetch`].
+async fn fetch_from_file(
+    client: &reqwest::Client,
+    file: &super::source::StaticFile,
+    side: u32,
+    level: Level,
+    ranges: &[MortonRange],
+) -> anyhow::Result<Vec<(TileId, Texels)>> {
+    let mut entries = Vec::new();
+    for r in ranges {
+        for code in r.start().get()..=r.end().get() {
+            let Some(tile) = TileId::from_morton(level, tessera_shared::Morton::from_raw(code))
+            else {
+                continue;
+            };
+            if let Some(e) = file.entry(tile) {
+                entries.push((tile, e));
+            }
+        }
+    }
+    entries.sort_by_key(|(_, e)| e.offset);
+    let mut out = Vec::with_capacity(entries.len());
+    for run in super::source::byte_runs(&entries) {
+        let (start, end) = (run[0].1.offset, run[run.len() - 1].1.end());
+        let bytes = file.read_range(client, start, end).await?;
+        let run = run.to_vec();
+        let url = file.url.clone();
+        let decoded = tokio::task::spawn_blocking(move || {
+            run.into_iter()
+                .map(|(tile, e)| {
+                    let at = usize::try_from(e.offset - start).unwrap_or(usize::MAX);
+                    let record = bytes
+                        .get(at..at.saturating_add(e.length as usize))
+                        .ok_or_else(|| anyhow!("{url}: {tile}: record outside the read"))?;
+                    if tessera_shared::format::checksum(record) != e.checksum {
+                        bail!(
+                            "{url}: {tile}: imagery record fails its checksum in the index (corrupt in the file, or damaged on the way)"
+                        );
+                    }
+                    let texels = decode(record, side).with_context(|| format!("{url}: {tile}"))?;
+                    Ok((tile, texels))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()
+        })
+        .await??;
+        out.extend(decoded);
+    }
+    Ok(out)
 }
 
 /// Decoded imagery by tile, least recently used first out.

@@ -175,6 +175,40 @@ pub(crate) enum Transport {
     File(std::sync::Arc<FileSource>),
 }
 
+/// The file is not there (HTTP 404 or 410, or no such local file): for optional
+/// files, such as the imagery beside a pyramid, to be told from broken ones.
+#[derive(Debug)]
+pub(crate) struct NoSuchFile(pub String);
+
+impl std::fmt::Display for NoSuchFile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}: no such file (HTTP 404)", self.0)
+    }
+}
+
+impl std::error::Error for NoSuchFile {}
+
+/// Which kind of pyramid a static file must be: a DEM's (`.tess`) or its imagery's
+/// (`.tessimg`, FORMAT.md "Imagery pyramids"); the container is the same, the magic
+/// and metadata differ.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum PyramidKind {
+    Dem,
+    Imagery,
+}
+
+impl PyramidKind {
+    fn open(
+        self,
+        region: HeaderRegion,
+    ) -> Result<Pyramid<HeaderRegion>, tessera_shared::reader::ReadError> {
+        match self {
+            Self::Dem => Pyramid::open(region),
+            Self::Imagery => Pyramid::open_imagery(region),
+        }
+    }
+}
+
 /// A pyramid file opened for serverless reads: its header region checked and
 /// parsed, every level's index in memory, records read on demand.
 #[derive(Debug)]
@@ -214,8 +248,24 @@ impl StaticFile {
 
     /// Opens `url` (`http://…` or `file://…`), reading its header region.
     pub async fn open(client: &reqwest::Client, url: &str) -> anyhow::Result<Self> {
+        Self::open_as(client, url, PyramidKind::Dem).await
+    }
+
+    /// Opens the imagery pyramid at `url` as [`StaticFile::open`] opens a DEM's.
+    pub async fn open_imagery(client: &reqwest::Client, url: &str) -> anyhow::Result<Self> {
+        Self::open_as(client, url, PyramidKind::Imagery).await
+    }
+
+    async fn open_as(
+        client: &reqwest::Client,
+        url: &str,
+        kind: PyramidKind,
+    ) -> anyhow::Result<Self> {
         if let Some(path) = url.strip_prefix("file://") {
-            return Self::open_local(url, Path::new(path));
+            if !Path::new(path).exists() {
+                return Err(NoSuchFile(url.to_string()).into());
+            }
+            return Self::open_local(url, Path::new(path), kind);
         }
         anyhow::ensure!(
             url.starts_with("http://") || url.starts_with("https://"),
@@ -228,11 +278,12 @@ impl StaticFile {
             .await
             .with_context(|| format!("{url}: cannot fetch the pyramid's header"))?;
         match first.status() {
-            StatusCode::PARTIAL_CONTENT => Self::open_ranged(client, url, first).await,
-            StatusCode::OK => Self::open_whole(url, first).await,
+            StatusCode::PARTIAL_CONTENT => Self::open_ranged(client, url, first, kind).await,
+            StatusCode::OK => Self::open_whole(url, first, kind).await,
             StatusCode::RANGE_NOT_SATISFIABLE => {
                 anyhow::bail!("{url}: 416 Range Not Satisfiable: the file is empty")
             }
+            StatusCode::NOT_FOUND | StatusCode::GONE => Err(NoSuchFile(url.to_string()).into()),
             status => anyhow::bail!("{url}: HTTP {status}"),
         }
     }
@@ -242,6 +293,7 @@ impl StaticFile {
         client: &reqwest::Client,
         url: &str,
         first: reqwest::Response,
+        kind: PyramidKind,
     ) -> anyhow::Result<Self> {
         let (start, _, total) = content_range(first.headers())
             .with_context(|| format!("{url}: 206 without a valid Content-Range"))?;
@@ -295,11 +347,12 @@ impl StaticFile {
         );
         let open_bytes = bytes.len() as u64;
         bytes.truncate(region as usize);
-        let pyramid = Pyramid::open(HeaderRegion {
-            bytes,
-            total: total.unwrap_or(u64::MAX),
-        })
-        .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        let pyramid = kind
+            .open(HeaderRegion {
+                bytes,
+                total: total.unwrap_or(u64::MAX),
+            })
+            .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
         Ok(Self {
             url: url.to_string(),
             pyramid,
@@ -311,7 +364,11 @@ impl StaticFile {
 
     /// A host that ignores `Range`: a small file is read whole, once; a large one is
     /// refused before its body is read.
-    async fn open_whole(url: &str, resp: reqwest::Response) -> anyhow::Result<Self> {
+    async fn open_whole(
+        url: &str,
+        resp: reqwest::Response,
+        kind: PyramidKind,
+    ) -> anyhow::Result<Self> {
         let refuse = |n: &dyn std::fmt::Display| {
             anyhow::anyhow!(
                 "{url}: the host ignores HTTP Range (it answered 200 with the whole {n}-byte file); serverless reads need Range support (nginx, S3 and CDNs have it), and a file over {MAX_WHOLE_BODY} bytes is not downloaded whole"
@@ -330,11 +387,12 @@ impl StaticFile {
             .ok()
             .filter(|r| *r <= body.len())
             .with_context(|| format!("{url}: the file ends inside its header region"))?;
-        let pyramid = Pyramid::open(HeaderRegion {
-            bytes: body[..region].to_vec(),
-            total,
-        })
-        .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        let pyramid = kind
+            .open(HeaderRegion {
+                bytes: body[..region].to_vec(),
+                total,
+            })
+            .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
         tracing::warn!("{url}: the host ignores HTTP Range; read the whole {total}-byte file");
         Ok(Self {
             url: url.to_string(),
@@ -346,7 +404,7 @@ impl StaticFile {
     }
 
     /// `file://PATH`: the header region read from the file, records with `pread`.
-    fn open_local(url: &str, path: &Path) -> anyhow::Result<Self> {
+    fn open_local(url: &str, path: &Path, kind: PyramidKind) -> anyhow::Result<Self> {
         let file = FileSource::open(path).with_context(|| format!("{url}: cannot open"))?;
         let total = file.size()?;
         let head = file
@@ -360,7 +418,8 @@ impl StaticFile {
         );
         let bytes = file.read_vec(0, header.records_offset as usize)?;
         let open_bytes = bytes.len() as u64;
-        let pyramid = Pyramid::open(HeaderRegion { bytes, total })
+        let pyramid = kind
+            .open(HeaderRegion { bytes, total })
             .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
         Ok(Self {
             url: url.to_string(),
@@ -369,6 +428,69 @@ impl StaticFile {
             open_requests: 0,
             open_bytes,
         })
+    }
+}
+
+impl StaticFile {
+    /// Bytes `start..end` of the file, whole (for reads that are not streamed into
+    /// the tile pool, such as imagery records): a Range request checked as
+    /// [`super::fetch::fetch_range`] checks its answers (206, the range asked for,
+    /// the file the client opened), or the bytes held in memory, or a `pread`.
+    pub async fn read_range(
+        &self,
+        client: &reqwest::Client,
+        start: u64,
+        end: u64,
+    ) -> anyhow::Result<Vec<u8>> {
+        let from = format!("{} bytes={start}-{}", self.url, end.saturating_sub(1));
+        anyhow::ensure!(start < end, "{from}: an empty range");
+        let len = end - start;
+        match &self.transport {
+            Transport::Http(validators) => {
+                let resp = client
+                    .get(&self.url)
+                    .header(header::RANGE, format!("bytes={start}-{}", end - 1))
+                    .send()
+                    .await
+                    .with_context(|| from.clone())?;
+                let range = content_range(resp.headers());
+                let now = Validators::of_response(resp.headers(), range.and_then(|r| r.2));
+                if let Some(what) = validators.changed(&now) {
+                    anyhow::bail!("{from}: the file changed under the client ({what})");
+                }
+                anyhow::ensure!(
+                    resp.status() == StatusCode::PARTIAL_CONTENT,
+                    "{from}: HTTP {} to a Range request",
+                    resp.status()
+                );
+                anyhow::ensure!(
+                    range.map(|r| (r.0, r.1)) == Some((start, end - 1)),
+                    "{from}: the host answered another range"
+                );
+                let body = read_body(resp, len + 1)
+                    .await
+                    .with_context(|| from.clone())?;
+                anyhow::ensure!(
+                    body.len() as u64 == len,
+                    "{from}: {} bytes in the answer, {len} asked for",
+                    body.len()
+                );
+                Ok(body)
+            }
+            Transport::Memory(body) => usize::try_from(start)
+                .ok()
+                .zip(usize::try_from(end).ok())
+                .and_then(|(a, b)| body.get(a..b))
+                .map(<[u8]>::to_vec)
+                .with_context(|| format!("{from}: the file is shorter than its index says")),
+            Transport::File(src) => {
+                let src = src.clone();
+                let n = usize::try_from(len).context("range too long")?;
+                tokio::task::spawn_blocking(move || src.read_vec(start, n))
+                    .await?
+                    .with_context(|| from.clone())
+            }
+        }
     }
 }
 
