@@ -53,8 +53,11 @@ impl CpuUse {
     /// Client-bound: the generator used most of the machine (at least
     /// [`CLIENT_BOUND_SHARE`] of its cores), so it was not waiting on the server
     /// but working itself, and its tiles/s measure the generator: the server could
-    /// have answered more. Below that the clients were waiting on answers, and the
-    /// figures are the server's (or the network's).
+    /// have answered more. Below that the clients were mostly waiting on answers,
+    /// and the figures are the server's (or the network's) — unless other
+    /// processes held the cores (a server on the same machine, a build): a
+    /// generator starved of CPU uses less than its share and is not labelled, so
+    /// on a shared machine the label is a lower bound.
     pub fn client_bound(&self) -> bool {
         self.cores_used >= CLIENT_BOUND_SHARE * f64::from(self.cores_available)
     }
