@@ -148,6 +148,10 @@ enum Command {
         /// coarser one (LOD changes then pop; for measuring what morphing does).
         #[arg(long)]
         no_morph: bool,
+        /// Do not drape the dataset's imagery (the hypsometric tint instead), even
+        /// when the dataset has some.
+        #[arg(long)]
+        no_imagery: bool,
         /// Draw on the globe: the dataset's longitude/latitude grid on its body's
         /// ellipsoid (ECEF, camera on the local east-north-up frame, horizon
         /// culling). auto: the globe for geographic datasets on a known body, flat
@@ -565,6 +569,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             popping,
             no_morph,
             globe,
+            no_imagery,
             view,
             parallax,
             policy,
@@ -595,6 +600,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     normals,
                     morph: !no_morph,
                 },
+                    imagery: !no_imagery,
                 out_dir: dir.clone(),
                 draws: if reference {
                     Draws::Reference
@@ -651,6 +657,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     normals,
                     morph: !no_morph,
                 };
+                    imagery: !no_imagery,
                 return window::run(&opts, render);
             }
             let summary = fly::fly_to_file(&opts, stats.as_deref())?;
