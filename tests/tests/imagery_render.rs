@@ -275,6 +275,24 @@ fn olinda_from_above_has_the_imagerys_coastline() {
         Some(rt.handle().clone()),
     )
     .unwrap();
+    // `--no-imagery`: a renderer that is not to drape gets no feed.
+    let mut tinted = Renderer::new(
+        world,
+        (info.min_height, info.max_height),
+        RenderOptions {
+            width: 8,
+            height: 8,
+            slots: 4,
+            imagery: false,
+            ..RenderOptions::default()
+        },
+    )
+    .unwrap();
+    assert!(
+        tessera_client::app::fly::imagery_feed(&mut tinted, &streamer)
+            .unwrap()
+            .is_none()
+    );
     let mut feed = streamer.imagery_feed(16).expect("the dataset has imagery");
     assert_eq!(feed.texels(), im.texels);
     assert!(feed.settle(&sel.tiles, std::time::Duration::from_secs(60)));

@@ -209,12 +209,16 @@ const SETTLE_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// [`fly`] with its records written to the file `stats` (JSON Lines), if any,
 /// after creating the headless output directory ([`RenderSetup::out_dir`]).
-/// The dataset's imagery feed, when it has imagery, with `renderer` made ready to
-/// drape it: one layer per GPU slot, so the feed's pool holds as many tiles.
-pub(super) fn imagery_feed(
+/// The dataset's imagery feed, when it has imagery and the renderer is to drape it
+/// (not `--no-imagery`), with `renderer` made ready to: one layer per GPU slot, so
+/// the feed's pool holds as many tiles.
+pub fn imagery_feed(
     renderer: &mut crate::render::Renderer,
     streamer: &Streamer,
 ) -> anyhow::Result<Option<crate::stream::imagery::ImageryFeed>> {
+    if !renderer.opts.imagery {
+        return Ok(None);
+    }
     let Some(feed) = streamer.imagery_feed(renderer.opts.slots as usize) else {
         return Ok(None);
     };

@@ -90,6 +90,9 @@ pub struct RenderOptions {
     /// Draw patches morphed as selection says ([`crate::select::morph`]); off
     /// (`tessera fly --no-morph`), every patch at its own LOD, and LOD changes pop.
     pub morph: bool,
+    /// Drape the dataset's imagery when it has some; off (`--no-imagery`), the
+    /// hypsometric tint.
+    pub imagery: bool,
 }
 
 impl Default for RenderOptions {
@@ -103,6 +106,7 @@ impl Default for RenderOptions {
             backend: Backend::Auto,
             normals: normals::NormalSource::Gpu,
             morph: true,
+            imagery: true,
         }
     }
 }
