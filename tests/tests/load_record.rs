@@ -260,3 +260,75 @@ fn record_with_a_pyramid_source_is_a_named_error() {
     .unwrap_err();
     assert!(format!("{err:#}").contains("does not exist"), "{err:#}");
 }
+
+/// The imagery feed records its requests too (kind `imagery`, with their level):
+/// a streamer opened on the real Olinda DEM with its Landsat imagery, recording, asks
+/// for every tile's imagery; each recorded answer is what the server sends again
+/// for that target, frame for frame.
+#[test]
+fn the_imagery_feed_records_its_requests() {
+    use tessera_client::load::record::{RecordHook, Recorder};
+    use tessera_client::stream::{StreamConfig, Streamer};
+    let dir = tempfile::tempdir().unwrap();
+    let Some(out) = streaming_support::olinda_with_imagery(dir.path()) else {
+        return;
+    };
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &out);
+    let base = format!("http://{server}");
+    let recorder = Recorder::new(&base);
+    let config = StreamConfig {
+        record: Some(RecordHook::new(recorder.clone(), 0)),
+        ..StreamConfig::default()
+    };
+    let (streamer, info) =
+        Streamer::open(&TileSource::server(base.clone(), "olinda"), config, None).unwrap();
+    let mut feed = streamer.imagery_feed(64).expect("olinda has imagery");
+    let g = tessera_shared::TileGeometry::new(info.width, info.height, info.tile_size).unwrap();
+    let all: Vec<_> = g
+        .levels()
+        .flat_map(|l| g.present_tiles(l).collect::<Vec<_>>())
+        .collect();
+    assert!(
+        feed.settle(&all, Duration::from_secs(60)),
+        "imagery still pending"
+    );
+    drop(streamer);
+
+    let trace = recorder.trace("olinda", 1, 0.0, "ranges");
+    assert_eq!(trace.requests[0].kind, RequestKind::Bootstrap);
+    let imagery: Vec<_> = trace
+        .requests
+        .iter()
+        .filter(|r| r.kind == RequestKind::Imagery)
+        .collect();
+    // One request per level of the geometry (ranges_by_level), each answered.
+    assert_eq!(imagery.len(), g.levels().count());
+    let mut tiles = 0;
+    for r in imagery {
+        assert!(r.target.contains("/imagery/levels/"), "{}", r.target);
+        let e = r.expect.as_ref().expect("answered");
+        let (status, body) = get(&rt, &base, &r.target);
+        let mut digest = StreamDigest::new();
+        for f in tessera_shared::wire::decode_all(&body).unwrap() {
+            digest.push(&f);
+        }
+        assert_eq!(
+            (e.status, e.tiles, e.bytes, e.digest.as_str()),
+            (
+                status,
+                digest.tiles(),
+                body.len() as u64,
+                digest.hex().as_str()
+            ),
+            "{}",
+            r.target
+        );
+        tiles += e.tiles;
+    }
+    assert_eq!(
+        tiles as usize,
+        feed.pool().len(),
+        "every pooled tile came in a recorded answer"
+    );
+}
