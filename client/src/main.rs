@@ -373,13 +373,14 @@ enum LoadAction {
 
 /// Prints a replay's report (JSON or the summary) and writes it under `out`.
 fn emit_replay(r: &ReplayReport, json: bool, out: Option<&std::path::Path>) -> anyhow::Result<()> {
-    if let Some(dir) = out {
-        r.write_dir(dir)?;
-    }
+    // Printed first, so that a directory that cannot be written loses no results.
     if json {
         println!("{}", serde_json::to_string_pretty(r)?);
     } else {
         println!("{r}");
+    }
+    if let Some(dir) = out {
+        r.write_dir(dir)?;
     }
     Ok(())
 }
@@ -568,8 +569,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             reference_cache,
             popping,
             no_morph,
-            globe,
             no_imagery,
+            globe,
             view,
             parallax,
             policy,
@@ -599,8 +600,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     backend,
                     normals,
                     morph: !no_morph,
-                },
                     imagery: !no_imagery,
+                },
                 out_dir: dir.clone(),
                 draws: if reference {
                     Draws::Reference
@@ -656,8 +657,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     backend,
                     normals,
                     morph: !no_morph,
-                };
                     imagery: !no_imagery,
+                };
                 return window::run(&opts, render);
             }
             let summary = fly::fly_to_file(&opts, stats.as_deref())?;

@@ -5,7 +5,7 @@
 
 use super::trace::{Expect, StreamDigest};
 use serde::{Deserialize, Serialize};
-use tessera_shared::wire::{Frame, FrameDecoder, WireError};
+use tessera_shared::wire::{FRAME_HEADER_LEN, Frame, FrameDecoder, MAX_PAYLOAD, WireError};
 
 /// What went wrong with a request, as the report's `errors` keys name it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -78,6 +78,7 @@ enum Body {
     Frames {
         decoder: FrameDecoder,
         digest: StreamDigest,
+        cut: FrameCut,
     },
     /// Any other body, hashed as a whole.
     Other(Box<xxhash_rust::xxh3::Xxh3>),
@@ -88,7 +89,9 @@ enum Body {
 impl std::fmt::Debug for Body {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Frames { decoder, digest } => f
+            Self::Frames {
+                decoder, digest, ..
+            } => f
                 .debug_struct("Frames")
                 .field("decoder", decoder)
                 .field("digest", digest)
@@ -97,6 +100,60 @@ impl std::fmt::Debug for Body {
             Self::Other(_) => f.write_str("Other"),
             Self::Ignored => f.write_str("Ignored"),
         }
+    }
+}
+
+/// Where the frames of a stream end, from their headers' length field (API.md "Frame
+/// stream": a 32-byte header whose first 4 bytes are the payload length, little
+/// endian). [`FrameDecoder`] drains each frame from the front of its buffer, moving
+/// whatever follows it; fed exactly one frame at a time, it moves nothing, and the
+/// replay's check costs one copy of each byte fewer.
+#[derive(Debug, Default)]
+struct FrameCut {
+    /// Header bytes seen of the current frame (up to [`FRAME_HEADER_LEN`]).
+    header: [u8; FRAME_HEADER_LEN],
+    have: usize,
+    /// Payload bytes still to come, once the header is complete.
+    left: usize,
+}
+
+impl FrameCut {
+    /// The front of `bytes` that belongs to the current frame, and whether it
+    /// completes it.
+    fn take<'b>(&mut self, bytes: &'b [u8]) -> (&'b [u8], bool) {
+        if self.have < FRAME_HEADER_LEN {
+            let n = (FRAME_HEADER_LEN - self.have).min(bytes.len());
+            self.header[self.have..self.have + n].copy_from_slice(&bytes[..n]);
+            self.have += n;
+            if self.have < FRAME_HEADER_LEN {
+                return (&bytes[..n], false);
+            }
+            let len = u32::from_le_bytes([
+                self.header[0],
+                self.header[1],
+                self.header[2],
+                self.header[3],
+            ]);
+            // A length over the decoder's limit completes the frame at its header, so
+            // the decoder refuses it (TooLong) without waiting for the payload.
+            self.left = if len as usize > MAX_PAYLOAD {
+                0
+            } else {
+                len as usize
+            };
+            if self.left == 0 {
+                self.have = 0;
+                return (&bytes[..n], true);
+            }
+            return (&bytes[..n], false);
+        }
+        let n = self.left.min(bytes.len());
+        self.left -= n;
+        let complete = self.left == 0;
+        if complete {
+            self.have = 0;
+        }
+        (&bytes[..n], complete)
     }
 }
 
@@ -116,6 +173,7 @@ impl<'a> Check<'a> {
             Body::Frames {
                 decoder: FrameDecoder::new(),
                 digest: StreamDigest::new(),
+                cut: FrameCut::default(),
             }
         } else {
             Body::Other(Box::default())
@@ -140,19 +198,32 @@ impl<'a> Check<'a> {
             return;
         }
         match &mut self.body {
-            Body::Frames { decoder, digest } => {
-                decoder.push(chunk);
-                loop {
+            Body::Frames {
+                decoder,
+                digest,
+                cut,
+            } => {
+                // The decoder gets the body a frame at a time (see FrameCut), so it
+                // never holds bytes past the frame it is completing.
+                let mut rest = chunk;
+                while !rest.is_empty() {
+                    let (piece, complete) = cut.take(rest);
+                    rest = &rest[piece.len()..];
+                    decoder.push(piece);
+                    if !complete {
+                        continue;
+                    }
                     match decoder.next_frame() {
-                        Ok(None) => break,
                         Ok(Some(Frame::Error { .. })) => {
                             self.error = Some(ErrorKind::Corrupt);
-                            break;
+                            return;
                         }
                         Ok(Some(f)) => digest.push(&f),
+                        // A complete frame always decodes; None cannot happen.
+                        Ok(None) => {}
                         Err(e) => {
                             self.error = Some(classify(&e));
-                            break;
+                            return;
                         }
                     }
                 }
@@ -184,8 +255,13 @@ impl<'a> Check<'a> {
     pub fn finish(mut self) -> Outcome {
         if self.error.is_none() {
             self.error = match (&self.body, self.expect) {
+                // Bytes left over after the trailer are not a cut stream but a bad one.
                 (Body::Frames { decoder, .. }, _) if decoder.finish().is_err() => {
-                    Some(ErrorKind::Truncated)
+                    Some(if decoder.is_done() {
+                        ErrorKind::Corrupt
+                    } else {
+                        ErrorKind::Truncated
+                    })
                 }
                 (Body::Frames { digest, .. }, Some(e)) => (digest.tiles() != e.tiles
                     || digest.hex() != e.digest)
@@ -318,6 +394,44 @@ mod tests {
             check_body(Some(&e), true, 200, &bad).error,
             Some(ErrorKind::Corrupt)
         );
+    }
+
+    #[test]
+    fn bytes_after_the_trailer_and_oversized_frames_are_corrupt() {
+        let body = stream(&[(1, A)]);
+        let e = expect_of(&body);
+        for extra in [
+            &b"x"[..],
+            &[0u8; 31][..],
+            &[0u8; 32][..],
+            &tile(4, 9, B)[..],
+        ] {
+            let mut bad = body.clone();
+            bad.extend_from_slice(extra);
+            let out = check_body(Some(&e), true, 200, &bad);
+            assert_eq!(
+                out.error,
+                Some(ErrorKind::Corrupt),
+                "{} bytes after",
+                extra.len()
+            );
+        }
+        // A header announcing more than the decoder accepts is refused at once, not
+        // waited for.
+        let mut huge = tile_header(
+            Level::new(4).unwrap(),
+            Morton::from_raw(1),
+            0,
+            0,
+            0,
+            u32::MAX,
+        )
+        .to_vec();
+        huge.extend_from_slice(b"a little");
+        let mut c = Check::new(None, true, 200);
+        c.push(&huge);
+        assert!(!c.wants_body());
+        assert_eq!(c.finish().error, Some(ErrorKind::Corrupt));
     }
 
     #[test]

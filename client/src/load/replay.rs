@@ -368,7 +368,10 @@ async fn run(
     };
     if let Some(p) = progress {
         p.abort();
-        eprintln!();
+        if shared.start.elapsed() >= Duration::from_secs(1) {
+            // End the progress line.
+            eprintln!();
+        }
     }
     let end = Instant::now();
     let seconds = (end - shared.start).as_secs_f64();
