@@ -348,7 +348,7 @@ mod tests {
                         status: 200,
                         tiles: i,
                         bytes: u64::from(i) * 100,
-                        digest: format!("{:016x}", i),
+                        digest: format!("{i:016x}"),
                     }),
                 })
                 .collect(),
@@ -360,7 +360,10 @@ mod tests {
         let t = trace();
         let mut buf = Vec::new();
         t.write_to(&mut buf).unwrap();
-        assert_eq!(buf.iter().filter(|&&b| b == b'\n').count(), 10);
+        assert_eq!(
+            buf.split(|&b| b == b'\n').filter(|l| !l.is_empty()).count(),
+            10
+        );
         assert_eq!(Trace::from_reader(&buf[..]).unwrap(), t);
     }
 
