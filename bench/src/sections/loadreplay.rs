@@ -57,6 +57,12 @@ fn spread(runs: &[&LoadReplay], f: impl Fn(&LoadReplay) -> Option<f64>) -> Strin
     Spread::of(runs.iter().filter_map(|r| f(r))).map_or_else(|| "—".into(), |s| s.fmt())
 }
 
+/// The load generator's CPU use over its run, in cores: below 1 on its one pinned
+/// core, it was waiting for the server, not the other way round.
+fn cores(r: &LoadReplay) -> Option<f64> {
+    r.tool_cpu_s.map(|c| c / r.seconds)
+}
+
 fn errors(runs: &[&LoadReplay]) -> String {
     match Spread::of(runs.iter().map(|r| r.errors)) {
         Some(s) if s.max == 0.0 => "none".into(),
@@ -84,7 +90,7 @@ pub fn section(records: Option<&[LoadReplay]>) -> Section {
         distinct(records.iter().map(|r| r.connections.to_string())).join(", ")
     );
 
-    md.push_str("**At saturation** (closed loops: each connection sends its next request when the last is answered; latency from the actual send):\n\n");
+    md.push_str("**At saturation** (closed loops: each connection sends its next request when the last is answered; latency from the actual send). A generator using less than one core of CPU on its one pinned core was waiting for the server:\n\n");
     let mut table = Table::new(&[
         "load generator",
         "runs",
@@ -94,6 +100,7 @@ pub fn section(records: Option<&[LoadReplay]>) -> Section {
         "p99 ms",
         "p99.9 ms",
         "errors",
+        "generator CPU, cores",
         "tiles per CPU second of the generator",
     ]);
     for tool in &tools {
@@ -110,6 +117,7 @@ pub fn section(records: Option<&[LoadReplay]>) -> Section {
             spread(&rs, |r| Some(r.latency_ms_p99)),
             spread(&rs, |r| r.latency_ms_p999),
             errors(&rs),
+            spread(&rs, cores),
             spread(&rs, |r| {
                 r.tool_cpu_s
                     .filter(|c| *c > 0.0)
@@ -165,6 +173,7 @@ pub fn section(records: Option<&[LoadReplay]>) -> Section {
         "p99 ms",
         "p99.9 ms",
         "errors",
+        "generator CPU, cores",
         "latency from",
     ]);
     let mut any = false;
@@ -190,6 +199,7 @@ pub fn section(records: Option<&[LoadReplay]>) -> Section {
             spread(&rs, |r| Some(r.latency_ms_p99)),
             spread(&rs, |r| r.latency_ms_p999),
             errors(&rs),
+            spread(&rs, cores),
             distinct(rs.iter().map(|r| r.latency_from.as_str())).join(", "),
         ]);
     }
@@ -261,8 +271,11 @@ mod tests {
             md.contains("Tessera ÷ wrk, tiles/s at saturation: 1.15× (1.10–1.20×)"),
             "{md}"
         );
-        // 11000 tiles/s × 10 s / 5 CPU s.
-        assert!(md.contains("| 23000 (22000–24000) |"), "{md}");
+        // 11000 tiles/s × 10 s / 5 CPU s; 5 CPU s in 10 s.
+        assert!(
+            md.contains("| 0.5 (0.5–0.5) | 23000 (22000–24000) |"),
+            "{md}"
+        );
         assert!(md.contains("| 1 of 2 runs |"), "{md}");
         assert_eq!(s.aims.len(), 1);
         assert_eq!(s.aims[0].verdict, Verdict::Met);
