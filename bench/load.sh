@@ -111,37 +111,54 @@ oha_row() {
        errors: $errors, tool_cpu_s: $cpu}' "$3")"
 }
 
-for run in $(seq "$RUNS"); do
-  log "load: run $run of $RUNS, saturation, $conns connections, ${sat_s}s each, on core $cpu"
+# sat_tessera / sat_wrk / sat_oha RUN: one saturation row each.
+sat_tessera() {
   pin "$CLIENT_BIN" load --replay "$WORK/replay.jsonl" --server "$url" --rate max --duration "${sat_s}s" \
     --connections "$conns" --json > "$WORK/tessera.json" 2> "$WORK/tessera.log" \
     || { cat "$WORK/tessera.log" >&2; exit 1; }
-  tessera_row saturation "$run" "$WORK/tessera.json"
+  tessera_row saturation "$1" "$WORK/tessera.json"
   sat_rps=$(jq .requests_per_s "$WORK/tessera.json")
-
+}
+sat_wrk() {
   pin wrk -t1 -c"$conns" -d"${sat_s}s" --timeout 10s -s "$WORK/replay.lua" "$url" > "$WORK/wrk.out"
-  row "$(tail -n1 "$WORK/wrk.out" | jq -c --argjson run "$run" --argjson cpu "$(tool_cpu)" --argjson mean "$mean_tiles" '
+  row "$(tail -n1 "$WORK/wrk.out" | jq -c --argjson run "$1" --argjson cpu "$(tool_cpu)" --argjson mean "$mean_tiles" '
     ((.requests - .non2xx) / .duration_s) as $ok
     | {tool: "wrk", phase: "saturation", run: $run, seconds: .duration_s, requests_per_s: $ok,
        tiles_per_s: ($ok * $mean), latency_ms_p50: .p50_ms, latency_ms_p99: .p99_ms, latency_ms_p999: .p999_ms,
        latency_from: "closed loop", target_rate: null, rate_held: null, errors: (.errors + .non2xx),
        tool_cpu_s: $cpu}')"
+}
+sat_oha() {
+  [ -n "$oha" ] || return 0
+  pin "$oha" --no-tui --output-format json -z "${sat_s}s" -w -c "$conns" --urls-from-file "$WORK/urls.txt" \
+    > "$WORK/oha.json" 2> "$WORK/oha.log" || { cat "$WORK/oha.log" >&2; exit 1; }
+  oha_row saturation "$1" "$WORK/oha.json"
+}
 
-  if [ -n "$oha" ]; then
-    pin "$oha" --no-tui --output-format json -z "${sat_s}s" -w -c "$conns" --urls-from-file "$WORK/urls.txt" \
-      > "$WORK/oha.json" 2> "$WORK/oha.log" || { cat "$WORK/oha.log" >&2; exit 1; }
-    oha_row saturation "$run" "$WORK/oha.json"
-  fi
-
-  rate=$(awk -v r="$sat_rps" 'BEGIN {printf "%.1f", r / 2}')
-  log "load: run $run of $RUNS, $rate requests/s (half of Tessera's saturation), ${half_s}s each"
-  pin "$CLIENT_BIN" load --replay "$WORK/replay.jsonl" --server "$url" --rate "$rate" --duration "${half_s}s" \
+# half_tessera / half_oha RUN RATE: one row each at RATE requests/s.
+half_tessera() {
+  pin "$CLIENT_BIN" load --replay "$WORK/replay.jsonl" --server "$url" --rate "$2" --duration "${half_s}s" \
     --connections "$conns" --json > "$WORK/tessera.json" 2> "$WORK/tessera.log" \
     || { cat "$WORK/tessera.log" >&2; exit 1; }
-  tessera_row half "$run" "$WORK/tessera.json"
-  if [ -n "$oha" ]; then
-    pin "$oha" --no-tui --output-format json -z "${half_s}s" -w -c "$conns" -q "$rate" --latency-correction \
-      --urls-from-file "$WORK/urls.txt" > "$WORK/oha.json" 2> "$WORK/oha.log" || { cat "$WORK/oha.log" >&2; exit 1; }
-    oha_row half "$run" "$WORK/oha.json" "$rate"
-  fi
+  tessera_row half "$1" "$WORK/tessera.json"
+}
+half_oha() {
+  [ -n "$oha" ] || return 0
+  pin "$oha" --no-tui --output-format json -z "${half_s}s" -w -c "$conns" -q "$2" --latency-correction \
+    --urls-from-file "$WORK/urls.txt" > "$WORK/oha.json" 2> "$WORK/oha.log" || { cat "$WORK/oha.log" >&2; exit 1; }
+  oha_row half "$1" "$WORK/oha.json" "$2"
+}
+
+tools=(tessera wrk oha)
+for run in $(seq "$RUNS"); do
+  # The order rotates from run to run, so that no tool always comes first (or right
+  # after another one's load).
+  order=("${tools[@]:$(((run - 1) % 3))}" "${tools[@]:0:$(((run - 1) % 3))}")
+  log "load: run $run of $RUNS, saturation (${order[*]}), $conns connections, ${sat_s}s each, on core $cpu"
+  for t in "${order[@]}"; do "sat_$t" "$run"; done
+
+  rate=$(awk -v r="$sat_rps" 'BEGIN {printf "%.1f", r / 2}')
+  log "load: run $run of $RUNS, $rate requests/s (half of Tessera's saturation in this run), ${half_s}s each"
+  if [ $((run % 2)) = 1 ]; then half=(tessera oha); else half=(oha tessera); fi
+  for t in "${half[@]}"; do "half_$t" "$run" "$rate"; done
 done
