@@ -30,7 +30,7 @@ for s in "${sections[@]}"; do
       rm -f "$keep/synth.tess" ;;
     serve) rm -f "$RESULTS/load.jsonl"; bench/serve.sh ;;
     # Issue 18: tessera load --record, then --replay against wrk and oha.
-    load) rm -f "$RESULTS/loadreplay.jsonl" "$RESULTS/loadreplay_record.json"; bench/load.sh ;;
+    load) rm -f "$RESULTS"/loadreplay{.jsonl,_record.json,_trace.jsonl}; bench/load.sh ;;
     # terrain writes terrain_mesh.jsonl and terrain_serve.jsonl, each replaced only by
     # the part that runs (TERRAIN_MESH=0 or TERRAIN_SERVE=0 keeps the other's).
     stream | policy | gonzalez | ingest | webtiles | terrain | upload | popping) "bench/$s.sh" ;;

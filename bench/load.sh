@@ -17,8 +17,8 @@
 # Appends to $RESULTS/loadreplay.jsonl {tool, phase, run, connections, seconds,
 # requests_per_s, tiles_per_s, latency_ms_p50, latency_ms_p99, latency_ms_p999,
 # latency_from, target_rate, rate_held, errors, tool_cpu_s, trace_requests,
-# trace_mean_tiles}; the trace's own figures (the recording clients' report) go to
-# $RESULTS/loadreplay_record.json.
+# trace_mean_tiles}; the recording clients' report goes to
+# $RESULTS/loadreplay_record.json and the replayed requests to loadreplay_trace.jsonl.
 # oha: $OHA, else `oha` on PATH, else ~/.cache/tessera/oha/bin/oha (`./run bench`
 # installs it); without it the oha rows are skipped (the report says so).
 source "$(dirname "$0")/common.sh"
@@ -54,6 +54,7 @@ cp "$WORK/record.json" "$RESULTS/loadreplay_record.json"
   head -n1 "$WORK/trace.jsonl"
   tail -n +2 "$WORK/trace.jsonl" | jq -c 'select(.expect != null and .expect.status == 200)'
 } > "$WORK/replay.jsonl"
+cp "$WORK/replay.jsonl" "$RESULTS/loadreplay_trace.jsonl"
 tail -n +2 "$WORK/replay.jsonl" | jq -r .target > "$WORK/targets.txt"
 sed "s|^|$url|" "$WORK/targets.txt" > "$WORK/urls.txt"
 n=$(wc -l < "$WORK/targets.txt")
