@@ -45,24 +45,24 @@ enum Command {
     Load {
         #[command(flatten)]
         source: LoadSourceArgs,
-        #[arg(long, default_value_t = 16)]
+        #[arg(long, default_value_t = 16, conflicts_with = "replay")]
         clients: u32,
         /// How long, e.g. 30s, 2m.
         #[arg(long, default_value = "30s", value_parser = parse_duration)]
         duration: std::time::Duration,
         /// Request Morton-range batches, or one tile per request.
-        #[arg(long, value_enum, default_value_t = Mode::Ranges)]
+        #[arg(long, value_enum, default_value_t = Mode::Ranges, conflicts_with = "replay")]
         mode: Mode,
         /// Simulated frames per second per client.
-        #[arg(long, default_value_t = 30.0)]
+        #[arg(long, default_value_t = 30.0, conflicts_with = "replay")]
         fps: f64,
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, default_value_t = 1.0, conflicts_with = "replay")]
         tau: f64,
-        #[arg(long, default_value = "1280x720")]
+        #[arg(long, default_value = "1280x720", conflicts_with = "replay")]
         viewport: String,
         /// Metres between samples, east–west and north–south alike (default: the dataset's
         /// ground spacing, measured by the server for each axis; else 100).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "replay")]
         spacing: Option<f64>,
         /// Also write the clients' requests to TRACE (JSON Lines, FORMAT.md "Request
         /// traces"), with each completed answer's status, tiles, bytes and digest,
