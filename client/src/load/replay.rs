@@ -368,7 +368,9 @@ async fn run(
     };
     if let Some(p) = progress {
         p.abort();
-        if shared.start.elapsed() >= Duration::from_secs(1) {
+        if shared.start.elapsed() >= Duration::from_secs(1)
+            && std::io::IsTerminal::is_terminal(&std::io::stderr())
+        {
             // End the progress line.
             eprintln!();
         }
@@ -565,6 +567,12 @@ async fn progress_line(shared: Arc<Shared>) {
     );
     let mut last_tiles = 0u64;
     let mut last_at = shared.start;
+    // On a terminal the line is rewritten in place; in a log, one line per second.
+    let (start, end) = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        ("\r", "   ")
+    } else {
+        ("", "\n")
+    };
     loop {
         let now = tick.tick().await;
         let tiles = shared.tiles.load(Relaxed);
@@ -574,7 +582,7 @@ async fn progress_line(shared: Arc<Shared>) {
             .lock()
             .map_or(0.0, |r| r.corrected.quantile_ms(0.99));
         eprint!(
-            "\r{:>5.0} s  sent {}  done {}  {:.0} tiles/s  p99 {:.2} ms  errors {}   ",
+            "{start}{:>5.0} s  sent {}  done {}  {:.0} tiles/s  p99 {:.2} ms  errors {}{end}",
             (now - shared.start).as_secs_f64(),
             shared.sent.load(Relaxed),
             shared.completed.load(Relaxed),
