@@ -47,7 +47,8 @@ enum Command {
         source: LoadSourceArgs,
         #[arg(long, default_value_t = 16, conflicts_with = "replay")]
         clients: u32,
-        /// How long, e.g. 30s, 2m.
+        /// How long, e.g. 30s, 2m (with --replay: how long --rate N or --rate max
+        /// runs; a recorded replay or a --ramp takes as long as it takes).
         #[arg(long, default_value = "30s", value_parser = parse_duration)]
         duration: std::time::Duration,
         /// Request Morton-range batches, or one tile per request.
