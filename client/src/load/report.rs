@@ -790,6 +790,30 @@ mod tests {
     }
 
     #[test]
+    fn out_dir_gets_both_files_and_reads_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("shard-0");
+        let r = report("0/1", 9, 600, 3);
+        r.write_dir(&out).unwrap();
+        // (Through JSON, as any reader sees it: serde_json's float parsing may differ
+        // from the f64 written in the last bit.)
+        let through_json =
+            ReplayReport::from_json(&serde_json::to_string_pretty(&r).unwrap()).unwrap();
+        assert_eq!(
+            ReplayReport::read(&out.join("load.json")).unwrap(),
+            through_json
+        );
+        assert!(out.join("latency.png").is_file());
+        // Only the two files: no temporary left behind.
+        assert_eq!(std::fs::read_dir(&out).unwrap().count(), 2);
+        // A directory that cannot be made is an error naming it.
+        let file = dir.path().join("a-file");
+        std::fs::write(&file, b"x").unwrap();
+        let e = format!("{:#}", r.write_dir(&file).unwrap_err());
+        assert!(e.contains("a-file"), "{e}");
+    }
+
+    #[test]
     fn rate_held_needs_the_rate_and_no_backlog() {
         assert!(rate_held(100.0, 1000, 10.0, 0, 1000));
         assert!(rate_held(100.0, 950, 10.0, 10, 1000));
