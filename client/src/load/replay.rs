@@ -674,6 +674,34 @@ mod tests {
     }
 
     #[test]
+    fn requests_start_on_schedule_whether_or_not_earlier_ones_finished() {
+        // The same silent server, but connections to spare: the open model sends
+        // every request at its instant although none is ever answered.
+        let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = silent.local_addr().unwrap().port();
+        let mut opts = ReplayOptions::new(trace(&format!("http://127.0.0.1:{port}")));
+        opts.pacing = Pacing::Constant {
+            rate: super::super::schedule::Rate::new(20.0).unwrap(),
+            duration: Duration::from_millis(500),
+        };
+        opts.connections = 16;
+        opts.timeout = Duration::from_millis(300);
+        let r = replay(&opts).unwrap();
+        drop(silent);
+        assert_eq!((r.scheduled, r.sent, r.completed), (10, 10, 0));
+        assert_eq!(r.errors.timeout, 10);
+        // Waiting for answers, only 2 could have gone out by the end of the schedule
+        // (0.5 s) and the run would last 10 × 300 ms; on schedule, all are out by
+        // 0.45 s (a little slack for a loaded machine) and the run ends one timeout
+        // after the last send.
+        assert!(r.backlog <= 3, "backlog {}", r.backlog);
+        assert!(r.timeline[0].sent >= 7, "{:?}", r.timeline[0]);
+        assert!(r.seconds < 2.5, "{}", r.seconds);
+        // Nothing was answered: the rate was not held even though nothing fell behind.
+        assert_eq!(r.rate_held, Some(false));
+    }
+
+    #[test]
     fn a_bad_server_url_names_the_request() {
         let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
         opts.server = Some("not a url".into());
