@@ -13,10 +13,10 @@
 //! The full-client mode (many simulated clients flying through the real selection and
 //! streaming code) is [`crate::app::load_test`].
 
-pub mod cpu;
-pub mod record;
 pub mod check;
+pub mod cpu;
 pub mod latency_plot;
+pub mod record;
 pub mod replay;
 pub mod report;
 pub mod schedule;
