@@ -472,26 +472,10 @@ enum Mode {
     Single,
 }
 
-/// Parses `30s`, `2m`, `1500ms` or plain seconds.
+/// Parses `30s`, `2m`, `1500ms` or plain seconds (clap's value parser).
 fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
-    let t = s.trim();
-    let (num, mult) = if let Some(n) = t.strip_suffix("ms") {
-        (n, 1e-3)
-    } else if let Some(n) = t.strip_suffix('s') {
-        (n, 1.0)
-    } else if let Some(n) = t.strip_suffix('m') {
-        (n, 60.0)
-    } else {
-        (t, 1.0)
-    };
-    let v: f64 = num
-        .trim()
-        .parse()
-        .map_err(|_| format!("{s:?} is not a duration like 30s"))?;
-    if !(v.is_finite() && v > 0.0) {
-        return Err(format!("{s:?} must be positive"));
-    }
-    Ok(std::time::Duration::from_secs_f64(v * mult))
+    tessera_client::load::schedule::parse_duration(s)
+        .ok_or_else(|| format!("{s:?} is not a positive duration like 30s, 2m or 1500ms"))
 }
 
 fn parse_viewport(v: &str) -> anyhow::Result<(u32, u32)> {

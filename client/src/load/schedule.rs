@@ -117,8 +117,9 @@ pub enum ScheduleError {
     Empty,
 }
 
-/// Parses `30s`, `2m`, `1500ms` or plain seconds (as the CLI's `--duration`).
-fn parse_duration(s: &str) -> Option<Duration> {
+/// Parses `30s`, `2m`, `1500ms` or plain seconds: the CLI's durations (`--duration`,
+/// `--timeout`) and ramp stages. `None` unless positive and finite.
+pub fn parse_duration(s: &str) -> Option<Duration> {
     let t = s.trim();
     let (num, mult) = if let Some(n) = t.strip_suffix("ms") {
         (n, 1e-3)
