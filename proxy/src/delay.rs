@@ -73,24 +73,9 @@ pub(crate) async fn relay_delayed(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{get, http_upstream, pattern, read_response, response};
+    use crate::testing::{get, http_upstream, pattern, read_response, response, until_held};
     use crate::{Stats, delaying};
-    use std::time::Instant;
     use tokio::net::TcpStream;
-
-    /// Waits (without a deadline that could fail a correct proxy on a slow machine:
-    /// a minute) until the proxy has counted `n` holds.
-    async fn until_held(proxy: &crate::Proxy, n: u64) {
-        let started = Instant::now();
-        while proxy.stats().held < n {
-            assert!(
-                started.elapsed() < Duration::from_secs(60),
-                "{:?}: never held {n} responses",
-                proxy.stats()
-            );
-            tokio::time::sleep(Duration::from_millis(2)).await;
-        }
-    }
 
     /// The response has reached the proxy (its hold has begun, and the upstream has
     /// seen the request) and not one byte of it has reached the client.

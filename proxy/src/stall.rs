@@ -79,25 +79,11 @@ pub(crate) async fn relay_stalled(
 mod tests {
     use super::*;
     use crate::stalling;
-    use crate::testing::{get, http_upstream, pattern, read_response, response};
+    use crate::testing::{get, http_upstream, pattern, read_response, response, until_held};
     use tokio::io::BufReader;
     use tokio::net::TcpStream;
 
     const DAY: Duration = Duration::from_secs(24 * 3600);
-
-    /// Waits (a minute at most, a bound no correct proxy comes near) until the proxy
-    /// has counted `n` holds.
-    async fn until_held(proxy: &crate::Proxy, n: u64) {
-        let started = std::time::Instant::now();
-        while proxy.stats().held < n {
-            assert!(
-                started.elapsed() < Duration::from_secs(60),
-                "{:?}: never held {n} times",
-                proxy.stats()
-            );
-            tokio::time::sleep(Duration::from_millis(2)).await;
-        }
-    }
 
     /// A request during the stall: its response has reached the proxy (the hold has
     /// begun, the upstream has seen the request) and not one byte of it reaches the

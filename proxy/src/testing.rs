@@ -118,3 +118,17 @@ pub(crate) async fn read_response(r: &mut (impl AsyncBufRead + Unpin)) -> (Strin
     r.read_exact(&mut body).await.unwrap();
     (head, body)
 }
+
+/// Waits (a minute at most: a bound no correct proxy comes near, and no deadline
+/// that could fail one on a slow machine) until `proxy` has counted `n` holds.
+pub(crate) async fn until_held(proxy: &crate::Proxy, n: u64) {
+    let started = std::time::Instant::now();
+    while proxy.stats().held < n {
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(60),
+            "{:?}: never held {n} times",
+            proxy.stats()
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(2)).await;
+    }
+}

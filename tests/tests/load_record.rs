@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use streaming_support::start_server_for;
 use tessera_client::app::load_test::{LoadOptions, load};
 use tessera_client::load::trace::{RequestKind, StreamDigest, Trace, body_digest};
-use tessera_client::stream::{OpenArgs, RequestMode, TileSource};
+use tessera_client::stream::TileSource;
 use tessera_server::build::{BuildOptions, build};
 use tessera_shared::wire::{Frame, FrameDecoder};
 
@@ -34,18 +34,8 @@ fn moon(dir: &Path) -> Option<PathBuf> {
 
 fn options(source: TileSource, clients: u32, seconds: u64, record: PathBuf) -> LoadOptions {
     LoadOptions {
-        source,
-        clients,
-        duration: Duration::from_secs(seconds),
-        mode: RequestMode::Ranges,
-        fps: 30.0,
-        tau: 1.0,
-        width: 1280,
-        height: 720,
-        spacing: None,
-        progress: false,
-        open: OpenArgs::default(),
         record: Some(record),
+        ..LoadOptions::new(source, clients, Duration::from_secs(seconds))
     }
 }
 

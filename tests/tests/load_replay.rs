@@ -30,7 +30,7 @@ use tessera_client::load::replay::{ReplayOptions, replay};
 use tessera_client::load::report::{ReplayReport, merge};
 use tessera_client::load::schedule::{Pacing, Rate};
 use tessera_client::load::trace::{Shard, Trace};
-use tessera_client::stream::{OpenArgs, RequestMode, TileSource};
+use tessera_client::stream::TileSource;
 use tessera_proxy::{Damage, Faults, Recurrence, Stall};
 use tessera_server::build::{BuildOptions, build};
 
@@ -61,18 +61,12 @@ fn recording() -> Option<&'static Recording> {
         let (server, task) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &pyramid);
         let path = dir.path().join("moon.trace.jsonl");
         load(&LoadOptions {
-            source: TileSource::server(format!("http://{server}"), "moon"),
-            clients: 8,
-            duration: Duration::from_secs(4),
-            mode: RequestMode::Ranges,
-            fps: 30.0,
-            tau: 1.0,
-            width: 1280,
-            height: 720,
-            spacing: None,
-            progress: false,
-            open: OpenArgs::default(),
             record: Some(path.clone()),
+            ..LoadOptions::new(
+                TileSource::server(format!("http://{server}"), "moon"),
+                8,
+                Duration::from_secs(4),
+            )
         })
         .unwrap();
         task.abort();

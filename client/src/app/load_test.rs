@@ -39,6 +39,28 @@ pub struct LoadOptions {
     pub record: Option<PathBuf>,
 }
 
+impl LoadOptions {
+    /// `clients` flying over `source` for `duration` with the CLI's defaults: range
+    /// requests, 30 fps, τ = 1 px, 1280×720, the dataset's spacing, no progress line,
+    /// no recording.
+    pub fn new(source: TileSource, clients: u32, duration: Duration) -> Self {
+        Self {
+            source,
+            clients,
+            duration,
+            mode: RequestMode::Ranges,
+            fps: 30.0,
+            tau: 1.0,
+            width: 1280,
+            height: 720,
+            spacing: None,
+            progress: false,
+            open: crate::stream::OpenArgs::default(),
+            record: None,
+        }
+    }
+}
+
 /// What the clients saw, together.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct LoadReport {
