@@ -13,6 +13,7 @@ pub mod bootstrap;
 pub mod codec;
 pub mod error_table;
 pub mod format;
+pub mod frame_scan;
 pub mod fuzzing;
 pub mod imagery;
 pub mod mask;

@@ -16,10 +16,10 @@ pub const FRAME_HEADER_LEN: usize = 32;
 /// Largest payload a decoder accepts (a 4096-cell tile is ~33 MiB raw).
 pub const MAX_PAYLOAD: usize = 64 << 20;
 
-const KIND_TILE: u8 = 0;
-const KIND_ERROR: u8 = 1;
-const KIND_TRAILER: u8 = 2;
-const KIND_ERROR_TABLE: u8 = 3;
+pub(crate) const KIND_TILE: u8 = 0;
+pub(crate) const KIND_ERROR: u8 = 1;
+pub(crate) const KIND_TRAILER: u8 = 2;
+pub(crate) const KIND_ERROR_TABLE: u8 = 3;
 
 /// One decoded frame.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -168,67 +168,57 @@ pub enum WireError {
     Truncated(String),
 }
 
-/// Incremental decoder: feed bytes as they arrive, take frames as they complete.
-#[derive(Debug, Default)]
-pub struct FrameDecoder {
-    buf: Vec<u8>,
-    frames: usize,
-    done: bool,
+/// The fields of a frame header (API.md "Frame stream"), its length checked against
+/// [`MAX_PAYLOAD`]; shared by [`FrameDecoder`] and [`crate::frame_scan`], so that
+/// both refuse exactly the same streams.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Header {
+    pub(crate) len: usize,
+    pub(crate) kind: u8,
+    pub(crate) level_raw: u8,
+    pub(crate) a: u64,
+    pub(crate) b: u64,
+    min: u16,
+    max: u16,
 }
 
-fn u64_at(b: &[u8], at: usize) -> u64 {
-    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
-}
-
-impl FrameDecoder {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Appends received bytes.
-    pub fn push(&mut self, bytes: &[u8]) {
-        self.buf.extend_from_slice(bytes);
-    }
-
-    /// Whether the trailer has been decoded.
-    pub fn is_done(&self) -> bool {
-        self.done
-    }
-
-    /// The next complete frame, `Ok(None)` if more bytes are needed.
-    pub fn next_frame(&mut self) -> Result<Option<Frame>, WireError> {
-        if self.buf.len() < FRAME_HEADER_LEN {
-            if self.done && !self.buf.is_empty() {
-                return Err(WireError::AfterTrailer);
-            }
-            return Ok(None);
-        }
-        if self.done {
-            return Err(WireError::AfterTrailer);
-        }
-        let index = self.frames;
-        let h = &self.buf[..FRAME_HEADER_LEN];
+impl Header {
+    /// Parses the 32 header bytes of frame `index`.
+    pub(crate) fn parse(index: usize, h: &[u8]) -> Result<Self, WireError> {
         let len = u32::from_le_bytes([h[0], h[1], h[2], h[3]]) as usize;
         if len > MAX_PAYLOAD {
             return Err(WireError::TooLong { index, len });
         }
-        if self.buf.len() < FRAME_HEADER_LEN + len {
-            return Ok(None);
-        }
-        let (kind, level_raw) = (h[4], h[5]);
+        Ok(Self {
+            len,
+            kind: h[4],
+            level_raw: h[5],
+            a: u64_at(h, 8),
+            b: u64_at(h, 16),
+            min: u16::from_le_bytes([h[24], h[25]]),
+            max: u16::from_le_bytes([h[26], h[27]]),
+        })
+    }
+
+    /// The frame this header and its whole `payload` make, checked: the level, the
+    /// kind, a tile's (or error table's) checksum, an error message's UTF-8, a
+    /// trailer's ranges.
+    pub(crate) fn frame(&self, index: usize, payload: Vec<u8>) -> Result<Frame, WireError> {
+        let Self {
+            kind,
+            level_raw,
+            a,
+            b,
+            min,
+            max,
+            ..
+        } = *self;
         let level = Level::new(level_raw).ok_or(WireError::Level {
             index,
             level: level_raw,
         })?;
-        let (a, b) = (u64_at(h, 8), u64_at(h, 16));
-        let (min, max) = (
-            u16::from_le_bytes([h[24], h[25]]),
-            u16::from_le_bytes([h[26], h[27]]),
-        );
-        let payload: Vec<u8> = self.buf[FRAME_HEADER_LEN..FRAME_HEADER_LEN + len].to_vec();
-        self.buf.drain(..FRAME_HEADER_LEN + len);
-        self.frames += 1;
-        let frame = match kind {
+        let len = payload.len();
+        Ok(match kind {
             KIND_TILE => {
                 if format::checksum(&payload) != b {
                     return Err(WireError::Checksum {
@@ -290,7 +280,6 @@ impl FrameDecoder {
                         index,
                         what: "trailer range",
                     })?;
-                self.done = true;
                 Frame::Trailer {
                     tiles: a,
                     errors: b,
@@ -298,7 +287,61 @@ impl FrameDecoder {
                 }
             }
             kind => return Err(WireError::Kind { index, kind }),
-        };
+        })
+    }
+}
+
+/// Incremental decoder: feed bytes as they arrive, take frames as they complete.
+#[derive(Debug, Default)]
+pub struct FrameDecoder {
+    buf: Vec<u8>,
+    frames: usize,
+    done: bool,
+}
+
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+
+impl FrameDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Appends received bytes.
+    pub fn push(&mut self, bytes: &[u8]) {
+        self.buf.extend_from_slice(bytes);
+    }
+
+    /// Whether the trailer has been decoded.
+    pub fn is_done(&self) -> bool {
+        self.done
+    }
+
+    /// The next complete frame, `Ok(None)` if more bytes are needed.
+    pub fn next_frame(&mut self) -> Result<Option<Frame>, WireError> {
+        if self.buf.len() < FRAME_HEADER_LEN {
+            if self.done && !self.buf.is_empty() {
+                return Err(WireError::AfterTrailer);
+            }
+            return Ok(None);
+        }
+        if self.done {
+            return Err(WireError::AfterTrailer);
+        }
+        let index = self.frames;
+        let header = Header::parse(index, &self.buf[..FRAME_HEADER_LEN])?;
+        let len = header.len;
+        if self.buf.len() < FRAME_HEADER_LEN + len {
+            return Ok(None);
+        }
+        let payload: Vec<u8> = self.buf[FRAME_HEADER_LEN..FRAME_HEADER_LEN + len].to_vec();
+        self.buf.drain(..FRAME_HEADER_LEN + len);
+        self.frames += 1;
+        let frame = header.frame(index, payload)?;
+        if matches!(frame, Frame::Trailer { .. }) {
+            self.done = true;
+        }
         Ok(Some(frame))
     }
 

@@ -1,11 +1,14 @@
 //! Checking one replayed answer against what was recorded (issue 18), as the body
 //! arrives, without decoding a tile: frame streams go through the shared
-//! [`FrameDecoder`] (which verifies every frame's checksum) and a [`StreamDigest`];
-//! other bodies through an incremental XXH3 equal to [`body_digest`](super::trace::body_digest).
+//! [`FrameScanner`] (which verifies every frame's checksum as the bytes stream past,
+//! refusing exactly what the shared `FrameDecoder` refuses, without copying a record)
+//! and a [`StreamDigest`]; other bodies through an incremental XXH3 equal to
+//! [`body_digest`](super::trace::body_digest).
 
 use super::trace::{Expect, StreamDigest};
 use serde::{Deserialize, Serialize};
-use tessera_shared::wire::{FRAME_HEADER_LEN, Frame, FrameDecoder, MAX_PAYLOAD, WireError};
+use tessera_shared::frame_scan::{FrameScanner, Scanned};
+use tessera_shared::wire::{Frame, WireError};
 
 /// What went wrong with a request, as the report's `errors` keys name it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -74,11 +77,10 @@ pub struct Check<'a> {
 }
 
 enum Body {
-    /// A frame stream being decoded.
+    /// A frame stream being verified.
     Frames {
-        decoder: FrameDecoder,
+        scanner: FrameScanner,
         digest: StreamDigest,
-        cut: FrameCut,
     },
     /// Any other body, hashed as a whole.
     Other(Box<xxhash_rust::xxh3::Xxh3>),
@@ -89,71 +91,15 @@ enum Body {
 impl std::fmt::Debug for Body {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Frames {
-                decoder, digest, ..
-            } => f
+            Self::Frames { scanner, digest } => f
                 .debug_struct("Frames")
-                .field("decoder", decoder)
+                .field("scanner", scanner)
                 .field("digest", digest)
                 .finish(),
             // The hasher's state is not worth printing.
             Self::Other(_) => f.write_str("Other"),
             Self::Ignored => f.write_str("Ignored"),
         }
-    }
-}
-
-/// Where the frames of a stream end, from their headers' length field (API.md "Frame
-/// stream": a 32-byte header whose first 4 bytes are the payload length, little
-/// endian). [`FrameDecoder`] drains each frame from the front of its buffer, moving
-/// whatever follows it; fed exactly one frame at a time, it moves nothing, and the
-/// replay's check costs one copy of each byte fewer.
-#[derive(Debug, Default)]
-struct FrameCut {
-    /// Header bytes seen of the current frame (up to [`FRAME_HEADER_LEN`]).
-    header: [u8; FRAME_HEADER_LEN],
-    have: usize,
-    /// Payload bytes still to come, once the header is complete.
-    left: usize,
-}
-
-impl FrameCut {
-    /// The front of `bytes` that belongs to the current frame, and whether it
-    /// completes it.
-    fn take<'b>(&mut self, bytes: &'b [u8]) -> (&'b [u8], bool) {
-        if self.have < FRAME_HEADER_LEN {
-            let n = (FRAME_HEADER_LEN - self.have).min(bytes.len());
-            self.header[self.have..self.have + n].copy_from_slice(&bytes[..n]);
-            self.have += n;
-            if self.have < FRAME_HEADER_LEN {
-                return (&bytes[..n], false);
-            }
-            let len = u32::from_le_bytes([
-                self.header[0],
-                self.header[1],
-                self.header[2],
-                self.header[3],
-            ]);
-            // A length over the decoder's limit completes the frame at its header, so
-            // the decoder refuses it (TooLong) without waiting for the payload.
-            self.left = if len as usize > MAX_PAYLOAD {
-                0
-            } else {
-                len as usize
-            };
-            if self.left == 0 {
-                self.have = 0;
-                return (&bytes[..n], true);
-            }
-            return (&bytes[..n], false);
-        }
-        let n = self.left.min(bytes.len());
-        self.left -= n;
-        let complete = self.left == 0;
-        if complete {
-            self.have = 0;
-        }
-        (&bytes[..n], complete)
     }
 }
 
@@ -171,9 +117,8 @@ impl<'a> Check<'a> {
             Body::Ignored
         } else if frame_stream {
             Body::Frames {
-                decoder: FrameDecoder::new(),
+                scanner: FrameScanner::new(),
                 digest: StreamDigest::new(),
-                cut: FrameCut::default(),
             }
         } else {
             Body::Other(Box::default())
@@ -198,34 +143,22 @@ impl<'a> Check<'a> {
             return;
         }
         match &mut self.body {
-            Body::Frames {
-                decoder,
-                digest,
-                cut,
-            } => {
-                // The decoder gets the body a frame at a time (see FrameCut), so it
-                // never holds bytes past the frame it is completing.
-                let mut rest = chunk;
-                while !rest.is_empty() {
-                    let (piece, complete) = cut.take(rest);
-                    rest = &rest[piece.len()..];
-                    decoder.push(piece);
-                    if !complete {
-                        continue;
-                    }
-                    match decoder.next_frame() {
-                        Ok(Some(Frame::Error { .. })) => {
-                            self.error = Some(ErrorKind::Corrupt);
-                            return;
-                        }
-                        Ok(Some(f)) => digest.push(&f),
-                        // A complete frame always decodes; None cannot happen.
-                        Ok(None) => {}
-                        Err(e) => {
-                            self.error = Some(classify(&e));
-                            return;
-                        }
-                    }
+            Body::Frames { scanner, digest } => {
+                let mut server_error = false;
+                let scanned = scanner.push(chunk, |f| match f {
+                    Scanned::Tile {
+                        level,
+                        morton,
+                        checksum,
+                        ..
+                    } => digest.push_tile(level, morton, checksum),
+                    Scanned::Frame(Frame::Error { .. }) => server_error = true,
+                    Scanned::ErrorTable { .. } | Scanned::Frame(_) => {}
+                });
+                if let Err(e) = scanned {
+                    self.error = Some(classify(&e));
+                } else if server_error {
+                    self.error = Some(ErrorKind::Corrupt);
                 }
             }
             Body::Other(h) => h.update(chunk),
@@ -256,8 +189,8 @@ impl<'a> Check<'a> {
         if self.error.is_none() {
             self.error = match (&self.body, self.expect) {
                 // Bytes left over after the trailer are not a cut stream but a bad one.
-                (Body::Frames { decoder, .. }, _) if decoder.finish().is_err() => {
-                    Some(if decoder.is_done() {
+                (Body::Frames { scanner, .. }, _) if scanner.finish().is_err() => {
+                    Some(if scanner.is_done() {
                         ErrorKind::Corrupt
                     } else {
                         ErrorKind::Truncated

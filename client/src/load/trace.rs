@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};
 use std::path::Path;
 use tessera_shared::wire::Frame;
+use tessera_shared::{Level, Morton};
 
 /// The `tessera_trace` value of the traces this build writes and reads.
 pub const TRACE_VERSION: u32 = 1;
@@ -293,14 +294,20 @@ impl StreamDigest {
             ..
         } = frame
         {
-            let mut b = [0u8; 25];
-            b[..8].copy_from_slice(&self.state.to_le_bytes());
-            b[8] = level.get();
-            b[9..17].copy_from_slice(&morton.get().to_le_bytes());
-            b[17..25].copy_from_slice(&checksum.to_le_bytes());
-            self.state = xxhash_rust::xxh3::xxh3_64(&b);
-            self.tiles += 1;
+            self.push_tile(*level, *morton, *checksum);
         }
+    }
+
+    /// Adds a tile frame by its header's fields (what a
+    /// [`FrameScanner`](tessera_shared::frame_scan::FrameScanner) reports).
+    pub fn push_tile(&mut self, level: Level, morton: Morton, checksum: u64) {
+        let mut b = [0u8; 25];
+        b[..8].copy_from_slice(&self.state.to_le_bytes());
+        b[8] = level.get();
+        b[9..17].copy_from_slice(&morton.get().to_le_bytes());
+        b[17..25].copy_from_slice(&checksum.to_le_bytes());
+        self.state = xxhash_rust::xxh3::xxh3_64(&b);
+        self.tiles += 1;
     }
 
     pub fn tiles(&self) -> u32 {
