@@ -91,15 +91,18 @@ fn read_pyramid(data: Vec<u8>) -> Result<usize, ReadError> {
 
 /// Decodes `data` as a tile stream twice: whole ([`wire::decode_all`]) and
 /// incrementally, fed in pieces whose size the first byte chooses (as a client
-/// receives it). The second pass also runs on a copy whose tile and error-table
+/// receives it), and verifies it with the streaming scanner, which must agree with
+/// the decoder. The incremental pass also runs on a copy whose tile and error-table
 /// checksums are recomputed, so that mutated payloads get past the checksum.
 /// Returns the number of frames of the whole-stream decode.
 pub fn wire(data: &[u8]) -> Result<usize, WireError> {
     let piece = data.first().map_or(1, |&b| usize::from(b) + 1);
     let incremental = decode_in_pieces(data, piece);
+    scan_agrees(data, piece, &incremental);
     let fixed = with_frame_checksums(data);
     if fixed != data {
-        let _ = decode_in_pieces(&fixed, piece);
+        let decoded = decode_in_pieces(&fixed, piece);
+        scan_agrees(&fixed, piece, &decoded);
     }
     let whole = wire::decode_all(data);
     // Both ways of decoding must agree on every stream.
@@ -110,6 +113,23 @@ pub fn wire(data: &[u8]) -> Result<usize, WireError> {
         (Err(_), Err(_)) => {}
     }
     whole.map(|frames| frames.len())
+}
+
+/// The streaming verifier ([`crate::frame_scan::FrameScanner`]) must refuse exactly
+/// what the decoder refuses, with the same error, and pass the same frames.
+fn scan_agrees(data: &[u8], piece: usize, decoded: &Result<Vec<Frame>, WireError>) {
+    let mut scanner = crate::frame_scan::FrameScanner::new();
+    let mut frames = 0usize;
+    let scanned = data
+        .chunks(piece)
+        .try_for_each(|c| scanner.push(c, |_| frames += 1))
+        .and_then(|()| scanner.finish());
+    match (decoded, scanned) {
+        (Ok(f), Ok(())) => assert_eq!(f.len(), frames, "scanner and decoder count differ"),
+        (Err(a), Err(b)) => assert_eq!(*a, b, "scanner and decoder refuse differently"),
+        (Ok(_), Err(e)) => panic!("the decoder accepts what the scanner refuses: {e}"),
+        (Err(e), Ok(())) => panic!("the scanner accepts what the decoder refuses: {e}"),
+    }
 }
 
 fn decode_in_pieces(data: &[u8], piece: usize) -> Result<Vec<Frame>, WireError> {
