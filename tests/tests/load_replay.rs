@@ -38,7 +38,7 @@ use tessera_server::build::{BuildOptions, build};
 /// recorded once per test binary; `None` when the DEM is not there
 /// (`testdata::dem_or_skip` says so).
 struct Recording {
-    _dir: tempfile::TempDir,
+    dir: tempfile::TempDir,
     pyramid: PathBuf,
     trace: Trace,
 }
@@ -83,7 +83,7 @@ fn recording() -> Option<&'static Recording> {
             trace.requests.len()
         );
         Some(Recording {
-            _dir: dir,
+            dir,
             pyramid,
             trace,
         })
@@ -301,4 +301,41 @@ fn merged_shards_equal_one_process() {
     };
     assert_eq!(count(&merged), count(&whole));
     assert_eq!(count(&whole).0, whole.completed);
+}
+
+/// A trace of one tile per request (`tessera load --mode single`) replays with its
+/// tiles counted: one per record answered as recorded (its body is the record, not a
+/// frame stream), none for a tile recorded absent (404).
+#[test]
+fn single_tile_requests_count_as_tiles() {
+    let Some(rec) = recording() else { return };
+    let _one = one_at_a_time();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let front = server(&rt, rec);
+    let path = rec.dir.path().join("single.trace.jsonl");
+    load(&LoadOptions {
+        record: Some(path.clone()),
+        mode: tessera_client::stream::RequestMode::Single,
+        ..LoadOptions::new(
+            TileSource::server(format!("http://{front}"), "moon"),
+            2,
+            Duration::from_secs(2),
+        )
+    })
+    .unwrap();
+    let trace = Trace::read(&path).unwrap();
+    let records = trace
+        .requests
+        .iter()
+        .filter(|r| {
+            r.kind == tessera_client::load::trace::RequestKind::Tile
+                && r.expect.as_ref().is_some_and(|e| e.status == 200)
+        })
+        .count();
+    assert!(records >= 10, "only {records} single tiles recorded");
+    let mut opts = ReplayOptions::new(trace);
+    opts.server = Some(format!("http://{front}"));
+    let r = replay(&opts).unwrap();
+    assert_eq!(r.errors.total(), 0, "{:?}", r.errors);
+    assert_eq!(r.tiles, records as u64);
 }

@@ -28,7 +28,7 @@ use super::report::{
     ErrorCounts, Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
 };
 use super::schedule::{Pacing, Schedule};
-use super::trace::{Expect, Shard, Trace};
+use super::trace::{Expect, RequestKind, Shard, Trace};
 use anyhow::Context;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
@@ -91,6 +91,10 @@ struct Prepared {
     url: reqwest::Url,
     expect: Option<Expect>,
     frames: bool,
+    /// A single tile's record recorded as a 200 (`--mode single`): one tile when it
+    /// comes back as recorded (its body is not a frame stream, so the check counts
+    /// no frames).
+    one_tile: bool,
 }
 
 /// State shared by the scheduler, the request tasks and the progress line.
@@ -252,6 +256,10 @@ impl Shared {
                 }
             }
         };
+        let mut outcome = outcome;
+        if req.one_tile && outcome.error.is_none() {
+            outcome.tiles = 1;
+        }
         let done = Instant::now();
         if let Some(idle) = &self.idle {
             idle.lock().expect("idle connections lock").push_back(slot);
@@ -329,6 +337,8 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<ReplayReport> {
                 })?,
                 expect: r.expect.clone(),
                 frames: r.kind.is_frame_stream(),
+                one_tile: r.kind == RequestKind::Tile
+                    && r.expect.as_ref().is_some_and(|e| e.status == 200),
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
