@@ -15,7 +15,7 @@
 //! millisecond to every corrected latency.
 //!
 //! **Cheap per request**, so that one core drives the server as hard as `wrk` does: no
-//! selection and no record decoding, only the shared frame decoder's checksum
+//! selection and no record decoding, only the shared frame scanner's checksum
 //! verification; request URLs are parsed once up front; one small task per request;
 //! a current-thread runtime unless `threads` > 1.
 //!
