@@ -12,6 +12,8 @@
 //! drops tiles behind the limb ([`horizon`]).
 
 pub mod ellipsoid;
+#[cfg(test)]
+pub(crate) mod fixtures;
 pub mod frame;
 pub mod grid;
 pub mod horizon;

@@ -95,38 +95,12 @@ pub fn exact_relative(globe: &Globe, eye: &EyeFrame, x: f64, y: f64, h: f64) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::globe::ellipsoid::Ellipsoid;
+    use crate::globe::fixtures::moon;
     use crate::globe::grid::LonLatGrid;
     use glam::DVec2;
 
-    /// The moon 8192² grid (1/256°, from 43°E, 32.99°N) on its sphere.
-    fn moon() -> Globe {
-        Globe {
-            ellipsoid: Ellipsoid::new(1_737_400.0, 1_737_400.0).unwrap(),
-            grid: LonLatGrid {
-                lon0: 43.0 + 0.5 / 256.0,
-                dlon: 1.0 / 256.0,
-                lat0: 32.992_187_5 - 0.5 / 256.0,
-                dlat: -1.0 / 256.0,
-            },
-            spacing: DVec2::new(113.0, 118.45),
-            min_height: -5547.0,
-        }
-    }
-
-    /// N46E008 on WGS 84 (3″).
     fn alps() -> Globe {
-        Globe {
-            ellipsoid: Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap(),
-            grid: LonLatGrid {
-                lon0: 8.0,
-                dlon: 1.0 / 1200.0,
-                lat0: 47.0,
-                dlat: -1.0 / 1200.0,
-            },
-            spacing: DVec2::new(63.97, 92.63),
-            min_height: 187.0,
-        }
+        crate::globe::fixtures::alps(1200.0, DVec2::new(63.97, 92.63))
     }
 
     /// An independent geodetic → ECEF (Bowring's form with `b²/a²`, not `1 − e²`).

@@ -168,28 +168,21 @@ fn local_box_distance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::globe::ellipsoid::Ellipsoid;
-    use crate::globe::grid::LonLatGrid;
+    use crate::globe::fixtures::{alps, moon, nearest_sampled};
     use glam::DVec2;
+
+    /// The whole moon 8192² dataset (32°) from −6 km to +4 km, as a map box.
+    fn moon_box(g: &Globe) -> (DVec3, DVec3) {
+        (
+            DVec3::new(0.0, -6000.0, 0.0),
+            DVec3::new(8192.0 * g.spacing.x, 4000.0, 8192.0 * g.spacing.y),
+        )
+    }
 
     #[test]
     fn the_sphere_holds_the_whole_shell() {
-        let g = Globe {
-            ellipsoid: Ellipsoid::new(1_737_400.0, 1_737_400.0).unwrap(),
-            grid: LonLatGrid {
-                lon0: 43.0,
-                dlon: 1.0 / 256.0,
-                lat0: 33.0,
-                dlat: -1.0 / 256.0,
-            },
-            spacing: DVec2::new(100.0, 118.45),
-            min_height: -5547.0,
-        };
-        // A 32° tile (the whole moon 8192² dataset) from -6 km to +4 km.
-        let (min, max) = (
-            DVec3::new(0.0, -6000.0, 0.0),
-            DVec3::new(8192.0 * 100.0, 4000.0, 8192.0 * 118.45),
-        );
+        let g = moon();
+        let (min, max) = moon_box(&g);
         let s = sphere(&g, min, max);
         for j in 0..=40 {
             for i in 0..=40 {
@@ -212,17 +205,7 @@ mod tests {
 
     #[test]
     fn the_distance_from_above_a_block_is_its_height_gap_and_never_more() {
-        let g = Globe {
-            ellipsoid: Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap(),
-            grid: LonLatGrid {
-                lon0: 8.0,
-                dlon: 1.0 / 1200.0,
-                lat0: 47.0,
-                dlat: -1.0 / 1200.0,
-            },
-            spacing: DVec2::new(63.2, 92.6),
-            min_height: 187.0,
-        };
+        let g = alps(1200.0, DVec2::new(63.2, 92.6));
         // A 64-sample block (4 × 6 km) from 500 to 700 m, the eye 400 m over its
         // middle at 1100 m: inside the block's bounding sphere, 400 m above it.
         let (min, max) = (
@@ -236,18 +219,8 @@ mod tests {
             "the eye is inside the sphere"
         );
         let d = distance(&g, eye, min, max);
-        // The true distance to the block: the closest of a dense sample of its
-        // points (the top surface under the eye, 400 m down, is the nearest).
-        let mut nearest = f64::MAX;
-        for j in 0..=64 {
-            for i in 0..=64 {
-                for h in [500.0, 600.0, 700.0] {
-                    let p =
-                        g.ecef_of_world(DVec3::new(f64::from(i) * 63.2, h, f64::from(j) * 92.6));
-                    nearest = nearest.min(p.distance(g.ecef_of_world(eye)));
-                }
-            }
-        }
+        // The top surface under the eye, 400 m down, is the nearest.
+        let nearest = nearest_sampled(&g, eye, min, max, 64, &[500.0, 600.0, 700.0]);
         assert!(d <= nearest, "{d} overestimates {nearest}");
         assert!(
             d > 0.8 * nearest,
@@ -257,17 +230,7 @@ mod tests {
 
     #[test]
     fn the_distance_beside_a_wall_that_rises_above_the_eye_is_not_zero() {
-        let g = Globe {
-            ellipsoid: Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap(),
-            grid: LonLatGrid {
-                lon0: 8.0,
-                dlon: 1.0 / 3600.0,
-                lat0: 47.0,
-                dlat: -1.0 / 3600.0,
-            },
-            spacing: DVec2::new(21.1, 30.9),
-            min_height: 187.0,
-        };
+        let g = alps(3600.0, DVec2::new(21.1, 30.9));
         // A 32-sample block (675 × 989 m) from 900 to 2500 m; the eye at 1200 m,
         // 300 m west of it: inside its bounding sphere and below its top, so the
         // sphere and the height gap both say 0 (ρ would be infinite).
@@ -279,43 +242,18 @@ mod tests {
         let s = sphere(&g, min, max);
         assert!(g.ecef_of_world(eye).distance(s.centre) < s.radius);
         let d = distance(&g, eye, min, max);
-        let mut nearest = f64::MAX;
-        for j in 0..=64 {
-            for i in 0..=64 {
-                for k in 0..=16 {
-                    let h = 900.0 + 100.0 * f64::from(k);
-                    let p = g.ecef_of_world(DVec3::new(
-                        min.x + f64::from(i) / 64.0 * (max.x - min.x),
-                        h,
-                        min.z + f64::from(j) / 64.0 * (max.z - min.z),
-                    ));
-                    nearest = nearest.min(p.distance(g.ecef_of_world(eye)));
-                }
-            }
-        }
+        let heights: Vec<f64> = (0..=16).map(|k| 900.0 + 100.0 * f64::from(k)).collect();
+        let nearest = nearest_sampled(&g, eye, min, max, 64, &heights);
         assert!(d <= nearest, "{d} overestimates {nearest}");
         assert!(d > 0.8 * nearest, "{d} is far below {nearest}");
     }
 
     #[test]
     fn the_local_bound_never_overestimates_on_a_whole_moon_tile() {
-        let g = Globe {
-            ellipsoid: Ellipsoid::new(1_737_400.0, 1_737_400.0).unwrap(),
-            grid: LonLatGrid {
-                lon0: 43.0,
-                dlon: 1.0 / 256.0,
-                lat0: 33.0,
-                dlat: -1.0 / 256.0,
-            },
-            spacing: DVec2::new(100.0, 118.45),
-            min_height: -5547.0,
-        };
-        // The whole 32° dataset and eyes all around it, low and high: the bound
-        // stays below the nearest of a dense sample of the shell.
-        let (min, max) = (
-            DVec3::new(0.0, -6000.0, 0.0),
-            DVec3::new(8192.0 * 100.0, 4000.0, 8192.0 * 118.45),
-        );
+        let g = moon();
+        // The whole dataset and eyes all around it, low and high: the bound stays
+        // below the nearest of a dense sample of the shell.
+        let (min, max) = moon_box(&g);
         for (ex, ez, eh) in [
             (-0.2, 0.5, 1000.0),
             (0.5, 0.5, 5000.0),
@@ -324,20 +262,7 @@ mod tests {
         ] {
             let eye = DVec3::new(ex * max.x, eh, ez * max.z);
             let d = distance(&g, eye, min, max);
-            let e = g.ecef_of_world(eye);
-            let mut nearest = f64::MAX;
-            for j in 0..=128 {
-                for i in 0..=128 {
-                    for h in [-6000.0, 4000.0] {
-                        let p = g.ecef_of_world(DVec3::new(
-                            f64::from(i) / 128.0 * max.x,
-                            h,
-                            f64::from(j) / 128.0 * max.z,
-                        ));
-                        nearest = nearest.min(p.distance(e));
-                    }
-                }
-            }
+            let nearest = nearest_sampled(&g, eye, min, max, 128, &[-6000.0, 4000.0]);
             assert!(d <= nearest, "eye {eye}: {d} overestimates {nearest}");
         }
     }

@@ -241,21 +241,11 @@ mod tests {
 
     #[test]
     fn on_the_globe_the_finest_mesh_is_exact_and_coarser_ones_sag() {
-        use crate::globe::{Globe, ellipsoid::Ellipsoid, grid::LonLatGrid};
         // The same 512-cell root tile, 1″ cells in the Alps on WGS 84.
+        let spacing = glam::DVec2::new(21.1, 30.9);
         let world = World {
-            globe: Some(Globe {
-                ellipsoid: Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap(),
-                grid: LonLatGrid {
-                    lon0: 8.0,
-                    dlon: 1.0 / 3600.0,
-                    lat0: 47.0,
-                    dlat: -1.0 / 3600.0,
-                },
-                spacing: glam::DVec2::new(21.1, 30.9),
-                min_height: 0.0,
-            }),
-            spacing: glam::DVec2::new(21.1, 30.9),
+            globe: Some(crate::globe::fixtures::alps(3600.0, spacing)),
+            spacing,
             ..root_world()
         };
         let tile = TileId::new(Level::ROOT, 0, 0).unwrap();
