@@ -33,20 +33,13 @@ pub(super) const FLAGS_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Ui
 impl ImageryTextures {
     /// Textures of `side²` texels for `layers` slots, every flag 0.
     pub fn new(device: &wgpu::Device, layers: u32, side: u32) -> Self {
-        let texels = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("imagery"),
-            size: wgpu::Extent3d {
-                width: side,
-                height: side,
-                depth_or_array_layers: layers,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: IMAGERY_FORMAT,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let texels = super::pipeline::texture_array(
+            device,
+            "imagery",
+            IMAGERY_FORMAT,
+            (side, layers),
+            wgpu::TextureUsages::empty(),
+        );
         // Zero-initialised by wgpu: no slot has imagery.
         let flags = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("imagery flags"),

@@ -82,44 +82,30 @@ impl Renderer {
             "{samples}-sample tiles exceed this GPU's {dim}-texel limit"
         );
         let device = &gpu.device;
-        let array = |label, format, side| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: side,
-                    height: side,
-                    depth_or_array_layers: layers,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            })
+        let array = |label, format, side, extra| {
+            texture_array(device, label, format, (side, layers), extra)
         };
-        let heights = array("heights", wgpu::TextureFormat::R16Unorm, samples);
-        let normals = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("normals"),
-            size: wgpu::Extent3d {
-                width: samples,
-                height: samples,
-                depth_or_array_layers: layers,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            // Written by the normal-map compute pass (gpu_normals.rs).
-            format: gpu_normals::NORMAL_FORMAT,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_DST
-                | wgpu::TextureUsages::COPY_SRC
-                | wgpu::TextureUsages::STORAGE_BINDING,
-            view_formats: &[],
-        });
+        let heights = array(
+            "heights",
+            wgpu::TextureFormat::R16Unorm,
+            samples,
+            wgpu::TextureUsages::empty(),
+        );
+        // Written by the normal-map compute pass (gpu_normals.rs).
+        let normals = array(
+            "normals",
+            gpu_normals::NORMAL_FORMAT,
+            samples,
+            wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::STORAGE_BINDING,
+        );
         let normal_pass = gpu_normals::NormalPass::chosen(opts.normals, &gpu, &heights, &normals);
         // One texel per cell: 1.0 where the cell is terrain (FORMAT.md "Validity mask").
-        let masks = array("cell masks", wgpu::TextureFormat::R8Unorm, cells);
+        let masks = array(
+            "cell masks",
+            wgpu::TextureFormat::R8Unorm,
+            cells,
+            wgpu::TextureUsages::empty(),
+        );
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("globals"),
             size: size_of::<Globals>() as u64,
@@ -579,6 +565,31 @@ fn targets(device: &wgpu::Device, width: u32, height: u32) -> (wgpu::Texture, wg
             wgpu::TextureUsages::RENDER_ATTACHMENT,
         ),
     )
+}
+
+/// A square 2D texture array, `side` texels a side and `layers` deep (one layer per
+/// GPU slot), sampled by the shaders and filled by copies, plus `extra` usages.
+pub(super) fn texture_array(
+    device: &wgpu::Device,
+    label: &str,
+    format: wgpu::TextureFormat,
+    (side, layers): (u32, u32),
+    extra: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: side,
+            height: side,
+            depth_or_array_layers: layers,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST | extra,
+        view_formats: &[],
+    })
 }
 
 #[cfg(test)]
