@@ -26,7 +26,6 @@
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
 use glam::{DVec3, DVec4};
-use std::net::SocketAddr;
 use tessera_client::camera::Camera;
 use tessera_client::render::slots::OnGpu;
 use tessera_client::render::{RenderOptions, Renderer};
@@ -34,12 +33,11 @@ use tessera_client::select::{SelectParams, Selector, World};
 use tessera_client::stream::imagery::{self, Texels};
 use tessera_client::stream::pool::TilePool;
 use tessera_client::stream::{StreamConfig, Streamer, TileSource};
-use tessera_shared::api::DatasetInfo;
 use tessera_shared::{FileSource, Pyramid, TileId};
 
 #[allow(dead_code)] // each test binary uses some of the shared fixtures
 mod streaming_support;
-use streaming_support::{olinda_with_imagery, start_server_for};
+use streaming_support::{olinda_with_imagery, serve_olinda};
 
 const W: u32 = 320;
 const H: u32 = 320;
@@ -158,22 +156,7 @@ fn olinda_from_above_has_the_imagerys_coastline() {
     };
 
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let base = format!(
-        "http://{}",
-        start_server_for(&rt, SocketAddr::from(([127, 0, 0, 1], 0)), &out).0
-    );
-    let client = imagery::http_client(std::time::Duration::from_secs(30)).unwrap();
-    let doc = rt
-        .block_on(async {
-            client
-                .get(format!("{base}/v1/datasets/olinda"))
-                .send()
-                .await?
-                .bytes()
-                .await
-        })
-        .unwrap();
-    let info: DatasetInfo = serde_json::from_slice(&doc).unwrap();
+    let (base, client, info) = serve_olinda(&rt, &out);
     let im = info
         .imagery
         .clone()

@@ -6,14 +6,12 @@
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
-use std::net::SocketAddr;
 use tessera_client::stream::imagery::{self, ImageryPool};
-use tessera_shared::api::DatasetInfo;
 use tessera_shared::{FileSource, Pyramid};
 
 #[allow(dead_code)] // each test binary uses some of the shared fixtures
 mod streaming_support;
-use streaming_support::{olinda_with_imagery, start_server_for};
+use streaming_support::{olinda_with_imagery, serve_olinda};
 
 #[test]
 fn the_client_fetches_and_decodes_the_imagery_of_every_tile() {
@@ -25,20 +23,7 @@ fn the_client_fetches_and_decodes_the_imagery_of_every_tile() {
         Pyramid::open_imagery(FileSource::open(&out.with_extension("tessimg")).unwrap()).unwrap();
 
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let addr = start_server_for(&rt, SocketAddr::from(([127, 0, 0, 1], 0)), &out).0;
-    let base = format!("http://{addr}");
-    let client = imagery::http_client(std::time::Duration::from_secs(30)).unwrap();
-    let doc = rt
-        .block_on(async {
-            client
-                .get(format!("{base}/v1/datasets/olinda"))
-                .send()
-                .await?
-                .bytes()
-                .await
-        })
-        .unwrap();
-    let info: DatasetInfo = serde_json::from_slice(&doc).unwrap();
+    let (base, client, info) = serve_olinda(&rt, &out);
     let im = info.imagery.expect("the document names the imagery");
     assert_eq!(im.texels, 256);
 

@@ -59,6 +59,29 @@ pub fn start_server_for(
     (bound, task)
 }
 
+/// A server for the Olinda pyramid `out` ([`olinda_with_imagery`]) on `rt`: its base
+/// URL, an HTTP client set up as the imagery feed's, and the dataset's document as
+/// that client reads it.
+pub fn serve_olinda(
+    rt: &tokio::runtime::Runtime,
+    out: &Path,
+) -> (String, reqwest::Client, tessera_shared::api::DatasetInfo) {
+    let addr = start_server_for(rt, SocketAddr::from(([127, 0, 0, 1], 0)), out).0;
+    let base = format!("http://{addr}");
+    let client = tessera_client::stream::imagery::http_client(Duration::from_secs(30)).unwrap();
+    let doc = rt
+        .block_on(async {
+            client
+                .get(format!("{base}/v1/datasets/olinda"))
+                .send()
+                .await?
+                .bytes()
+                .await
+        })
+        .unwrap();
+    (base, client, serde_json::from_slice(&doc).unwrap())
+}
+
 /// The Olinda DEM (64-cell tiles, EPSG:31985) built in `dir` with its Landsat
 /// imagery (bands 3, 2, 1) beside it: the `.tess` path; `None` when the data is
 /// not there (`testdata::imagery_or_skip` says so).
