@@ -73,7 +73,7 @@ pub(crate) async fn relay_delayed(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{get, http_upstream, pattern, read_response, response, until_held};
+    use crate::testing::{assert_held_back, get, http_upstream, pattern, read_response, response};
     use crate::{Stats, delaying};
     use tokio::net::TcpStream;
 
@@ -84,17 +84,7 @@ mod tests {
         let upstream = http_upstream(vec![response("text/plain", b"hello")]).await;
         let day = Duration::from_secs(24 * 3600);
         let proxy = delaying(upstream.addr, Delay::new(day)).await.unwrap();
-        // A plain socket, so the read below asks the kernel what has arrived.
-        let mut client = std::net::TcpStream::connect(proxy.addr()).unwrap();
-        std::io::Write::write_all(&mut client, &get("/a")).unwrap();
-        client.set_nonblocking(true).unwrap();
-        until_held(&proxy, 1).await;
-        assert_eq!(*upstream.received.lock().unwrap(), get("/a"));
-        let mut buf = [0u8; 64];
-        match std::io::Read::read(&mut client, &mut buf) {
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
-            other => panic!("the client could read during the hold: {other:?}"),
-        }
+        assert_held_back(&proxy, &upstream).await;
     }
 
     /// Two responses on one connection, the client pausing between them: each is held

@@ -79,7 +79,9 @@ pub(crate) async fn relay_stalled(
 mod tests {
     use super::*;
     use crate::stalling;
-    use crate::testing::{get, http_upstream, pattern, read_response, response, until_held};
+    use crate::testing::{
+        assert_held_back, get, http_upstream, pattern, read_response, response, until_held,
+    };
     use tokio::io::BufReader;
     use tokio::net::TcpStream;
 
@@ -96,16 +98,7 @@ mod tests {
             for_: DAY,
         };
         let proxy = stalling(upstream.addr, stall).await.unwrap();
-        let mut client = std::net::TcpStream::connect(proxy.addr()).unwrap();
-        std::io::Write::write_all(&mut client, &get("/a")).unwrap();
-        client.set_nonblocking(true).unwrap();
-        until_held(&proxy, 1).await;
-        assert_eq!(*upstream.received.lock().unwrap(), get("/a"));
-        let mut buf = [0u8; 64];
-        match std::io::Read::read(&mut client, &mut buf) {
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
-            other => panic!("the client could read during the stall: {other:?}"),
-        }
+        assert_held_back(&proxy, &upstream).await;
     }
 
     /// Before a stall (a day away) responses pass unchanged and unheld: a mebibyte and

@@ -132,3 +132,19 @@ pub(crate) async fn until_held(proxy: &crate::Proxy, n: u64) {
         tokio::time::sleep(std::time::Duration::from_millis(2)).await;
     }
 }
+
+/// Sends `GET /a` through `proxy` on a plain socket (so that a read asks the kernel
+/// what has arrived), waits until the proxy holds the response, and checks that the
+/// upstream got the request and not one byte of the response reached the client.
+pub(crate) async fn assert_held_back(proxy: &crate::Proxy, upstream: &HttpUpstream) {
+    let mut client = std::net::TcpStream::connect(proxy.addr()).unwrap();
+    std::io::Write::write_all(&mut client, &get("/a")).unwrap();
+    client.set_nonblocking(true).unwrap();
+    until_held(proxy, 1).await;
+    assert_eq!(*upstream.received.lock().unwrap(), get("/a"));
+    let mut buf = [0u8; 64];
+    match std::io::Read::read(&mut client, &mut buf) {
+        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+        other => panic!("the client could read a held response: {other:?}"),
+    }
+}
