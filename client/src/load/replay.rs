@@ -668,22 +668,27 @@ mod tests {
         assert!(r.timeline.iter().map(|s| s.scheduled).sum::<u64>() == 2);
     }
 
-    #[test]
-    fn a_server_that_never_answers_falls_behind_and_times_out() {
-        // A listening socket that never accepts: connections open (the kernel's
-        // backlog) and requests go out, but no answer ever comes.
+    /// 10 requests over 0.5 s (20/s) on `connections` connections, each given 300 ms,
+    /// to a listening socket that never accepts: connections open (the kernel's
+    /// backlog) and requests go out, but no answer ever comes.
+    fn replay_to_a_silent_server(connections: u32) -> ReplayReport {
         let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         let port = silent.local_addr().unwrap().port();
         let mut opts = ReplayOptions::new(trace(&format!("http://127.0.0.1:{port}")));
-        // 10 requests over 0.5 s on one connection, each given 300 ms.
         opts.pacing = Pacing::Constant {
             rate: super::super::schedule::Rate::new(20.0).unwrap(),
             duration: Duration::from_millis(500),
         };
-        opts.connections = 1;
+        opts.connections = connections;
         opts.timeout = Duration::from_millis(300);
         let r = replay(&opts).unwrap();
         drop(silent);
+        r
+    }
+
+    #[test]
+    fn a_server_that_never_answers_falls_behind_and_times_out() {
+        let r = replay_to_a_silent_server(1);
         assert_eq!(r.mode, Mode::Rate);
         assert_eq!((r.scheduled, r.sent, r.completed), (10, 10, 0));
         assert_eq!(r.errors.timeout, 10);
@@ -702,17 +707,7 @@ mod tests {
     fn requests_start_on_schedule_whether_or_not_earlier_ones_finished() {
         // The same silent server, but connections to spare: the open model sends
         // every request at its instant although none is ever answered.
-        let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let port = silent.local_addr().unwrap().port();
-        let mut opts = ReplayOptions::new(trace(&format!("http://127.0.0.1:{port}")));
-        opts.pacing = Pacing::Constant {
-            rate: super::super::schedule::Rate::new(20.0).unwrap(),
-            duration: Duration::from_millis(500),
-        };
-        opts.connections = 16;
-        opts.timeout = Duration::from_millis(300);
-        let r = replay(&opts).unwrap();
-        drop(silent);
+        let r = replay_to_a_silent_server(16);
         assert_eq!((r.scheduled, r.sent, r.completed), (10, 10, 0));
         assert_eq!(r.errors.timeout, 10);
         // Waiting for answers, only 2 could have gone out by the end of the schedule
