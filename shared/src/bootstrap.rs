@@ -124,6 +124,20 @@ pub fn encode_head(info: &DatasetInfo, record_levels: u8, table_levels: u8) -> V
     v
 }
 
+/// [`plan_levels`] for `pyramid`: from its level table's record bytes and its
+/// geometry's present tiles, what the server's bootstrap of it carries.
+pub fn plan<S: crate::reader::ByteSource>(pyramid: &crate::reader::Pyramid<S>) -> (u8, u8) {
+    let g = *pyramid.geometry();
+    let sizes: Vec<(u64, u64)> = g
+        .levels()
+        .map(|l| {
+            let bytes = pyramid.level_entry(l).map_or(0, |e| e.records_len);
+            (bytes, g.present_tiles(l).count() as u64)
+        })
+        .collect();
+    plan_levels(&sizes, ErrorTable::byte_len(g.tile_log2()))
+}
+
 /// The levels a bootstrap carries as records and as error tables, from each level's
 /// record bytes and present tiles (coarsest first): `(R, E)` of the layout.
 pub fn plan_levels(levels: &[(u64, u64)], table_len: usize) -> (u8, u8) {

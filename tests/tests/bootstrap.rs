@@ -101,19 +101,9 @@ fn coarse_pyramid(dir: &std::path::Path) -> PathBuf {
 }
 
 /// The levels the budgets choose for the pyramid `file`
-/// ([`tessera_shared::bootstrap::plan_levels`] over its level table).
+/// ([`tessera_shared::bootstrap::plan`], as the server plans it).
 fn planned_levels(file: &std::path::Path) -> (u8, u8) {
-    let p = tessera_shared::Pyramid::open_file(file).unwrap();
-    let g = *p.geometry();
-    let sizes: Vec<(u64, u64)> = g
-        .levels()
-        .map(|l| {
-            let bytes = p.level_entry(l).map_or(0, |e| e.records_len);
-            (bytes, g.present_tiles(l).count() as u64)
-        })
-        .collect();
-    let table = tessera_shared::ErrorTable::byte_len(g.tile_log2());
-    tessera_shared::bootstrap::plan_levels(&sizes, table)
+    tessera_shared::bootstrap::plan(&tessera_shared::Pyramid::open_file(file).unwrap())
 }
 
 /// The bootstrap's document is the dataset route's, its records are byte for byte

@@ -22,7 +22,7 @@ use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::Response;
 use bytes::Bytes;
 use std::sync::{Arc, Mutex, PoisonError};
-use tessera_shared::bootstrap::{self, encode_head, plan_levels};
+use tessera_shared::bootstrap::{self, encode_head};
 use tessera_shared::{ErrorTable, Level, Morton, MortonRange, wire};
 
 /// Built bodies kept, most recent last: one per dataset version asked for lately.
@@ -55,15 +55,9 @@ fn whole(level: Level) -> MortonRange {
 async fn build(state: &AppState, ds: &Dataset) -> Result<(Vec<u8>, u64, u64), String> {
     let p = &ds.pyramid;
     let g = *p.geometry();
+    let (record_levels, table_levels) = bootstrap::plan(p);
+    // The first part of a record: its error table (FORMAT.md "Tile record").
     let table_len = ErrorTable::byte_len(g.tile_log2());
-    let sizes: Vec<(u64, u64)> = g
-        .levels()
-        .map(|l| {
-            let bytes = p.level_entry(l).map_or(0, |e| e.records_len);
-            (bytes, g.present_tiles(l).count() as u64)
-        })
-        .collect();
-    let (record_levels, table_levels) = plan_levels(&sizes, table_len);
     let mut body = encode_head(&describe(ds), record_levels, table_levels);
     let (mut tiles, mut errors) = (0u64, 0u64);
     for level in (0..table_levels).filter_map(Level::new) {
