@@ -101,13 +101,12 @@ impl GlobeView {
 /// `(a − b)·Δφ²` plus a metre: at a fixed height `|P|` only varies with latitude,
 /// monotonically in `|φ|`, so the samples' largest is the largest except where the
 /// box straddles the equator, by at most `(a − b)·Δφ²` for a box `Δφ` tall.
-pub fn distance(globe: &Globe, eye: DVec3, min: DVec3, max: DVec3) -> f64 {
+pub fn distance(globe: &Globe, eye: &EyeFrame, min: DVec3, max: DVec3) -> f64 {
     let points = shell_points(globe, min, max);
     let s = sphere_of(&points);
-    let frame = EyeFrame::of_world(globe, eye);
-    let e = frame.ecef;
+    let e = eye.ecef;
     let to_sphere = (e.distance(s.centre) - s.radius).max(0.0);
-    let beside = local_box_distance(globe, &frame, &points, min.y);
+    let beside = local_box_distance(globe, eye, &points, min.y);
     let top = points
         .iter()
         .skip(1)
@@ -218,7 +217,7 @@ mod tests {
             g.ecef_of_world(eye).distance(s.centre) < s.radius,
             "the eye is inside the sphere"
         );
-        let d = distance(&g, eye, min, max);
+        let d = distance(&g, &EyeFrame::of_world(&g, eye), min, max);
         // The top surface under the eye, 400 m down, is the nearest.
         let nearest = nearest_sampled(&g, eye, min, max, 64, &[500.0, 600.0, 700.0]);
         assert!(d <= nearest, "{d} overestimates {nearest}");
@@ -241,7 +240,7 @@ mod tests {
         let eye = DVec3::new(min.x - 300.0, 1200.0, 116.0 * 30.9);
         let s = sphere(&g, min, max);
         assert!(g.ecef_of_world(eye).distance(s.centre) < s.radius);
-        let d = distance(&g, eye, min, max);
+        let d = distance(&g, &EyeFrame::of_world(&g, eye), min, max);
         let heights: Vec<f64> = (0..=16).map(|k| 900.0 + 100.0 * f64::from(k)).collect();
         let nearest = nearest_sampled(&g, eye, min, max, 64, &heights);
         assert!(d <= nearest, "{d} overestimates {nearest}");
@@ -261,7 +260,7 @@ mod tests {
             (0.1, -0.05, 4500.0),
         ] {
             let eye = DVec3::new(ex * max.x, eh, ez * max.z);
-            let d = distance(&g, eye, min, max);
+            let d = distance(&g, &EyeFrame::of_world(&g, eye), min, max);
             let nearest = nearest_sampled(&g, eye, min, max, 128, &[-6000.0, 4000.0]);
             assert!(d <= nearest, "eye {eye}: {d} overestimates {nearest}");
         }

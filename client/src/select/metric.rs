@@ -75,6 +75,7 @@ impl TileRho {
         // The cuboid of each block, widened by its largest error over all levels
         // (conservative: a nearer box can only raise ρ).
         let mut inv_d = [0f64; 64];
+        let distance = world.distances_from(eye);
         for by in 0..BLOCKS {
             for bx in 0..BLOCKS {
                 let (qmin, qmax) = table.block_range(bx, by);
@@ -96,7 +97,7 @@ impl TileRho {
                 // With the eye inside the box, `ε·λ/d` has no bound: infinite, not the
                 // 1e12-odd a clamped distance would make of it (DESIGN §8: reported as
                 // missing, not as a huge number). Comparisons with τ are unchanged.
-                let d = world.distance_to_box(eye, min, max);
+                let d = distance.to(min, max);
                 inv_d[i] = if d > 0.0 { 1.0 / d } else { f64::INFINITY };
             }
         }

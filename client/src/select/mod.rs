@@ -48,6 +48,23 @@ pub struct World {
     pub globe: Option<crate::globe::Globe>,
 }
 
+/// Distances from one eye to flat-world boxes ([`World::distances_from`]).
+#[derive(Clone, Copy, Debug)]
+pub enum BoxDistance {
+    Flat(glam::DVec3),
+    Globe(crate::globe::Globe, crate::globe::frame::EyeFrame),
+}
+
+impl BoxDistance {
+    /// The distance to the box `min..max` (0 with the eye inside it).
+    pub fn to(&self, min: glam::DVec3, max: glam::DVec3) -> f64 {
+        match self {
+            Self::Flat(eye) => crate::camera::distance_to_box(*eye, min, max),
+            Self::Globe(g, eye) => crate::globe::volume::distance(g, eye, min, max),
+        }
+    }
+}
+
 /// Metres between samples when neither the command line nor the dataset says.
 pub const FALLBACK_SPACING: f64 = 100.0;
 
@@ -87,12 +104,14 @@ impl World {
         }
     }
 
-    /// Distance from the eye (a map pose) to a flat-world box: the box itself when
-    /// flat, its curved shell's bounding sphere on the globe.
-    pub fn distance_to_box(&self, eye: glam::DVec3, min: glam::DVec3, max: glam::DVec3) -> f64 {
-        match &self.globe {
-            None => crate::camera::distance_to_box(eye, min, max),
-            Some(g) => crate::globe::volume::distance(g, eye, min, max),
+    /// Distances from the eye (a map pose) to flat-world boxes: to the box itself
+    /// when flat, a lower bound on the distance to its curved shell on the globe
+    /// ([`crate::globe::volume::distance`]). The eye's frame on the globe is worked
+    /// out here once, for all the boxes measured from it.
+    pub fn distances_from(&self, eye: glam::DVec3) -> BoxDistance {
+        match self.globe {
+            None => BoxDistance::Flat(eye),
+            Some(g) => BoxDistance::Globe(g, crate::globe::frame::EyeFrame::of_world(&g, eye)),
         }
     }
 
