@@ -113,15 +113,6 @@ impl Recorder {
         }
     }
 
-    /// Requests registered so far.
-    pub fn len(&self) -> usize {
-        self.lock().len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// The trace so far, in the order the requests were sent (stable: requests
     /// registered at the same millisecond keep their order). The time stamps are
     /// taken before the lock, so two clients can push out of time order; the sort

@@ -112,12 +112,12 @@ struct Shared {
     completed: AtomicU64,
     errors: AtomicU64,
     tiles: AtomicU64,
-    recorder: Mutex<Recorder>,
+    tally: Mutex<Tally>,
 }
 
 /// The histograms and counts, behind one lock (uncontended on one thread).
 #[derive(Debug)]
-struct Recorder {
+struct Tally {
     /// Set when the run ends: answers arriving later are not counted.
     closed: bool,
     /// Requests that finished (answered or failed).
@@ -137,7 +137,7 @@ struct Recorder {
     cur: Second,
 }
 
-impl Recorder {
+impl Tally {
     fn new() -> Self {
         Self {
             closed: false,
@@ -271,7 +271,7 @@ impl Shared {
             self.completed.fetch_add(1, Relaxed);
             self.tiles.fetch_add(u64::from(outcome.tiles), Relaxed);
         }
-        let mut r = self.recorder.lock().expect("recorder lock");
+        let mut r = self.tally.lock().expect("tally lock");
         // The second is taken under the lock, so seconds only ever move forward.
         let second = self.second(Instant::now());
         r.record(&outcome, second, done - scheduled, done - sent);
@@ -378,7 +378,7 @@ async fn run(
         completed: AtomicU64::new(0),
         errors: AtomicU64::new(0),
         tiles: AtomicU64::new(0),
-        recorder: Mutex::new(Recorder::new()),
+        tally: Mutex::new(Tally::new()),
     });
     let progress = opts
         .progress
@@ -403,7 +403,7 @@ async fn run(
     let end = Instant::now();
     let seconds = (end - shared.start).as_secs_f64();
     let mut r = {
-        let mut rec = shared.recorder.lock().expect("recorder lock");
+        let mut rec = shared.tally.lock().expect("tally lock");
         rec.closed = true;
         // Sent but never finished: the wait for them ran out.
         let unfinished = shared.sent.load(Relaxed).saturating_sub(rec.finished);
@@ -603,7 +603,7 @@ async fn progress_line(shared: Arc<Shared>) {
         let tiles = shared.tiles.load(Relaxed);
         let dt = (now - last_at).as_secs_f64().max(1e-3);
         let p99 = shared
-            .recorder
+            .tally
             .lock()
             .map_or(0.0, |r| r.corrected.quantile_ms(0.99));
         eprint!(
