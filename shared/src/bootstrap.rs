@@ -30,7 +30,11 @@
 //! The frame stream holds one tile frame per present tile of levels `0..R`, then one
 //! error-table frame per present tile of levels `R..E`, each level in ascending
 //! Morton order; an error frame stands in for a record that failed its checksum on
-//! the server. Its trailer's counts are those of the whole stream and its level
+//! the server. A bootstrap asked for with a focus ([`crate::focus`]: `?focus=U,V`)
+//! also carries, level by level from `R` down to the finest while they fit
+//! [`FOCUS_BUDGET`], the records of the tiles around that point: on a table level
+//! such a tile's record comes instead of its error table (the record starts with
+//! it), and below `E` its tile frames are the only frames of their level. Its trailer's counts are those of the whole stream and its level
 //! is 0; it lists no outside ranges: a tile of a carried level that the geometry
 //! places inside the DEM and that has no frame has no record (absent, FORMAT.md).
 
@@ -62,6 +66,14 @@ pub const RECORD_BUDGET: u64 = 2 << 20;
 /// tiles. The tables say where the finer levels are rough before any of their
 /// records is fetched.
 pub const TABLE_BUDGET: u64 = 256 << 10;
+
+/// Records a focus adds ([`crate::focus`]) are carried level by level, coarsest
+/// first, while they add up to at most this: 12 MiB holds the 4 × 4 tiles around a
+/// point on levels 2–4 of the moon 8192² (10.3 MB), i.e. the records a camera 150 m
+/// above its ground needs in its first frame. A finer level is carried only with
+/// all the coarser ones, since selection reaches a tile only through its ancestors'
+/// sibling groups.
+pub const FOCUS_BUDGET: u64 = 12 << 20;
 
 /// The most tile slots (`4^l` per level `l`) the carried levels may span: bounds
 /// what a decoder walks to list absent tiles, whatever a document claims. The byte
@@ -272,9 +284,11 @@ impl Bootstrap {
             let bad = |what: String| BootstrapError::Frame { index, what };
             let (level, morton) = match &f {
                 Frame::Tile { level, morton, .. } => {
-                    if level.get() >= record_levels {
+                    // Records of finer levels are a focus's ([`crate::focus`]).
+                    if level.get() >= geometry.level_count() {
                         return Err(bad(format!(
-                            "a record of level {level}, not among the record levels 0..{record_levels}"
+                            "a record of level {level}, beyond the pyramid's levels 0..{}",
+                            geometry.level_count()
                         )));
                     }
                     tiles += 1;
@@ -476,18 +490,30 @@ mod tests {
 
     #[test]
     fn frames_must_belong_to_their_levels() {
-        let mut b = sample();
-        // A record of a table level.
-        b.frames.push(Frame::Tile {
-            level: Level::new(2).unwrap(),
-            morton: Morton::from_raw(1),
+        let record = |level: u8, morton: u64| Frame::Tile {
+            level: Level::new(level).unwrap(),
+            morton: Morton::from_raw(morton),
             checksum: format::checksum(b"x"),
             min: 0,
             max: 0,
             record: b"x".to_vec(),
-        });
+        };
+        // A focus's record of a table level: accepted, and no longer absent.
+        let mut b = sample();
+        b.frames.push(record(2, 1));
+        let decoded = Bootstrap::decode(&b.encode()).unwrap();
+        let l2 = |m| TileId::from_morton(Level::new(2).unwrap(), Morton::from_raw(m)).unwrap();
+        assert!(!decoded.absent().contains(&l2(1)) && decoded.absent().contains(&l2(2)));
+        // The same tile as a record and as an error table.
+        let mut b = sample();
+        b.frames.push(record(2, 5));
         let e = Bootstrap::decode(&b.encode()).unwrap_err();
-        assert!(e.to_string().contains("not among the record levels"), "{e}");
+        assert!(e.to_string().contains("comes twice"), "{e}");
+        // A record of a level the pyramid does not have (it has 0..3).
+        let mut b = sample();
+        b.frames.push(record(3, 0));
+        let e = Bootstrap::decode(&b.encode()).unwrap_err();
+        assert!(e.to_string().contains("beyond the pyramid's levels"), "{e}");
         let mut b = sample();
         b.frames.push(b.frames[0].clone());
         let e = Bootstrap::decode(&b.encode()).unwrap_err();

@@ -12,6 +12,7 @@ pub mod body;
 pub mod bootstrap;
 pub mod codec;
 pub mod error_table;
+pub mod focus;
 pub mod format;
 pub mod frame_scan;
 pub mod fuzzing;

@@ -9,21 +9,24 @@
 //! bootstrap is byte for byte the one the range stream sends. A body holds at most
 //! [`bootstrap::RECORD_BUDGET`] plus the root level plus [`bootstrap::TABLE_BUDGET`],
 //! so it is built in memory, and kept (a few per process) since it is the same for
-//! every client of a dataset version.
+//! every client of a dataset version (and focus: `?focus=U,V` adds the records
+//! around a point, [`tessera_shared::focus`], within [`bootstrap::FOCUS_BUDGET`]).
 
 use super::datasets::describe;
 use super::{Params, Segments, dataset, pinned, unavailable};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::ApiResult;
+use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::Response;
 use bytes::Bytes;
+use std::collections::HashSet;
 use std::sync::{Arc, Mutex, PoisonError};
 use tessera_shared::bootstrap::{self, encode_head};
-use tessera_shared::{ErrorTable, Level, Morton, MortonRange, wire};
+use tessera_shared::focus::Focus;
+use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId, morton, wire};
 
 /// Built bodies kept, most recent last: one per dataset version asked for lately.
 const KEPT: usize = 8;
@@ -50,25 +53,69 @@ fn whole(level: Level) -> MortonRange {
     .expect("0 <= slots - 1")
 }
 
+/// The tiles a focus adds, level by level from the first level not carried whole
+/// (`record_levels`) to the finest, coarsest first, while their records fit
+/// [`bootstrap::FOCUS_BUDGET`] (sized from the index, before any read); a level
+/// that does not fit ends the list, since the finer ones are reached through it.
+fn focus_levels(ds: &Dataset, focus: Option<Focus>, record_levels: u8) -> Vec<Vec<TileId>> {
+    let Some(focus) = focus else {
+        return Vec::new();
+    };
+    let g = *ds.pyramid.geometry();
+    let mut total = 0u64;
+    let mut out = Vec::new();
+    for level in g.levels().skip(usize::from(record_levels)) {
+        let tiles = focus.tiles(&g, level);
+        let bytes: u64 = tiles
+            .iter()
+            .filter_map(|t| ds.pyramid.entry(*t))
+            .map(|e| u64::from(e.length))
+            .sum();
+        if total + bytes > bootstrap::FOCUS_BUDGET {
+            break;
+        }
+        total += bytes;
+        out.push(tiles);
+    }
+    out
+}
+
 /// Builds the body: `(bytes, tiles and tables carried, error frames)`. `Err` with the
 /// reason when the storage cannot be read.
-async fn build(state: &AppState, ds: &Dataset) -> Result<(Vec<u8>, u64, u64), String> {
+async fn build(
+    state: &AppState,
+    ds: &Dataset,
+    focus: Option<Focus>,
+) -> Result<(Vec<u8>, u64, u64), String> {
     let p = &ds.pyramid;
     let g = *p.geometry();
     let (record_levels, table_levels) = bootstrap::plan(p);
+    let focused = focus_levels(ds, focus, record_levels);
     // The first part of a record: its error table (FORMAT.md "Tile record").
     let table_len = ErrorTable::byte_len(g.tile_log2());
     let mut body = encode_head(&describe(ds), record_levels, table_levels);
     let (mut tiles, mut errors) = (0u64, 0u64);
-    for level in (0..table_levels).filter_map(Level::new) {
-        let as_records = level.get() < record_levels;
-        for got in ds.records(level, &[whole(level)]).await? {
+    for level in g.levels() {
+        let l = level.get();
+        let near: HashSet<TileId> = l
+            .checked_sub(record_levels)
+            .and_then(|k| focused.get(usize::from(k)))
+            .map(|v| v.iter().copied().collect())
+            .unwrap_or_default();
+        let ranges = if l < table_levels {
+            vec![whole(level)]
+        } else if near.is_empty() {
+            break;
+        } else {
+            morton::coalesce(near.iter().map(|t| t.morton()))
+        };
+        for got in ds.records(level, &ranges).await? {
             let m = got.tile.morton();
             match got.record {
                 None => {}
                 Some(Ok((e, bytes))) => {
                     tiles += 1;
-                    if as_records {
+                    if l < record_levels || near.contains(&got.tile) {
                         body.extend_from_slice(&wire::tile_header(
                             level, m, e.checksum, e.min, e.max, e.length,
                         ));
@@ -105,14 +152,27 @@ pub async fn get(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
+    let focus = query
+        .get("focus")
+        .map(|f| Focus::parse(f).map_err(ApiError::bad_request))
+        .transpose()?;
+    // A focus is kept to the four decimals of its query form, so that the ETag,
+    // the kept body and the tiles all follow the same point.
+    let focus = focus.and_then(|f| Focus::parse(&f.to_query()).ok());
+    let variant = focus.map_or_else(|| "bootstrap".to_string(), |f| format!("bootstrap@{f}"));
     let pin = pinned(&ds, &query);
-    let etag = cache::etag(ds.content_hash(), "bootstrap");
+    let etag = cache::etag(ds.content_hash(), &variant);
     if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
     {
         return Ok(r);
     }
     // The document names the dataset, so the key does too.
-    let key = format!("{}\0{}\0{}", ds.name, ds.path.display(), ds.content_hash());
+    let key = format!(
+        "{}\0{}\0{}\0{variant}",
+        ds.name,
+        ds.path.display(),
+        ds.content_hash()
+    );
     let hit = kept()
         .lock()
         .unwrap_or_else(PoisonError::into_inner)
@@ -122,7 +182,9 @@ pub async fn get(
     let (body, tiles, clean) = if let Some(b) = hit {
         (b.body, b.tiles, true)
     } else {
-        let (body, tiles, errors) = build(&state, &ds).await.map_err(|r| unavailable(&r))?;
+        let (body, tiles, errors) = build(&state, &ds, focus)
+            .await
+            .map_err(|r| unavailable(&r))?;
         let body = Bytes::from(body);
         if errors == 0 {
             let mut k = kept().lock().unwrap_or_else(PoisonError::into_inner);
