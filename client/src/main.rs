@@ -185,6 +185,10 @@ enum Command {
         /// Turn off prefetching (the enlarged, predicted view).
         #[arg(long)]
         no_prefetch: bool,
+        /// Ask for the bootstrap every client shares, without the path's starting
+        /// point (the focus that makes it carry the first view's finer tiles).
+        #[arg(long)]
+        no_focus: bool,
         /// Tiles kept decoded in memory.
         #[arg(long, default_value_t = 1024)]
         pool_tiles: usize,
@@ -563,6 +567,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             normals,
             gpu_tiles,
             no_prefetch,
+            no_focus,
             pool_tiles,
             budget_ms,
             stats,
@@ -609,6 +614,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 fps > 0.0 && tau > 0.0 && budget_ms > 0.0,
                 "--fps, --tau and --budget-ms must be positive"
             );
+            // The bootstrap's focus: where the path starts.
+            let focus = (!no_focus)
+                .then(|| tessera_client::paths::FlyPath::start_focus(&path, 0.0))
+                .flatten();
             let opts = FlyOptions {
                 source: source.source()?,
                 path,
@@ -623,6 +632,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 pool_tiles,
                 stream: StreamConfig {
                     budget,
+                    focus,
                     ..open.config()
                 },
                 t_offset: 0.0,

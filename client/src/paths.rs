@@ -346,6 +346,26 @@ impl FlyPath {
     }
 }
 
+/// A nominal extent for [`FlyPath::start_focus`]: built-in paths scale with the
+/// dataset, so any extent above the `descent`'s 100 m floor places them alike.
+const NOMINAL_EXTENT_M: f64 = 1.0e6;
+
+impl FlyPath {
+    /// Where the path `spec` (as [`FlyPath::load`] reads it) is at `t` seconds, as
+    /// fractions of the dataset ([`Focus`](tessera_shared::focus::Focus)), before
+    /// the dataset's size is known: for a bootstrap's focus. Exact for built-in
+    /// paths and paths timed per waypoint; a file path flown at a speed in metres
+    /// per second is placed at its first waypoint (its pace needs the size). `None`
+    /// when the spec does not load or the point is off the dataset.
+    pub fn start_focus(spec: &str, t: f64) -> Option<tessera_shared::focus::Focus> {
+        let path = Self::load(spec, NOMINAL_EXTENT_M).ok()?;
+        let paced = Self::builtin(spec, NOMINAL_EXTENT_M).is_some() || path.times_s.is_some();
+        let t = if paced { t } else { 0.0 };
+        let g = path.pose(t, DVec2::splat(NOMINAL_EXTENT_M)).ground / NOMINAL_EXTENT_M;
+        tessera_shared::focus::Focus::new(g.x, g.y)
+    }
+}
+
 /// World position of a pose over ground at height `ground_m`.
 pub fn eye(pose: &Pose, ground_m: f64) -> DVec3 {
     DVec3::new(pose.ground.x, ground_m + pose.altitude_agl, pose.ground.y)

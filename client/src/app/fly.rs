@@ -87,6 +87,12 @@ pub struct FlySummary {
     pub p99_stream_us: f64,
     pub max_stream_us: f64,
     pub stream: StreamStats,
+    /// Requests and bytes of the open, before the first frame (the bootstrap: one
+    /// request; `stream` counts the tile requests of the frames only).
+    #[serde(default)]
+    pub open_requests: u32,
+    #[serde(default)]
+    pub open_bytes: u64,
     /// The last request failure, if any (why a flight against a failing server stalled).
     pub last_error: Option<String>,
     /// With rendering: medians per frame.
@@ -452,6 +458,8 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             .unwrap_or(0.0),
         max_stream_us: stream_us.last().copied().unwrap_or(0.0),
         stream: streamer.stats,
+        open_requests: streamer.open_cost().0,
+        open_bytes: streamer.open_cost().1,
         last_error: streamer.last_error.take(),
         render: headless.as_ref().map(|h| RenderSummary {
             popping: h.popping(),

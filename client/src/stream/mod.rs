@@ -115,6 +115,10 @@ pub struct StreamConfig {
     pub bootstrap: bool,
     /// Speak HTTP/2 to an `http://` server (h2c with prior knowledge, `--http2`).
     pub http2: bool,
+    /// Where the first view is (`tessera fly`: its path's start), sent with the
+    /// bootstrap so that it carries that view's records at every level
+    /// ([`tessera_shared::focus`]); `None` asks for the bootstrap every client shares.
+    pub focus: Option<tessera_shared::focus::Focus>,
     /// Record this client's requests to a server (`tessera load --record`); `None`
     /// records nothing and costs nothing.
     pub record: Option<crate::load::record::RecordHook>,
@@ -133,6 +137,7 @@ impl Default for StreamConfig {
             corrupt_attempts: 4,
             bootstrap: true,
             http2: false,
+            focus: None,
             record: None,
         }
     }
@@ -455,7 +460,13 @@ impl Streamer {
             // one after a pause.
             let probe = http_client(config.request_timeout, h2c)?;
             let boot = if config.bootstrap {
-                rt.block_on(bootstrap(&probe, url, dataset, config.record.as_ref()))?
+                rt.block_on(bootstrap(
+                    &probe,
+                    url,
+                    dataset,
+                    config.focus,
+                    config.record.as_ref(),
+                ))?
             } else {
                 None
             };
@@ -1022,12 +1033,16 @@ async fn bootstrap(
     client: &reqwest::Client,
     server: &str,
     dataset: &str,
+    focus: Option<tessera_shared::focus::Focus>,
     record: Option<&crate::load::record::RecordHook>,
 ) -> anyhow::Result<Option<(Bootstrap, u64)>> {
-    let url = format!(
+    let mut url = format!(
         "{server}{}",
         api::fill(api::routes::BOOTSTRAP, &[("name", dataset)])
     );
+    if let Some(f) = focus {
+        url = format!("{url}?focus={}", f.to_query());
+    }
     let recording = record.map(|r| r.sent(crate::load::trace::RequestKind::Bootstrap, &url, None));
     let mut r = client.get(&url).send().await?;
     let status = r.status();
