@@ -15,9 +15,11 @@ use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
 use std::time::Duration;
 use streaming_support::{glide, options, run_flight, start_server, start_server_for};
+use tessera_client::paths::FlyPath;
 use tessera_proxy::{Config, Delay, Proxy, RequestLog, Responses};
 use tessera_shared::api::DatasetInfo;
 use tessera_shared::bootstrap::{Bootstrap, BootstrapError};
+use tessera_shared::focus::Focus;
 use tessera_shared::wire::{self, Frame};
 
 /// A response: status, head (lower-cased names) and body.
@@ -294,6 +296,156 @@ fn frame_zero_is_drawn_after_one_request_and_no_bootstrap_still_flies() {
     assert!(
         !targets.iter().any(|t| t.contains("bootstrap")),
         "{targets:?}"
+    );
+}
+
+/// `?focus=U,V`: beside what every client gets, the records of the tiles the focus
+/// names ([`Focus::tiles`]) on every finer level, byte for byte the tile route's, in
+/// place of their error tables on the table levels; its own ETag and 304; a focus
+/// that is not a point of the dataset is a 400 that names it.
+#[test]
+fn a_focused_bootstrap_adds_the_records_around_the_point() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let file = coarse_pyramid(dir.path());
+    let (addr, _server) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &file);
+    let plain = get(addr, "/v1/datasets/coarse/bootstrap", &[]);
+    let plain_boot = Bootstrap::decode(&plain.body).unwrap();
+    let focus = Focus::new(0.3, 0.8).unwrap();
+    let path = format!("/v1/datasets/coarse/bootstrap?focus={}", focus.to_query());
+    let a = get(addr, &path, &[]);
+    assert_eq!(a.status, 200, "{}", String::from_utf8_lossy(&a.body));
+    let b = Bootstrap::decode(&a.body).unwrap();
+    assert_eq!(b.info, plain_boot.info);
+    let (r, e) = (b.record_levels, b.table_levels);
+    assert_eq!((r, e), (plain_boot.record_levels, plain_boot.table_levels));
+    let g =
+        tessera_shared::TileGeometry::new(b.info.width, b.info.height, b.info.tile_size).unwrap();
+    assert!(
+        g.level_count() > r,
+        "the pyramid must have levels to focus on"
+    );
+    let mut expected = Vec::new();
+    for level in g.levels() {
+        let l = level.get();
+        let near = focus.tiles(&g, level);
+        let all = if l < e {
+            level_frames(addr, "coarse", l, "tiles")
+        } else {
+            let ranges = tessera_shared::range_query::format(&tessera_shared::morton::coalesce(
+                near.iter().map(|t| t.morton()),
+            ));
+            let a = get(
+                addr,
+                &format!("/v1/datasets/coarse/levels/{l}/tiles?ranges={ranges}"),
+                &[],
+            );
+            let mut frames = wire::decode_all(&a.body).unwrap();
+            frames.pop();
+            frames
+        };
+        let tables = if (r..e).contains(&l) {
+            level_frames(addr, "coarse", l, "errors")
+        } else {
+            Vec::new()
+        };
+        for (k, f) in all.into_iter().enumerate() {
+            let Frame::Tile { morton, .. } = &f else {
+                panic!("{f:?}")
+            };
+            let tile = tessera_shared::TileId::from_morton(level, *morton).unwrap();
+            if l < r || near.contains(&tile) {
+                expected.push(f);
+            } else if l < e {
+                expected.push(tables[k].clone());
+            }
+        }
+        if l >= r {
+            assert!(!near.is_empty() && near.len() <= 16, "level {l}: {near:?}");
+        }
+    }
+    assert!(
+        b.frames == expected,
+        "the focused bootstrap's frames differ from the routes' ({} against {})",
+        b.frames.len(),
+        expected.len()
+    );
+    // Finer records than the plain bootstrap's: it carries none below R.
+    let finest = |b: &Bootstrap| {
+        b.frames
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Tile { level, .. } => Some(level.get()),
+                _ => None,
+            })
+            .max()
+    };
+    assert_eq!(finest(&plain_boot), Some(r - 1));
+    assert_eq!(finest(&b), Some(g.finest().get()));
+    // Caching: its own strong ETag, revalidated; the plain one does not match it.
+    let etag = a.header("etag").unwrap();
+    assert_ne!(Some(&etag), plain.header("etag").as_ref());
+    assert_eq!(get(addr, &path, &[("If-None-Match", &etag)]).status, 304);
+    let plain_etag = plain.header("etag").unwrap();
+    assert_eq!(
+        get(addr, &path, &[("If-None-Match", &plain_etag)]).status,
+        200
+    );
+    // Four decimals: a point a hundred-thousandth away is the same body.
+    let near_path = "/v1/datasets/coarse/bootstrap?focus=0.30001,0.79999";
+    assert_eq!(get(addr, near_path, &[]).body, a.body);
+    for bad in ["2,0", "0.5", "x,1", "0.1,0.2,0.3"] {
+        let a = get(
+            addr,
+            &format!("/v1/datasets/coarse/bootstrap?focus={bad}"),
+            &[],
+        );
+        assert_eq!(a.status, 400, "{bad}");
+        let reason: serde_json::Value = serde_json::from_slice(&a.body).unwrap();
+        assert!(reason.to_string().contains("focus"), "{bad}: {reason}");
+    }
+}
+
+/// At +150 ms, a low flight opened with a bootstrap focused on its start meets 2τ
+/// from frame 0 through the first round trip (nothing else can have arrived by
+/// then); opened with the bootstrap every client shares, frame 0 is drawn but too
+/// coarse for its view (the test can fail), and only tile requests made during
+/// the flight bring the detail.
+#[test]
+fn a_bootstrap_focused_on_the_start_meets_two_tau_from_frame_zero() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
+    let dir = tempfile::tempdir().unwrap();
+    let path = glide(dir.path());
+    // 150 ms is 9 frames at 60 fps: no tile request made in a frame is answered
+    // before frame 9.
+    let first_trip = 9;
+    let (proxy, log) = slow_logged(&rt, server);
+    let mut opts = options(proxy.addr(), path.clone(), 30);
+    opts.stream.focus = FlyPath::start_focus(&path, 0.0);
+    assert!(opts.stream.focus.is_some());
+    let (frames, _) = run_flight(&opts);
+    let targets = log.targets();
+    assert!(targets[0].contains("bootstrap?focus="), "{targets:?}");
+    for f in &frames[..first_trip] {
+        assert!(
+            f.select.within(2.0),
+            "frame {}: {:?} (focused on {:?})",
+            f.frame,
+            f.select,
+            opts.stream.focus
+        );
+    }
+
+    let (proxy, _log) = slow_logged(&rt, server);
+    let opts = options(proxy.addr(), path, 30);
+    assert!(opts.stream.focus.is_none());
+    let (frames, _) = run_flight(&opts);
+    assert!(frames[0].select.tiles > 0, "frame 0 is drawn");
+    assert!(
+        !frames[0].select.within(2.0),
+        "the shared bootstrap met 2τ at frame 0 too ({:?}): this flight cannot tell them apart",
+        frames[0].select
     );
 }
 
