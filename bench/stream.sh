@@ -6,12 +6,14 @@
 # byte), prefetch on and off. Appends to $RESULTS/stream.jsonl {dataset, path,
 # latency_ms, prefetch, run, summary}.
 #
-# Then (issue 17 item 1) the open with the bootstrap (one request: document, the
-# coarsest levels' records, the next levels' error tables) against the old open
-# (`--no-bootstrap`: the document, then the root and each level as frames ask), side
-# by side in the same run at 150 ms, prefetch on: appends to
-# $RESULTS/stream_bootstrap.jsonl {dataset, path, latency_ms, bootstrap, run,
-# frame0_tiles, frame0_coarsest_level, first_drawn, summary}.
+# Then (issue 17 item 1) three opens side by side in the same run at 150 ms, prefetch
+# on: the bootstrap focused on the path's start (the default: document, the coarsest
+# levels' records, the next levels' error tables, and the records around the start at
+# every finer level), the bootstrap every client shares (`--no-focus`), and the old
+# open (`--no-bootstrap`: the document, then the root and each level as frames ask).
+# Appends to $RESULTS/stream_bootstrap.jsonl {dataset, path, latency_ms, open
+# (focus|no-focus|no-bootstrap), bootstrap, run, frame0_tiles, frame0_coarsest_level,
+# first_drawn, summary (with open_bytes)}, and prints a table of medians.
 #
 # The proxy delays by watching a connection for silence (proxy/src/delay.rs), which
 # is honest for HTTP/1.1, where each response in flight has a connection of its own;
@@ -51,9 +53,10 @@ for run in $(seq "$RUNS"); do
 done
 for run in $(seq "$RUNS"); do
   for path in "${paths[@]}"; do
-    for open in bootstrap no-bootstrap; do
+    for open in focus no-focus no-bootstrap; do
       log "stream: run $run of $RUNS, $path, +150 ms, $open"
       flag=()
+      [ "$open" = no-focus ] && flag=(--no-focus)
       [ "$open" = no-bootstrap ] && flag=(--no-bootstrap)
       "$CLIENT_BIN" fly --server "${via[150]}" --dataset moon8192 --path "$path" --frames "$frames" \
         --fps 60 --tau 1 --spacing "$MOON_SPACING" --no-render --stats "$WORK/frames.jsonl" "${flag[@]}" \
@@ -61,9 +64,17 @@ for run in $(seq "$RUNS"); do
       first=$(jq -s -c '{frame0_tiles: .[0].tiles, frame0_coarsest_level: .[0].coarsest_level,
         first_drawn: (map(select(.tiles > 0)) | first | .frame)}' "$WORK/frames.jsonl")
       record stream_bootstrap "$(jq -c --arg path "$path" --argjson run "$run" --argjson first "$first" \
-        --argjson bootstrap "$([ "$open" = bootstrap ] && echo true || echo false)" \
-        '{dataset: "moon8192", path: $path, latency_ms: 150, bootstrap: $bootstrap, run: $run} + $first + {summary: .}' \
+        --arg open "$open" --argjson bootstrap "$([ "$open" = no-bootstrap ] && echo false || echo true)" \
+        '{dataset: "moon8192", path: $path, latency_ms: 150, open: $open, bootstrap: $bootstrap, run: $run} + $first + {summary: .}' \
         "$WORK/run.json")"
     done
   done
 done
+# The table for BENCHMARKS.md ("One round trip to the first frame"): medians (range).
+jq -s -r '
+  def med: sort | .[(length - 1) / 2 | floor];
+  def pct: . * 1000 | round / 10 | tostring + "%";
+  def rng(f): (map(f) | min | pct) + "–" + (map(f) | max | pct);
+  group_by([.path, .open])[] |
+  "\(.[0].path) \(.[0].open): ≤2τ \(map(.summary.within_2tau) | med | pct) (\(rng(.summary.within_2tau))), ≤τ \(map(.summary.within_tau) | med | pct) (\(rng(.summary.within_tau))), frame 0 tiles \(map(.frame0_tiles) | med), first drawn \(map(.first_drawn) | med), open MB \(map(.summary.open_bytes / 1e6 * 100 | round / 100) | med), tile requests \(map(.summary.stream.requests) | med), tile MB \(map(.summary.stream.bytes / 1e6 * 10 | round / 10) | med)"
+' "$RESULTS/stream_bootstrap.jsonl" >&2
