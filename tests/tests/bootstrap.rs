@@ -410,18 +410,27 @@ fn a_focused_bootstrap_adds_the_records_around_the_point() {
 /// from frame 0 through the first round trip (nothing else can have arrived by
 /// then); opened with the bootstrap every client shares, frame 0 is drawn but too
 /// coarse for its view (the test can fail), and only tile requests made during
-/// the flight bring the detail.
+/// the flight bring the detail. The pyramid has 512-cell tiles (15 km at the
+/// flight's 30 m spacing): the focus's 4 × 4 tiles per level then hold the view
+/// (with 128-cell tiles they hold its near part only; DECISIONS.md "The first view
+/// in one round trip").
 #[test]
 fn a_bootstrap_focused_on_the_start_meets_two_tau_from_frame_zero() {
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let (server, _task) = start_server(&rt, "127.0.0.1:0".parse().unwrap());
     let dir = tempfile::tempdir().unwrap();
+    let file = coarse_pyramid(dir.path());
+    let (server, _task) = start_server_for(&rt, "127.0.0.1:0".parse().unwrap(), &file);
+    let coarse = |addr: SocketAddr, path: String| {
+        let mut o = options(addr, path, 30);
+        o.source = tessera_client::stream::TileSource::server(format!("http://{addr}"), "coarse");
+        o
+    };
     let path = glide(dir.path());
     // 150 ms is 9 frames at 60 fps: no tile request made in a frame is answered
     // before frame 9.
     let first_trip = 9;
     let (proxy, log) = slow_logged(&rt, server);
-    let mut opts = options(proxy.addr(), path.clone(), 30);
+    let mut opts = coarse(proxy.addr(), path.clone());
     opts.stream.focus = FlyPath::start_focus(&path, 0.0);
     assert!(opts.stream.focus.is_some());
     let (frames, _) = run_flight(&opts);
@@ -438,7 +447,7 @@ fn a_bootstrap_focused_on_the_start_meets_two_tau_from_frame_zero() {
     }
 
     let (proxy, _log) = slow_logged(&rt, server);
-    let opts = options(proxy.addr(), path, 30);
+    let opts = coarse(proxy.addr(), path);
     assert!(opts.stream.focus.is_none());
     let (frames, _) = run_flight(&opts);
     assert!(frames[0].select.tiles > 0, "frame 0 is drawn");
