@@ -149,6 +149,11 @@ enum Command {
         /// coarser one (LOD changes then pop; for measuring what morphing does).
         #[arg(long)]
         no_morph: bool,
+        /// Seconds of flight time a geomorph transition takes: a patch that replaces
+        /// a coarser surface (a refinement) starts as that surface and morphs to its
+        /// own LOD in this time; 0 for the distance-based factor alone.
+        #[arg(long, value_name = "S", default_value_t = tessera_client::select::MORPH_SECONDS)]
+        morph_seconds: f64,
         /// Do not drape the dataset's imagery (the hypsometric tint instead), even
         /// when the dataset has some.
         #[arg(long)]
@@ -554,6 +559,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             reference_cache,
             popping,
             no_morph,
+            morph_seconds,
             no_imagery,
             globe,
             view,
@@ -609,6 +615,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 fps > 0.0 && tau > 0.0 && budget_ms > 0.0,
                 "--fps, --tau and --budget-ms must be positive"
             );
+            anyhow::ensure!(
+                morph_seconds >= 0.0 && morph_seconds.is_finite(),
+                "--morph-seconds must be 0 or more"
+            );
             let opts = FlyOptions {
                 source: source.source()?,
                 path,
@@ -616,6 +626,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 fps,
                 tau,
                 policy,
+                morph_seconds,
                 width,
                 height,
                 spacing,
