@@ -740,7 +740,12 @@ mod tests {
                 assert!(away > full || n <= 5, "{k:?}: {n} steps");
             }
         }
-        assert!(refined > 10, "{refined} refinements ({raised} raised)");
+        // Both kinds were exercised: refinements (coming down from above) and
+        // raised patches (coming up from below).
+        assert!(
+            refined >= 5 && raised >= 5,
+            "{refined} refinements, {raised} raised"
+        );
     }
 
     #[test]
