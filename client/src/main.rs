@@ -151,7 +151,8 @@ enum Command {
         no_morph: bool,
         /// Seconds of flight time a geomorph transition takes: a patch that replaces
         /// a coarser surface (a refinement) starts as that surface and morphs to its
-        /// own LOD in this time; 0 for the distance-based factor alone.
+        /// own LOD in this time; 0 for the distance-based factor alone (and with
+        /// --no-morph).
         #[arg(long, value_name = "S", default_value_t = tessera_client::select::MORPH_SECONDS)]
         morph_seconds: f64,
         /// Do not drape the dataset's imagery (the hypsometric tint instead), even
@@ -626,7 +627,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 fps,
                 tau,
                 policy,
-                morph_seconds,
+                // --no-morph turns transitions off too: every patch at its own LOD
+                // (the baseline), no inner LOD raised while one runs.
+                morph_seconds: if no_morph { 0.0 } else { morph_seconds },
                 width,
                 height,
                 spacing,
