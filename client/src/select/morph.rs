@@ -633,13 +633,7 @@ mod tests {
                             }
                         }
                     }
-                    if sp != sq {
-                        // A split, a merge or a tile refinement: exactly the old
-                        // surface.
-                        assert!(exact, "frame {k}: {p:?} is not {q:?}");
-                        new_squares += 1;
-                        at_full += usize::from(cq == grid + full);
-                    } else {
+                    if sp == sq {
                         // The same square: exactly the old surface where the selected
                         // LOD changed, within a step of it where only the drawn grid
                         // moved on.
@@ -647,6 +641,12 @@ mod tests {
                             exact || cp.abs_diff(cq) <= step(&params, 0.05),
                             "frame {k}: {p:?} from {q:?}"
                         );
+                    } else {
+                        // A split, a merge or a tile refinement: exactly the old
+                        // surface.
+                        assert!(exact, "frame {k}: {p:?} is not {q:?}");
+                        new_squares += 1;
+                        at_full += usize::from(cq == grid + full);
                     }
                 }
                 before = now;
