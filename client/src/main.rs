@@ -149,6 +149,12 @@ enum Command {
         /// coarser one (LOD changes then pop; for measuring what morphing does).
         #[arg(long)]
         no_morph: bool,
+        /// Seconds of flight time a geomorph transition takes: a patch that replaces
+        /// a coarser surface (a refinement) starts as that surface and morphs to its
+        /// own LOD in this time; 0 for the distance-based factor alone (and with
+        /// --no-morph).
+        #[arg(long, value_name = "S", default_value_t = tessera_client::select::MORPH_SECONDS)]
+        morph_seconds: f64,
         /// Do not drape the dataset's imagery (the hypsometric tint instead), even
         /// when the dataset has some.
         #[arg(long)]
@@ -558,6 +564,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             reference_cache,
             popping,
             no_morph,
+            morph_seconds,
             no_imagery,
             globe,
             view,
@@ -618,6 +625,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let focus = (!no_focus)
                 .then(|| tessera_client::paths::FlyPath::start_focus(&path, 0.0))
                 .flatten();
+            anyhow::ensure!(
+                morph_seconds >= 0.0 && morph_seconds.is_finite(),
+                "--morph-seconds must be 0 or more"
+            );
             let opts = FlyOptions {
                 source: source.source()?,
                 path,
@@ -625,6 +636,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 fps,
                 tau,
                 policy,
+                // --no-morph turns transitions off too: every patch at its own LOD
+                // (the baseline), no inner LOD raised while one runs.
+                morph_seconds: if no_morph { 0.0 } else { morph_seconds },
                 width,
                 height,
                 spacing,

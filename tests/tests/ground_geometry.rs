@@ -303,6 +303,7 @@ fn settled_flight(
         fps: 30.0,
         tau,
         policy: tessera_client::select::Policy::ScreenError,
+        morph_seconds: tessera_client::select::MORPH_SECONDS,
         width: size,
         height: size,
         spacing: None,

@@ -23,6 +23,9 @@ pub struct FlyOptions {
     pub tau: f64,
     /// Screen-space error (the default) or distance only.
     pub policy: crate::select::Policy,
+    /// Seconds of flight time a geomorph transition takes
+    /// ([`SelectParams::morph_seconds`]; `--morph-seconds`).
+    pub morph_seconds: f64,
     pub width: u32,
     pub height: u32,
     /// Metres between samples on both axes (`--spacing`); default the dataset's
@@ -266,6 +269,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let params = SelectParams {
         tau: opts.tau,
         policy: opts.policy,
+        morph_seconds: opts.morph_seconds,
         ..SelectParams::default()
     };
     let mut selector = Selector::new(world, params);
@@ -316,7 +320,12 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         // bootstrap's decoding, before the flight clock starts. Without this,
         // frame 0 would select from an empty GPU and draw nothing.
         let camera = camera_at(&pool, opts.t_offset, 1.0);
-        while h.upload_all(&pool, &selector.select(&camera, &h.tables(&pool)).wanted) > 0 {}
+        let t0 = opts.t_offset;
+        while h.upload_all(
+            &pool,
+            &selector.select_at(&camera, &h.tables(&pool), t0).wanted,
+        ) > 0
+        {}
         start = Instant::now();
     }
     for frame in 0..opts.frames {
@@ -330,9 +339,12 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             fetch_tiles(&[under], &mut pool, &mut streamer, SETTLE_TIMEOUT)?;
         }
         let camera = camera_at(&pool, t, 1.0);
+        // Flight time, not the wall clock: geomorph transitions are the same in
+        // every run, and a settled frame's selections (all at `t`) do not advance
+        // them ([`Selector::select_at`]).
         let mut sel = match &headless {
-            Some(h) => selector.select(&camera, &h.tables(&pool)),
-            None => selector.select(&camera, &pool),
+            Some(h) => selector.select_at(&camera, &h.tables(&pool), t),
+            None => selector.select_at(&camera, &pool, t),
         };
         if settle && let Some(h) = &mut headless {
             let started = Instant::now();
@@ -358,7 +370,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
                 if h.upload_all(&pool, &sel.wanted) == 0 {
                     std::thread::sleep(Duration::from_millis(2));
                 }
-                sel = selector.select(&camera, &h.tables(&pool));
+                sel = selector.select_at(&camera, &h.tables(&pool), t);
             }
         }
         pool.touch(&sel.tiles);

@@ -174,7 +174,9 @@ impl Headless {
             write_frame(&self.setup.out_dir.join(&name), &image, w, h)?;
         }
         if self.setup.draws == Draws::Popping {
-            let key = SelectionKey::new(&sel.tiles, &sel.patches);
+            // What selection decided, not the inner LODs transitions raise for a
+            // while (those change continuously, as the factors do).
+            let key = SelectionKey::new(&sel.tiles, &sel.chosen);
             rec.selection_changed = self.popping.add(image.clone(), key)?;
             let previous = self.previous_patches.replace(sel.patches.clone());
             if let (Some(changed), Some(previous)) = (rec.selection_changed, previous) {

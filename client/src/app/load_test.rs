@@ -190,6 +190,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 fps: opts.fps,
                 tau: opts.tau,
                 policy: crate::select::Policy::ScreenError,
+                morph_seconds: crate::select::MORPH_SECONDS,
                 width: opts.width,
                 height: opts.height,
                 spacing: opts.spacing,

@@ -68,6 +68,8 @@ struct State {
     dragging: bool,
     cursor: Option<(f64, f64)>,
     last: Instant,
+    /// When the window opened: the clock of geomorph transitions.
+    started: Instant,
     fps: (u32, Instant, f64),
     dataset: String,
 }
@@ -164,6 +166,7 @@ impl State {
                 world,
                 SelectParams {
                     tau: opts.tau,
+                    morph_seconds: opts.morph_seconds,
                     ..SelectParams::default()
                 },
             ),
@@ -172,6 +175,7 @@ impl State {
             dragging: false,
             cursor: None,
             last: Instant::now(),
+            started: Instant::now(),
             fps: (0, Instant::now(), 0.0),
             dataset: opts.source.name().to_string(),
         })
@@ -254,12 +258,14 @@ impl State {
         self.camera.position += mv * speed;
         self.camera.position.y = self.camera.position.y.max(ground + 2.0);
 
-        let sel = self.selector.select(
+        // Geomorph transitions run on the wall clock.
+        let sel = self.selector.select_at(
             &self.camera,
             &OnGpu {
                 pool: &self.pool,
                 slots: &self.renderer.slots,
             },
+            self.started.elapsed().as_secs_f64(),
         );
         self.pool.touch(&sel.tiles);
         self.streamer.frame(&mut self.pool, &sel.wanted, &[]);

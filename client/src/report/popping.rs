@@ -6,8 +6,9 @@
 //! gives a per-pixel change: the absolute difference summed over R, G and B (0–765,
 //! reported on the 0–255 scale of one channel, i.e. divided by 3). Pairs are split
 //! by whether the selection changed between them (any drawn tile, or any patch's
-//! inner or edge LOD; morph factors do not count, they change every frame by
-//! design), and each class gets the mean and the 99th percentile of its per-pixel
+//! inner or edge LOD as selection chose it; morph factors do not count, they
+//! change every frame by design, and neither do the inner LODs a geomorph
+//! transition raises for a while, `Selection::chosen`), and each class gets the mean and the 99th percentile of its per-pixel
 //! changes. The *popping excess* is the changed class's mean minus the unchanged
 //! class's: what LOD changes add to the motion of the camera.
 //!

@@ -29,7 +29,7 @@ struct Index {
 }
 
 /// Global `(log2 S, x0, y0)` of a patch, in finest samples.
-fn global(world: &World, p: &Patch) -> (u32, u64, u64) {
+pub(super) fn global(world: &World, p: &Patch) -> (u32, u64, u64) {
     let spacing = world.geometry.spacing(p.tile.level());
     let (gx, gy) = world.geometry.origin(p.tile);
     let size = u64::from(p.size) * spacing;

@@ -255,7 +255,15 @@ pub struct SelectParams {
     /// `τ·(1 − hysteresis)`.
     pub hysteresis: f64,
     pub policy: Policy,
+    /// Seconds a geomorph transition takes ([`morph::transition`]): a patch that
+    /// replaces a coarser surface starts as that surface and morphs to its own
+    /// LOD in this time (of the clock given to [`Selector::select_at`]); 0 for
+    /// none (every factor the distance factor alone).
+    pub morph_seconds: f64,
 }
+
+/// [`SelectParams::morph_seconds`] unless told otherwise.
+pub const MORPH_SECONDS: f64 = 0.25;
 
 impl Default for SelectParams {
     fn default() -> Self {
@@ -263,7 +271,15 @@ impl Default for SelectParams {
             tau: 1.0,
             hysteresis: 0.15,
             policy: Policy::ScreenError,
+            morph_seconds: MORPH_SECONDS,
         }
+    }
+}
+
+impl SelectParams {
+    /// Whether geomorph transitions run over time (a positive, finite duration).
+    pub fn transitions(&self) -> bool {
+        self.morph_seconds > 0.0 && self.morph_seconds.is_finite()
     }
 }
 
@@ -342,18 +358,28 @@ impl FrameStats {
 #[derive(Clone, Debug, Default)]
 pub struct Selection {
     pub tiles: Vec<TileId>,
+    /// The patches as drawn: at the inner LODs and factors of geomorphing.
     pub patches: Vec<Patch>,
+    /// The same patches at the inner and edge LODs selection chose, before
+    /// geomorph transitions raised any ([`morph::transition`]): what selection
+    /// decided, which the popping metric compares from frame to frame.
+    pub chosen: Vec<Patch>,
     pub wanted: Vec<Wanted>,
     pub stats: FrameStats,
 }
 
-/// Selection with memory: quadtrees and refinements carried from frame to frame.
-#[derive(Debug)]
+/// Selection with memory: quadtrees and refinements carried from frame to frame,
+/// and, with time ([`Selector::select_at`]), what was drawn ([`morph::Drawn`]).
+#[derive(Clone, Debug)]
 pub struct Selector {
     pub world: World,
     pub params: SelectParams,
     quadtrees: HashMap<TileId, quadtree::TileState>,
     refined: HashSet<TileId>,
+    /// The last frame before the latest call's time: what transitions start from.
+    before: Option<morph::Drawn>,
+    /// The latest call's selection (becomes `before` when time moves on).
+    latest: Option<morph::Drawn>,
 }
 
 impl Selector {
@@ -363,11 +389,42 @@ impl Selector {
             params,
             quadtrees: HashMap::new(),
             refined: HashSet::new(),
+            before: None,
+            latest: None,
         }
     }
 
-    /// Selects what to draw for `camera` from the resident `tables`.
+    /// Selects what to draw for `camera` from the resident `tables`, without a
+    /// clock: as if every call came long after the last, so no geomorph
+    /// transition is ever in flight and every factor is the distance factor
+    /// alone (benchmarks of selection, tools, the prefetch look-ahead). It
+    /// forgets what [`Selector::select_at`] drew.
     pub fn select(&mut self, camera: &Camera, tables: &dyn TileTables) -> Selection {
+        self.before = None;
+        self.latest = None;
+        self.select_inner(camera, tables, None)
+    }
+
+    /// Selects what to draw at time `t` (seconds on the caller's clock: a
+    /// flight's time at a fixed frame rate, or the wall clock), with geomorph
+    /// transitions ([`morph::transition`]) from the last frame selected at an
+    /// earlier time. Calls at the same `t` (a settled frame selecting again as
+    /// tiles arrive) all start from that frame, so they neither advance
+    /// transitions nor start any from a selection that was never drawn: the
+    /// last call at a time is taken to be the one drawn.
+    pub fn select_at(&mut self, camera: &Camera, tables: &dyn TileTables, t: f64) -> Selection {
+        if self.latest.as_ref().is_some_and(|d| d.t != t) {
+            self.before = self.latest.take();
+        }
+        self.select_inner(camera, tables, Some(t))
+    }
+
+    fn select_inner(
+        &mut self,
+        camera: &Camera,
+        tables: &dyn TileTables,
+        t: Option<f64>,
+    ) -> Selection {
         let started = Instant::now();
         let eye = camera.position;
         let lambda = camera.lambda();
@@ -414,7 +471,15 @@ impl Selector {
         }
         self.quadtrees = next_state;
         edge_lod::assign(&self.world, &mut patches);
-        morph::assign(&self.world, &self.params, &mut patches, &rhos);
+        let chosen = patches.clone();
+        self.latest = morph::assign(
+            &self.world,
+            &self.params,
+            &mut patches,
+            &rhos,
+            self.before.as_ref(),
+            t,
+        );
         // A hole has no bound on its error, and neither has a stand-in whose error
         // box holds the eye: say "missing" rather than print a number.
         let bounded = choice.missing == 0 && max_rho.is_finite();
@@ -432,6 +497,7 @@ impl Selector {
         Selection {
             tiles: choice.drawn,
             patches,
+            chosen,
             wanted: choice.wanted,
             stats,
         }

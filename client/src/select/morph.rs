@@ -1,6 +1,9 @@
 //! Geomorphing (CDLOD, Strugar 2009; Kang §4.4): how far each patch has slid from
 //! its own inner LOD `n` towards the `n/2` grid, so that a change of LOD is a
-//! continuous motion instead of a jump.
+//! continuous motion instead of a jump. The morph itself is CDLOD's (Strugar
+//! 2009: odd vertices slide onto the next coarser grid, by a factor that CDLOD
+//! takes from the distance); here *when* a patch slides is set twice: by
+//! distance (the interior factor below) and over time ([`transition`], below).
 //!
 //! A vertex at an odd grid index takes the height `h + (h̄ − h)·f`, where `h̄` is the
 //! average of its even neighbours' heights (along the row, the column or the cell's
@@ -40,6 +43,33 @@
 //! side itself. Heights are mixed in integers ([`mix`]), so both sides, and the
 //! CPU and the GPU, get the same bits.
 //!
+//! **Over time** ([`transition`]): a distance factor alone cannot make every
+//! change of selection continuous. A quadtree split or a tile refinement gives
+//! children that pick their LODs from their own, smaller blocks: the near ones
+//! are finer than the parent drew, and their distance factor (capped to keep
+//! `τ`) is then often below 1, so they do not start from the old surface; the
+//! far ones are often coarser than the parent drew, which no factor towards
+//! `n/2` can undo. (Measured on the moon descent of `bench/popping.sh`, the
+//! distance factor alone cut the same-camera pop by only 1.2×.) So, as CDLOD's
+//! morph is continuous in distance, this one is also continuous in time:
+//! selection remembers what each square of the global grid was drawn as, its
+//! *coarseness* `FULL·log2(spacing) + f` ([`coarseness`]; a patch of spacing `D`
+//! at `f = FULL` is the `2D` surface at 0), and each frame a patch is drawn at a
+//! coarseness that starts where the old surface was and moves towards its own
+//! target (its LOD at its distance factor) by at most one grid per
+//! [`super::SelectParams::morph_seconds`] of the caller's clock
+//! ([`super::Selector::select_at`]): a refinement starts at `FULL`, exactly the
+//! old surface, and falls; a patch coarser than what was drawn (a split's far
+//! children, a merge) is drawn with its inner LOD raised and rises. Time is
+//! explicit (a flight's time at its fixed frame rate, the window's wall clock),
+//! so runs are reproducible, and selecting again at the same time (a settled
+//! frame) advances nothing. The price: while a transition runs, a refined patch
+//! is coarser than its LOD (its error may exceed `τ` for up to that time; the
+//! frame's reported `ρ` is the selected LOD's), and a raised one costs
+//! triangles. The change a pop made at once is spread over the frames of the
+//! transition; crack-freedom is untouched (the sides are shared as below, from
+//! whatever interior factors the patches have).
+//!
 //! **Tiles and their children**: a child tile's level `m` grid is its parent's
 //! level `m + 1` grid, on the same samples (the pyramid decimates), so a child
 //! patch at factor 1 is its parent's surface one level coarser; and since factors
@@ -48,7 +78,7 @@
 
 use super::metric::TileRho;
 use super::{Patch, SelectParams, World, edge_lod};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use tessera_shared::TileId;
 
 /// A factor of 1: the surface is the `n/2` surface. Factors are integers in
@@ -125,12 +155,19 @@ fn node(world: &World, p: &Patch) -> (u32, u32, u32) {
 
 /// Sets every patch's [`Morph`], after the edge LODs are final
 /// ([`edge_lod::assign`]); `rhos` are this frame's `ρ` tables of the drawn tiles.
+/// With `before` (what the last frame drew) and this frame's time `t`, the
+/// patches then move over time from the surface drawn before ([`transition`]:
+/// inner LODs may be raised, and edge LODs are then assigned again); without,
+/// each interior factor is the distance factor alone. Returns what this frame
+/// draws, for the next one, when it has a time.
 pub fn assign(
     world: &World,
     params: &SelectParams,
     patches: &mut [Patch],
     rhos: &HashMap<TileId, TileRho>,
-) {
+    before: Option<&Drawn>,
+    t: Option<f64>,
+) -> Option<Drawn> {
     for p in patches.iter_mut() {
         let f = match rhos.get(&p.tile) {
             Some(rho) => {
@@ -143,7 +180,173 @@ pub fn assign(
         };
         p.morph.inner = f;
     }
+    let selected: Vec<u32> = patches.iter().map(|p| p.inner).collect();
+    if let (Some(before), Some(t)) = (before, t)
+        && transition(world, params, patches, before, t)
+    {
+        // Finer patches only make a side's spacing finer: no inner LOD is raised
+        // again, only the edge LODs follow.
+        edge_lod::assign(world, patches);
+    }
     share_edges(world, patches);
+    t.map(|t| Drawn::new(world, patches, &selected, t))
+}
+
+/// A patch's square on the global finest grid: `(log2 S, X/S, Y/S)`.
+type Square = (u32, u64, u64);
+
+fn square(world: &World, p: &Patch) -> Square {
+    let (s, x, y) = edge_lod::global(world, p);
+    (s, x >> s, y >> s)
+}
+
+/// How coarse a drawn surface is, in `1/FULL` steps of `log2` of its spacing in
+/// finest samples: a patch of side `2^s` at inner LOD `n` and factor `f` draws
+/// `FULL·log2(2^s/n) + f` (at `f = FULL` it is the grid of spacing `2·2^s/n`,
+/// the same surface as `n/2` at 0).
+pub fn coarseness(s: u32, inner: u32, factor: u16) -> u32 {
+    (s - inner.trailing_zeros()) * u32::from(FULL) + u32::from(factor)
+}
+
+/// What one frame drew, kept for the next frame's [`transition`]s: every
+/// patch's square, the inner LOD selection chose for it, the inner LOD and
+/// interior factor it was drawn at, and the frame's time.
+#[derive(Clone, Debug, Default)]
+pub struct Drawn {
+    /// Seconds (the caller's clock) the frame was selected at.
+    pub t: f64,
+    patches: HashMap<Square, (u32, u32, u16)>,
+    /// Every square that holds a drawn patch and is larger than it.
+    above: HashSet<Square>,
+    max_log: u32,
+}
+
+/// Larger than any patch's square (`log2` of finest samples).
+const TOP_LOG: u32 = 48;
+
+impl Drawn {
+    /// The patches of a frame selected at `t` as drawn, with the inner LODs
+    /// selection chose (`selected`, one per patch).
+    fn new(world: &World, patches: &[Patch], selected: &[u32], t: f64) -> Self {
+        let mut d = Self {
+            t,
+            patches: HashMap::with_capacity(patches.len()),
+            above: HashSet::with_capacity(2 * patches.len()),
+            max_log: 0,
+        };
+        for (p, &n) in patches.iter().zip(selected) {
+            let (s, x, y) = square(world, p);
+            d.patches.insert((s, x, y), (n, p.inner, p.morph.inner));
+            d.max_log = d.max_log.max(s);
+            // Up to the first square already known to hold one (whose own
+            // holders are known then).
+            for j in 1..TOP_LOG.saturating_sub(s) {
+                if !d.above.insert((s + j, x >> j, y >> j)) {
+                    break;
+                }
+            }
+        }
+        d
+    }
+
+    /// The [`coarseness`] drawn over `sq`: of the patch that was that square or
+    /// held it, else the finest of the smaller patches inside it (a merge);
+    /// `None` where nothing was drawn there.
+    fn over(&self, sq: Square) -> Option<u32> {
+        let (s, x, y) = sq;
+        for j in 0..=self.max_log.saturating_sub(s) {
+            if let Some(&(_, n, f)) = self.patches.get(&(s + j, x >> j, y >> j)) {
+                return Some(coarseness(s + j, n, f));
+            }
+        }
+        self.finest_inside(sq)
+    }
+
+    fn finest_inside(&self, (s, x, y): Square) -> Option<u32> {
+        if !self.above.contains(&(s, x, y)) {
+            return None;
+        }
+        [(0, 0), (1, 0), (0, 1), (1, 1)]
+            .into_iter()
+            .filter_map(|(a, b)| {
+                let c = (s - 1, 2 * x + a, 2 * y + b);
+                match self.patches.get(&c) {
+                    Some(&(_, n, f)) => Some(coarseness(c.0, n, f)),
+                    None => self.finest_inside(c),
+                }
+            })
+            .min()
+    }
+}
+
+/// The largest change of [`coarseness`] over `dt` seconds: one whole grid
+/// (`FULL`) per [`SelectParams::morph_seconds`], rounded up so that a grid is
+/// crossed in that time; 0 when time stands still or goes back; unlimited
+/// without a duration.
+pub fn step(params: &SelectParams, dt: f64) -> u32 {
+    if !params.transitions() || dt.is_nan() {
+        return u32::MAX;
+    }
+    (f64::from(FULL) * dt.max(0.0) / params.morph_seconds)
+        .ceil()
+        .min(f64::from(u32::MAX)) as u32
+}
+
+/// Geomorphing over time. On entry every patch is at the inner LOD selection
+/// chose and its distance factor, i.e. its target [`coarseness`]; it is drawn
+/// instead at the coarseness that moves from what `before` drew over its square
+/// towards that target:
+///
+/// - a square drawn last frame with the same selected inner LOD moves from
+///   there towards its target by at most [`step`]`(t − before.t)`;
+/// - anything else (a split, a merge, a tile refinement, another inner LOD)
+///   starts exactly at the coarseness drawn there before (that of the patch
+///   that was or held its square, else the finest inside it), and does not move
+///   this frame: a change of selection at `t` draws, at `t`, what was drawn;
+/// - where nothing was drawn before, its target.
+///
+/// A coarseness above the target's grid is drawn on that grid at factor up to
+/// `FULL` (a refinement by one grid starts exactly as the old surface, by more
+/// as the coarsest this grid can be); one below it raises the inner LOD (at
+/// most 64) to the grid below it, so that a patch coarser than what was drawn
+/// (the far children of a split often are, and a merge is) comes down to its own
+/// LOD over time instead of jumping. Returns whether an inner LOD was raised.
+pub fn transition(
+    world: &World,
+    params: &SelectParams,
+    patches: &mut [Patch],
+    before: &Drawn,
+    t: f64,
+) -> bool {
+    if !params.transitions() {
+        return false;
+    }
+    let step = step(params, t - before.t);
+    let full = u32::from(FULL);
+    let mut raised = false;
+    for p in patches.iter_mut() {
+        let sq = square(world, p);
+        let s = sq.0;
+        let own = s - p.inner.trailing_zeros();
+        let target = own * full + u32::from(p.morph.inner);
+        let c = match before.patches.get(&sq) {
+            Some(&(sel, n, f)) if sel == p.inner => {
+                let was = coarseness(s, n, f);
+                target.clamp(was.saturating_sub(step), was.saturating_add(step))
+            }
+            _ => before.over(sq).unwrap_or(target),
+        };
+        // Inner LOD at most 64; nothing coarser than n/2 (inner LOD 1: itself).
+        let coarsest = own * full + if p.inner >= 2 { full } else { 0 };
+        let c = c.clamp(s.saturating_sub(6) * full, coarsest);
+        let grid = (c / full).min(own);
+        if grid < own {
+            p.inner = 1 << (s - grid);
+            raised = true;
+        }
+        p.morph.inner = (c - grid * full) as u16;
+    }
+    raised
 }
 
 /// Sets every side's factor from the interior factors (`morph.inner`), one per
@@ -328,6 +531,241 @@ mod tests {
         }
         assert!(levels.len() >= 2, "{levels:?}");
         assert!(lods.len() >= 3, "{lods:?}");
+    }
+
+    /// The height `patches` draw at global finest-grid point `(x, y)`, in
+    /// [`HEIGHT_UNITS`]: interpolated in the triangle of the patch holding it;
+    /// `None` outside them or in a cell along a patch side (where snapping moves
+    /// vertices off the grid).
+    fn drawn_at(
+        world: &World,
+        patches: &[Patch],
+        heights: &HashMap<TileId, Vec<u16>>,
+        (x, y): (u64, u64),
+    ) -> Option<f64> {
+        let g = &world.geometry;
+        for p in patches {
+            let (s, x0, y0) = edge_lod::global(world, p);
+            let side = 1u64 << s;
+            if x < x0 || y < y0 || x > x0 + side || y > y0 + side {
+                continue;
+            }
+            let step = side as f64 / f64::from(p.inner);
+            let (u, v) = ((x - x0) as f64 / step, (y - y0) as f64 / step);
+            let (i, j) = (
+                u.floor().min(f64::from(p.inner - 1)),
+                v.floor().min(f64::from(p.inner - 1)),
+            );
+            let (fx, fy) = (u - i, v - j);
+            let (i, j) = (i as u32, j as u32);
+            if i == 0 || j == 0 || i + 1 == p.inner || j + 1 == p.inner {
+                return None;
+            }
+            let h = |i, j| f64::from(tessellate::vertex(g, p, &heights[&p.tile], i, j).h);
+            // Cells split north-west → south-east.
+            return Some(if fx >= fy {
+                h(i, j) + fx * (h(i + 1, j) - h(i, j)) + fy * (h(i + 1, j + 1) - h(i + 1, j))
+            } else {
+                h(i, j) + fy * (h(i, j + 1) - h(i, j)) + fx * (h(i + 1, j + 1) - h(i, j + 1))
+            });
+        }
+        None
+    }
+
+    /// The patch of `patches` whose square holds `p`'s.
+    fn holder<'a>(world: &World, patches: &'a [Patch], p: &Patch) -> Option<&'a Patch> {
+        let (s, x, y) = edge_lod::global(world, p);
+        patches.iter().find(|q| {
+            let (t, qx, qy) = edge_lod::global(world, q);
+            t >= s && x >> t == qx >> t && y >> t == qy >> t
+        })
+    }
+
+    /// A descent towards the scene: frame `k` of a flight at 20 fps.
+    fn descent(yaw: f64, k: u32) -> Camera {
+        let mut c = camera(yaw);
+        c.position.y *= 0.96f64.powi(k as i32);
+        c.position.x += 40.0 * f64::from(k);
+        c
+    }
+
+    #[test]
+    fn a_change_of_selection_starts_as_the_surface_drawn_before_and_stays_crack_free() {
+        let (world, tables, heights) = scene();
+        let params = SelectParams::default();
+        let full = u32::from(FULL);
+        let (mut new_squares, mut at_full, mut checked) = (0, 0, 0);
+        for yaw in [0.3, 1.9, 4.0] {
+            let mut selector = Selector::new(world, params);
+            let mut before = selector.select_at(&descent(yaw, 0), &tables, 0.0).patches;
+            for k in 1..12 {
+                let t = f64::from(k) * 0.05;
+                let now = selector.select_at(&descent(yaw, k), &tables, t).patches;
+                // Crack-free with transitions in flight.
+                let (_, shared, differ) = shared_points(&world, &now, &heights);
+                assert_eq!(differ, 0, "{differ} of {shared} shared points differ");
+                for p in &now {
+                    let Some(q) = holder(&world, &before, p) else {
+                        continue;
+                    };
+                    let (sp, sq) = (edge_lod::global(&world, p), edge_lod::global(&world, q));
+                    if (sp, p.inner) == (sq, q.inner) || p.inner < 2 {
+                        continue;
+                    }
+                    // What q drew, if p's grid can draw it (one grid coarser at
+                    // most, or its own grid at any factor).
+                    let (cp, cq) = (
+                        coarseness(sp.0, p.inner, p.morph.inner),
+                        coarseness(sq.0, q.inner, q.morph.inner),
+                    );
+                    let grid = coarseness(sp.0, p.inner, 0);
+                    if cq < grid || cq > grid + full {
+                        continue;
+                    }
+                    let hs = &heights[&p.tile];
+                    let mut exact = true;
+                    for j in 1..p.inner {
+                        for i in 1..p.inner {
+                            let v = tessellate::vertex(&world.geometry, p, hs, i, j);
+                            if let Some(h) = drawn_at(&world, &before, &heights, (v.x, v.y)) {
+                                exact &= (f64::from(v.h) - h).abs() < 1e-6;
+                                checked += 1;
+                            }
+                        }
+                    }
+                    if sp == sq {
+                        // The same square: exactly the old surface where the selected
+                        // LOD changed, within a step of it where only the drawn grid
+                        // moved on.
+                        assert!(
+                            exact || cp.abs_diff(cq) <= step(&params, 0.05),
+                            "frame {k}: {p:?} from {q:?}"
+                        );
+                    } else {
+                        // A split, a merge or a tile refinement: exactly the old
+                        // surface.
+                        assert!(exact, "frame {k}: {p:?} is not {q:?}");
+                        new_squares += 1;
+                        at_full += usize::from(cq == grid + full);
+                    }
+                }
+                before = now;
+            }
+        }
+        assert!(
+            new_squares > 10 && at_full > 5 && checked > 1000,
+            "{new_squares} new squares ({at_full} from one grid coarser), {checked} vertices"
+        );
+    }
+
+    /// The coarseness each patch is drawn at, by its place and size.
+    fn drawn(world: &World, patches: &[Patch]) -> HashMap<(TileId, [u32; 2], u32), u32> {
+        patches
+            .iter()
+            .map(|p| {
+                let s = edge_lod::global(world, p).0;
+                (
+                    (p.tile, p.origin, p.size),
+                    coarseness(s, p.inner, p.morph.inner),
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_transition_takes_its_time_and_only_moves_as_time_passes() {
+        let (world, tables, heights) = scene();
+        let params = SelectParams::default();
+        let full = u32::from(FULL);
+        let dt = params.morph_seconds / 5.0;
+        let per_step = step(&params, dt);
+        let (mut refined, mut raised) = (0, 0);
+        for yaw in [0.3, 1.9, 4.0] {
+            let mut selector = Selector::new(world, params);
+            selector.select_at(&descent(yaw, 0), &tables, 0.0);
+            // The selection changes at t = 1 s, then the camera stays.
+            let camera = descent(yaw, 6);
+            let t = 1.0;
+            // The targets: selection's LODs at their distance factors, for the
+            // same layout (no clock: no transition).
+            let target = drawn(&world, &selector.clone().select(&camera, &tables).patches);
+            let first = drawn(&world, &selector.select_at(&camera, &tables, t).patches);
+            assert_eq!(
+                first.keys().collect::<HashSet<_>>(),
+                target.keys().collect()
+            );
+            // Selecting again at the same time (a settled frame) changes nothing.
+            let again = selector.select_at(&camera, &tables, t).patches;
+            assert_eq!(drawn(&world, &again), first);
+            let (_, _, differ) = shared_points(&world, &again, &heights);
+            assert_eq!(differ, 0);
+            refined += first.iter().filter(|&(k, &c)| c > target[k]).count();
+            raised += first.iter().filter(|&(k, &c)| c < target[k]).count();
+            let mut last = first.clone();
+            let mut arrived: HashMap<_, u32> = first
+                .iter()
+                .filter(|&(k, &c)| c == target[k])
+                .map(|(k, _)| (*k, 0))
+                .collect();
+            for n in 1..=20 {
+                let at = t + f64::from(n) * dt;
+                let now = drawn(&world, &selector.select_at(&camera, &tables, at).patches);
+                assert_eq!(
+                    drawn(&world, &selector.select_at(&camera, &tables, at).patches),
+                    now
+                );
+                for (k, &c) in &now {
+                    // Towards the target, never past it.
+                    let (goal, was) = (target[k], last[k]);
+                    assert!(
+                        c == goal
+                            || (c.abs_diff(goal) < was.abs_diff(goal)
+                                && (c > goal) == (was > goal)),
+                        "{k:?} at step {n}: {was} → {c}, target {goal}"
+                    );
+                    if c == goal {
+                        arrived.entry(*k).or_insert(n);
+                    }
+                }
+                last = now;
+            }
+            assert_eq!(last, target, "not at the targets after 4 durations");
+            for (k, &c) in &first {
+                // One grid per duration, in steps of a fifth of it (rounded up):
+                // a refinement by one grid arrives by the end of the duration,
+                // and nothing arrives before its steps are done.
+                let away = c.abs_diff(target[k]);
+                let n = arrived[k];
+                assert_eq!(n, away.div_ceil(per_step), "{k:?}: {c} → {}", target[k]);
+                assert!(away > full || n <= 5, "{k:?}: {n} steps");
+            }
+        }
+        // Both kinds were exercised: refinements (coming down from above) and
+        // raised patches (coming up from below).
+        assert!(
+            refined >= 5 && raised >= 5,
+            "{refined} refinements, {raised} raised"
+        );
+    }
+
+    #[test]
+    fn steps_cross_a_grid_in_the_duration_and_stand_still_without_time() {
+        let p = SelectParams::default();
+        let full = u32::from(FULL);
+        assert_eq!(step(&p, 0.0), 0);
+        assert_eq!(step(&p, -1.0), 0);
+        assert_eq!(step(&p, p.morph_seconds), full);
+        assert_eq!(step(&p, 2.0 * p.morph_seconds), 2 * full);
+        assert!(step(&p, p.morph_seconds / 4.0) * 4 >= full);
+        assert!(step(&p, p.morph_seconds / 4.0) < full / 2);
+        let off = SelectParams {
+            morph_seconds: 0.0,
+            ..p
+        };
+        assert_eq!(step(&off, 0.0), u32::MAX);
+        assert!(!off.transitions());
+        assert_eq!(coarseness(10, 64, 0), 4 * full);
+        assert_eq!(coarseness(10, 64, FULL), coarseness(10, 32, 0));
     }
 
     #[test]

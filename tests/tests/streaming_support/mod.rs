@@ -120,6 +120,7 @@ pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
         fps: 60.0,
         tau: 2.0,
         policy: tessera_client::select::Policy::ScreenError,
+        morph_seconds: tessera_client::select::MORPH_SECONDS,
         width: 960,
         height: 540,
         spacing: Some(30.0),
