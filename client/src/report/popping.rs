@@ -8,9 +8,10 @@
 //! by whether the selection changed between them (any drawn tile, or any patch's
 //! inner or edge LOD as selection chose it; morph factors do not count, they
 //! change every frame by design, and neither do the inner LODs a geomorph
-//! transition raises for a while, `Selection::chosen`), and each class gets the mean and the 99th percentile of its per-pixel
-//! changes. The *popping excess* is the changed class's mean minus the unchanged
-//! class's: what LOD changes add to the motion of the camera.
+//! transition raises for a while, `Selection::chosen`), and each class gets the
+//! mean and the 99th percentile of its per-pixel changes. The *popping excess* is
+//! the changed class's mean minus the unchanged class's: what LOD changes add to
+//! the motion of the camera.
 //!
 //! That difference of two noisy means is small against the camera's own motion
 //! wherever `τ` is small (a pop then moves the surface by about `τ` pixels), and it
