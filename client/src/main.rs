@@ -150,11 +150,16 @@ enum Command {
         #[arg(long)]
         no_morph: bool,
         /// Seconds of flight time a geomorph transition takes: a patch that replaces
-        /// a coarser surface (a refinement) starts as that surface and morphs to its
-        /// own LOD in this time; 0 for the distance-based factor alone (and with
-        /// --no-morph).
+        /// another surface (a refinement, a split, a merge) starts as that surface
+        /// and morphs to its own LOD in this time, and a refined tile's shading
+        /// fades in from its parent's; 0 for none (and with --no-morph).
         #[arg(long, value_name = "S", default_value_t = tessera_client::select::MORPH_SECONDS)]
         morph_seconds: f64,
+        /// Also slide each patch towards the next coarser LOD across a band of
+        /// distance, as CDLOD does (it draws patches in the band coarser than their
+        /// LOD: lower PSNR at the same τ).
+        #[arg(long, conflicts_with = "no_morph")]
+        morph_by_distance: bool,
         /// Do not drape the dataset's imagery (the hypsometric tint instead), even
         /// when the dataset has some.
         #[arg(long)]
@@ -565,6 +570,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             popping,
             no_morph,
             morph_seconds,
+            morph_by_distance,
             no_imagery,
             globe,
             view,
@@ -639,6 +645,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 // --no-morph turns transitions off too: every patch at its own LOD
                 // (the baseline), no inner LOD raised while one runs.
                 morph_seconds: if no_morph { 0.0 } else { morph_seconds },
+                morph_by_distance,
                 width,
                 height,
                 spacing,

@@ -170,6 +170,7 @@ mod tests {
             inner: 8,
             edges: [2, 8, 1, 4],
             morph: Morph::NONE,
+            fade: crate::select::fade::Fade::NONE,
         };
         let h: Vec<u16> = (0..65 * 65).map(|i| i as u16).collect();
         let v = vertices(&g, &p, &h);
@@ -236,6 +237,7 @@ mod tests {
             inner,
             edges: [inner; 4],
             morph: Morph::new(m, [m; 4]).unwrap(),
+            fade: crate::select::fade::Fade::NONE,
         }
     }
 

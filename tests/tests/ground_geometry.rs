@@ -304,6 +304,7 @@ fn settled_flight(
         tau,
         policy: tessera_client::select::Policy::ScreenError,
         morph_seconds: tessera_client::select::MORPH_SECONDS,
+        morph_by_distance: false,
         width: size,
         height: size,
         spacing: None,

@@ -127,6 +127,7 @@ fn all_edge_combinations(m: &Moon) -> Vec<Patch> {
                     inner: n,
                     edges,
                     morph,
+                    fade: tessera_client::select::fade::Fade::NONE,
                 });
             }
         }
@@ -445,5 +446,85 @@ fn golden_image_of_the_synthetic_terrain() {
             "golden image differs: mean abs diff {mad:.3}, {far} pixels off by > 24; see {}",
             out.display()
         );
+    }
+}
+
+/// Mean absolute per-pixel change (|ΔR| + |ΔG| + |ΔB| over 3, 0–255).
+fn mean_change(a: &[u8], b: &[u8]) -> f64 {
+    let sum: u64 = a
+        .chunks_exact(4)
+        .zip(b.chunks_exact(4))
+        .map(|(p, q)| (0..3).map(|c| u64::from(p[c].abs_diff(q[c]))).sum::<u64>())
+        .sum();
+    sum as f64 / (a.len() / 4) as f64 / 3.0
+}
+
+/// A tile refinement fades in (`select/fade.rs`): a level-3 tile drawn at inner
+/// LOD 64, and its four children each at 32 (the same vertices, the pyramid
+/// decimates), seen straight down. Geometry alike, the children differ from the
+/// parent only by shading (their finer normal maps and heights): with a fade
+/// factor of 1 from the parent they must look as the parent did, at ½ halfway
+/// between, at 0 as themselves. A wrong place in the parent (offset, scale or
+/// slot) would shade them as some other ground.
+#[test]
+fn a_refined_tile_fades_in_from_its_parents_shading() {
+    use tessera_client::select::fade::Fade;
+    use tessera_shared::{Level, TileId};
+    let Some(m) = moon() else { return };
+    let mut r = renderer(m, Backend::Vulkan);
+    let g = m.world.geometry;
+    let parent = TileId::new(Level::new(3).unwrap(), 3, 4).unwrap();
+    let whole = |tile, inner, fade| Patch {
+        tile,
+        origin: [0, 0],
+        size: g.tile_size(),
+        inner,
+        edges: [inner; 4],
+        morph: Morph::NONE,
+        fade,
+    };
+    let (x, y) = g.origin(parent);
+    let side = f64::from(g.tile_size()) * g.spacing(parent.level()) as f64;
+    let centre = |o: u64, s: f64| (o as f64 + side / 2.0) * s;
+    let cam = Camera {
+        position: DVec3::new(
+            centre(x, m.world.spacing.x),
+            m.pyramid.metadata().max_height + 0.4 * side * m.world.spacing.x,
+            centre(y, m.world.spacing.y),
+        ),
+        yaw: 0.0,
+        pitch: -1.5,
+        fovy: 60f64.to_radians(),
+        width: W,
+        height: H,
+        near: 1.0,
+        far: 10.0 * side * m.world.spacing.x,
+    };
+    let mut draw = |patches: &[Patch]| {
+        let d = r.draw(&cam, patches).unwrap();
+        assert_eq!(d.skipped, 0);
+        r.read_rgba().unwrap()
+    };
+    let before = draw(&[whole(parent, 64, Fade::NONE)]);
+    let children = |fade| parent.children().unwrap().map(|c| whole(c, 32, fade));
+    let own = draw(&children(Fade::NONE));
+    let start = draw(&children(Fade::new(1, morph::FULL).unwrap()));
+    let half = draw(&children(Fade::new(1, morph::FULL / 2).unwrap()));
+    let pop = mean_change(&before, &own);
+    let (at_start, half_to_before, half_to_own) = (
+        mean_change(&before, &start),
+        mean_change(&before, &half),
+        mean_change(&own, &half),
+    );
+    println!(
+        "children vs parent {pop:.3}; faded in at 1 {at_start:.4}; at ½ to the parent \
+         {half_to_before:.3}, to the children {half_to_own:.3}"
+    );
+    // The refinement does change the shading (what the fade is for) …
+    assert!(pop > 0.2, "children vs parent {pop}");
+    // … the fade's start is the parent's (rounding only), and halfway is halfway.
+    assert!(at_start < pop / 20.0, "{at_start} vs {pop}");
+    for d in [half_to_before, half_to_own] {
+        assert!(d > pop * 0.4 && d < pop * 0.6, "{d} vs {pop}");
     }
 }

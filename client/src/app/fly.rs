@@ -26,6 +26,9 @@ pub struct FlyOptions {
     /// Seconds of flight time a geomorph transition takes
     /// ([`SelectParams::morph_seconds`]; `--morph-seconds`).
     pub morph_seconds: f64,
+    /// Geomorphing across a band of distance too ([`SelectParams::morph_by_distance`];
+    /// `--morph-by-distance`).
+    pub morph_by_distance: bool,
     pub width: u32,
     pub height: u32,
     /// Metres between samples on both axes (`--spacing`); default the dataset's
@@ -270,6 +273,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         tau: opts.tau,
         policy: opts.policy,
         morph_seconds: opts.morph_seconds,
+        morph_by_distance: opts.morph_by_distance,
         ..SelectParams::default()
     };
     let mut selector = Selector::new(world, params);

@@ -191,6 +191,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 tau: opts.tau,
                 policy: crate::select::Policy::ScreenError,
                 morph_seconds: crate::select::MORPH_SECONDS,
+                morph_by_distance: false,
                 width: opts.width,
                 height: opts.height,
                 spacing: opts.spacing,

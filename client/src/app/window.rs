@@ -167,6 +167,7 @@ impl State {
                 SelectParams {
                     tau: opts.tau,
                     morph_seconds: opts.morph_seconds,
+                    morph_by_distance: opts.morph_by_distance,
                     ..SelectParams::default()
                 },
             ),

@@ -39,7 +39,7 @@ impl Renderer {
                 .slots
                 .get(p.tile)
                 .with_context(|| format!("tile {} has no GPU slot", p.tile))?;
-            let inst = Instance::new(&g, p, slot);
+            let inst = Instance::new(&g, p, slot, None);
             for vid in 0..(p.inner + 1) * (p.inner + 1) {
                 let mut job = inst;
                 job.c[3] = vid;

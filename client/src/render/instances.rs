@@ -2,7 +2,7 @@
 //! LOD so that each LOD is one instanced draw (at most 7 per frame, DESIGN §5).
 
 use crate::select::Patch;
-use tessera_shared::TileGeometry;
+use tessera_shared::{TileGeometry, TileId};
 
 /// Inner LODs 1, 2, 4, …, 64: one index buffer and one draw each.
 pub const LODS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
@@ -11,18 +11,24 @@ pub const LODS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
 /// `a = (slot | level << 16, origin x | origin y << 16, size, inner)`,
 /// `b = (edges N | E << 8 | S << 16 | W << 24, tile origin x, tile origin y, stride)`,
 /// `c = (interior morph, morph N | E << 16, morph S | W << 16, 0)` (factors in
-/// `0..=`[`crate::select::morph::FULL`]).
+/// `0..=`[`crate::select::morph::FULL`]),
+/// `d = (fade factor, levels up | source slot << 8, offset x, offset y)`: the
+/// shading fade ([`crate::select::fade`]) from the ancestor in that slot, the
+/// tile at that offset among its descendants; factor 0 without one.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Instance {
     pub a: [u32; 4],
     pub b: [u32; 4],
     pub c: [u32; 4],
+    pub d: [u32; 4],
 }
 
 impl Instance {
-    /// The instance of patch `p` in GPU slot `slot`, morphed as `p.morph` says.
-    pub fn new(g: &TileGeometry, p: &Patch, slot: u32) -> Self {
+    /// The instance of patch `p` in GPU slot `slot`, morphed as `p.morph` says,
+    /// and shaded as `p.fade` says when its fade's ancestor has a slot
+    /// (`source_slot`; without one, as itself).
+    pub fn new(g: &TileGeometry, p: &Patch, slot: u32, source_slot: Option<u32>) -> Self {
         let (gx, gy) = g.origin(p.tile);
         let e = p.edges;
         let m = p.morph.edges.map(u32::from);
@@ -45,6 +51,15 @@ impl Instance {
                 m[2] | m[3] << 16,
                 0,
             ],
+            d: match (p.fade.source(p.tile), source_slot) {
+                (Some((_, [ox, oy])), Some(source)) => [
+                    u32::from(p.fade.factor),
+                    u32::from(p.fade.up) | source << 8,
+                    ox,
+                    oy,
+                ],
+                _ => [0; 4],
+            },
         }
     }
 }
@@ -59,21 +74,24 @@ pub struct Batches {
 }
 
 impl Batches {
-    /// `morph`: draw the patches' morph factors, or every patch unmorphed.
+    /// `morph`: draw the patches' morph factors and shading fades, or every
+    /// patch unmorphed and as itself. `slot_of` gives a tile's GPU slot.
     pub fn build(
         g: &TileGeometry,
         patches: &[Patch],
         morph: bool,
-        slot_of: impl Fn(&Patch) -> Option<u32>,
+        slot_of: impl Fn(TileId) -> Option<u32>,
     ) -> Self {
         let mut b = Self::default();
         let mut keyed: Vec<(u32, Instance)> = Vec::with_capacity(patches.len());
         for p in patches {
-            match slot_of(p) {
+            match slot_of(p.tile) {
                 Some(slot) => {
-                    let mut inst = Instance::new(g, p, slot);
+                    let source = p.fade.source(p.tile).and_then(|(a, _)| slot_of(a));
+                    let mut inst = Instance::new(g, p, slot, source);
                     if !morph {
                         inst.c = [0; 4];
+                        inst.d = [0; 4];
                     }
                     keyed.push((p.inner.trailing_zeros(), inst));
                 }
@@ -132,14 +150,21 @@ mod tests {
             inner,
             edges: [inner, inner / 2, 1, inner],
             morph: crate::select::morph::Morph::new(inner as u16 * 4, [1, 2, 3, 256]).unwrap(),
+            fade: crate::select::fade::Fade::NONE,
         };
+        // A patch of a tile with no slot is skipped.
+        let elsewhere = TileId::new(Level::new(2).unwrap(), 0, 0).unwrap();
         let patches = [
             p(16, [384, 128]),
             p(1, [0, 0]),
             p(16, [0, 384]),
-            p(64, [128, 0]),
+            Patch {
+                tile: elsewhere,
+                ..p(64, [128, 0])
+            },
         ];
-        let b = Batches::build(&g, &patches, true, |p| (p.origin[0] != 128).then_some(7));
+        let slot_of = |t: TileId| (t != elsewhere).then_some(7);
+        let b = Batches::build(&g, &patches, true, slot_of);
         let unmorphed = Batches::build(&g, &patches, false, |_| Some(7));
         assert!(unmorphed.instances.iter().all(|i| i.c == [0; 4]));
         assert_eq!(b.skipped, 1);
@@ -164,6 +189,29 @@ mod tests {
             [i.c[1] & 0xffff, i.c[1] >> 16, i.c[2] & 0xffff, i.c[2] >> 16],
             [1, 2, 3, 256]
         );
+        // No fade: d is 0.
+        assert_eq!(i.d, [0; 4]);
+        // A fade from the grandparent, level 0 (the root), in slot 300: the tile
+        // (3, 1) of level 2 is at (3, 1) among its 4 × 4 descendants; without a
+        // slot for the root, or unmorphed, no fade.
+        let fading = Patch {
+            fade: crate::select::fade::Fade::new(2, 200).unwrap(),
+            ..p(16, [0, 0])
+        };
+        let root = TileId::new(Level::ROOT, 0, 0).unwrap();
+        let with = |slot: Option<u32>, morph| {
+            Batches::build(
+                &g,
+                &[fading],
+                morph,
+                |t| if t == root { slot } else { Some(7) },
+            )
+            .instances[0]
+                .d
+        };
+        assert_eq!(with(Some(300), true), [200, 2 | 300 << 8, 3, 1]);
+        assert_eq!(with(None, true), [0; 4]);
+        assert_eq!(with(Some(300), false), [0; 4]);
         let (data, ranges) = index_buffers();
         assert_eq!(ranges[6].len(), 6 * 64 * 64);
         assert_eq!(data.len(), ranges[6].end as usize);

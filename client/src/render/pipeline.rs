@@ -216,7 +216,9 @@ impl Renderer {
         let instance_layout = wgpu::VertexBufferLayout {
             array_stride: size_of::<Instance>() as u64,
             step_mode: wgpu::VertexStepMode::Instance,
-            attributes: &wgpu::vertex_attr_array![0 => Uint32x4, 1 => Uint32x4, 2 => Uint32x4],
+            attributes: &wgpu::vertex_attr_array![
+                0 => Uint32x4, 1 => Uint32x4, 2 => Uint32x4, 3 => Uint32x4
+            ],
         };
         let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("terrain"),
@@ -362,7 +364,7 @@ impl Renderer {
         self.flush_normals();
         self.write_globals(camera);
         let g = self.world.geometry;
-        let batches = Batches::build(&g, patches, self.opts.morph, |p| self.slots.get(p.tile));
+        let batches = Batches::build(&g, patches, self.opts.morph, |t| self.slots.get(t));
         let bytes = bytemuck::cast_slice::<Instance, u8>(&batches.instances);
         let device = &self.gpu.device;
         if !bytes.is_empty() {

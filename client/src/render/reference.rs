@@ -83,6 +83,7 @@ pub fn full_resolution_patches(
                         inner: size,
                         edges: [size; 4],
                         morph: crate::select::morph::Morph::NONE,
+                        fade: crate::select::fade::Fade::NONE,
                     });
                 }
             }

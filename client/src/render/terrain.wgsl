@@ -57,6 +57,8 @@ struct Globals {
 //        tile origin x, tile origin y (finest samples), finest samples per tile sample)
 //   c = (interior morph, morph north | east << 16, morph south | west << 16, 0),
 //       factors in 0..=256 (`select/morph.rs`)
+//   d = (fade factor 0..=256, levels up | source slot << 8, offset x, offset y):
+//       the shading fade from an ancestor tile (`select/fade.rs`), 0: none
 struct TerrainVertex {
     // Global finest-grid coordinates, the quantized sample and the morphed height
     // in 1/512 quantization steps: the contract.
@@ -198,6 +200,8 @@ struct VsOut {
     @location(4) @interpolate(flat) info: vec4<u32>,
     // Finest samples per tile sample (1 on the finest level).
     @location(5) @interpolate(flat) stride: u32,
+    // The shading fade, as the instance's `d`.
+    @location(6) @interpolate(flat) fade: vec4<u32>,
 };
 
 @vertex
@@ -206,6 +210,7 @@ fn vs_main(
     @location(0) a: vec4<u32>,
     @location(1) b: vec4<u32>,
     @location(2) c: vec4<u32>,
+    @location(3) d: vec4<u32>,
 ) -> VsOut {
     let t = terrain_vertex(a, b, c, vid);
     let h = height_m(f32(t.h) / 512.0);
@@ -219,6 +224,7 @@ fn vs_main(
     out.grid = vec2<f32>(f32(vid % w), f32(vid / w));
     out.info = vec4<u32>(a.x & 0xffffu, a.x >> 16u, a.w, a.z / a.w);
     out.stride = b.w;
+    out.fade = d;
     return out;
 }
 
@@ -345,6 +351,13 @@ fn surface_colour(uv: vec2<f32>, slot: u32) -> vec3<f32> {
     return tint(fine_height(uv, slot));
 }
 
+// The light at tile sample coordinates `uv` of the tile in `slot`: ambient and
+// Lambert from its normal map.
+fn lit(uv: vec2<f32>, slot: u32) -> f32 {
+    let n = normal_at(uv, slot);
+    return 0.25 + 0.75 * max(dot(n, g.sun.xyz), 0.0);
+}
+
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     // Derivatives first, in uniform control flow.
@@ -362,10 +375,18 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     // Metres per tile sample: finest spacing × finest samples per tile sample.
     let m = g.spacing.xy * f32(in.stride);
     let uv = parallax(in.uv, in.base_h, d, m, f32(in.info.w), slot);
-    let n = normal_at(uv, slot);
-    let lambert = max(dot(n, g.sun.xyz), 0.0);
-    let light = 0.25 + 0.75 * lambert;
+    let light = lit(uv, slot);
     var colour = surface_colour(uv, slot) * light;
+    if (in.fade.x > 0u) {
+        // A refinement fading in (`select/fade.rs`): the same point in the
+        // ancestor `up` levels up, whose 2^up × 2^up descendants this tile is one
+        // of, at the offset given; its shading mixed in by the factor.
+        let up = in.fade.y & 0xffu;
+        let source = in.fade.y >> 8u;
+        let uv_a = (uv + vec2<f32>(f32(in.fade.z), f32(in.fade.w)) * f32(g.mode.z)) / f32(1u << up);
+        let was = surface_colour(uv_a, source) * lit(uv_a, source);
+        colour = mix(colour, was, f32(in.fade.x) / 256.0);
+    }
     if (view == 1u) {
         colour = palette(firstTrailingBit(in.info.z)) * light;
     } else if (view == 2u) {
@@ -397,6 +418,8 @@ struct CaptureJob {
     a: vec4<u32>,
     b: vec4<u32>,
     c: vec4<u32>,
+    // The instance's shading fade: not read here, but part of its layout.
+    d: vec4<u32>,
 };
 @group(1) @binding(0) var<storage, read> jobs: array<CaptureJob>;
 // (x, y, q, h) per job.

@@ -265,6 +265,7 @@ mod tests {
             inner,
             edges: [inner; 4],
             morph: crate::select::morph::Morph::NONE,
+            fade: crate::select::fade::Fade::NONE,
         };
         SelectionKey::new(&[tile], &[p])
     }
@@ -339,6 +340,7 @@ mod tests {
             inner,
             edges: [inner; 4],
             morph: crate::select::morph::Morph::new(m, [m; 4]).unwrap(),
+            fade: crate::select::fade::Fade::NONE,
         };
         let q = |inner| Patch {
             origin: [64, 0],

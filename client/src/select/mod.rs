@@ -15,6 +15,7 @@
 //!    the next coarser LOD (CDLOD geomorphing), so that LOD changes do not pop.
 
 pub mod edge_lod;
+pub mod fade;
 pub mod metric;
 pub mod morph;
 pub mod quadtree;
@@ -258,8 +259,15 @@ pub struct SelectParams {
     /// Seconds a geomorph transition takes ([`morph::transition`]): a patch that
     /// replaces a coarser surface starts as that surface and morphs to its own
     /// LOD in this time (of the clock given to [`Selector::select_at`]); 0 for
-    /// none (every factor the distance factor alone).
+    /// none.
     pub morph_seconds: f64,
+    /// Whether patches also slide towards `n/2` across a band of distance (CDLOD,
+    /// [`morph::patch_factor`]) rather than only over time. Off by default: on
+    /// the moon descent it changed the popping figures by nothing measurable
+    /// once transitions run over time, and it cost 1 dB of PSNR at `τ = 1`, since
+    /// it draws every patch in its band coarser than its LOD (DECISIONS.md
+    /// "Geomorphing over time").
+    pub morph_by_distance: bool,
 }
 
 /// [`SelectParams::morph_seconds`] unless told otherwise.
@@ -272,6 +280,7 @@ impl Default for SelectParams {
             hysteresis: 0.15,
             policy: Policy::ScreenError,
             morph_seconds: MORPH_SECONDS,
+            morph_by_distance: false,
         }
     }
 }
@@ -303,6 +312,9 @@ pub struct Patch {
     pub edges: [u32; 4],
     /// How far the patch has morphed towards LOD `inner/2` ([`morph`]).
     pub morph: morph::Morph,
+    /// How much of an ancestor tile's shading is mixed into the patch's while a
+    /// refinement fades in ([`fade`]).
+    pub fade: fade::Fade,
 }
 
 impl Patch {
@@ -377,9 +389,16 @@ pub struct Selector {
     quadtrees: HashMap<TileId, quadtree::TileState>,
     refined: HashSet<TileId>,
     /// The last frame before the latest call's time: what transitions start from.
-    before: Option<morph::Drawn>,
+    before: Option<Memory>,
     /// The latest call's selection (becomes `before` when time moves on).
-    latest: Option<morph::Drawn>,
+    latest: Option<Memory>,
+}
+
+/// What a frame selected with a time drew, for the transitions of the next.
+#[derive(Clone, Debug)]
+struct Memory {
+    drawn: morph::Drawn,
+    fades: fade::Fades,
 }
 
 impl Selector {
@@ -413,7 +432,7 @@ impl Selector {
     /// transitions nor start any from a selection that was never drawn: the
     /// last call at a time is taken to be the one drawn.
     pub fn select_at(&mut self, camera: &Camera, tables: &dyn TileTables, t: f64) -> Selection {
-        if self.latest.as_ref().is_some_and(|d| d.t != t) {
+        if self.latest.as_ref().is_some_and(|m| m.drawn.t != t) {
             self.before = self.latest.take();
         }
         self.select_inner(camera, tables, Some(t))
@@ -472,14 +491,24 @@ impl Selector {
         self.quadtrees = next_state;
         edge_lod::assign(&self.world, &mut patches);
         let chosen = patches.clone();
-        self.latest = morph::assign(
+        let drawn = morph::assign(
             &self.world,
             &self.params,
             &mut patches,
             &rhos,
-            self.before.as_ref(),
+            self.before.as_ref().map(|m| &m.drawn),
             t,
         );
+        self.latest = drawn.zip(t).map(|(drawn, t)| {
+            let fades = match &self.before {
+                Some(before) => fade::Fades::next(&before.fades, &choice.drawn, t),
+                None => fade::Fades::settled(&choice.drawn),
+            };
+            for p in &mut patches {
+                p.fade = fades.at(&self.params, p.tile, t);
+            }
+            Memory { drawn, fades }
+        });
         // A hole has no bound on its error, and neither has a stand-in whose error
         // box holds the eye: say "missing" rather than print a number.
         let bounded = choice.missing == 0 && max_rho.is_finite();

@@ -170,13 +170,13 @@ pub fn assign(
 ) -> Option<Drawn> {
     for p in patches.iter_mut() {
         let f = match rhos.get(&p.tile) {
-            Some(rho) => {
+            Some(rho) if params.morph_by_distance => {
                 let (k, i, j) = node(world, p);
                 let l = p.inner.trailing_zeros();
                 let half = (l > 0).then(|| rho.rho(k + l - 1, k, i, j));
                 patch_factor(params.tau, params.hysteresis, rho.rho(k + l, k, i, j), half)
             }
-            None => 0,
+            _ => 0,
         };
         p.morph.inner = f;
     }
@@ -491,8 +491,13 @@ mod tests {
         let (world, tables, heights) = scene();
         let mut levels = HashSet::new();
         let mut lods = HashSet::new();
+        // The distance factors (CDLOD's band), which selection sets only when asked.
+        let params = SelectParams {
+            morph_by_distance: true,
+            ..SelectParams::default()
+        };
         for yaw in [0.3, 1.9, 4.0] {
-            let mut selector = Selector::new(world, SelectParams::default());
+            let mut selector = Selector::new(world, params);
             let sel = selector.select(&camera(yaw), &tables);
             levels.extend(sel.tiles.iter().map(|t| t.level()));
             lods.extend(sel.patches.iter().map(|p| p.inner));
@@ -592,10 +597,17 @@ mod tests {
     #[test]
     fn a_change_of_selection_starts_as_the_surface_drawn_before_and_stays_crack_free() {
         let (world, tables, heights) = scene();
-        let params = SelectParams::default();
         let full = u32::from(FULL);
         let (mut new_squares, mut at_full, mut checked) = (0, 0, 0);
-        for yaw in [0.3, 1.9, 4.0] {
+        // Over time alone (the default), and with the distance band as well.
+        for (yaw, morph_by_distance) in [0.3, 1.9, 4.0]
+            .into_iter()
+            .flat_map(|y| [(y, false), (y, true)])
+        {
+            let params = SelectParams {
+                morph_by_distance,
+                ..SelectParams::default()
+            };
             let mut selector = Selector::new(world, params);
             let mut before = selector.select_at(&descent(yaw, 0), &tables, 0.0).patches;
             for k in 1..12 {

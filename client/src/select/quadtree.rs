@@ -81,6 +81,7 @@ pub fn build(
             inner: 1 << l,
             edges: [1 << l; 4],
             morph: super::morph::Morph::NONE,
+            fade: crate::select::fade::Fade::NONE,
         });
     }
     (state, max_rho)

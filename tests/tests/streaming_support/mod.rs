@@ -121,6 +121,7 @@ pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
         tau: 2.0,
         policy: tessera_client::select::Policy::ScreenError,
         morph_seconds: tessera_client::select::MORPH_SECONDS,
+        morph_by_distance: false,
         width: 960,
         height: 540,
         spacing: Some(30.0),
