@@ -415,9 +415,10 @@ impl Selector {
 
     /// Selects what to draw for `camera` from the resident `tables`, without a
     /// clock: as if every call came long after the last, so no geomorph
-    /// transition is ever in flight and every factor is the distance factor
-    /// alone (benchmarks of selection, tools, the prefetch look-ahead). It
-    /// forgets what [`Selector::select_at`] drew.
+    /// transition or shading fade is ever in flight and every factor is the
+    /// distance factor alone (0 without [`SelectParams::morph_by_distance`];
+    /// benchmarks of selection, tools, the prefetch look-ahead). It forgets what
+    /// [`Selector::select_at`] drew.
     pub fn select(&mut self, camera: &Camera, tables: &dyn TileTables) -> Selection {
         self.before = None;
         self.latest = None;

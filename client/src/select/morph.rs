@@ -2,8 +2,12 @@
 //! its own inner LOD `n` towards the `n/2` grid, so that a change of LOD is a
 //! continuous motion instead of a jump. The morph itself is CDLOD's (Strugar
 //! 2009: odd vertices slide onto the next coarser grid, by a factor that CDLOD
-//! takes from the distance); here *when* a patch slides is set twice: by
-//! distance (the interior factor below) and over time ([`transition`], below).
+//! takes from the distance); here *when* a patch slides is set over time
+//! ([`transition`], below) and, only with [`SelectParams::morph_by_distance`],
+//! also by distance (the interior factor below; off by default, since with
+//! transitions it changed popping by nothing measurable and cost 1 dB of PSNR:
+//! DECISIONS.md "Geomorphing over time"). Without it, a patch's target is its own
+//! LOD at factor 0. A refined tile's shading fades in alongside ([`super::fade`]).
 //!
 //! A vertex at an odd grid index takes the height `h + (h̄ − h)·f`, where `h̄` is the
 //! average of its even neighbours' heights (along the row, the column or the cell's
@@ -158,7 +162,8 @@ fn node(world: &World, p: &Patch) -> (u32, u32, u32) {
 /// With `before` (what the last frame drew) and this frame's time `t`, the
 /// patches then move over time from the surface drawn before ([`transition`]:
 /// inner LODs may be raised, and edge LODs are then assigned again); without,
-/// each interior factor is the distance factor alone. Returns what this frame
+/// each interior factor is the distance factor alone (0 unless
+/// [`SelectParams::morph_by_distance`]). Returns what this frame
 /// draws, for the next one, when it has a time.
 pub fn assign(
     world: &World,
@@ -293,7 +298,8 @@ pub fn step(params: &SelectParams, dt: f64) -> u32 {
 }
 
 /// Geomorphing over time. On entry every patch is at the inner LOD selection
-/// chose and its distance factor, i.e. its target [`coarseness`]; it is drawn
+/// chose and its distance factor (0 without the distance band), i.e. its target
+/// [`coarseness`]; it is drawn
 /// instead at the coarseness that moves from what `before` drew over its square
 /// towards that target:
 ///
