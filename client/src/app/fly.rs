@@ -84,6 +84,13 @@ pub struct FlySummary {
     pub frames_missing: u32,
     pub within_tau: f64,
     pub within_2tau: f64,
+    /// The same for the surface as drawn, geomorph transitions included
+    /// ([`crate::select::FrameStats::drawn_deficit`]): a refined patch is drawn
+    /// coarser than its LOD while its transition runs.
+    #[serde(default)]
+    pub drawn_within_tau: f64,
+    #[serde(default)]
+    pub drawn_within_2tau: f64,
     /// Frames before the first one within τ (start-up: the root and its first
     /// descendants are still on their way).
     pub warmup_frames: u32,
@@ -300,6 +307,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     let mut rendered: Vec<(FrameStats, RenderRecord)> = Vec::new();
     let mut start = Instant::now();
     let (mut within1, mut within2) = (0u32, 0u32);
+    let (mut drawn1, mut drawn2) = (0u32, 0u32);
     let (mut frames_drawn, mut frames_missing) = (0u32, 0u32);
     let mut warmup: Option<u32> = None;
     let (mut steady1, mut steady2) = (0u32, 0u32);
@@ -426,6 +434,8 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         let (ok1, ok2) = (sel.stats.within(1.0), sel.stats.within(2.0));
         within1 += u32::from(ok1);
         within2 += u32::from(ok2);
+        drawn1 += u32::from(sel.stats.drawn_within(1.0));
+        drawn2 += u32::from(sel.stats.drawn_within(2.0));
         if warmup.is_none() && ok1 {
             warmup = Some(frame);
         }
@@ -465,6 +475,8 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         frames_missing,
         within_tau: f64::from(within1) / n,
         within_2tau: f64::from(within2) / n,
+        drawn_within_tau: f64::from(drawn1) / n,
+        drawn_within_2tau: f64::from(drawn2) / n,
         warmup_frames,
         steady_within_tau: f64::from(steady1) / steady,
         steady_within_2tau: f64::from(steady2) / steady,

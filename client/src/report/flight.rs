@@ -90,16 +90,28 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
         write_png(&out.join("contact_sheet.png"), &rgba, w, h)?;
     }
     let n = records.len();
-    let within = |limit: f64| {
+    let within_by = |field: &str, limit: f64| {
         100.0
             * records
                 .iter()
                 .filter(|r| {
-                    r["deficit"].as_f64().is_some_and(|d| d <= limit)
+                    r[field].as_f64().is_some_and(|d| d <= limit)
                         && r["tiles"].as_u64().unwrap_or(0) > 0
                 })
                 .count() as f64
             / n as f64
+    };
+    let within = |limit: f64| within_by("deficit", limit);
+    // The surface as drawn, geomorph transitions included (stats written before
+    // it was recorded have none).
+    let drawn = if records.iter().any(|r| r.get("drawn_deficit").is_some()) {
+        format!(
+            " (as drawn, transitions included: {:.1}% and {:.1}%)",
+            within_by("drawn_deficit", 1.0),
+            within_by("drawn_deficit", 2.0)
+        )
+    } else {
+        String::new()
     };
     let last = &records[n - 1];
     let max_draws = column(&records, "draw_calls", 1.0)
@@ -134,7 +146,7 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
         let _ = write!(trouble, "; last error: {e}");
     }
     Ok(format!(
-        "{n} frames: median {:.0} triangles, at most {max_draws:.0} terrain draw calls; {:.1}% of frames within τ, {:.1}% within 2τ; \
+        "{n} frames: median {:.0} triangles, at most {max_draws:.0} terrain draw calls; {:.1}% of frames within τ, {:.1}% within 2τ{drawn}; \
          {:.1} MB in {} requests; median selection {:.2} ms, upload {:.2} ms, render {:.1} ms{trouble}",
         median(&column(&records, "triangles", 1.0)),
         within(1.0),
@@ -158,10 +170,16 @@ mod tests {
         let lines: Vec<String> = (0..30)
             .map(|f| {
                 format!(
-                    r#"{{"frame":{f},"tiles":3,"triangles":{},"draw_calls":4,"resident":{f},"bytes_fetched":{},"requests":2,"deficit":{},"select_us":300,"upload_ms":1.5,"render_ms":40}}"#,
+                    r#"{{"frame":{f},"tiles":3,"triangles":{},"draw_calls":4,"resident":{f},"bytes_fetched":{},"requests":2,"deficit":{},"drawn_deficit":{},"select_us":300,"upload_ms":1.5,"render_ms":40}}"#,
                     1000 + f * 10,
                     f * 100_000,
-                    if f < 10 { 3.0 } else { 0.9 }
+                    if f < 10 { 3.0 } else { 0.9 },
+                    // As drawn: five more frames past τ (transitions in flight).
+                    match f {
+                        0..10 => 3.0,
+                        10..15 => 1.5,
+                        _ => 0.9,
+                    }
                 )
             })
             .collect();
@@ -181,6 +199,10 @@ mod tests {
             "{summary}"
         );
         assert!(summary.contains("66.7% of frames within τ"), "{summary}");
+        assert!(
+            summary.contains("(as drawn, transitions included: 50.0% and 66.7%)"),
+            "{summary}"
+        );
         assert!(!summary.contains("missing"), "{summary}");
         assert!(read_png(&out.join("stats.png")).is_ok());
         let (_, w, _) = read_png(&out.join("contact_sheet.png")).unwrap();
@@ -197,6 +219,7 @@ mod tests {
         std::fs::write(&stats, lines.join("\n")).unwrap();
         let summary = write_report(&stats, None, &out).unwrap();
         assert!(summary.contains("25.0% of frames within τ"), "{summary}");
+        assert!(!summary.contains("as drawn"), "{summary}");
         assert!(
             summary.contains("deficit missing in 3 frames (up to 1 tiles"),
             "{summary}"

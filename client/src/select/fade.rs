@@ -80,23 +80,17 @@ impl Fades {
         let tiles = tiles
             .iter()
             .map(|&tile| {
-                let fade = match before.tiles.get(&tile) {
-                    Some(&kept) => kept,
-                    None => {
-                        let mut a = tile;
-                        let mut up = 0u8;
-                        let mut found = None;
-                        while let Some(p) = a.parent() {
-                            (a, up) = (p, up + 1);
-                            if before.tiles.contains_key(&a) {
-                                found = Some((up, t));
-                                break;
-                            }
-                        }
-                        found
+                if let Some(&kept) = before.tiles.get(&tile) {
+                    return (tile, kept);
+                }
+                let (mut a, mut up) = (tile, 0u8);
+                while let Some(p) = a.parent() {
+                    (a, up) = (p, up + 1);
+                    if before.tiles.contains_key(&a) {
+                        return (tile, Some((up, t)));
                     }
-                };
-                (tile, fade)
+                }
+                (tile, None)
             })
             .collect();
         Self { tiles }

@@ -351,6 +351,16 @@ pub struct FrameStats {
     /// `max_rho / τ`: above 1 while what is needed is still streaming; `None` with
     /// `max_rho`.
     pub deficit: Option<f64>,
+    /// [`FrameStats::max_rho`] of the surface as drawn, geomorph transitions
+    /// included (DESIGN §6 invariant 4: the deficit is never hidden): while a
+    /// patch's transition runs it is drawn part-way to the next coarser grid, and
+    /// its bound is the mix of the two grids' ([`morph::drawn_rho`]). Equal to
+    /// `max_rho` when no transition is in flight; `None` with it.
+    #[serde(default)]
+    pub drawn_max_rho: Option<f64>,
+    /// `drawn_max_rho / τ`.
+    #[serde(default)]
+    pub drawn_deficit: Option<f64>,
     /// Tiles in view with nothing drawn in their place (no resident ancestor): the
     /// root before it arrives, or the parts of a bad root's children that have not
     /// arrived or cannot be had.
@@ -363,6 +373,11 @@ impl FrameStats {
     /// Whether the frame drew something and every drawn error is within `limit·τ`.
     pub fn within(&self, limit: f64) -> bool {
         self.tiles > 0 && self.deficit.is_some_and(|d| d <= limit)
+    }
+
+    /// [`FrameStats::within`] for the surface as drawn, transitions included.
+    pub fn drawn_within(&self, limit: f64) -> bool {
+        self.tiles > 0 && self.drawn_deficit.is_some_and(|d| d <= limit)
     }
 }
 
@@ -514,6 +529,7 @@ impl Selector {
         // box holds the eye: say "missing" rather than print a number.
         let bounded = choice.missing == 0 && max_rho.is_finite();
         let max_rho = bounded.then_some(max_rho);
+        let drawn_max_rho = max_rho.map(|r| r.max(morph::drawn_rho(&self.world, &patches, &rhos)));
         let stats = FrameStats {
             tiles: choice.drawn.len(),
             patches: patches.len(),
@@ -521,6 +537,8 @@ impl Selector {
             coarsest_level: choice.drawn.iter().map(|t| t.level().get()).min(),
             max_rho,
             deficit: max_rho.map(|r| r / self.params.tau),
+            drawn_max_rho,
+            drawn_deficit: drawn_max_rho.map(|r| r / self.params.tau),
             missing: choice.missing,
             select_us: started.elapsed().as_secs_f64() * 1e6,
         };

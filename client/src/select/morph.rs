@@ -197,6 +197,30 @@ pub fn assign(
     t.map(|t| Drawn::new(world, patches, &selected, t))
 }
 
+/// The largest `ρ` of the patches as drawn: a patch at inner LOD `n` slid by
+/// `f` towards `n/2` has heights within `(1 − f)·ε_n + f·ε_{n/2}` of the DEM (a
+/// convex mix, as [`patch_factor`] says), so its bound is that mix of the two
+/// `ρ`, by its interior factor (a side slides by the factor of the patches
+/// across it that set its spacing, and is in their bound). `rhos` are this
+/// frame's tables of the drawn tiles.
+pub fn drawn_rho(world: &World, patches: &[Patch], rhos: &HashMap<TileId, TileRho>) -> f64 {
+    patches
+        .iter()
+        .filter_map(|p| {
+            let rho = rhos.get(&p.tile)?;
+            let (k, i, j) = node(world, p);
+            let l = p.inner.trailing_zeros();
+            let own = rho.rho(k + l, k, i, j);
+            let f = p.morph.inner;
+            if l == 0 || f == 0 {
+                return Some(own);
+            }
+            let f = f64::from(f) / f64::from(FULL);
+            Some((1.0 - f) * own + f * rho.rho(k + l - 1, k, i, j))
+        })
+        .fold(0.0, f64::max)
+}
+
 /// A patch's square on the global finest grid: `(log2 S, X/S, Y/S)`.
 type Square = (u32, u64, u64);
 
@@ -697,7 +721,7 @@ mod tests {
         let full = u32::from(FULL);
         let dt = params.morph_seconds / 5.0;
         let per_step = step(&params, dt);
-        let (mut refined, mut raised) = (0, 0);
+        let (mut refined, mut raised, mut drawn_worse) = (0, 0, 0);
         for yaw in [0.3, 1.9, 4.0] {
             let mut selector = Selector::new(world, params);
             selector.select_at(&descent(yaw, 0), &tables, 0.0);
@@ -707,7 +731,14 @@ mod tests {
             // The targets: selection's LODs at their distance factors, for the
             // same layout (no clock: no transition).
             let target = drawn(&world, &selector.clone().select(&camera, &tables).patches);
-            let first = drawn(&world, &selector.select_at(&camera, &tables, t).patches);
+            let sel = selector.select_at(&camera, &tables, t);
+            let first = drawn(&world, &sel.patches);
+            // The error of the surface as drawn is never below that of the
+            // selected LODs, and a refinement's transition shows in it.
+            let (selected, as_drawn) =
+                (sel.stats.max_rho.unwrap(), sel.stats.drawn_max_rho.unwrap());
+            assert!(as_drawn >= selected, "{as_drawn} < {selected}");
+            drawn_worse += usize::from(as_drawn > selected);
             assert_eq!(
                 first.keys().collect::<HashSet<_>>(),
                 target.keys().collect()
@@ -727,7 +758,12 @@ mod tests {
                 .collect();
             for n in 1..=20 {
                 let at = t + f64::from(n) * dt;
-                let now = drawn(&world, &selector.select_at(&camera, &tables, at).patches);
+                let sel = selector.select_at(&camera, &tables, at);
+                if n == 20 {
+                    // Every transition done: the surface drawn is the one selected.
+                    assert_eq!(sel.stats.drawn_max_rho, sel.stats.max_rho);
+                }
+                let now = drawn(&world, &sel.patches);
                 assert_eq!(
                     drawn(&world, &selector.select_at(&camera, &tables, at).patches),
                     now
@@ -761,8 +797,8 @@ mod tests {
         // Both kinds were exercised: refinements (coming down from above) and
         // raised patches (coming up from below).
         assert!(
-            refined >= 5 && raised >= 5,
-            "{refined} refinements, {raised} raised"
+            refined >= 5 && raised >= 5 && drawn_worse >= 1,
+            "{refined} refinements, {raised} raised, {drawn_worse} frames drawn worse than selected"
         );
     }
 
