@@ -12,7 +12,9 @@
 //! 3. [`edge_lod`]: edge LODs so that both sides of every shared edge produce the
 //!    same vertices (Kang §4.3), across tiles and pyramid levels too.
 //! 4. [`morph`]: how far each patch, and each shared side, has morphed towards
-//!    the next coarser LOD (CDLOD geomorphing), so that LOD changes do not pop.
+//!    the next coarser LOD (CDLOD's morph, run over time from what the last frame
+//!    drew), so that LOD changes do not pop; [`fade`]: a refined tile's shading
+//!    mixed with its parent's while it comes in.
 
 pub mod edge_lod;
 pub mod fade;
