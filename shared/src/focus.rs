@@ -42,11 +42,15 @@ impl Focus {
         (ok(u) && ok(v)).then_some(Self { u, v })
     }
 
-    /// A focus from the query value `U,V` (`?focus=0.15,0.2`), or why not.
+    /// A focus from the query value `U,V` (`?focus=0.15,0.2`), or why not. It is
+    /// kept to the query's four decimals ([`Focus::to_query`]), so that everything
+    /// a server derives from it (its tiles, an ETag, a cache key) follows the
+    /// point the query names, however many digits it was sent with.
     ///
     /// ```
     /// use tessera_shared::focus::Focus;
     /// assert_eq!(Focus::parse("0.5,0.25"), Ok(Focus::new(0.5, 0.25).unwrap()));
+    /// assert_eq!(Focus::parse("0.12346,0.5"), Ok(Focus::new(0.1235, 0.5).unwrap()));
     /// assert!(Focus::parse("0.5").unwrap_err().contains("two numbers"));
     /// assert!(Focus::parse("2,0").unwrap_err().contains("0 to 1"));
     /// ```
@@ -61,8 +65,15 @@ impl Focus {
                 .map_err(|_| format!("focus {s:?}: {p:?} is not a number"))
         };
         let (u, v) = (num(a)?, num(b)?);
-        Self::new(u, v)
-            .ok_or_else(|| format!("focus {s:?} is outside the dataset (U and V run from 0 to 1)"))
+        let f = Self::new(u, v).ok_or_else(|| {
+            format!("focus {s:?} is outside the dataset (U and V run from 0 to 1)")
+        })?;
+        // Within 0..=1 still: rounding moves neither past an end.
+        let round = |x: f64| (x * 1e4).round() / 1e4;
+        Ok(Self {
+            u: round(f.u),
+            v: round(f.v),
+        })
     }
 
     /// The query value, rounded to four decimals (a ten-thousandth of the extent).

@@ -152,13 +152,12 @@ pub async fn get(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
+    // Parsed to the four decimals of its query form, so that the ETag, the kept
+    // body and the tiles all follow the same point.
     let focus = query
         .get("focus")
         .map(|f| Focus::parse(f).map_err(ApiError::bad_request))
         .transpose()?;
-    // A focus is kept to the four decimals of its query form, so that the ETag,
-    // the kept body and the tiles all follow the same point.
-    let focus = focus.and_then(|f| Focus::parse(&f.to_query()).ok());
     let variant = focus.map_or_else(|| "bootstrap".to_string(), |f| format!("bootstrap@{f}"));
     let pin = pinned(&ds, &query);
     let etag = cache::etag(ds.content_hash(), &variant);
