@@ -3,8 +3,9 @@
 # 12 km down to 1.5 km above the ground in 6 s, the height falling by the same
 # fraction every frame, so that the camera's own motion changes the picture at a
 # steady pace), settled at every frame (everything the selection asks for resident,
-# so only the level of detail changes the picture), in four modes: geomorphing over
-# time with shading fades (the default), with CDLOD's distance band as well
+# so only the level of detail changes the picture), in five modes: geomorphing over
+# time with shading fades (the default, transitions held within τ), the same
+# without that limit (`--morph-error-limit inf`), with CDLOD's distance band as well
 # (`--morph-by-distance`), the distance band alone (`--morph-seconds 0
 # --morph-by-distance`), and none (`--no-morph`); at τ = 8 px (at τ = 1 a pop moves
 # the surface by about a pixel and is lost in the camera's motion). Figures: the mean and
@@ -21,9 +22,10 @@ build_moon 8192 "$WORK/moon8192.tess"
 url=$(serve "$WORK/moon8192.tess")
 path=$ROOT/bench/paths/popping.json
 for run in $(seq "$RUNS"); do
-  for mode in time time+distance distance none; do
+  for mode in time time-unlimited time+distance distance none; do
     case $mode in
       time) flag=() ;;
+      time-unlimited) flag=(--morph-error-limit inf) ;;
       time+distance) flag=(--morph-by-distance) ;;
       distance) flag=(--morph-seconds 0 --morph-by-distance) ;;
       none) flag=(--no-morph) ;;

@@ -160,6 +160,13 @@ enum Command {
         /// LOD: lower PSNR at the same τ).
         #[arg(long, conflicts_with = "no_morph")]
         morph_by_distance: bool,
+        /// The most screen-space error a transition may draw, as a multiple of τ: a
+        /// refinement starts as the coarser surface it replaces only as far as that
+        /// keeps its error within this, and jumps the rest of the way (fast flight
+        /// outruns transitions otherwise). 1: the surface drawn keeps τ; inf: always
+        /// start as the old surface.
+        #[arg(long, value_name = "X", default_value_t = tessera_client::select::MORPH_ERROR_LIMIT)]
+        morph_error_limit: f64,
         /// Do not drape the dataset's imagery (the hypsometric tint instead), even
         /// when the dataset has some.
         #[arg(long)]
@@ -571,6 +578,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             no_morph,
             morph_seconds,
             morph_by_distance,
+            morph_error_limit,
             no_imagery,
             globe,
             view,
@@ -635,6 +643,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 morph_seconds >= 0.0 && morph_seconds.is_finite(),
                 "--morph-seconds must be 0 or more"
             );
+            anyhow::ensure!(
+                morph_error_limit >= 1.0,
+                "--morph-error-limit must be 1 or more (a multiple of τ), got {morph_error_limit}"
+            );
             let opts = FlyOptions {
                 source: source.source()?,
                 path,
@@ -646,6 +658,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 // (the baseline), no inner LOD raised while one runs.
                 morph_seconds: if no_morph { 0.0 } else { morph_seconds },
                 morph_by_distance,
+                morph_error_limit,
                 width,
                 height,
                 spacing,

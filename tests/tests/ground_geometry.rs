@@ -305,6 +305,7 @@ fn settled_flight(
         policy: tessera_client::select::Policy::ScreenError,
         morph_seconds: tessera_client::select::MORPH_SECONDS,
         morph_by_distance: false,
+        morph_error_limit: tessera_client::select::MORPH_ERROR_LIMIT,
         width: size,
         height: size,
         spacing: None,

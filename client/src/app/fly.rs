@@ -29,6 +29,8 @@ pub struct FlyOptions {
     /// Geomorphing across a band of distance too ([`SelectParams::morph_by_distance`];
     /// `--morph-by-distance`).
     pub morph_by_distance: bool,
+    /// [`SelectParams::morph_error_limit`] (`--morph-error-limit`).
+    pub morph_error_limit: f64,
     pub width: u32,
     pub height: u32,
     /// Metres between samples on both axes (`--spacing`); default the dataset's
@@ -281,6 +283,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         policy: opts.policy,
         morph_seconds: opts.morph_seconds,
         morph_by_distance: opts.morph_by_distance,
+        morph_error_limit: opts.morph_error_limit,
         ..SelectParams::default()
     };
     let mut selector = Selector::new(world, params);

@@ -192,6 +192,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 policy: crate::select::Policy::ScreenError,
                 morph_seconds: crate::select::MORPH_SECONDS,
                 morph_by_distance: false,
+                morph_error_limit: crate::select::MORPH_ERROR_LIMIT,
                 width: opts.width,
                 height: opts.height,
                 spacing: opts.spacing,

@@ -168,6 +168,7 @@ impl State {
                     tau: opts.tau,
                     morph_seconds: opts.morph_seconds,
                     morph_by_distance: opts.morph_by_distance,
+                    morph_error_limit: opts.morph_error_limit,
                     ..SelectParams::default()
                 },
             ),

@@ -13,7 +13,7 @@
 //!   frame the client decoded);
 //! - a single tile: a 200 whose record matched its checksum header, or the 404 of an
 //!   absent tile; the bootstrap: a 2xx, or the 404 of a server without the route;
-//!   the document: a 2xx. Their bodies are digested whole ([`body_digest`]).
+//!   the document: a 2xx. Their bodies are digested whole ([`body_digest`](super::trace::body_digest)).
 //!
 //! Anything else — cancelled, failed (no connection, timeout, an HTTP error the
 //! client treats as a failure, a broken or corrupt stream), or still in flight when

@@ -6,7 +6,7 @@
 //! dependencies): functions return `(rgba, width, height)` and the caller writes
 //! the PNG, normally with [`tessera_charts::png::write_png`].
 //!
-//! - [`contact_sheet`]: frames downscaled by area averaging and tiled in a grid,
+//! - [`contact_sheet()`]: frames downscaled by area averaging and tiled in a grid,
 //!   each labelled with its frame number; [`pick_evenly`] chooses which frames.
 //! - [`plot`]: one panel per [`Series`] ("triangles", "draw calls", …), stacked
 //!   over a shared x axis of frame numbers.

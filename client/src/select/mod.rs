@@ -270,10 +270,25 @@ pub struct SelectParams {
     /// it draws every patch in its band coarser than its LOD (DECISIONS.md
     /// "Geomorphing over time").
     pub morph_by_distance: bool,
+    /// The most error a transition may draw, as a multiple of `τ` (at least 1):
+    /// a refined patch starts as the old surface only as far as its `ρ` there
+    /// stays within `morph_error_limit·τ`, and jumps the rest of the way
+    /// ([`morph::transition`]). Without a limit, transitions lagged fast flight
+    /// (moon `canyon` at 150 ms: 37% of frames within τ as drawn and 90% within
+    /// 2τ, against 96% and 100% as selected).
+    pub morph_error_limit: f64,
 }
 
 /// [`SelectParams::morph_seconds`] unless told otherwise.
 pub const MORPH_SECONDS: f64 = 0.25;
+
+/// [`SelectParams::morph_error_limit`] unless told otherwise: `τ` itself, so that
+/// the surface as drawn keeps `τ` wherever the selected LODs do. On the moon
+/// descent of `bench/popping.sh` it popped as little as no limit (same-camera
+/// excess 0.012 both ways: a refinement starts where `ρ_{n/2}` has only just
+/// passed `τ`, nearly at the old surface), and it cut only the transitions that
+/// lagged fast flight (DECISIONS.md "Geomorphing over time").
+pub const MORPH_ERROR_LIMIT: f64 = 1.0;
 
 impl Default for SelectParams {
     fn default() -> Self {
@@ -283,6 +298,7 @@ impl Default for SelectParams {
             policy: Policy::ScreenError,
             morph_seconds: MORPH_SECONDS,
             morph_by_distance: false,
+            morph_error_limit: MORPH_ERROR_LIMIT,
         }
     }
 }

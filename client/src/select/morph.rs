@@ -68,11 +68,14 @@
 //! explicit (a flight's time at its fixed frame rate, the window's wall clock),
 //! so runs are reproducible, and selecting again at the same time (a settled
 //! frame) advances nothing. The price: while a transition runs, a refined patch
-//! is coarser than its LOD (its error may exceed `τ` for up to that time; the
-//! frame's reported `ρ` is the selected LOD's), and a raised one costs
-//! triangles. The change a pop made at once is spread over the frames of the
-//! transition; crack-freedom is untouched (the sides are shared as below, from
-//! whatever interior factors the patches have).
+//! is coarser than its LOD, though never past
+//! [`super::SelectParams::morph_error_limit`]`·τ` (by default `τ` itself: a
+//! refinement that would start above it jumps part of the way, which in slow
+//! flight is rarely and little, since `ρ_{n/2}` has only just passed `τ` when
+//! selection refines; the frame reports this bound as `drawn_max_rho`, [`drawn_rho`]),
+//! and a raised one costs triangles. The change a pop made at once is spread over
+//! the frames of the transition; crack-freedom is untouched (the sides are shared
+//! as below, from whatever interior factors the patches have).
 //!
 //! **Tiles and their children**: a child tile's level `m` grid is its parent's
 //! level `m + 1` grid, on the same samples (the pyramid decimates), so a child
@@ -151,6 +154,22 @@ pub fn patch_factor(tau: f64, hysteresis: f64, rho_n: f64, rho_half: Option<f64>
     (f * f64::from(FULL)).floor().clamp(0.0, f64::from(FULL)) as u16
 }
 
+/// The largest factor at which a patch whose `ρ` is `rho_n` at its inner LOD
+/// and `rho_half` one grid coarser keeps its drawn bound,
+/// `(1 − f)·ρ_n + f·ρ_{n/2}` ([`drawn_rho`]), within `limit`; rounded down. 0 where
+/// `ρ_n` alone misses it (or is NaN), [`FULL`] where `ρ_{n/2}` keeps it.
+pub fn limit_factor(limit: f64, rho_n: f64, rho_half: f64) -> u16 {
+    if rho_half <= limit {
+        return FULL;
+    }
+    if rho_n.is_nan() || rho_half.is_nan() || rho_n >= limit {
+        return 0;
+    }
+    // ρ_n < limit < ρ_{n/2}: in (0, 1).
+    let f = (limit - rho_n) / (rho_half - rho_n);
+    (f * f64::from(FULL)).floor().clamp(0.0, f64::from(FULL)) as u16
+}
+
 /// Depth `k` and node `(i, j)` of a patch in its tile's quadtree.
 fn node(world: &World, p: &Patch) -> (u32, u32, u32) {
     let k = (world.geometry.tile_size() / p.size).trailing_zeros();
@@ -187,7 +206,7 @@ pub fn assign(
     }
     let selected: Vec<u32> = patches.iter().map(|p| p.inner).collect();
     if let (Some(before), Some(t)) = (before, t)
-        && transition(world, params, patches, before, t)
+        && transition(world, params, patches, rhos, before, t)
     {
         // Finer patches only make a side's spacing finer: no inner LOD is raised
         // again, only the edge LODs follow.
@@ -341,10 +360,19 @@ pub fn step(params: &SelectParams, dt: f64) -> u32 {
 /// most 64) to the grid below it, so that a patch coarser than what was drawn
 /// (the far children of a split often are, and a merge is) comes down to its own
 /// LOD over time instead of jumping. Returns whether an inner LOD was raised.
+///
+/// **The error limit**: a coarseness above the target is further cut to the
+/// largest whose drawn `ρ` ([`drawn_rho`]'s mix) keeps within
+/// [`SelectParams::morph_error_limit`]`·τ` ([`limit_factor`]), though never below
+/// the target: where the old surface is that much coarser than the new LOD (a
+/// fast flight, or tiles that arrived late), the refinement jumps part of the
+/// way and morphs the rest, rather than lag the flight with a surface far off
+/// `τ`.
 pub fn transition(
     world: &World,
     params: &SelectParams,
     patches: &mut [Patch],
+    rhos: &HashMap<TileId, TileRho>,
     before: &Drawn,
     t: f64,
 ) -> bool {
@@ -368,7 +396,21 @@ pub fn transition(
         };
         // Inner LOD at most 64; nothing coarser than n/2 (inner LOD 1: itself).
         let coarsest = own * full + if p.inner >= 2 { full } else { 0 };
-        let c = c.clamp(s.saturating_sub(6) * full, coarsest);
+        let mut c = c.clamp(s.saturating_sub(6) * full, coarsest);
+        if c > target
+            && let Some(rho) = rhos.get(&p.tile)
+        {
+            // Coarser than the target only on its own grid (at most `coarsest`):
+            // the mix of ρ_n and ρ_{n/2} by the factor.
+            let (k, i, j) = node(world, p);
+            let l = p.inner.trailing_zeros();
+            let f = limit_factor(
+                params.morph_error_limit * params.tau,
+                rho.rho(k + l, k, i, j),
+                rho.rho(k + l - 1, k, i, j),
+            );
+            c = c.min((own * full + u32::from(f)).max(target));
+        }
         let grid = (c / full).min(own);
         if grid < own {
             p.inner = 1 << (s - grid);
@@ -629,13 +671,16 @@ mod tests {
         let (world, tables, heights) = scene();
         let full = u32::from(FULL);
         let (mut new_squares, mut at_full, mut checked) = (0, 0, 0);
-        // Over time alone (the default), and with the distance band as well.
+        // Over time alone (the default), and with the distance band as well;
+        // without the error limit, which cuts a transition short where the old
+        // surface is too coarse (tested below).
         for (yaw, morph_by_distance) in [0.3, 1.9, 4.0]
             .into_iter()
             .flat_map(|y| [(y, false), (y, true)])
         {
             let params = SelectParams {
                 morph_by_distance,
+                morph_error_limit: f64::INFINITY,
                 ..SelectParams::default()
             };
             let mut selector = Selector::new(world, params);
@@ -697,6 +742,79 @@ mod tests {
         assert!(
             new_squares > 10 && at_full > 5 && checked > 1000,
             "{new_squares} new squares ({at_full} from one grid coarser), {checked} vertices"
+        );
+    }
+
+    #[test]
+    fn a_transition_never_draws_more_error_than_its_limit_and_goes_up_to_it() {
+        // The default limit (τ), and one above it.
+        for limit in [SelectParams::default().morph_error_limit, 1.5] {
+            limit_holds(limit);
+        }
+    }
+
+    fn limit_holds(limit: f64) {
+        let (world, tables, heights) = scene();
+        let capped = SelectParams {
+            morph_error_limit: limit,
+            ..SelectParams::default()
+        };
+        let free = SelectParams {
+            morph_error_limit: f64::INFINITY,
+            ..capped
+        };
+        let (mut over, mut at_limit, mut refining) = (0, 0, 0);
+        for yaw in [0.3, 1.9, 4.0] {
+            let (mut a, mut b) = (Selector::new(world, capped), Selector::new(world, free));
+            for k in 0..12 {
+                // A fast descent: four frames of `descent` per 20 fps frame.
+                let (camera, t) = (descent(yaw, 4 * k), f64::from(k) * 0.05);
+                let sel = a.select_at(&camera, &tables, t);
+                let unlimited = b.select_at(&camera, &tables, t).stats;
+                let (selected, drawn) =
+                    (sel.stats.max_rho.unwrap(), sel.stats.drawn_max_rho.unwrap());
+                assert!(selected <= capped.tau, "frame {k}: selected {selected}");
+                assert!(
+                    drawn <= limit * capped.tau + 1e-9,
+                    "frame {k}: drawn {drawn} over the limit"
+                );
+                over += usize::from(unlimited.drawn_max_rho.unwrap() > limit * capped.tau);
+                let (_, shared, differ) = shared_points(&world, &sel.patches, &heights);
+                assert_eq!(differ, 0, "{differ} of {shared} shared points differ");
+                // Each refinement in flight (at its selected LOD, slid towards the
+                // coarser grid) is within the limit, and where it was cut short it
+                // is at the limit: as close to the old surface as the limit lets.
+                for (p, chosen) in sel.patches.iter().zip(&sel.chosen) {
+                    if p.inner != chosen.inner || p.morph.inner == 0 {
+                        continue;
+                    }
+                    let rho = TileRho::new(
+                        &world,
+                        p.tile,
+                        &tables[&p.tile],
+                        camera.position,
+                        camera.lambda(),
+                        world.max_depth(),
+                        capped.policy,
+                    );
+                    let (k, i, j) = node(&world, p);
+                    let l = p.inner.trailing_zeros();
+                    let (rn, rh) = (rho.rho(k + l, k, i, j), rho.rho(k + l - 1, k, i, j));
+                    let f = f64::from(p.morph.inner) / f64::from(FULL);
+                    assert!((1.0 - f) * rn + f * rh <= limit * capped.tau + 1e-9);
+                    refining += 1;
+                    at_limit += usize::from(
+                        p.morph.inner < FULL
+                            && p.morph.inner == limit_factor(limit * capped.tau, rn, rh),
+                    );
+                }
+            }
+        }
+        // Without the limit, transitions drew more; with it, some were cut short
+        // and others ran as before.
+        assert!(
+            over >= 3 && at_limit >= 3 && refining > at_limit,
+            "limit {limit}: {over} frames over it without it; {at_limit} of {refining} refinements at it"
         );
     }
 
@@ -854,6 +972,26 @@ mod tests {
         }
         assert!(last < FULL / 8, "{last}");
         assert!(f(0.34, Some(1.02)) > FULL * 9 / 10);
+    }
+
+    #[test]
+    fn the_limit_factor_keeps_the_mixed_bound_within_the_limit() {
+        assert_eq!(limit_factor(2.0, 0.5, 2.0), FULL);
+        assert_eq!(limit_factor(2.0, 2.0, 5.0), 0);
+        assert_eq!(limit_factor(2.0, f64::NAN, 5.0), 0);
+        assert_eq!(limit_factor(2.0, 0.5, f64::INFINITY), 0);
+        assert_eq!(limit_factor(f64::INFINITY, 0.5, 1e300), FULL);
+        // Half-way: 1 + ½·(3 − 1) = 2.
+        assert_eq!(limit_factor(2.0, 1.0, 3.0), FULL / 2);
+        for (rn, rh) in [(0.3, 2.5), (0.9, 7.0), (1.99, 2.01)] {
+            let f = limit_factor(2.0, rn, rh);
+            let mixed = |f: u16| {
+                let f = f64::from(f) / f64::from(FULL);
+                (1.0 - f) * rn + f * rh
+            };
+            assert!(f < FULL && mixed(f) <= 2.0, "{rn} {rh}: {f}");
+            assert!(mixed(f + 1) > 2.0, "{rn} {rh}: {f} is not the largest");
+        }
     }
 
     #[test]

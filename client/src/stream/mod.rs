@@ -360,8 +360,9 @@ impl Streamer {
 
     /// The dataset's imagery, fetched beside the tiles on this streamer's runtime and
     /// connection ([`imagery::ImageryFeed`]): `None` when the dataset has none. A
-    /// static pyramid file's imagery is the `.tessimg` file beside it, opened here
-    /// ([`Streamer::open_imagery_beside`]).
+    /// static pyramid file's imagery is the file beside it with `.tess` replaced by
+    /// `.tessimg` (none for a presigned URL, which names one object); one that
+    /// does not open is skipped with a warning, and the tint is drawn instead.
     pub fn imagery_feed(&self, capacity: usize) -> Option<imagery::ImageryFeed> {
         let url = match &self.backend {
             Backend::Server { url, .. } => url,

@@ -122,6 +122,7 @@ pub fn options(server: SocketAddr, path: String, frames: u32) -> FlyOptions {
         policy: tessera_client::select::Policy::ScreenError,
         morph_seconds: tessera_client::select::MORPH_SECONDS,
         morph_by_distance: false,
+        morph_error_limit: tessera_client::select::MORPH_ERROR_LIMIT,
         width: 960,
         height: 540,
         spacing: Some(30.0),
