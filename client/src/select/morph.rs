@@ -129,28 +129,30 @@ pub const HEIGHT_UNITS: u32 = 2 * FULL as u32;
 /// coarser), with selection's `tau` and `hysteresis`; rounded down.
 pub fn patch_factor(tau: f64, hysteresis: f64, rho_n: f64, rho_half: Option<f64>) -> u16 {
     let Some(rho_half) = rho_half else { return 0 };
-    if rho_half <= tau {
-        return FULL;
+    // The cap that keeps τ: FULL where n/2 meets τ; 0 where n itself misses τ
+    // (selection refines it, or it is forced), or NaN: as itself.
+    let keeps_tau = limit_factor(tau, rho_n, rho_half);
+    if keeps_tau == 0 || keeps_tau == FULL {
+        return keeps_tau;
     }
-    // n itself misses τ (selection refines it, or it is forced), or NaN: as itself.
-    if rho_n.is_nan() || rho_half.is_nan() || rho_n >= tau {
-        return 0;
-    }
-    // Here ρ_n < τ < ρ_{n/2}: in (0, 1).
-    let keeps_tau = (tau - rho_n) / (rho_half - rho_n);
+    // Here ρ_n < τ < ρ_{n/2}.
     let (u, v) = (rho_n / (tau * (1.0 - hysteresis)), rho_half / tau);
     // Whether the two hysteresis zones are apart (ε_n < (1 − h)·ε_{n/2}): a ratio
     // of errors, the same at any distance, so the choice never flips as the eye
     // moves.
-    let f = if rho_n < (1.0 - hysteresis) * rho_half {
+    if rho_n < (1.0 - hysteresis) * rho_half {
         // Then u < v, and the band runs from 1 (v = 1) to 0 (u = 1).
-        keeps_tau.min(v * (1.0 - u) / (v - u)).max(0.0)
+        keeps_tau.min(to_factor(v * (1.0 - u) / (v - u)))
     } else {
         // They overlap: no factor suits both; LOD n lives only between
         // ρ_{n/2} = τ and ρ_n = τ coming closer, and the cap alone runs from 1 to
         // 0 across exactly that.
         keeps_tau
-    };
+    }
+}
+
+/// A fraction in `[0, 1]` as a factor, rounded down (clamped; NaN is 0).
+fn to_factor(f: f64) -> u16 {
     (f * f64::from(FULL)).floor().clamp(0.0, f64::from(FULL)) as u16
 }
 
@@ -166,8 +168,7 @@ pub fn limit_factor(limit: f64, rho_n: f64, rho_half: f64) -> u16 {
         return 0;
     }
     // ρ_n < limit < ρ_{n/2}: in (0, 1).
-    let f = (limit - rho_n) / (rho_half - rho_n);
-    (f * f64::from(FULL)).floor().clamp(0.0, f64::from(FULL)) as u16
+    to_factor((limit - rho_n) / (rho_half - rho_n))
 }
 
 /// Depth `k` and node `(i, j)` of a patch in its tile's quadtree.
