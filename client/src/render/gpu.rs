@@ -41,7 +41,7 @@ impl Gpu {
             ],
         };
         let mut adapter = None;
-        for &backends in &tries {
+        for (i, &backends) in tries.iter().enumerate() {
             let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
             desc.backends = backends;
             let instance = wgpu::Instance::new(desc);
@@ -51,6 +51,15 @@ impl Gpu {
                     ..Default::default()
                 }))
             {
+                // A machine without a Vulkan driver silently drew through GL in
+                // stop 28's benchmarks; a different API changes what is measured.
+                if i > 0 {
+                    tracing::warn!(
+                        adapter = %a.get_info().name,
+                        "no adapter for {:?}; falling back to {backends:?}",
+                        tries[..i]
+                    );
+                }
                 adapter = Some(a);
                 break;
             }
