@@ -5,8 +5,8 @@
 //! access log recording every request's `Range`.
 //!
 //! - the same flight against `tessera-server` and against nginx converges to the same
-//!   selection, with the same tiles and one Range request per run of contiguous
-//!   records (a Morton range);
+//!   selection, with one Range request per run of contiguous records (a Morton
+//!   range), each record fetched once;
 //! - a record corrupt in the file is reported corrupt, retried, written off; the
 //!   others of its request arrive, and the flight draws on;
 //! - nginx killed mid-flight and restarted: the flight recovers;
@@ -94,6 +94,16 @@ impl Records {
         assert_eq!(first.level(), last.level(), "{l:?} spans two levels");
         (*first, *last)
     }
+
+    /// How many records a logged tile request's range holds (all of them, whether
+    /// or not the client read them to the end).
+    fn count(&self, l: &Logged) -> u64 {
+        let (a, b) = l.byte_range().unwrap_or_else(|| panic!("no Range: {l:?}"));
+        self.starts
+            .keys()
+            .filter(|&&o| (a..=b).contains(&o))
+            .count() as u64
+    }
 }
 
 /// The open and the tile requests of one serverless flight, checked against the
@@ -169,7 +179,8 @@ fn serverless_flight_matches_the_server_flight() {
     let log = nginx.log();
 
     let p = Pyramid::open_file(pyramid()).unwrap();
-    let logged = check_requests(&log, &Records::of(&p), &serverless);
+    let records = Records::of(&p);
+    let logged = check_requests(&log, &records, &serverless);
     eprintln!(
         "{:<12} {:>7} {:>7} {:>6} {:>6} {:>9} {:>8} {:>7}",
         "", "within", "2tau", "tiles", "reqs", "ranges", "bytes", "cancel"
@@ -218,19 +229,26 @@ fn serverless_flight_matches_the_server_flight() {
         server.within_2tau,
         serverless.within_2tau
     );
-    // The same tiles, give or take prefetch timing; the records themselves, where
-    // the server adds its frame headers.
-    let ratio = serverless.stream.tiles as f64 / server.stream.tiles as f64;
-    assert!((0.85..=1.15).contains(&ratio), "tiles: {ratio}");
-    let ratio = serverless.stream.bytes as f64 / server.stream.bytes as f64;
-    assert!((0.85..=1.2).contains(&ratio), "bytes: {ratio}");
-    // Exactly the records' bytes: what nginx sent for the tile requests (all
-    // answered in full when none was cancelled).
-    let sent: u64 = requests_for(&log, "terrain.tess")[1..]
-        .iter()
-        .map(|l| l.bytes_sent)
-        .sum();
+    // How many tiles each flight fetches depends on when they arrive (prefetch looks
+    // ahead from what is resident), so the two counts are not compared. What holds
+    // whatever the timing: the client counts no tile nginx did not send; and when
+    // nothing was cancelled, it fetched each record once (the answered runs do not
+    // overlap) and counted exactly the records and bytes nginx sent.
+    let tile_reqs = &requests_for(&log, "terrain.tess")[1..];
+    let sent_records: u64 = tile_reqs.iter().map(|l| records.count(l)).sum();
+    assert!(
+        serverless.stream.tiles <= sent_records,
+        "{} tiles counted, {sent_records} records sent",
+        serverless.stream.tiles
+    );
     if serverless.stream.cancelled == 0 {
+        let mut runs: Vec<(u64, u64)> = tile_reqs.iter().filter_map(|l| l.byte_range()).collect();
+        runs.sort_unstable();
+        for w in runs.windows(2) {
+            assert!(w[0].1 < w[1].0, "a record fetched twice: {w:?}");
+        }
+        assert_eq!(serverless.stream.tiles, sent_records);
+        let sent: u64 = tile_reqs.iter().map(|l| l.bytes_sent).sum();
         assert_eq!(serverless.stream.bytes, sent);
     }
 }

@@ -57,7 +57,7 @@ impl Gpu {
                     tracing::warn!(
                         adapter = %a.get_info().name,
                         "no adapter for {:?}; falling back to {backends:?}",
-                        tries[..i]
+                        &tries[..i]
                     );
                 }
                 adapter = Some(a);
