@@ -541,3 +541,99 @@ fn a_refined_tile_fades_in_from_its_parents_shading() {
         assert!(d > pop * 0.4 && d < pop * 0.6, "{d} vs {pop}");
     }
 }
+
+/// Mean colour (R, G, B) of an RGBA8 image.
+fn mean_colour(rgba: &[u8]) -> [f64; 3] {
+    let n = (rgba.len() / 4).max(1) as f64;
+    let mut sum = [0f64; 3];
+    for p in rgba.chunks_exact(4) {
+        for c in 0..3 {
+            sum[c] += f64::from(p[c]);
+        }
+    }
+    sum.map(|s| s / n)
+}
+
+/// Haze follows the air the view crosses, not the distance alone
+/// (`terrain.wgsl` `haze_amount`): the same patch of ground, framed alike from
+/// 0.2 and from 2 extents above it, looks the same, because the air above a few
+/// scale heights is thin. Haze by distance alone would hide 18 % of the near view
+/// and 86 % of the far one, moving the far view's mean colour by ~0.7 of its
+/// distance to the haze colour (tens of levels of 255); the air-mass model
+/// predicts under 2 % of it. Tolerance: the mean colours differ by ≤ 4 of 255 in
+/// each channel, which leaves room for the coarser levels' shading far away. And
+/// along the ground it still hazes: a low, level view is hazier at its far edge.
+#[test]
+fn haze_follows_the_air_crossed_not_the_distance() {
+    let Some(m) = moon() else { return };
+    let mut r = renderer(m, Backend::Vulkan);
+    let meta = m.pyramid.metadata();
+    let extent = f64::from(m.world.geometry.width()) * m.world.spacing.x;
+    let ground = 0.5 * (meta.min_height + meta.max_height);
+    let target = DVec3::new(0.5 * extent, ground, 0.5 * extent);
+    let half_width = 0.05 * extent;
+    let mut view_from = |distance: f64| {
+        let mut cam = Camera {
+            position: DVec3::ZERO,
+            yaw: 0.3,
+            pitch: -1.45,
+            fovy: 2.0 * (half_width / distance).atan(),
+            width: W,
+            height: H,
+            near: 0.01 * distance,
+            far: 2.0 * distance,
+        };
+        cam.position = target - cam.forward() * distance;
+        let s = Selector::new(m.world, SelectParams::default()).select(&cam, &m.tables);
+        r.draw(&cam, &s.patches).unwrap();
+        let rgba = r.read_rgba().unwrap();
+        assert_eq!(quality::sky_pixels(&rgba), 0, "the ground fills the view");
+        mean_colour(&rgba)
+    };
+    let near = view_from(0.2 * extent);
+    let far = view_from(2.0 * extent);
+    for c in 0..3 {
+        assert!(
+            (near[c] - far[c]).abs() <= 4.0,
+            "channel {c}: {:.1} from 0.2 extents against {:.1} from 2 extents",
+            near[c],
+            far[c]
+        );
+    }
+
+    // Low over the ground, looking level and a little down: the far rows (top) are
+    // closer to the haze colour than the near rows (bottom).
+    let cam = Camera {
+        position: DVec3::new(0.1 * extent, meta.max_height + 200.0, 0.9 * extent),
+        yaw: 45f64.to_radians(),
+        pitch: -0.12,
+        fovy: 60f64.to_radians(),
+        width: W,
+        height: H,
+        near: 1.0,
+        far: 4.0 * extent,
+    };
+    let s = Selector::new(m.world, SelectParams::default()).select(&cam, &m.tables);
+    r.draw(&cam, &s.patches).unwrap();
+    let rgba = r.read_rgba().unwrap();
+    let row_bytes = (W * 4) as usize;
+    let haze = tessera_client::render::HAZE_COLOUR.map(|c| f64::from(c) * 255.0);
+    // Mean distance of a band of rows' terrain colour from the haze colour.
+    let band = |rows: std::ops::Range<usize>| {
+        let px: Vec<u8> = rgba[rows.start * row_bytes..rows.end * row_bytes]
+            .chunks_exact(4)
+            .filter(|p| !quality::is_sky(p))
+            .flatten()
+            .copied()
+            .collect();
+        assert!(px.len() > row_bytes, "terrain in rows {rows:?}");
+        let c = mean_colour(&px);
+        (0..3).map(|i| (c[i] - haze[i]).abs()).sum::<f64>() / 3.0
+    };
+    let h = H as usize;
+    let (far_rows, near_rows) = (band(h / 4..h / 2), band(h - h / 8..h));
+    assert!(
+        far_rows + 10.0 < near_rows,
+        "the far rows ({far_rows:.1} from the haze colour) should be hazier than the near ones ({near_rows:.1})"
+    );
+}

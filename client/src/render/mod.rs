@@ -40,6 +40,10 @@ pub mod reference;
 pub mod slots;
 mod upload;
 
+/// The colour distant terrain fades to (linear RGB, 0–1); how much of it a point
+/// takes follows the air between it and the eye (`terrain.wgsl` `haze_amount`).
+pub const HAZE_COLOUR: [f32; 3] = [0.74, 0.80, 0.88];
+
 use crate::select::World;
 use gpu::{Backend, Gpu};
 use slots::SlotTable;

@@ -27,7 +27,12 @@ struct Globals {
     spacing: [f32; 4],
     globe: [f32; 4],
     to_local: [[f32; 4]; 3],
+    air: [f32; 4],
 }
+
+/// How many times shorter the air's scale height is than the haze's visibility
+/// distance (see `write_globals`).
+const AIR_THINNING: f64 = 10.0;
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -300,6 +305,10 @@ impl Renderer {
         let vp = (camera.projection() * view).as_mat4();
         // A low sun from the north-west brings out relief.
         let sun = DVec3::new(-0.7, 0.42, -0.58).normalize().as_vec3();
+        // Haze (terrain.wgsl `haze_amount`): the dataset's far edge, seen across the
+        // lowest ground, mostly hidden; the air's scale height a tenth of that
+        // distance (Earth: ~8 km against ~50–100 km of visibility), so that views
+        // from above are clear and views along the ground hazy.
         let extent = self.world.size_m().max_element();
         let q = self.world.quant;
         let globals = Globals {
@@ -318,7 +327,12 @@ impl Renderer {
                 self.height_range.1 as f32,
             ],
             sun: [sun.x, sun.y, sun.z, 0.0],
-            haze: [0.74, 0.80, 0.88, extent as f32],
+            haze: [
+                super::HAZE_COLOUR[0],
+                super::HAZE_COLOUR[1],
+                super::HAZE_COLOUR[2],
+                extent as f32,
+            ],
             mode: [
                 self.opts.view as u32,
                 self.opts.parallax as u32,
@@ -328,6 +342,12 @@ impl Renderer {
             spacing: [s.x as f32, s.y as f32, 0.0, 0.0],
             globe: [0.0; 4],
             to_local: [[0.0; 4]; 3],
+            air: [
+                (extent / AIR_THINNING) as f32,
+                self.height_range.0 as f32,
+                0.0,
+                0.0,
+            ],
         };
         let globals = self.globe_globals(globals, camera);
         self.gpu

@@ -18,7 +18,8 @@ struct Globals {
     quant: vec4<f32>,
     // Direction towards the sun (unit), w unused.
     sun: vec4<f32>,
-    // Haze colour, and the distance over which it takes 63% of the colour.
+    // Haze colour, and the distance through air at the lowest terrain over which
+    // it takes 63% of the colour.
     haze: vec4<f32>,
     // (debug view, parallax mode, tile size in cells, unused).
     mode: vec4<u32>,
@@ -31,6 +32,9 @@ struct Globals {
     to_local0: vec4<f32>,
     to_local1: vec4<f32>,
     to_local2: vec4<f32>,
+    // The air of the aerial perspective: (scale height, the height where its
+    // density is 1 (the lowest terrain), unused, unused), metres.
+    air: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> g: Globals;
@@ -358,6 +362,23 @@ fn lit(uv: vec2<f32>, slot: u32) -> f32 {
     return 0.25 + 0.75 * max(dot(n, g.sun.xyz), 0.0);
 }
 
+// Aerial perspective: how much haze lies between the eye and a point `dist` metres
+// away at height `h`. The air's density falls off as exp(−(y − base)/H) with height
+// y, so the haze follows the air mass the ray crosses, not its length alone: seen
+// from high above, the whole dataset stays clear; from a valley floor, the far walls
+// fade. Along the ray from the point (height h) to the eye (height h + x·H) the
+// mass is dist · ρ(h) · (1 − e^−x)/x, exactly.
+fn haze_amount(dist: f32, h: f32) -> f32 {
+    let scale = g.air.x;
+    let x = clamp((g.eye_frac.y - h) / scale, -30.0, 60.0);
+    var mean = 1.0 - 0.5 * x;
+    if (abs(x) > 1e-3) {
+        mean = (1.0 - exp(-x)) / x;
+    }
+    let mass = dist * exp(min((g.air.y - h) / scale, 30.0)) * mean;
+    return 1.0 - exp(-mass / g.haze.w);
+}
+
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     // Derivatives first, in uniform control flow.
@@ -403,8 +424,7 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
         colour = vec3<f32>(0.9, 0.1, 0.1) * (0.5 + 0.5 * light);
     }
     if (view != 1u && view != 2u) {
-        let fog = 1.0 - exp(-length(in.rel) / g.haze.w);
-        colour = mix(colour, g.haze.rgb, fog);
+        colour = mix(colour, g.haze.rgb, haze_amount(length(in.rel), in.base_h));
     }
     // Keep terrain distinguishable from the sky colour in every view.
     colour = clamp(colour, vec3<f32>(0.02), vec3<f32>(0.98));
