@@ -18,6 +18,17 @@ CLIENT_BIN=$ROOT/target/release/tessera
 # The latency proxy of bench/stream.sh (which checks for it).
 PROXY_BIN=$ROOT/target/release/tessera-proxy
 mkdir -p "$RESULTS"
+# Headless: no Mesa device-select layer (see ./run), and say so when the CPU
+# Vulkan driver is missing, since the renderer would then measure GL instead
+# (`./run bench` installs it).
+if [ -z "${DISPLAY:-}" ] && [ -z "${WAYLAND_DISPLAY:-}" ]; then
+  export NODEVICE_SELECT="${NODEVICE_SELECT:-1}"
+fi
+if command -v dpkg-query >/dev/null &&
+  ! dpkg-query -W -f='${Status}' mesa-vulkan-drivers 2>/dev/null | grep -q "install ok installed"; then
+  echo "warning: mesa-vulkan-drivers is not installed, so the renderer will draw through GL;" \
+    "run ./run bench (as root it installs it) or: sudo apt-get install -y mesa-vulkan-drivers" >&2
+fi
 [ -x "$SERVER_BIN" ] && [ -x "$CLIENT_BIN" ] || {
   echo "build first: cargo build --release --locked -p tessera-server -p tessera-client" >&2
   exit 1
