@@ -40,8 +40,9 @@ pub mod reference;
 pub mod slots;
 mod upload;
 
-/// The colour distant terrain fades to (linear RGB, 0–1); how much of it a point
-/// takes follows the air between it and the eye (`terrain.wgsl` `haze_amount`).
+/// The colour distant terrain fades to (RGB, 0–1, as written to the frame); how
+/// much of it a point takes follows the air between it and the eye (`terrain.wgsl`
+/// `haze_amount`).
 pub const HAZE_COLOUR: [f32; 3] = [0.74, 0.80, 0.88];
 
 use crate::select::World;
