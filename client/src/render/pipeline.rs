@@ -342,12 +342,7 @@ impl Renderer {
             spacing: [s.x as f32, s.y as f32, 0.0, 0.0],
             globe: [0.0; 4],
             to_local: [[0.0; 4]; 3],
-            air: [
-                (extent / AIR_THINNING) as f32,
-                self.height_range.0 as f32,
-                0.0,
-                0.0,
-            ],
+            air: [(extent / AIR_THINNING) as f32, 0.0, 0.0, 0.0],
         };
         let globals = self.globe_globals(globals, camera);
         self.gpu

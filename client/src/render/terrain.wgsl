@@ -32,8 +32,8 @@ struct Globals {
     to_local0: vec4<f32>,
     to_local1: vec4<f32>,
     to_local2: vec4<f32>,
-    // The air of the aerial perspective: (scale height, the height where its
-    // density is 1 (the lowest terrain), unused, unused), metres.
+    // The air of the aerial perspective: (scale height in metres, unused, unused,
+    // unused); its density is 1 at the lowest terrain (quant.z).
     air: vec4<f32>,
 };
 
@@ -375,7 +375,7 @@ fn haze_amount(dist: f32, h: f32) -> f32 {
     if (abs(x) > 1e-3) {
         mean = (1.0 - exp(-x)) / x;
     }
-    let mass = dist * exp(min((g.air.y - h) / scale, 30.0)) * mean;
+    let mass = dist * exp(min((g.quant.z - h) / scale, 30.0)) * mean;
     return 1.0 - exp(-mass / g.haze.w);
 }
 
