@@ -47,7 +47,17 @@ pub trait LevelData {
     fn tile(&self, tile: TileId) -> Result<Option<Arc<SourceTile>>, Self::Error>;
     /// The largest full-resolution error (metres) of any tile of `level`.
     fn level_error(&self, level: Level) -> Result<f64, Self::Error>;
+    /// `Err` when the work should stop (its requester is gone: serve/compute.rs);
+    /// called between rows of squares.
+    fn check(&self) -> Result<(), Self::Error> {
+        Ok(())
+    }
 }
+
+/// Working memory of a mesh per window sample: the window's height and error
+/// (`f64` each), and the triangles and vertices made from it (measured: see
+/// [`Terrain::mesh_bytes`]).
+const MESH_BYTES_PER_SAMPLE: u64 = 48;
 
 /// Where the finest samples are on the body.
 #[derive(Debug)]
@@ -430,6 +440,7 @@ impl Terrain {
             let [ix0, iy0, ix1, iy1] = squares.inner;
             let mut tris = Vec::new();
             for sy in iy0..iy1 {
+                data.check()?;
                 for sx in ix0..ix1 {
                     window.triangulate_square(sx, sy, plan.tau, &mut tris);
                 }
@@ -444,6 +455,30 @@ impl Terrain {
             }
         }
         Ok(builder.finish(self))
+    }
+
+    /// An upper estimate of the memory [`Terrain::mesh_with`] uses for `tile`: its
+    /// window of samples and the source tiles it holds (admission control reserves
+    /// it before meshing: serve/compute.rs).
+    pub fn mesh_bytes(&self, tile: CesiumTile, plan: &ZoomPlan) -> u64 {
+        let stride = self.geometry.spacing(plan.level) as f64;
+        let cells = (1u32 << plan.level.get()) * self.geometry.tile_size();
+        let data_box = [
+            0.0,
+            0.0,
+            f64::from(self.geometry.width() - 1) / stride,
+            f64::from(self.geometry.height() - 1) / stride,
+        ];
+        let Some(sq) = self.squares(tile.rect(), plan, stride, cells, data_box) else {
+            return 0;
+        };
+        let [x0, y0, x1, y1] = sq.outer;
+        let s = u64::from(plan.square);
+        let (w, h) = (u64::from(x1 - x0) * s + 1, u64::from(y1 - y0) * s + 1);
+        let t = u64::from(self.geometry.tile_size());
+        let tiles = (w.div_ceil(t) + 1) * (h.div_ceil(t) + 1);
+        let tile_bytes = (t + 1) * (t + 1) * 2 + (t * t).div_ceil(8);
+        w * h * MESH_BYTES_PER_SAMPLE + tiles * tile_bytes
     }
 
     /// The squares a tile draws and the window it reads (square units).

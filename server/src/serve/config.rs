@@ -1,6 +1,7 @@
 //! `serve` settings: command-line flags, then environment variables, then a TOML
 //! file (`--config`), then defaults — the first that says something wins.
 
+use super::compute::ComputeLimits;
 use super::web_cache::{EmptyTiles, WebConfig};
 use anyhow::Context;
 use serde::Deserialize;
@@ -35,9 +36,30 @@ pub struct ServeArgs {
     /// Seconds before an unfinished request is answered 408 [default: 30].
     #[arg(long, env = "TESSERA_TIMEOUT_SECS")]
     pub timeout_secs: Option<u64>,
-    /// Requests handled at once; more wait their turn [default: 1024].
+    /// Requests handled at once, counted apart for the cheap routes (stored tiles,
+    /// ranges, metadata, health) and the computed ones (Cesium terrain, grid and PNG
+    /// tiles, bootstrap), so that neither starves the other; more wait their turn
+    /// [default: 1024].
     #[arg(long, env = "TESSERA_CONCURRENCY")]
     pub concurrency: Option<usize>,
+    /// Computed responses (Cesium meshes, grid and PNG tiles, bootstrap bodies) made
+    /// at once; identical requests share one computation [default: the number of CPUs,
+    /// at least 2].
+    #[arg(long, env = "TESSERA_MAX_COMPUTE", value_name = "N")]
+    pub max_compute: Option<usize>,
+    /// MiB of working memory for computed responses, and for computed bodies clients
+    /// have not yet read [default: a sixteenth of the machine's (or cgroup's) memory,
+    /// 256-1024].
+    #[arg(long, env = "TESSERA_MAX_COMPUTE_MIB", value_name = "MIB")]
+    pub max_compute_mib: Option<u64>,
+    /// Computations that may wait for a slot or memory; beyond them, and after
+    /// --compute-queue-secs, requests get 503 with Retry-After [default: 32 per slot,
+    /// at least 64].
+    #[arg(long, env = "TESSERA_COMPUTE_QUEUE", value_name = "N")]
+    pub compute_queue: Option<usize>,
+    /// Seconds a computation may wait for a slot or memory before a 503 [default: 10].
+    #[arg(long, env = "TESSERA_COMPUTE_QUEUE_SECS", value_name = "SECS")]
+    pub compute_queue_secs: Option<u64>,
     /// Cache-Control max-age for responses whose URL does not pin the content [default: 3600].
     #[arg(long, env = "TESSERA_CACHE_MAX_AGE")]
     pub cache_max_age: Option<u64>,
@@ -118,6 +140,10 @@ struct FileConfig {
     max_query_bytes: Option<usize>,
     timeout_secs: Option<u64>,
     concurrency: Option<usize>,
+    max_compute: Option<usize>,
+    max_compute_mib: Option<u64>,
+    compute_queue: Option<usize>,
+    compute_queue_secs: Option<u64>,
     cache_max_age: Option<u64>,
     header_timeout_secs: Option<u64>,
     idle_timeout_secs: Option<u64>,
@@ -171,6 +197,8 @@ pub struct Settings {
     pub max_query_bytes: usize,
     pub timeout: Duration,
     pub concurrency: usize,
+    /// Bounds on computed responses (serve/compute.rs).
+    pub compute: ComputeLimits,
     pub cache_max_age: u64,
     pub header_timeout: Duration,
     pub idle_timeout: Duration,
@@ -198,6 +226,7 @@ impl Default for Settings {
             max_query_bytes: 8192,
             timeout: Duration::from_secs(30),
             concurrency: 1024,
+            compute: ComputeLimits::for_this_machine(),
             cache_max_age: 3600,
             header_timeout: Duration::from_secs(10),
             idle_timeout: Duration::from_secs(60),
@@ -342,6 +371,34 @@ impl Settings {
                     .unwrap_or(d.concurrency),
                 "concurrency",
             )?,
+            compute: {
+                let dc = d.compute.clone();
+                let max_compute = positive(
+                    args.max_compute
+                        .or(file.max_compute)
+                        .unwrap_or(dc.max_compute),
+                    "max-compute",
+                )?;
+                ComputeLimits {
+                    max_compute,
+                    memory_bytes: args
+                        .max_compute_mib
+                        .or(file.max_compute_mib)
+                        .map_or(Ok(dc.memory_bytes), |n| {
+                            positive(n, "max-compute-mib").map(|n| n.saturating_mul(1 << 20))
+                        })?,
+                    // A queue of 0 is allowed: busy means 503 at once.
+                    queue: args
+                        .compute_queue
+                        .or(file.compute_queue)
+                        .unwrap_or(dc.queue),
+                    queue_wait: secs(
+                        args.compute_queue_secs.or(file.compute_queue_secs),
+                        "compute-queue-secs",
+                        dc.queue_wait,
+                    )?,
+                }
+            },
             cache_max_age: args
                 .cache_max_age
                 .or(file.cache_max_age)
@@ -479,12 +536,44 @@ mod tests {
             "header-timeout-secs",
             "idle-timeout-secs",
             "max-connections",
+            "max-compute",
+            "max-compute-mib",
+            "compute-queue-secs",
         ] {
             let e = args(&[&format!("--{flag}"), "0"]).unwrap_err().to_string();
             assert!(e.contains(&format!("--{flag}")), "{flag}: {e}");
             assert!(e.contains("at least 1"), "{flag}: {e}");
         }
         assert!(args(&["--timeout-secs", "1"]).is_ok());
+    }
+
+    #[test]
+    fn compute_limits_come_from_the_flags_or_the_machine() {
+        let d = args(&[]).unwrap().compute;
+        assert_eq!(d, ComputeLimits::for_this_machine());
+        assert!(d.max_compute >= 2 && d.queue >= 64);
+        assert!((256 << 20..=1 << 30).contains(&d.memory_bytes), "{d:?}");
+        let s = args(&[
+            "--max-compute",
+            "3",
+            "--max-compute-mib",
+            "100",
+            "--compute-queue",
+            "0",
+            "--compute-queue-secs",
+            "2",
+        ])
+        .unwrap()
+        .compute;
+        assert_eq!(
+            s,
+            ComputeLimits {
+                max_compute: 3,
+                memory_bytes: 100 << 20,
+                queue: 0,
+                queue_wait: Duration::from_secs(2),
+            }
+        );
     }
 
     #[test]

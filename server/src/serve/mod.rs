@@ -1,6 +1,7 @@
 //! `tessera-server serve`: pyramids over HTTP (DESIGN §4, API.md).
 
 pub mod cache;
+pub mod compute;
 pub mod config;
 pub mod conn;
 pub mod conventions;
@@ -31,6 +32,7 @@ use std::time::Instant;
 use tessera_shared::api::routes as paths;
 use tessera_shared::range_query::RangeLimits;
 use tower::ServiceBuilder;
+use tower::limit::GlobalConcurrencyLimitLayer;
 use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::timeout::TimeoutLayer;
 
@@ -55,6 +57,8 @@ pub struct AppState {
     pub tls: bool,
     /// Standard-grid web tiles: footprints and caches.
     pub web: web_cache::WebTiles,
+    /// Admission, sharing and cancellation of computed responses.
+    pub compute: Arc<compute::Compute>,
 }
 
 impl AppState {
@@ -92,8 +96,22 @@ fn log_datasets(registry: &Registry) {
 pub struct TilesServed(pub u64);
 
 /// The whole API as a router.
+///
+/// The routes that compute their responses (Cesium terrain, grid and PNG tiles,
+/// bootstrap) are admitted by [`compute::Compute`] and counted apart from the cheap
+/// ones (stored tiles, ranges, metadata, health, metrics): each group has its own
+/// `--concurrency`, so a flood of one never starves the other.
 pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
-    let api = Router::new()
+    let cheap_slots = Arc::new(tokio::sync::Semaphore::new(settings.concurrency));
+    let computed_slots = Arc::new(tokio::sync::Semaphore::new(settings.concurrency));
+    let computed = Router::new()
+        .route(paths::BOOTSTRAP, get(routes::bootstrap::get))
+        .route(paths::WEB_TILE, get(routes::web_tiles::png))
+        .route(paths::GRID_TILE, get(routes::web_grid::tile))
+        .route(paths::CESIUM_TILE, get(routes::cesium::tile))
+        .route(paths::OGC_TILE, get(routes::ogc_api::tile))
+        .route_layer(GlobalConcurrencyLimitLayer::with_semaphore(computed_slots));
+    let cheap = Router::new()
         .route("/healthz", get(routes::health::healthz))
         .route("/healthz/live", get(routes::health::live))
         .route("/healthz/ready", get(routes::health::ready))
@@ -102,16 +120,12 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::DATASET, get(routes::datasets::get_one))
         .route(paths::TILEJSON, get(routes::web_tiles::tilejson))
         .route(paths::PYRAMID, get(routes::pyramid::raw))
-        .route(paths::BOOTSTRAP, get(routes::bootstrap::get))
         .route(paths::TILES, get(routes::tiles::ranges))
         .route(paths::ERRORS, get(routes::tiles::errors))
         .route(paths::IMAGERY_TILES, get(routes::imagery::ranges))
         .route(paths::TILE, get(routes::tiles::single))
-        .route(paths::WEB_TILE, get(routes::web_tiles::png))
         .route(paths::GRID_TILEJSON, get(routes::web_grid::tilejson))
-        .route(paths::GRID_TILE, get(routes::web_grid::tile))
         .route(paths::CESIUM_LAYER, get(routes::cesium::layer))
-        .route(paths::CESIUM_TILE, get(routes::cesium::tile))
         .route(paths::WMTS, get(routes::wmts::all))
         .route(paths::DATASET_WMTS, get(routes::wmts::one))
         .route(paths::OGC_LANDING, get(routes::ogc_api::landing))
@@ -128,7 +142,9 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::OGC_COLLECTION, get(routes::ogc_api::collection))
         .route(paths::OGC_TILESETS, get(routes::ogc_api::tilesets))
         .route(paths::OGC_TILESET, get(routes::ogc_api::tileset))
-        .route(paths::OGC_TILE, get(routes::ogc_api::tile))
+        .route_layer(GlobalConcurrencyLimitLayer::with_semaphore(cheap_slots));
+    let api = cheap
+        .merge(computed)
         .fallback(|| async { ApiError::not_found("no such endpoint; see API.md") })
         .with_state(state.clone());
     api.layer(
@@ -145,9 +161,6 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
             .layer(TimeoutLayer::with_status_code(
                 StatusCode::REQUEST_TIMEOUT,
                 settings.timeout,
-            ))
-            .layer(tower::limit::ConcurrencyLimitLayer::new(
-                settings.concurrency,
             )),
     )
 }
@@ -282,12 +295,17 @@ pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
     let registry = Registry::load(&settings.datasets, &store)?;
     log_datasets(&registry);
     let web = web_cache::WebTiles::new(settings.web.clone(), metrics.registry());
+    let compute = Arc::new(compute::Compute::new(
+        settings.compute.clone(),
+        metrics.registry(),
+    ));
     Ok(Arc::new(AppState {
         registry: RwLock::new(Arc::new(registry)),
         paths: settings.datasets.clone(),
         metrics,
         store,
         web,
+        compute,
         limits: RangeLimits {
             max_ranges: settings.max_ranges,
             max_tiles: settings.max_tiles,

@@ -7,17 +7,20 @@
 //! ([`Dataset::records`]: one read per level, each record checked against its
 //! checksum once), and framed with the same [`wire`] headers, so a record in the
 //! bootstrap is byte for byte the one the range stream sends. A body holds at most
-//! [`bootstrap::RECORD_BUDGET`] plus the root level plus [`bootstrap::TABLE_BUDGET`],
-//! so it is built in memory, and kept (a few per process) since it is the same for
-//! every client of a dataset version (and focus: `?focus=U,V` adds the records
-//! around a point, [`tessera_shared::focus`], within [`bootstrap::FOCUS_BUDGET`]).
+//! [`bootstrap::RECORD_BUDGET`] plus the root level plus [`bootstrap::TABLE_BUDGET`]
+//! (and, with `?focus=U,V`, the records around a point, [`tessera_shared::focus`],
+//! within [`bootstrap::FOCUS_BUDGET`]), so it is built in memory: admitted like any
+//! computed response (serve/compute.rs: one build per distinct body at a time, its
+//! size reserved on the memory budget, up front from the index, for as long as a
+//! response holds it), and the last few kept ([`KEPT_BYTES`]), since a body is the
+//! same for every client of a dataset version and focus.
 
 use super::datasets::describe;
 use super::{Params, Segments, dataset, pinned, unavailable};
+use crate::serve::compute::{Kind, Made, Stop, Ticket};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
-use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::Response;
@@ -28,8 +31,9 @@ use tessera_shared::bootstrap::{self, encode_head};
 use tessera_shared::focus::Focus;
 use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId, morton, wire};
 
-/// Built bodies kept, most recent last: one per dataset version asked for lately.
-const KEPT: usize = 8;
+/// Built bodies kept, most recent last: one per dataset version (and focus) asked for
+/// lately, at most this many bytes in all.
+const KEPT_BYTES: usize = 32 << 20;
 
 /// A built bootstrap: its bytes and the records (and tables) it carries.
 #[derive(Clone)]
@@ -80,17 +84,54 @@ fn focus_levels(ds: &Dataset, focus: Option<Focus>, record_levels: u8) -> Vec<Ve
     out
 }
 
-/// Builds the body: `(bytes, tiles and tables carried, error frames)`. `Err` with the
-/// reason when the storage cannot be read.
+/// The body's size from the index (frame headers, records and tables), before any
+/// read: what its build reserves.
+fn planned_bytes(
+    ds: &Dataset,
+    record_levels: u8,
+    table_levels: u8,
+    focused: &[Vec<TileId>],
+) -> u64 {
+    let g = *ds.pyramid.geometry();
+    let table_len = ErrorTable::byte_len(g.tile_log2()) as u64;
+    let frame = wire::FRAME_HEADER_LEN as u64;
+    let mut total = 64 << 10; // the document and the trailer
+    for level in g.levels().take(usize::from(table_levels)) {
+        for t in g.present_tiles(level) {
+            if let Some(e) = ds.pyramid.entry(t).filter(|e| e.length > 0) {
+                total += frame
+                    + if level.get() < record_levels {
+                        u64::from(e.length)
+                    } else {
+                        table_len
+                    };
+            }
+        }
+    }
+    let near = focused
+        .iter()
+        .flatten()
+        .filter_map(|t| ds.pyramid.entry(*t))
+        .map(|e| frame + u64::from(e.length));
+    total + near.sum::<u64>()
+}
+
+/// Builds the body: `(bytes, tiles and tables carried, error frames)`, within the
+/// memory `ticket` reserves for it.
 async fn build(
     state: &AppState,
     ds: &Dataset,
     focus: Option<Focus>,
-) -> Result<(Vec<u8>, u64, u64), String> {
+    ticket: &Ticket,
+) -> Result<(Vec<u8>, u64, u64), ApiError> {
     let p = &ds.pyramid;
     let g = *p.geometry();
     let (record_levels, table_levels) = bootstrap::plan(p);
     let focused = focus_levels(ds, focus, record_levels);
+    let _memory = ticket
+        .reserve_async(planned_bytes(ds, record_levels, table_levels, &focused))
+        .await
+        .map_err(Stop::into_error)?;
     // The first part of a record: its error table (FORMAT.md "Tile record").
     let table_len = ErrorTable::byte_len(g.tile_log2());
     let mut body = encode_head(&describe(ds), record_levels, table_levels);
@@ -109,7 +150,11 @@ async fn build(
         } else {
             morton::coalesce(near.iter().map(|t| t.morton()))
         };
-        for got in ds.records(level, &ranges).await? {
+        let read = ds
+            .records(level, &ranges)
+            .await
+            .map_err(|r| unavailable(&r))?;
+        for got in read {
             let m = got.tile.morton();
             match got.record {
                 None => {}
@@ -142,6 +187,19 @@ async fn build(
     let root = Level::new(0).expect("level 0");
     body.extend(wire::trailer_frame(root, tiles, errors, &[]));
     Ok((body, tiles, errors))
+}
+
+/// Keeps a clean body, dropping the oldest beyond [`KEPT_BYTES`].
+fn keep(built: Built) {
+    let mut k = kept().lock().unwrap_or_else(PoisonError::into_inner);
+    k.retain(|b| b.key != built.key);
+    if built.body.len() > KEPT_BYTES {
+        return;
+    }
+    k.push(built);
+    while k.iter().map(|b| b.body.len()).sum::<usize>() > KEPT_BYTES {
+        k.remove(0);
+    }
 }
 
 /// `GET /v1/datasets/{name}/bootstrap`
@@ -178,29 +236,33 @@ pub async fn get(
         .iter()
         .find(|b| b.key == key)
         .cloned();
-    let (body, tiles, clean) = if let Some(b) = hit {
-        (b.body, b.tiles, true)
+    let (made, clean) = if let Some(b) = hit {
+        (Made::unaccounted(b.body, b.tiles), true)
     } else {
-        let (body, tiles, errors) = build(&state, &ds, focus)
-            .await
-            .map_err(|r| unavailable(&r))?;
-        let body = Bytes::from(body);
-        if errors == 0 {
-            let mut k = kept().lock().unwrap_or_else(PoisonError::into_inner);
-            k.retain(|b| b.key != key);
-            if k.len() >= KEPT {
-                k.remove(0);
-            }
-            k.push(Built {
-                key,
-                body: body.clone(),
-                tiles,
-            });
-        }
-        (body, tiles, errors == 0)
+        let (st, d) = (state.clone(), ds.clone());
+        let made = state
+            .compute
+            .run(Kind::Bootstrap, key.clone(), move |ticket| async move {
+                let (body, tiles, errors) = build(&st, &d, focus, &ticket).await?;
+                let made = ticket.made(Bytes::from(body), tiles);
+                if errors == 0 {
+                    keep(Built {
+                        key,
+                        body: made.bytes.clone(),
+                        tiles,
+                    });
+                    Ok(made)
+                } else {
+                    Ok(made.not_cacheable())
+                }
+            })
+            .await?;
+        let clean = made.cacheable;
+        (made, clean)
     };
-    let len = body.len();
-    let mut r = Response::new(Body::from(body));
+    let tiles = made.tiles;
+    let len = made.bytes.len();
+    let mut r = Response::new(made.body());
     let h = r.headers_mut();
     h.insert(
         header::CONTENT_TYPE,

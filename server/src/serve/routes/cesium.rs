@@ -11,13 +11,13 @@ use super::{Params, Segments, dataset, xml_escape};
 use crate::cesium::quantized_mesh::{Extensions, encode};
 use crate::cesium::terrain::{LevelData, Terrain};
 use crate::cesium::tiling::CesiumTile;
+use crate::serve::compute::{Kind, Made, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::web_cache::{TerrainKey, dataset_key};
 use crate::serve::{AppState, TilesServed, cache};
 use crate::web::resample::SourceTile;
 use axum::Json;
-use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::{IntoResponse, Response};
@@ -40,23 +40,31 @@ fn terrain(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Terrain>> {
         })
 }
 
-/// The pyramid as the mesher reads it: decoded tiles through the shared cache.
+/// The pyramid as the mesher reads it: decoded tiles through the shared cache,
+/// stopping when the computation's requesters are gone.
 struct Pyramid<'a> {
     state: &'a AppState,
     ds: &'a Dataset,
+    ticket: &'a Ticket,
 }
 
 impl LevelData for Pyramid<'_> {
     type Error = Failure;
 
     fn tile(&self, tile: TileId) -> Result<Option<Arc<SourceTile>>, Failure> {
+        self.check()?;
         source(self.state, self.ds, tile)
+    }
+
+    fn check(&self) -> Result<(), Failure> {
+        self.ticket.check().map_err(Failure::Stopped)
     }
 
     fn level_error(&self, level: Level) -> Result<f64, Failure> {
         let g = self.ds.pyramid.geometry();
         let mut worst = 0.0_f64;
         for tile in g.present_tiles(level) {
+            self.check()?;
             let bytes = match self.ds.record(tile) {
                 Ok(Some((_, bytes))) => bytes,
                 Ok(None) => continue,
@@ -161,20 +169,37 @@ pub async fn tile(
         normals,
         metadata,
     };
-    let body = if let Some(b) = state.web.terrain_tile(&key) {
-        b
+    let made = if let Some(b) = state.web.terrain_tile(&key) {
+        Made::unaccounted(b, 1)
     } else {
         let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
-        // Meshing takes about a millisecond: keep it off the runtime.
-        let made = tokio::task::spawn_blocking(move || make(&st, &d, &tr, key))
-            .await
-            .map_err(|e| ApiError::internal(format!("{t}: terrain task failed: {e}")))?;
-        let b = made.map_err(|f| failure_error(&state, &ds, &t.to_string(), f))?;
-        state.web.keep_terrain(key, b.clone());
-        b
+        let flight = format!(
+            "{:016x} {}/{}/{} n{} m{}",
+            key.dataset,
+            t.z,
+            t.x,
+            t.y,
+            u8::from(normals),
+            u8::from(metadata)
+        );
+        // One mesh per distinct tile at a time, admitted and cancellable; meshing
+        // takes milliseconds to a second: keep it off the runtime.
+        state
+            .compute
+            .run(Kind::Terrain, flight, move |ticket| async move {
+                ticket
+                    .blocking(move |ticket| {
+                        let b = make(&st, &d, &tr, key, ticket)
+                            .map_err(|f| failure_error(&st, &d, &t.to_string(), f))?;
+                        st.web.keep_terrain(key, b.clone());
+                        Ok(ticket.made(b, 1))
+                    })
+                    .await?
+            })
+            .await?
     };
-    let len = body.len();
-    let mut r = Response::new(Body::from(body));
+    let len = made.bytes.len();
+    let mut r = Response::new(made.body());
     let mut ctype = MEDIA_TYPE.to_string();
     let names: Vec<&str> = [(normals, "octvertexnormals"), (metadata, "metadata")]
         .into_iter()
@@ -195,16 +220,21 @@ pub async fn tile(
     Ok(r)
 }
 
-/// Meshes and encodes one tile.
+/// Meshes and encodes one tile, within the memory the ticket reserves for it.
 fn make(
     state: &AppState,
     ds: &Dataset,
     terrain: &Terrain,
     key: TerrainKey,
+    ticket: &Ticket,
 ) -> Result<Bytes, Failure> {
-    let data = Pyramid { state, ds };
+    let data = Pyramid { state, ds, ticket };
     let plan = terrain.plan(key.tile.z, &data)?;
-    let mesh = terrain.mesh(key.tile, &data)?;
+    let _memory = ticket
+        .reserve(terrain.mesh_bytes(key.tile, &plan))
+        .map_err(Failure::Stopped)?;
+    let mesh = terrain.mesh_with(key.tile, &plan, &data)?;
+    data.check()?;
     let ext = Extensions {
         normals: key.normals,
         metadata: key.metadata.then(|| {

@@ -9,6 +9,7 @@
 
 use super::web_tiles::base_url;
 use super::{Params, Segments, dataset, unavailable, xml_escape};
+use crate::serve::compute::{Kind, Made, Stop, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
@@ -18,7 +19,6 @@ use crate::web::footprint::Footprint;
 use crate::web::resample::{self, SourceTile};
 use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet, WebTile};
 use axum::Json;
-use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
@@ -103,6 +103,8 @@ pub enum Failure {
     Undecodable(TileId, codec::CodecError),
     Unavailable(String),
     Encode(String),
+    /// Its requesters are gone, or no memory came free in time (serve/compute.rs).
+    Stopped(Stop),
 }
 
 /// A decoded source tile, through the cache; `None` when the pyramid has no such
@@ -141,17 +143,36 @@ pub fn source(
         .or_else(|e| e.map_or(Ok(None), Err))
 }
 
+/// Working memory of a grid tile per pixel: its `f64` height, RGBA, and the
+/// encoder's buffers.
+const GRID_BYTES_PER_PIXEL: u64 = 24;
+
 /// The encoded tile, or an empty body when it holds no data.
-fn make(state: &AppState, ds: &Dataset, fp: &Footprint, key: MadeKey) -> Result<Bytes, Failure> {
+fn make(
+    state: &AppState,
+    ds: &Dataset,
+    fp: &Footprint,
+    key: MadeKey,
+    ticket: &Ticket,
+) -> Result<Bytes, Failure> {
     let geometry = ds.pyramid.geometry();
     let Some(plan) = resample::plan(fp, geometry, key.tile, key.px) else {
         return Ok(Bytes::new());
     };
-    let sources = plan
-        .source_tiles()
+    let stop = |s| Failure::Stopped(s);
+    let tiles = plan.source_tiles();
+    let t = u64::from(geometry.tile_size()) + 1;
+    let _memory = ticket
+        .reserve(u64::from(key.px).pow(2) * GRID_BYTES_PER_PIXEL + tiles.len() as u64 * t * t * 2)
+        .map_err(stop)?;
+    let sources = tiles
         .into_iter()
-        .map(|t| source(state, ds, t))
+        .map(|t| {
+            ticket.check().map_err(stop)?;
+            source(state, ds, t)
+        })
         .collect::<Result<Vec<_>, _>>()?;
+    ticket.check().map_err(stop)?;
     let heights = plan.sample(&sources);
     if heights.iter().all(|h| h.is_nan()) {
         return Ok(Bytes::new());
@@ -205,23 +226,41 @@ pub async fn tile(
         encoding: enc,
         format,
     };
-    let body = if let Some(b) = state.web.made(&key) {
-        b
+    let made = if let Some(b) = state.web.made(&key) {
+        Made::unaccounted(b, 1)
     } else {
         let (st, d) = (state.clone(), ds.clone());
-        // Resampling and compressing take milliseconds: keep them off the runtime.
-        let made = tokio::task::spawn_blocking(move || make(&st, &d, &fp, key))
-            .await
-            .map_err(|e| ApiError::internal(format!("{tile}: tile task failed: {e}")))?;
-        let b = made.map_err(|f| failure_error(&state, &ds, &tile.to_string(), f))?;
-        state.web.keep(key, b.clone());
-        b
+        let flight = format!(
+            "{:016x} {} {px} {} {} {}/{}/{}",
+            key.dataset,
+            tms.path(),
+            enc.name(),
+            format.extension(),
+            tile.z,
+            tile.x,
+            tile.y
+        );
+        // One tile per distinct key at a time, admitted and cancellable; resampling
+        // and compressing take milliseconds: keep them off the runtime.
+        state
+            .compute
+            .run(Kind::GridTile, flight, move |ticket| async move {
+                ticket
+                    .blocking(move |ticket| {
+                        let b = make(&st, &d, &fp, key, ticket)
+                            .map_err(|f| failure_error(&st, &d, &tile.to_string(), f))?;
+                        st.web.keep(key, b.clone());
+                        Ok(ticket.made(b, 1))
+                    })
+                    .await?
+            })
+            .await?
     };
-    if body.is_empty() {
+    if made.bytes.is_empty() {
         return Ok(empty(&state, &ds, tile, &etag, pin));
     }
-    let len = body.len();
-    let mut r = Response::new(Body::from(body));
+    let len = made.bytes.len();
+    let mut r = Response::new(made.body());
     let h = r.headers_mut();
     h.insert(
         header::CONTENT_TYPE,
@@ -269,6 +308,7 @@ pub fn failure_error(state: &AppState, ds: &Dataset, tile: &str, f: Failure) -> 
             ))
         }
         Failure::Unavailable(r) => unavailable(&r),
+        Failure::Stopped(s) => s.into_error(),
         Failure::Encode(e) => {
             tracing::error!(dataset = %ds.name, %tile, error = %e, "tile encoding failed");
             ApiError::internal(format!("{tile}: cannot encode the tile"))

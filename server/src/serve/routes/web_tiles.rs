@@ -10,18 +10,19 @@
 //! maps use the standard grids (routes/web_grid.rs) instead.
 
 use super::{Params, Segments, dataset, level, pinned, stored_record, tile, xml_escape};
+use crate::serve::compute::{Kind, Stop};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
 use crate::serve::{AppState, TilesServed, cache};
 pub use crate::web::encoding::{Encoding, mapbox, terrarium};
 use axum::Json;
-use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::{IntoResponse, Response};
+use bytes::Bytes;
 use std::sync::Arc;
 use tessera_shared::codec::{self, CodecError};
-use tessera_shared::{GeoRef, Quantization};
+use tessera_shared::{GeoRef, Quantization, TileId};
 
 /// The `T × T` RGB pixels of a tile's `(T+1)²` quantized heights.
 pub fn render(heights: &[u16], tile_size: usize, q: &Quantization, encoding: Encoding) -> Vec<u8> {
@@ -52,6 +53,24 @@ pub fn encode_png(rgb: &[u8], side: u32) -> Result<Vec<u8>, png::EncodingError> 
 enum PngFailure {
     Corrupt(CodecError),
     Encode(png::EncodingError),
+}
+
+/// The API error for a PNG that could not be made (the codec's detail goes to the
+/// log; the body says what it means).
+fn png_error(state: &AppState, ds: &Dataset, tile: TileId, f: PngFailure) -> ApiError {
+    match f {
+        PngFailure::Corrupt(e) => {
+            state.metrics.corrupt_read(ds.mark_undecodable(tile));
+            tracing::error!(dataset = %ds.name, %tile, error = %e, "record does not decode");
+            ApiError::internal(format!(
+                "{tile}: record passes its checksum but its height data does not decode"
+            ))
+        }
+        PngFailure::Encode(e) => {
+            tracing::error!(dataset = %ds.name, %tile, error = %e, "PNG encoding failed");
+            ApiError::internal(format!("{tile}: cannot encode the PNG"))
+        }
+    }
 }
 
 /// `GET /v1/datasets/{name}/{z}/{x}/{y}.png?encoding=terrarium|mapbox`: one tile's
@@ -90,32 +109,39 @@ pub async fn png(
     let geometry = *ds.pyramid.geometry();
     let layout = ds.pyramid.record_layout();
     let q = ds.pyramid.metadata().quantization;
-    // Decoding and compressing a big tile takes milliseconds: keep it off the runtime.
-    let made = tokio::task::spawn_blocking(move || {
-        let decoded = codec::decode_record(&record, layout).map_err(PngFailure::Corrupt)?;
-        let t = geometry.tile_size();
-        let rgb = render(&decoded.heights, t as usize, &q, encoding);
-        encode_png(&rgb, t).map_err(PngFailure::Encode)
-    })
-    .await
-    .map_err(|e| ApiError::internal(format!("{tile}: PNG task failed: {e}")))?;
-    let png = match made {
-        Ok(png) => png,
-        Err(PngFailure::Corrupt(e)) => {
-            state.metrics.corrupt_read(ds.mark_undecodable(tile));
-            // The codec's detail goes to the log; the body says what it means.
-            tracing::error!(dataset = %ds.name, %tile, error = %e, "record does not decode");
-            return Err(ApiError::internal(format!(
-                "{tile}: record passes its checksum but its height data does not decode"
-            )));
-        }
-        Err(PngFailure::Encode(e)) => {
-            tracing::error!(dataset = %ds.name, %tile, error = %e, "PNG encoding failed");
-            return Err(ApiError::internal(format!("{tile}: cannot encode the PNG")));
-        }
-    };
-    let len = png.len();
-    let mut r = Response::new(Body::from(png));
+    let (st, d) = (state.clone(), ds.clone());
+    let flight = format!(
+        "{} png {} {}/{}/{}",
+        ds.content_hash(),
+        encoding.name(),
+        level,
+        tile.x(),
+        tile.y()
+    );
+    // One PNG per distinct tile at a time, admitted and cancellable; decoding and
+    // compressing a big tile take milliseconds: keep them off the runtime.
+    let png = state
+        .compute
+        .run(Kind::PngTile, flight, move |ticket| async move {
+            ticket
+                .blocking(move |ticket| {
+                    let t = geometry.tile_size();
+                    // Decoded heights, RGB and the encoder's buffers.
+                    let samples = u64::from(t + 1).pow(2);
+                    let _memory = ticket.reserve(samples * 16).map_err(Stop::into_error)?;
+                    let decoded = codec::decode_record(&record, layout)
+                        .map_err(|e| png_error(&st, &d, tile, PngFailure::Corrupt(e)))?;
+                    ticket.check().map_err(Stop::into_error)?;
+                    let rgb = render(&decoded.heights, t as usize, &q, encoding);
+                    let png = encode_png(&rgb, t)
+                        .map_err(|e| png_error(&st, &d, tile, PngFailure::Encode(e)))?;
+                    Ok(ticket.made(Bytes::from(png), 1))
+                })
+                .await?
+        })
+        .await?;
+    let len = png.bytes.len();
+    let mut r = Response::new(png.body());
     let h = r.headers_mut();
     h.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
     h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));

@@ -1,0 +1,837 @@
+//! Admission control for work computed per request: Cesium meshes, standard-grid and
+//! PNG tiles, bootstrap bodies, and any derived output to come (RELIABILITY.md
+//! "Expensive work").
+//!
+//! - **One computation per distinct result at a time.** Requests for a result that
+//!   is being computed wait on that computation (single flight) instead of starting
+//!   their own: 64 identical requests make one mesh.
+//! - **Bounded.** At most [`ComputeLimits::max_compute`] computations run at once, and
+//!   together they hold at most [`ComputeLimits::memory_bytes`] of working memory,
+//!   each reserving its estimate before it allocates. Beyond that a computation waits
+//!   in a short queue ([`ComputeLimits::queue`] computations, at most
+//!   [`ComputeLimits::queue_wait`]); a full queue or a wait that runs out is a 503 with
+//!   `Retry-After` and a JSON reason, never unbounded growth.
+//! - **Cancelled with its last requester.** When every request waiting on a
+//!   computation is gone (an HTTP/1 disconnect, an HTTP/2 `RST_STREAM`, the request
+//!   timeout), a computation still queued never starts, and a running one stops at
+//!   its next [`Ticket::check`]; its slot and memory are given back only when its
+//!   thread has really stopped, so work in flight is bounded even under floods of
+//!   cancelled requests.
+//! - **Bodies that pin their memory.** A made body keeps its size reserved for as
+//!   long as any response still holds it ([`Made::body`]), so clients that stop
+//!   reading hold at most the budget, and later work waits or gets a 503.
+//!
+//! Cheap routes (stored tiles, Morton ranges, health, metrics) never come here and
+//! keep their own concurrency (serve/mod.rs).
+
+use super::error::ApiError;
+use axum::body::Body;
+use bytes::Bytes;
+use futures_util::FutureExt;
+use futures_util::future::{BoxFuture, WeakShared};
+use prometheus::{IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore};
+
+/// What kind of work a computation is (a label in `/metrics`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Kind {
+    /// A Cesium quantized-mesh tile.
+    Terrain,
+    /// A standard-grid (WebMercatorQuad, WorldCRS84Quad) tile.
+    GridTile,
+    /// A pyramid tile as a Terrarium/Terrain-RGB PNG.
+    PngTile,
+    /// A bootstrap body.
+    Bootstrap,
+}
+
+impl Kind {
+    pub const ALL: [Kind; 4] = [
+        Kind::Terrain,
+        Kind::GridTile,
+        Kind::PngTile,
+        Kind::Bootstrap,
+    ];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Kind::Terrain => "terrain",
+            Kind::GridTile => "grid_tile",
+            Kind::PngTile => "png_tile",
+            Kind::Bootstrap => "bootstrap",
+        }
+    }
+}
+
+/// The bounds on expensive work (`serve --max-compute`, `--max-compute-mib`,
+/// `--compute-queue`, `--compute-queue-secs`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ComputeLimits {
+    /// Computations running at once.
+    pub max_compute: usize,
+    /// Working memory of the computations running at once, and of the made bodies
+    /// responses still hold, in bytes.
+    pub memory_bytes: u64,
+    /// Computations waiting for a slot or memory; more get a 503 at once.
+    pub queue: usize,
+    /// Longest wait for a slot or memory before a 503.
+    pub queue_wait: Duration,
+}
+
+impl ComputeLimits {
+    /// Sized from this machine: one computation per core (they are CPU-bound; more
+    /// would only hold more memory), a sixteenth of the memory the process may use
+    /// (the smaller of physical memory and a cgroup limit) clamped to 256 MiB–1 GiB, a
+    /// queue of 32 per slot (at least 64: a map or globe client asks for up to ~20
+    /// tiles at once), and 10 s of waiting.
+    pub fn for_this_machine() -> Self {
+        let cores = std::thread::available_parallelism().map_or(2, std::num::NonZero::get);
+        let max_compute = cores.max(2);
+        let memory = usable_memory().map_or(512 << 20, |m| (m / 16).clamp(256 << 20, 1 << 30));
+        Self {
+            max_compute,
+            memory_bytes: memory,
+            queue: (32 * max_compute).max(64),
+            queue_wait: Duration::from_secs(10),
+        }
+    }
+}
+
+/// The memory this process may use: physical memory, or a smaller cgroup (v2 or v1)
+/// limit (a container's).
+fn usable_memory() -> Option<u64> {
+    let physical = std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| {
+        s.lines()
+            .find_map(|l| l.strip_prefix("MemTotal:"))
+            .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+            .map(|kib| kib * 1024)
+    });
+    let cgroup = [
+        "/sys/fs/cgroup/memory.max",
+        "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+    ]
+    .iter()
+    .find_map(|p| std::fs::read_to_string(p).ok()?.trim().parse::<u64>().ok());
+    match (physical, cgroup) {
+        (Some(p), Some(c)) => Some(p.min(c)),
+        (p, c) => p.or(c),
+    }
+}
+
+/// Why a computation stopped before making anything.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Stop {
+    /// Every request waiting on it is gone.
+    Cancelled,
+    /// No memory came free within the queue wait.
+    Busy(String),
+}
+
+impl Stop {
+    /// The answer for the requests still waiting (none, when cancelled).
+    pub fn into_error(self) -> ApiError {
+        match self {
+            Stop::Cancelled => ApiError::unavailable("the request was cancelled"),
+            Stop::Busy(why) => ApiError::busy(why, RETRY_AFTER_SECS),
+        }
+    }
+}
+
+/// `Retry-After` of a busy answer: a queue drains in about this long.
+const RETRY_AFTER_SECS: u32 = 1;
+
+/// A made result, shared by every request that waited on it.
+#[derive(Clone, Debug)]
+pub struct Made {
+    pub bytes: Bytes,
+    /// Tiles carried (for the request log and metrics).
+    pub tiles: u64,
+    /// Whether caches may keep it (not when it carries error frames).
+    pub cacheable: bool,
+    /// The body's size, reserved on the memory budget while anything holds it.
+    hold: Option<Arc<Reservation>>,
+}
+
+impl Made {
+    /// A result whose memory is not accounted (a cache hit: the cache is bounded
+    /// on its own).
+    pub fn unaccounted(bytes: Bytes, tiles: u64) -> Self {
+        Self {
+            bytes,
+            tiles,
+            cacheable: true,
+            hold: None,
+        }
+    }
+
+    /// The same, marked as not for caches.
+    #[must_use]
+    pub fn not_cacheable(self) -> Self {
+        Self {
+            cacheable: false,
+            ..self
+        }
+    }
+
+    /// A response body of these bytes that keeps their reservation until hyper
+    /// drops it: a client that stops reading holds the budget, not more memory.
+    /// Sent in 64 KiB slices (no copies), so hyper takes only what the connection's
+    /// window lets through. Callers set `Content-Length`.
+    pub fn body(&self) -> Body {
+        const SLICE: usize = 64 << 10;
+        let bytes = self.bytes.clone();
+        let hold = self.hold.clone();
+        let n = bytes.len();
+        let slices = (0..n.div_ceil(SLICE)).map(move |i| {
+            let _ = &hold;
+            Ok::<_, std::convert::Infallible>(bytes.slice(i * SLICE..((i + 1) * SLICE).min(n)))
+        });
+        Body::from_stream(futures_util::stream::iter(slices))
+    }
+}
+
+type Outcome = Result<Made, ApiError>;
+
+/// The memory budget: reserved in bytes, waited on by blocking threads (a condvar)
+/// and by async tasks (a notify).
+#[derive(Debug)]
+struct MemoryPool {
+    limit: u64,
+    used: Mutex<u64>,
+    freed: Condvar,
+    notify: Notify,
+    gauge: IntGauge,
+}
+
+impl MemoryPool {
+    fn try_take(&self, bytes: u64) -> bool {
+        let mut used = self.used.lock().unwrap_or_else(PoisonError::into_inner);
+        if *used + bytes > self.limit {
+            return false;
+        }
+        *used += bytes;
+        self.gauge.set(i64::try_from(*used).unwrap_or(i64::MAX));
+        true
+    }
+
+    fn give(&self, bytes: u64) {
+        let mut used = self.used.lock().unwrap_or_else(PoisonError::into_inner);
+        *used = used.saturating_sub(bytes);
+        self.gauge.set(i64::try_from(*used).unwrap_or(i64::MAX));
+        drop(used);
+        self.freed.notify_all();
+        self.notify.notify_waiters();
+    }
+
+    /// Whatever one computation asks, it may have the whole budget, no more (then it
+    /// runs alone).
+    fn clamp(&self, bytes: u64) -> u64 {
+        bytes.clamp(1, self.limit)
+    }
+}
+
+/// Bytes reserved on the memory budget, given back on drop.
+#[derive(Debug)]
+pub struct Reservation {
+    pool: Arc<MemoryPool>,
+    bytes: u64,
+}
+
+impl Drop for Reservation {
+    fn drop(&mut self) {
+        self.pool.give(self.bytes);
+    }
+}
+
+/// The right to run one admitted computation: its slot, its cancellation flag, the
+/// memory budget. Dropped (slot given back) when the computation really ends.
+#[derive(Debug)]
+pub struct Ticket {
+    _slot: OwnedSemaphorePermit,
+    cancelled: Arc<AtomicBool>,
+    pool: Arc<MemoryPool>,
+    wait: Duration,
+    kind: Kind,
+    running: IntGaugeVec,
+}
+
+impl Drop for Ticket {
+    fn drop(&mut self) {
+        self.running.with_label_values(&[self.kind.label()]).dec();
+    }
+}
+
+impl Ticket {
+    /// `Err(Cancelled)` once every requester is gone: long loops call it at each step.
+    pub fn check(&self) -> Result<(), Stop> {
+        if self.cancelled.load(Ordering::Relaxed) {
+            Err(Stop::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Reserves `bytes` of working memory (a blocking thread waits for it, at most the
+    /// queue wait, while checking for cancellation).
+    pub fn reserve(&self, bytes: u64) -> Result<Reservation, Stop> {
+        let bytes = self.pool.clamp(bytes);
+        let deadline = Instant::now() + self.wait;
+        let mut used = self
+            .pool
+            .used
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        loop {
+            self.check()?;
+            if *used + bytes <= self.pool.limit {
+                *used += bytes;
+                self.pool
+                    .gauge
+                    .set(i64::try_from(*used).unwrap_or(i64::MAX));
+                return Ok(Reservation {
+                    pool: self.pool.clone(),
+                    bytes,
+                });
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(busy_memory(self.pool.limit, bytes));
+            }
+            // Woken by every release; a short timeout so that a cancellation is seen.
+            let step = (deadline - now).min(Duration::from_millis(20));
+            used = self
+                .pool
+                .freed
+                .wait_timeout(used, step)
+                .unwrap_or_else(PoisonError::into_inner)
+                .0;
+        }
+    }
+
+    /// [`Ticket::reserve`] for async work (its cancellation is its future's drop).
+    pub async fn reserve_async(&self, bytes: u64) -> Result<Reservation, Stop> {
+        let bytes = self.pool.clamp(bytes);
+        let deadline = tokio::time::Instant::now() + self.wait;
+        loop {
+            let freed = self.pool.notify.notified();
+            tokio::pin!(freed);
+            freed.as_mut().enable();
+            if self.pool.try_take(bytes) {
+                return Ok(Reservation {
+                    pool: self.pool.clone(),
+                    bytes,
+                });
+            }
+            tokio::select! {
+                () = freed => {}
+                () = tokio::time::sleep_until(deadline) => {
+                    return Err(busy_memory(self.pool.limit, bytes));
+                }
+            }
+        }
+    }
+
+    /// Runs `work` on a blocking thread with this ticket (given back when it ends).
+    pub async fn blocking<T: Send + 'static>(
+        self,
+        work: impl FnOnce(&Ticket) -> T + Send + 'static,
+    ) -> Result<T, ApiError> {
+        let kind = self.kind;
+        tokio::task::spawn_blocking(move || work(&self))
+            .await
+            .map_err(|e| ApiError::internal(format!("{} task failed: {e}", kind.label())))
+    }
+
+    /// `made`, holding a reservation of its size from now on (taken without waiting:
+    /// the working memory it came from is given back at the same time).
+    pub fn made(&self, bytes: Bytes, tiles: u64) -> Made {
+        let n = self.pool.clamp(bytes.len() as u64);
+        // Accounted even over the limit: the bytes exist; later work waits for them.
+        let mut used = self
+            .pool
+            .used
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        *used += n;
+        self.pool
+            .gauge
+            .set(i64::try_from(*used).unwrap_or(i64::MAX));
+        drop(used);
+        Made {
+            bytes,
+            tiles,
+            cacheable: true,
+            hold: Some(Arc::new(Reservation {
+                pool: self.pool.clone(),
+                bytes: n,
+            })),
+        }
+    }
+}
+
+fn busy_memory(limit: u64, bytes: u64) -> Stop {
+    Stop::Busy(format!(
+        "the server is at its memory limit for computed responses ({} MiB; this one needs {} MiB); retry shortly",
+        limit >> 20,
+        bytes.div_ceil(1 << 20)
+    ))
+}
+
+/// Sets the cancellation flag when the computation's future is dropped unfinished.
+struct CancelOnDrop {
+    flag: Arc<AtomicBool>,
+    armed: bool,
+    kind: Kind,
+    cancelled: IntCounterVec,
+}
+
+impl Drop for CancelOnDrop {
+    fn drop(&mut self) {
+        if self.armed {
+            self.flag.store(true, Ordering::Relaxed);
+            self.cancelled
+                .with_label_values(&[self.kind.label(), "cancelled"])
+                .inc();
+        }
+    }
+}
+
+/// Counts a computation as queued for as long as it waits.
+struct Queued<'a>(&'a AtomicUsize, &'a IntGauge);
+
+impl Drop for Queued<'_> {
+    fn drop(&mut self) {
+        let n = self.0.fetch_sub(1, Ordering::SeqCst) - 1;
+        self.1.set(n as i64);
+    }
+}
+
+/// The computations of one server: slots, memory, the flights in progress.
+pub struct Compute {
+    pub limits: ComputeLimits,
+    slots: Arc<Semaphore>,
+    pool: Arc<MemoryPool>,
+    waiting: AtomicUsize,
+    flights: Mutex<HashMap<(Kind, String), WeakShared<BoxFuture<'static, Outcome>>>>,
+    /// `tessera_compute_total{kind, outcome=started|joined|busy|cancelled}`.
+    outcomes: IntCounterVec,
+    /// `tessera_compute_running{kind}`.
+    running: IntGaugeVec,
+    /// `tessera_compute_queued`.
+    queued: IntGauge,
+}
+
+impl std::fmt::Debug for Compute {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Compute")
+            .field("limits", &self.limits)
+            .field("waiting", &self.waiting)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Compute {
+    /// Empty, with its metrics registered in `registry`.
+    pub fn new(limits: ComputeLimits, registry: &Registry) -> Self {
+        let outcomes = IntCounterVec::new(
+            Opts::new(
+                "tessera_compute_total",
+                "Computed responses (Cesium meshes, grid and PNG tiles, bootstrap bodies) by kind and outcome: started (a computation admitted), joined (a request that waited on one already in flight), busy (503: queue full or memory not freed in time), cancelled (every requester gone before it ended)",
+            ),
+            &["kind", "outcome"],
+        )
+        .expect("valid metric");
+        let running = IntGaugeVec::new(
+            Opts::new(
+                "tessera_compute_running",
+                "Computations holding a slot now, by kind",
+            ),
+            &["kind"],
+        )
+        .expect("valid metric");
+        let queued = IntGauge::new(
+            "tessera_compute_queued",
+            "Computations waiting for a slot now",
+        )
+        .expect("valid metric");
+        let memory = IntGauge::new(
+            "tessera_compute_memory_bytes",
+            "Bytes reserved by running computations and by computed bodies responses still hold",
+        )
+        .expect("valid metric");
+        let memory_limit = IntGauge::new(
+            "tessera_compute_memory_limit_bytes",
+            "The memory budget of computed responses (--max-compute-mib)",
+        )
+        .expect("valid metric");
+        memory_limit.set(i64::try_from(limits.memory_bytes).unwrap_or(i64::MAX));
+        for m in [
+            Box::new(outcomes.clone()) as Box<dyn prometheus::core::Collector>,
+            Box::new(running.clone()),
+            Box::new(queued.clone()),
+            Box::new(memory.clone()),
+            Box::new(memory_limit),
+        ] {
+            registry.register(m).expect("metric names are unique");
+        }
+        for kind in Kind::ALL {
+            running.with_label_values(&[kind.label()]).set(0);
+            for outcome in ["started", "joined", "busy", "cancelled"] {
+                outcomes
+                    .with_label_values(&[kind.label(), outcome])
+                    .inc_by(0);
+            }
+        }
+        Self {
+            slots: Arc::new(Semaphore::new(limits.max_compute)),
+            pool: Arc::new(MemoryPool {
+                limit: limits.memory_bytes.max(1),
+                used: Mutex::new(0),
+                freed: Condvar::new(),
+                notify: Notify::new(),
+                gauge: memory,
+            }),
+            limits,
+            waiting: AtomicUsize::new(0),
+            flights: Mutex::new(HashMap::new()),
+            outcomes,
+            running,
+            queued,
+        }
+    }
+
+    fn count(&self, kind: Kind, outcome: &str) {
+        self.outcomes
+            .with_label_values(&[kind.label(), outcome])
+            .inc();
+    }
+
+    /// The result `key` of `kind`: the one being computed now if there is one, else
+    /// made by `work` once admitted. `key` must name everything the result depends
+    /// on (dataset version, tile, options).
+    pub async fn run<F, Fut>(self: &Arc<Self>, kind: Kind, key: String, work: F) -> Outcome
+    where
+        F: FnOnce(Ticket) -> Fut + Send + 'static,
+        Fut: Future<Output = Outcome> + Send + 'static,
+    {
+        let id = (kind, key);
+        let flight = {
+            let mut flights = self.flights.lock().unwrap_or_else(PoisonError::into_inner);
+            if let Some(f) = flights.get(&id).and_then(WeakShared::upgrade) {
+                self.count(kind, "joined");
+                f
+            } else {
+                let f = self.clone().start(kind, work).boxed().shared();
+                if flights.len() >= 4 * self.limits.queue + 64 {
+                    // Flights whose requesters all left stay as dead entries until
+                    // their key comes back; sweep them before the map grows.
+                    flights.retain(|_, w| w.upgrade().is_some());
+                }
+                flights.insert(id.clone(), f.downgrade().expect("not yet polled"));
+                f
+            }
+        };
+        let out = flight.clone().await;
+        let mut flights = self.flights.lock().unwrap_or_else(PoisonError::into_inner);
+        if flights
+            .get(&id)
+            .and_then(WeakShared::upgrade)
+            .is_some_and(|f| f.ptr_eq(&flight))
+        {
+            flights.remove(&id);
+        }
+        out
+    }
+
+    /// Waits for admission, then runs `work`; dropped unfinished, it cancels.
+    async fn start<F, Fut>(self: Arc<Self>, kind: Kind, work: F) -> Outcome
+    where
+        F: FnOnce(Ticket) -> Fut + Send + 'static,
+        Fut: Future<Output = Outcome> + Send + 'static,
+    {
+        let flag = Arc::new(AtomicBool::new(false));
+        let mut guard = CancelOnDrop {
+            flag: flag.clone(),
+            armed: true,
+            kind,
+            cancelled: self.outcomes.clone(),
+        };
+        let slot = match self.slots.clone().try_acquire_owned() {
+            Ok(slot) => slot,
+            Err(_) => self.queue(kind).await?,
+        };
+        self.count(kind, "started");
+        self.running.with_label_values(&[kind.label()]).inc();
+        let ticket = Ticket {
+            _slot: slot,
+            cancelled: flag,
+            pool: self.pool.clone(),
+            wait: self.limits.queue_wait,
+            kind,
+            running: self.running.clone(),
+        };
+        let out = work(ticket).await;
+        guard.armed = false;
+        if let Err(e) = &out
+            && e.retry_after.is_some()
+        {
+            self.count(kind, "busy");
+        }
+        out
+    }
+
+    /// Waits in the queue for a slot, or refuses when the queue is full or the wait
+    /// runs out.
+    async fn queue(&self, kind: Kind) -> Result<OwnedSemaphorePermit, ApiError> {
+        let busy = |why: String| {
+            self.count(kind, "busy");
+            Err(ApiError::busy(why, RETRY_AFTER_SECS))
+        };
+        let n = self.waiting.fetch_add(1, Ordering::SeqCst) + 1;
+        self.queued.set(n as i64);
+        let _queued = Queued(&self.waiting, &self.queued);
+        if n > self.limits.queue {
+            return busy(format!(
+                "the server is computing {} responses and {} more are waiting (--max-compute, --compute-queue); retry shortly",
+                self.limits.max_compute, self.limits.queue
+            ));
+        }
+        match tokio::time::timeout(self.limits.queue_wait, self.slots.clone().acquire_owned()).await
+        {
+            Ok(Ok(slot)) => Ok(slot),
+            Ok(Err(_)) => Err(ApiError::internal("the compute slots are closed")),
+            Err(_) => busy(format!(
+                "waited {} s for one of {} compute slots (--compute-queue-secs); retry shortly",
+                self.limits.queue_wait.as_secs_f64(),
+                self.limits.max_compute
+            )),
+        }
+    }
+
+    /// Bytes reserved now (running work and held bodies).
+    pub fn memory_used(&self) -> u64 {
+        *self
+            .pool
+            .used
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::AtomicU32;
+
+    fn limits(max_compute: usize, memory: u64, queue: usize) -> ComputeLimits {
+        ComputeLimits {
+            max_compute,
+            memory_bytes: memory,
+            queue,
+            queue_wait: Duration::from_secs(5),
+        }
+    }
+
+    fn compute(l: ComputeLimits) -> (Arc<Compute>, Registry) {
+        let r = Registry::new();
+        (Arc::new(Compute::new(l, &r)), r)
+    }
+
+    fn metric(r: &Registry, kind: &str, outcome: &str) -> u64 {
+        r.gather()
+            .iter()
+            .filter(|f| f.name() == "tessera_compute_total")
+            .flat_map(|f| f.get_metric())
+            .find(|m| {
+                let l = m.get_label();
+                l.iter().any(|p| p.value() == kind) && l.iter().any(|p| p.value() == outcome)
+            })
+            .map_or(0, |m| m.get_counter().get_value() as u64)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn identical_requests_share_one_computation() {
+        let (c, r) = compute(limits(2, 1 << 20, 8));
+        let runs = Arc::new(AtomicU32::new(0));
+        let release = Arc::new(Notify::new());
+        let mut tasks = Vec::new();
+        for _ in 0..16 {
+            let (c, runs, release) = (c.clone(), runs.clone(), release.clone());
+            tasks.push(tokio::spawn(async move {
+                c.run(Kind::Terrain, "a".into(), move |t| async move {
+                    runs.fetch_add(1, Ordering::SeqCst);
+                    release.notified().await;
+                    Ok(t.made(Bytes::from_static(b"mesh"), 1))
+                })
+                .await
+            }));
+        }
+        // Every request has joined before the one computation is let finish.
+        while metric(&r, "terrain", "joined") < 15 {
+            tokio::task::yield_now().await;
+        }
+        release.notify_waiters();
+        for t in tasks {
+            assert_eq!(&t.await.unwrap().unwrap().bytes[..], b"mesh");
+        }
+        assert_eq!(runs.load(Ordering::SeqCst), 1);
+        assert_eq!(metric(&r, "terrain", "started"), 1);
+        assert_eq!(metric(&r, "terrain", "joined"), 15);
+        // The flight is gone: the next request computes again.
+        let again = c
+            .run(Kind::Terrain, "a".into(), |t| async move {
+                Ok(t.made(Bytes::from_static(b"two"), 1))
+            })
+            .await
+            .unwrap();
+        assert_eq!(&again.bytes[..], b"two");
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_full_queue_answers_busy_with_retry_after() {
+        let (c, r) = compute(limits(1, 1 << 20, 2));
+        let hold = Arc::new(Semaphore::new(0));
+        let mut tasks = Vec::new();
+        for i in 0..3 {
+            let (c, hold) = (c.clone(), hold.clone());
+            tasks.push(tokio::spawn(async move {
+                c.run(Kind::GridTile, format!("t{i}"), move |t| async move {
+                    let _p = hold.acquire().await;
+                    Ok(t.made(Bytes::new(), 0))
+                })
+                .await
+            }));
+        }
+        // One running, two queued: the queue is full.
+        while c.waiting.load(Ordering::SeqCst) < 2 {
+            tokio::task::yield_now().await;
+        }
+        let refused = c
+            .run(Kind::GridTile, "t9".into(), |t| async move {
+                Ok(t.made(Bytes::new(), 0))
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(refused.status, axum::http::StatusCode::SERVICE_UNAVAILABLE);
+        assert_eq!(refused.retry_after, Some(1));
+        assert!(
+            refused.message.contains("--compute-queue"),
+            "{}",
+            refused.message
+        );
+        assert_eq!(metric(&r, "grid_tile", "busy"), 1);
+        hold.add_permits(3);
+        for t in tasks {
+            t.await.unwrap().unwrap();
+        }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_dropped_request_stops_its_work_and_queued_work_never_starts() {
+        let (c, r) = compute(limits(1, 1 << 20, 8));
+        let steps = Arc::new(AtomicU32::new(0));
+        let started = Arc::new(AtomicU32::new(0));
+        // A running computation that checks for cancellation at every step.
+        let running = {
+            let (c, steps, started) = (c.clone(), steps.clone(), started.clone());
+            tokio::spawn(async move {
+                c.run(Kind::Terrain, "long".into(), move |t| async move {
+                    started.fetch_add(1, Ordering::SeqCst);
+                    t.blocking(move |t| {
+                        for _ in 0..100_000 {
+                            if let Err(s) = t.check() {
+                                return Err(s.into_error());
+                            }
+                            steps.fetch_add(1, Ordering::SeqCst);
+                            std::thread::sleep(Duration::from_millis(1));
+                        }
+                        Ok(t.made(Bytes::new(), 0))
+                    })
+                    .await?
+                })
+                .await
+            })
+        };
+        while steps.load(Ordering::SeqCst) == 0 {
+            tokio::task::yield_now().await;
+        }
+        // A second computation queued behind it.
+        let queued = {
+            let (c, started) = (c.clone(), started.clone());
+            tokio::spawn(async move {
+                c.run(Kind::Terrain, "next".into(), move |t| async move {
+                    started.fetch_add(1, Ordering::SeqCst);
+                    Ok(t.made(Bytes::new(), 0))
+                })
+                .await
+            })
+        };
+        while c.waiting.load(Ordering::SeqCst) == 0 {
+            tokio::task::yield_now().await;
+        }
+        queued.abort();
+        running.abort();
+        // The running one stops at its next check and gives its slot back.
+        let _slot = tokio::time::timeout(Duration::from_secs(30), c.slots.clone().acquire_owned())
+            .await
+            .expect("the slot comes back")
+            .unwrap();
+        let at_stop = steps.load(Ordering::SeqCst);
+        assert!(at_stop < 100_000, "it ran to the end");
+        std::thread::sleep(Duration::from_millis(50));
+        assert_eq!(
+            steps.load(Ordering::SeqCst),
+            at_stop,
+            "it goes on after its slot came back"
+        );
+        assert_eq!(started.load(Ordering::SeqCst), 1, "the queued one started");
+        assert_eq!(metric(&r, "terrain", "cancelled"), 2);
+    }
+
+    #[test]
+    fn memory_waits_for_reservations_and_refuses_after_the_wait() {
+        let rt = tokio::runtime::Runtime::new().unwrap();
+        let (c, _r) = compute(ComputeLimits {
+            queue_wait: Duration::from_millis(200),
+            ..limits(4, 1000, 8)
+        });
+        let ticket = |c: &Arc<Compute>| Ticket {
+            _slot: c.slots.clone().try_acquire_owned().unwrap(),
+            cancelled: Arc::new(AtomicBool::new(false)),
+            pool: c.pool.clone(),
+            wait: c.limits.queue_wait,
+            kind: Kind::Bootstrap,
+            running: c.running.clone(),
+        };
+        let (a, b) = (ticket(&c), ticket(&c));
+        let first = a.reserve(600).unwrap();
+        assert_eq!(c.memory_used(), 600);
+        // Over the budget: waits, then is refused with a reason.
+        let Err(Stop::Busy(why)) = b.reserve(600) else {
+            panic!("reserved over the budget")
+        };
+        assert!(why.contains("memory limit"), "{why}");
+        // More than the whole budget is clamped to it: it runs alone.
+        drop(first);
+        let all = b.reserve(10_000).unwrap();
+        assert_eq!(c.memory_used(), 1000);
+        drop(all);
+        // A made body holds its size until the last holder lets go.
+        let made = rt.block_on(async {
+            a.reserve_async(100)
+                .await
+                .map(|_| a.made(Bytes::from(vec![0; 300]), 0))
+        });
+        let made = made.unwrap();
+        assert_eq!(c.memory_used(), 300);
+        let body = made.body();
+        drop(made);
+        assert_eq!(c.memory_used(), 300, "the body still holds it");
+        drop(body);
+        assert_eq!(c.memory_used(), 0);
+    }
+}
