@@ -10,6 +10,18 @@
 
 use std::time::Duration;
 
+/// The longest schedule a replay runs: 7 days (`--duration`, a ramp's stages, or a
+/// recorded trace's last time). A bound, so that every instant of a schedule is one a
+/// `Duration` and an `Instant` can hold, and a report's timeline stays small enough
+/// to merge; longer soak tests are several runs.
+pub const MAX_RUN: Duration = Duration::from_secs(7 * 24 * 3600);
+
+/// The highest rate one load process schedules, requests per second (its share of
+/// `--rate` or a ramp's stage). One scheduling thread hands out one arrival every
+/// microsecond at best, and one core sends far fewer; a higher rate is a typo, or
+/// several processes' work (`--shard K/N`).
+pub const MAX_RATE: f64 = 1e6;
+
 /// A request rate, in requests per second: finite and above zero.
 #[derive(Clone, Copy, Debug, PartialEq, PartialOrd)]
 pub struct Rate(f64);
@@ -115,6 +127,21 @@ pub enum ScheduleError {
     NoRequests,
     #[error("the schedule sends no request: its rate is 0 throughout, or its duration too short")]
     Empty,
+    #[error(
+        "a rate of {rate} requests/s for this process is above the {max} requests/s one load process can schedule; use a lower rate, or split it over processes with --shard K/N",
+        max = MAX_RATE
+    )]
+    RateTooHigh { rate: f64 },
+    #[error(
+        "the schedule lasts {seconds} s, longer than the {max} s (7 days) a replay runs",
+        max = MAX_RUN.as_secs()
+    )]
+    TooLong { seconds: f64 },
+    #[error(
+        "request {index} of the replayed requests is at {t_ms} ms: not a time from 0 to {max} ms (7 days)",
+        max = MAX_RUN.as_secs() * 1000
+    )]
+    Time { index: usize, t_ms: f64 },
 }
 
 /// Parses `30s`, `2m`, `1500ms` or plain seconds: the CLI's durations (`--duration`,
@@ -275,7 +302,19 @@ impl Schedule {
         };
         let kind = match pacing {
             Pacing::Saturation { .. } => return Ok(None),
-            Pacing::Recorded => Kind::Recorded(times_ms.iter().map(|t| t / 1e3).collect()),
+            Pacing::Recorded => {
+                // `Trace::read` checks its times; these may come from elsewhere, and
+                // each becomes a `Duration`, which panics on what it cannot hold.
+                let max_ms = MAX_RUN.as_secs_f64() * 1e3;
+                if let Some((index, &t_ms)) = times_ms
+                    .iter()
+                    .enumerate()
+                    .find(|(_, t)| !(0.0..=max_ms).contains(*t))
+                {
+                    return Err(ScheduleError::Time { index, t_ms });
+                }
+                Kind::Recorded(times_ms.iter().map(|t| t / 1e3).collect())
+            }
             Pacing::Constant { rate, duration } => {
                 let r = rate.per_second() * share;
                 let stage = RampStage {
@@ -289,18 +328,29 @@ impl Schedule {
             }
         };
         let (scheduled, span) = match &kind {
-            Kind::Recorded(t) => (
-                t.len() as u64,
-                Duration::from_secs_f64(t.last().copied().unwrap_or(0.0)),
-            ),
+            Kind::Recorded(t) => (t.len() as u64, secs(t.iter().copied().fold(0.0, f64::max))),
             Kind::Segments(segs) => {
-                let last = segs.last().expect("a ramp has stages");
+                let Some(last) = segs.last() else {
+                    return Err(ScheduleError::Empty);
+                };
+                if let Some(rate) = segs
+                    .iter()
+                    .flat_map(|s| [s.r0, s.r1])
+                    .find(|r| r.is_nan() || *r > MAX_RATE)
+                {
+                    return Err(ScheduleError::RateTooHigh { rate });
+                }
+                let seconds = last.t0 + last.d;
+                if seconds.is_nan() || seconds > MAX_RUN.as_secs_f64() {
+                    return Err(ScheduleError::TooLong { seconds });
+                }
                 let total = last.n0 + last.count();
                 // Arrival k is sent when the cumulative count reaches k (k = 0, 1, …),
                 // so those with k < total fall inside the schedule. The small epsilon
                 // keeps `rate × duration` = 1000.0000000002 from scheduling a 1001st.
+                // At most MAX_RATE × MAX_RUN (6·10¹¹): a u64 holds it exactly.
                 let n = (total - 1e-9).ceil().max(0.0) as u64;
-                (n, Duration::from_secs_f64(last.t0 + last.d))
+                (n, secs(seconds))
             }
         };
         if scheduled == 0 {
@@ -339,7 +389,7 @@ impl Schedule {
     pub fn arrival(&self, k: u64) -> Arrival {
         match &self.kind {
             Kind::Recorded(t) => Arrival {
-                at: Duration::from_secs_f64(t[k as usize]),
+                at: secs(t.get(k as usize).copied().unwrap_or(0.0)),
                 request: k as usize,
             },
             Kind::Segments(segs) => {
@@ -349,7 +399,7 @@ impl Schedule {
                 let s = segs[i.min(segs.len() - 1)];
                 let t = s.t0 + s.time_of(n - s.n0);
                 Arrival {
-                    at: Duration::from_secs_f64(t),
+                    at: secs(t),
                     request: (k % self.requests as u64) as usize,
                 }
             }
@@ -360,6 +410,13 @@ impl Schedule {
     pub fn arrivals(&self) -> impl Iterator<Item = Arrival> + '_ {
         (0..self.scheduled).map(|k| self.arrival(k))
     }
+}
+
+/// Seconds as a `Duration`: the schedule's instants, which [`Schedule::new`] has
+/// checked lie within [`MAX_RUN`]; anything else (never reached) is clamped rather
+/// than a panic.
+fn secs(s: f64) -> Duration {
+    Duration::try_from_secs_f64(s.clamp(0.0, MAX_RUN.as_secs_f64())).unwrap_or(MAX_RUN)
 }
 
 #[cfg(test)]
@@ -496,6 +553,101 @@ mod tests {
             Schedule::new(&zero, &[0.0], 1).unwrap_err(),
             ScheduleError::Empty
         );
+    }
+
+    #[test]
+    fn times_no_duration_can_hold_are_errors_not_panics() {
+        for (t, index) in [
+            (vec![0.0, 1e300], 1),
+            (vec![-1.0], 0),
+            (vec![0.0, 5.0, f64::NAN], 2),
+            (vec![f64::INFINITY], 0),
+        ] {
+            match Schedule::new(&Pacing::Recorded, &t, 1) {
+                Err(ScheduleError::Time { index: i, .. }) => assert_eq!(i, index, "{t:?}"),
+                other => panic!("{t:?}: {other:?}"),
+            }
+        }
+        let e = Schedule::new(&Pacing::Recorded, &[1e300], 1).unwrap_err();
+        assert!(e.to_string().contains("7 days"), "{e}");
+        // The last instant allowed is a schedule of its own.
+        let max_ms = MAX_RUN.as_secs_f64() * 1e3;
+        let s = Schedule::new(&Pacing::Recorded, &[0.0, max_ms], 1)
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.span(), MAX_RUN);
+        assert_eq!(s.arrival(1).at, MAX_RUN);
+    }
+
+    #[test]
+    fn rates_and_spans_one_process_cannot_hold_are_refused() {
+        let constant = |rate: f64, d: f64| Pacing::Constant {
+            rate: Rate::new(rate).unwrap(),
+            duration: secs(d),
+        };
+        // --rate 1e18 --duration 1s once ran for 25 s and grew to 2.9 GB.
+        assert_eq!(
+            Schedule::new(&constant(1e18, 1.0), &[0.0], 1).unwrap_err(),
+            ScheduleError::RateTooHigh { rate: 1e18 }
+        );
+        let e = Schedule::new(&constant(1e18, 1.0), &[0.0], 1).unwrap_err();
+        assert!(e.to_string().contains("--shard"), "{e}");
+        // The limit is per process: 4 shards share 4 × MAX_RATE.
+        let s = Schedule::new(&constant(4.0 * MAX_RATE, 1.0), &[0.0], 4)
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.scheduled(), 1_000_000);
+        assert!(matches!(
+            Schedule::new(&constant(4.0 * MAX_RATE, 1.0), &[0.0], 3),
+            Err(ScheduleError::RateTooHigh { .. })
+        ));
+        // A ramp's start and every stage's target.
+        let ramp = |start: f64, stages: &str| Pacing::Ramp {
+            start,
+            stages: stages.parse().unwrap(),
+        };
+        assert!(matches!(
+            Schedule::new(&ramp(0.0, "1s:10,1s:2e6"), &[0.0], 1),
+            Err(ScheduleError::RateTooHigh { rate }) if rate == 2e6
+        ));
+        assert!(matches!(
+            Schedule::new(&ramp(5e6, "1s:10"), &[0.0], 1),
+            Err(ScheduleError::RateTooHigh { rate }) if rate == 5e6
+        ));
+        // Longer than a replay runs.
+        let week = MAX_RUN.as_secs_f64();
+        assert!(Schedule::new(&constant(1.0, week), &[0.0], 1).is_ok());
+        assert_eq!(
+            Schedule::new(&constant(1.0, 2.0 * week), &[0.0], 1).unwrap_err(),
+            ScheduleError::TooLong {
+                seconds: 2.0 * week
+            }
+        );
+        assert!(matches!(
+            Schedule::new(&ramp(1.0, "400000s:1,400000s:1"), &[0.0], 1),
+            Err(ScheduleError::TooLong { .. })
+        ));
+    }
+
+    #[test]
+    fn a_huge_schedule_is_lazy() {
+        // A million requests a second for a week: 6·10¹¹ arrivals, none of them in
+        // memory; any one of them is computed when asked for.
+        let pacing = Pacing::Constant {
+            rate: Rate::new(MAX_RATE).unwrap(),
+            duration: MAX_RUN,
+        };
+        let s = Schedule::new(&pacing, &[0.0, 1.0, 2.0], 1)
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.scheduled(), 604_800_000_000);
+        let last = s.arrival(s.scheduled() - 1);
+        assert!(
+            last.at < MAX_RUN && last.at > MAX_RUN - secs(1e-5),
+            "{:?}",
+            last.at
+        );
+        assert_eq!(last.request, ((s.scheduled() - 1) % 3) as usize);
     }
 
     #[test]

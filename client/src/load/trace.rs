@@ -144,9 +144,10 @@ impl Trace {
                 r.client,
                 header.clients
             );
+            check_time(r.t_ms).with_context(|| format!("line {n}: t_ms"))?;
             anyhow::ensure!(
-                r.t_ms.is_finite() && r.t_ms >= last_t,
-                "line {n}: time {} ms is not a time at or after the previous request's ({last_t} ms)",
+                r.t_ms >= last_t,
+                "line {n}: t_ms {} is before the previous request's ({last_t} ms): requests are in the order they were sent",
                 r.t_ms
             );
             anyhow::ensure!(
@@ -201,6 +202,38 @@ impl Trace {
                 .cloned()
                 .collect(),
         }
+    }
+}
+
+/// The latest `t_ms` a trace may hold: [`MAX_RUN`](super::schedule::MAX_RUN), the
+/// longest schedule a replay runs, in milliseconds. Without a bound, a time such as
+/// 1e300 ms would reach the schedule as an instant no `Duration` can hold.
+pub const MAX_T_MS: f64 = super::schedule::MAX_RUN.as_secs() as f64 * 1e3;
+
+/// Why a request's `t_ms` is not a time in a trace.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum TimeError {
+    #[error("{0} is not a number of milliseconds")]
+    NotFinite(f64),
+    #[error("{0} is negative: times are milliseconds after the recording started")]
+    Negative(f64),
+    #[error(
+        "{t} ms is more than {max} ms (7 days, the longest schedule a replay runs) after the recording started",
+        max = MAX_T_MS
+    )]
+    TooLate { t: f64 },
+}
+
+/// Checks a request's `t_ms`: finite, ≥ 0 and at most [`MAX_T_MS`].
+pub fn check_time(t_ms: f64) -> Result<(), TimeError> {
+    if !t_ms.is_finite() {
+        Err(TimeError::NotFinite(t_ms))
+    } else if t_ms < 0.0 {
+        Err(TimeError::Negative(t_ms))
+    } else if t_ms > MAX_T_MS {
+        Err(TimeError::TooLate { t: t_ms })
+    } else {
+        Ok(())
     }
 }
 
@@ -393,6 +426,63 @@ mod tests {
         assert!(err(&bad_client).contains("client 7"));
         let bad_target = text.replacen("\"target\":\"/", "\"target\":\"", 1);
         assert!(err(&bad_target).contains("not a path"));
+    }
+
+    #[test]
+    fn times_that_are_no_time_name_the_line_and_the_field() {
+        let t = trace();
+        let mut buf = Vec::new();
+        t.write_to(&mut buf).unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        // The request on line 3 (t_ms 10) given another time.
+        let with = |t_ms: &str| text.replacen("\"t_ms\":10.0", &format!("\"t_ms\":{t_ms}"), 1);
+        let err = |s: &str| format!("{:#}", Trace::from_reader(s.as_bytes()).unwrap_err());
+        // 1e300 ms used to reach the schedule and panic converting it to a Duration.
+        let e = err(&with("1e300"));
+        assert!(e.contains("line 3: t_ms") && e.contains("7 days"), "{e}");
+        let e = err(&with("-5"));
+        assert!(e.contains("line 3: t_ms") && e.contains("negative"), "{e}");
+        // JSON has no NaN or infinity: such numbers are not a request at all.
+        for bad in ["NaN", "Infinity", "-Infinity", "1e400"] {
+            let e = err(&with(bad));
+            assert!(e.contains("line 3"), "{bad}: {e}");
+        }
+        // The largest time a trace may hold still reads (the requests after it are
+        // then out of order, which is the error).
+        let e = err(&with(&MAX_T_MS.to_string()));
+        assert!(e.contains("line 4: t_ms"), "{e}");
+        assert_eq!(check_time(MAX_T_MS), Ok(()));
+        assert_eq!(
+            check_time(f64::NAN).unwrap_err().to_string(),
+            "NaN is not a number of milliseconds"
+        );
+        assert!(matches!(
+            check_time(f64::INFINITY),
+            Err(TimeError::NotFinite(_))
+        ));
+        assert!(matches!(
+            check_time(MAX_T_MS * 1.01),
+            Err(TimeError::TooLate { .. })
+        ));
+    }
+
+    #[test]
+    fn a_trace_file_with_a_time_too_late_is_an_error_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("late.jsonl");
+        let t = trace();
+        let mut buf = Vec::new();
+        t.write_to(&mut buf).unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        let mut lines: Vec<String> = text.lines().map(String::from).collect();
+        let last = lines.len() - 1;
+        lines[last] = lines[last].replace("\"t_ms\":80.0", "\"t_ms\":1e300");
+        std::fs::write(&path, lines.join("\n")).unwrap();
+        let e = format!("{:#}", Trace::read(&path).unwrap_err());
+        assert!(
+            e.contains("late.jsonl") && e.contains("line 10: t_ms"),
+            "{e}"
+        );
     }
 
     #[test]
