@@ -1,0 +1,245 @@
+//! Issue 32: computed responses (Cesium meshes, grid and PNG tiles, bootstrap bodies)
+//! under heavy and hostile requests, against a real `tessera-server serve` of the
+//! SRTM tile N46E008 over real sockets (RELIABILITY.md "Expensive work"):
+//! identical requests share one computation, a client that stops reading pins no
+//! more than the memory budget, a busy server answers 503 with `Retry-After`, cheap
+//! routes keep answering, and a request that goes away takes its work with it.
+//!
+//! No test measures time: each waits for a state that `/metrics` reports, within
+//! generous bounds on "eventually".
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+#[allow(dead_code)] // each test binary uses some of the shared helpers
+mod serve_support;
+
+use serve_support::{Sample, Server, dem_pyramid, parse_metrics};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::time::{Duration, Instant};
+
+/// A Cesium tile of N46E008 that takes a real mesh (zoom 5: the whole DEM's level).
+const TERRAIN: &str = "/v1/datasets/N46E008/cesium/5/33/24.terrain";
+
+/// `tessera_compute_total{kind, outcome}`, or a labelled gauge with `kind` alone.
+fn compute(samples: &[Sample], name: &str, kind: &str, outcome: Option<&str>) -> f64 {
+    samples
+        .iter()
+        .filter(|s| {
+            s.name == name
+                && s.labels.get("kind").is_some_and(|k| k == kind)
+                && outcome.is_none_or(|o| s.labels.get("outcome").is_some_and(|v| v == o))
+        })
+        .map(|s| s.value)
+        .sum()
+}
+
+fn metrics(srv: &Server) -> Vec<Sample> {
+    parse_metrics(&srv.get("/metrics").expect(200).text())
+}
+
+/// Waits (at most a minute) until `/metrics` satisfies `ok`.
+fn until(srv: &Server, what: &str, ok: impl Fn(&[Sample]) -> bool) -> Vec<Sample> {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let m = metrics(srv);
+        if ok(&m) {
+            return m;
+        }
+        assert!(Instant::now() < deadline, "never: {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The single unlabelled value of `name`.
+fn gauge(samples: &[Sample], name: &str) -> f64 {
+    serve_support::metric(samples, name)
+}
+
+#[test]
+fn identical_requests_for_a_terrain_tile_make_one_mesh() {
+    let Some(p) = dem_pyramid("N46E008.tif", 256) else {
+        return;
+    };
+    // The server's defaults: nothing configured.
+    let srv = Server::start(&[&p], &[]);
+    let url = srv.url(TERRAIN);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let client = reqwest::Client::new();
+    let bodies: Vec<(u16, Vec<u8>)> = rt.block_on(async {
+        let all = (0..64).map(|_| {
+            let (c, u) = (client.clone(), url.clone());
+            tokio::spawn(async move {
+                let r = c.get(u).send().await.unwrap();
+                (r.status().as_u16(), r.bytes().await.unwrap().to_vec())
+            })
+        });
+        let mut out = Vec::new();
+        for t in all.collect::<Vec<_>>() {
+            out.push(t.await.unwrap());
+        }
+        out
+    });
+    assert!(
+        bodies.iter().all(|(s, _)| *s == 200),
+        "{:?}",
+        bodies.iter().map(|b| b.0).collect::<Vec<_>>()
+    );
+    assert!(
+        bodies.iter().all(|(_, b)| *b == bodies[0].1),
+        "one mesh, the same bytes"
+    );
+    let m = metrics(&srv);
+    // One computation: the other 63 waited on it, or found it in the cache after.
+    assert_eq!(
+        compute(&m, "tessera_compute_total", "terrain", Some("started")),
+        1.0
+    );
+    let joined = compute(&m, "tessera_compute_total", "terrain", Some("joined"));
+    let hits: f64 = m
+        .iter()
+        .filter(|s| {
+            s.name == "tessera_web_cache_requests_total"
+                && s.labels.get("cache").is_some_and(|c| c == "terrain")
+                && s.labels.get("result").is_some_and(|r| r == "hit")
+        })
+        .map(|s| s.value)
+        .sum();
+    assert_eq!(joined + hits, 63.0, "joined {joined}, cache hits {hits}");
+}
+
+/// An HTTP/2 client that takes responses' heads but no body bytes (window 0).
+fn non_reader() -> reqwest::Client {
+    reqwest::Client::builder()
+        .http2_prior_knowledge()
+        .http2_initial_stream_window_size(Some(0))
+        .build()
+        .unwrap()
+}
+
+#[test]
+fn a_client_that_stops_reading_pins_only_the_budget_and_the_rest_get_503_with_retry_after() {
+    let Some(p) = dem_pyramid("N46E008.tif", 256) else {
+        return;
+    };
+    let srv = Server::start(
+        &[&p],
+        &["--max-compute-mib", "1", "--compute-queue-secs", "1"],
+    );
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let client = non_reader();
+    // A bootstrap body, made whole and then held by a client that never reads it.
+    let held = rt
+        .block_on(client.get(srv.url("/v1/datasets/N46E008/bootstrap")).send())
+        .unwrap();
+    assert_eq!(held.status(), 200);
+    let len: u64 = held.headers()["content-length"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    // The body stays reserved while the client holds it; what is left of the 1 MiB
+    // budget is less than a zoom-5 mesh needs.
+    let m = metrics(&srv);
+    assert_eq!(gauge(&m, "tessera_compute_memory_bytes"), len as f64);
+    assert!(len > 256 << 10, "{len}");
+
+    // New work waits for memory, then is refused with a reason and Retry-After.
+    let r = srv.get(TERRAIN);
+    let why = r.error(503);
+    assert!(why.contains("memory limit"), "{why}");
+    assert_eq!(r.must("retry-after"), "1");
+    let m = metrics(&srv);
+    assert_eq!(
+        compute(&m, "tessera_compute_total", "terrain", Some("busy")),
+        1.0
+    );
+
+    // Cheap routes answer all along.
+    srv.get("/healthz").expect(200);
+    srv.get("/v1/datasets/N46E008/tiles/0/0/0").expect(200);
+    srv.get("/v1/datasets/N46E008/cesium/layer.json")
+        .expect(200);
+
+    // The client goes (RST_STREAM): the body and its memory go with it, and the
+    // same request is now made.
+    drop(held);
+    until(&srv, "the held body's memory given back", |m| {
+        gauge(m, "tessera_compute_memory_bytes") == 0.0
+    });
+    let r = srv.get(TERRAIN).expect(200);
+    assert!(!r.body.is_empty());
+}
+
+#[test]
+fn work_whose_requesters_are_gone_stops() {
+    let Some(p) = dem_pyramid("N46E008.tif", 256) else {
+        return;
+    };
+    let srv = Server::start(
+        &[&p],
+        &["--max-compute-mib", "1", "--compute-queue-secs", "600"],
+    );
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let client = non_reader();
+    // The whole memory budget held, so admitted work waits inside its computation.
+    let held = rt
+        .block_on(client.get(srv.url("/v1/datasets/N46E008/bootstrap")).send())
+        .unwrap();
+    assert_eq!(held.status(), 200);
+
+    // HTTP/1: a request admitted (it holds a slot, waiting for memory), then the
+    // connection closed.
+    let mut s = TcpStream::connect(srv.addr).unwrap();
+    write!(s, "GET {TERRAIN} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+    until(&srv, "the terrain mesh admitted", |m| {
+        compute(m, "tessera_compute_running", "terrain", None) == 1.0
+    });
+    drop(s);
+    until(&srv, "the closed request's work stopped", |m| {
+        compute(m, "tessera_compute_running", "terrain", None) == 0.0
+            && compute(m, "tessera_compute_total", "terrain", Some("cancelled")) == 1.0
+    });
+
+    // HTTP/2: the same with RST_STREAM on a connection that stays open.
+    let h2 = reqwest::Client::builder()
+        .http2_prior_knowledge()
+        .build()
+        .unwrap();
+    let url = srv.url("/v1/datasets/N46E008/cesium/6/67/48.terrain");
+    let task = rt.spawn(async move { h2.get(url).send().await.map(|r| r.status()) });
+    until(&srv, "the second mesh admitted", |m| {
+        compute(m, "tessera_compute_running", "terrain", None) == 1.0
+    });
+    task.abort();
+    let m = until(&srv, "the reset stream's work stopped", |m| {
+        compute(m, "tessera_compute_running", "terrain", None) == 0.0
+            && compute(m, "tessera_compute_total", "terrain", Some("cancelled")) == 2.0
+    });
+    // Neither ever made a mesh.
+    assert_eq!(
+        compute(&m, "tessera_compute_total", "terrain", Some("started")),
+        2.0
+    );
+    let misses: f64 = m
+        .iter()
+        .filter(|s| {
+            s.name == "tessera_web_cache_bytes"
+                && s.labels.get("cache").is_some_and(|c| c == "terrain")
+        })
+        .map(|s| s.value)
+        .sum();
+    assert_eq!(misses, 0.0, "no terrain tile was kept");
+    drop(held);
+
+    // A request whose connection is still open is answered once memory frees.
+    let mut s = TcpStream::connect(srv.addr).unwrap();
+    write!(
+        s,
+        "GET {TERRAIN} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut head = [0u8; 12];
+    s.read_exact(&mut head).unwrap();
+    assert_eq!(&head, b"HTTP/1.1 200");
+}
