@@ -153,9 +153,27 @@ fn recorder_for(opts: &LoadOptions) -> anyhow::Result<Option<(Arc<Recorder>, Pat
     Ok(Some((Recorder::new(url), path.clone())))
 }
 
+/// Refuses more clients than the open-file limit `fd_limit` lets this process
+/// connect (each holds one connection at least), before any is started: past it they
+/// fail one by one, and a million of them would be a million threads.
+fn check_clients(clients: u32, fd_limit: Option<u64>) -> anyhow::Result<()> {
+    let max = crate::load::replay::max_connections(fd_limit);
+    anyhow::ensure!(
+        clients <= max,
+        "--clients {clients}: each client holds a connection at least, and this process may open {max} ({}, less what it keeps for itself, at most {}); raise the limit (`ulimit -n`, up to `ulimit -Hn`) or use fewer clients",
+        fd_limit.map_or_else(
+            || "no open-file limit".to_string(),
+            |l| format!("its open-file limit, RLIMIT_NOFILE, is {l}")
+        ),
+        crate::load::replay::MAX_CONNECTIONS
+    );
+    Ok(())
+}
+
 /// Runs the clients (staggered along the built-in paths) and sums their traffic.
 pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
     anyhow::ensure!(opts.clients > 0, "--clients must be at least 1");
+    check_clients(opts.clients, crate::load::replay::open_file_limit())?;
     let recording = recorder_for(opts)?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -213,13 +231,19 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 globe: crate::globe::GlobeMode::Off,
             };
             let done = done.clone();
-            std::thread::spawn(move || {
-                let r = fly(&fly_opts, None);
-                done.fetch_add(1, Ordering::Relaxed);
-                r
-            })
+            // A thread the system refuses is an error, not a panic (as spawn's).
+            std::thread::Builder::new()
+                .name(format!("load-client-{i}"))
+                .spawn(move || {
+                    let r = fly(&fly_opts, None);
+                    done.fetch_add(1, Ordering::Relaxed);
+                    r
+                })
+                .map_err(|e| {
+                    anyhow::anyhow!("--clients {}: cannot start client {i}: {e}", opts.clients)
+                })
         })
-        .collect();
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let mut summaries = Vec::new();
     for h in handles {
         summaries.push(
@@ -326,6 +350,30 @@ mod tests {
         let json = serde_json::to_value(report(None, false)).unwrap();
         assert_eq!(json["client_cpu_cores"], serde_json::Value::Null);
         assert_eq!(json["client_bound"], false);
+    }
+
+    #[test]
+    fn more_clients_than_the_open_file_limit_holds_are_refused() {
+        assert!(check_clients(960, Some(1024)).is_ok());
+        let e = check_clients(1_000_000, Some(1024))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--clients 1000000")
+                && e.contains("RLIMIT_NOFILE, is 1024")
+                && e.contains("ulimit -n"),
+            "{e}"
+        );
+        let e = check_clients(1_000_000, None).unwrap_err().to_string();
+        assert!(e.contains("65536"), "{e}");
+        // The run itself refuses it before starting anything.
+        let e = load(&LoadOptions::new(
+            TileSource::server("http://127.0.0.1:1/", "moon"),
+            1_000_000,
+            Duration::from_secs(1),
+        ))
+        .unwrap_err();
+        assert!(e.to_string().contains("--clients 1000000"), "{e}");
     }
 
     #[test]

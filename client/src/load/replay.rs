@@ -27,7 +27,7 @@ use super::check::{Check, ErrorKind, Outcome};
 use super::report::{
     ErrorCounts, Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
 };
-use super::schedule::{Pacing, Schedule};
+use super::schedule::{MAX_RUN, Pacing, Schedule};
 use super::trace::{Expect, RequestKind, Shard, Trace};
 use anyhow::Context;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
@@ -42,6 +42,78 @@ pub const STREAMS_PER_CONNECTION: u32 = 100;
 
 /// HTTP/2 flow-control window per stream (bytes); the connection's is four times it.
 const H2_STREAM_WINDOW: u32 = 8 << 20;
+
+/// The longest `--timeout`: an hour, the longest latency the report's histograms
+/// hold. It also bounds a run: at most [`MAX_RUN`] of schedule and one timeout.
+pub const MAX_TIMEOUT: Duration = Duration::from_secs(3600);
+
+/// The most connections one load process opens, whatever its open-file limit: one
+/// client's ephemeral ports to one server address run out near there (Linux offers
+/// 28 232 by default), and so would the runtime's patience; more load is more
+/// processes (`--shard K/N`).
+pub const MAX_CONNECTIONS: u32 = 65_536;
+
+/// Open files the load process keeps for itself besides its connections: standard
+/// streams, the runtime's epoll and wakers, the trace and report files, the
+/// resolver's sockets, with room to spare.
+const FD_RESERVE: u64 = 64;
+
+/// Why a `--connections` count is refused.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ConnectionsError {
+    #[error(
+        "--connections {requested}: this process may open {limit} files (RLIMIT_NOFILE, `ulimit -n`), which leaves room for {max} connections besides the {FD_RESERVE} it keeps for itself; raise the limit (`ulimit -n {needed}`, up to the hard limit `ulimit -Hn`) or use at most {max} connections"
+    )]
+    OpenFiles {
+        requested: u32,
+        limit: u64,
+        max: u32,
+        needed: u64,
+    },
+    #[error(
+        "--connections {requested} is above {MAX_CONNECTIONS}, the most one load process opens; split the load over processes with --shard K/N"
+    )]
+    TooMany { requested: u32 },
+}
+
+/// The connections a process with the open-file limit `fd_limit` (`None`: unlimited
+/// or unknown) may open: the limit less [`FD_RESERVE`], at most [`MAX_CONNECTIONS`].
+pub fn max_connections(fd_limit: Option<u64>) -> u32 {
+    let by_fds = fd_limit.map_or(u64::MAX, |l| l.saturating_sub(FD_RESERVE));
+    u32::try_from(by_fds.min(u64::from(MAX_CONNECTIONS))).unwrap_or(MAX_CONNECTIONS)
+}
+
+/// Refuses `requested` connections (or full clients, each of which holds one at
+/// least) that the open-file limit `fd_limit` cannot hold, before any is opened: a
+/// run past it fails its connections one by one as `connect` errors, and
+/// `--connections 1000000` took 915 MB before sending anything.
+pub fn check_connections(requested: u32, fd_limit: Option<u64>) -> Result<(), ConnectionsError> {
+    let max = max_connections(fd_limit);
+    if requested <= max {
+        return Ok(());
+    }
+    match fd_limit {
+        Some(limit) if max < MAX_CONNECTIONS => Err(ConnectionsError::OpenFiles {
+            requested,
+            limit,
+            max,
+            needed: u64::from(requested) + FD_RESERVE,
+        }),
+        _ => Err(ConnectionsError::TooMany { requested }),
+    }
+}
+
+/// The soft `RLIMIT_NOFILE`, read from `/proc/self/limits` (as the server reads it;
+/// no `unsafe` needed); `None` where it is unlimited or cannot be read.
+pub fn open_file_limit() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/limits").ok()?;
+    let line = text.lines().find(|l| l.starts_with("Max open files"))?;
+    line.get("Max open files".len()..)?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
 
 /// What to replay and how.
 #[derive(Clone, Debug)]
@@ -316,8 +388,23 @@ fn clients(opts: &ReplayOptions, base: &str) -> anyhow::Result<Vec<reqwest::Clie
 /// runtime, so call it from a plain thread (in async code, `spawn_blocking`).
 pub fn replay(opts: &ReplayOptions) -> anyhow::Result<ReplayReport> {
     anyhow::ensure!(opts.connections >= 1, "--connections must be at least 1");
+    check_connections(opts.connections, open_file_limit())?;
     anyhow::ensure!(opts.threads >= 1, "--threads must be at least 1");
     anyhow::ensure!(!opts.timeout.is_zero(), "--timeout must be above 0");
+    anyhow::ensure!(
+        opts.timeout <= MAX_TIMEOUT,
+        "--timeout {:?} is longer than {} s, the longest latency the report's histograms hold",
+        opts.timeout,
+        MAX_TIMEOUT.as_secs()
+    );
+    if let Pacing::Saturation { duration } = opts.pacing {
+        anyhow::ensure!(
+            duration <= MAX_RUN,
+            "--duration {:?} is longer than the {} s (7 days) a replay runs",
+            duration,
+            MAX_RUN.as_secs()
+        );
+    }
     let trace = opts.trace.shard(opts.shard);
     let base = opts
         .server
@@ -384,7 +471,8 @@ async fn run(
         .progress
         .then(|| tokio::spawn(progress_line(shared.clone())));
     let (scheduled_per_s, sent_per_s, backlog) = if let Some(s) = &schedule {
-        open_loop(opts, &shared, s).await
+        let (sent_per_s, backlog) = open_loop(opts, &shared, s).await;
+        (s.per_second(), sent_per_s, backlog)
     } else {
         let Pacing::Saturation { duration } = opts.pacing else {
             unreachable!("only saturation has no schedule")
@@ -433,13 +521,16 @@ async fn run(
         };
         let http = if opts.http2 { Http::Http2 } else { Http::Http1 };
         let sent = shared.sent.load(Relaxed);
+        let scheduled = schedule.as_ref().map_or(sent, Schedule::scheduled);
         ReplayReport {
             target_rate: schedule.as_ref().map(Schedule::mean_rate),
             shard: opts.shard.to_string(),
             connections: opts.connections,
             seconds,
-            scheduled: schedule.as_ref().map_or(sent, Schedule::scheduled),
+            scheduled,
             sent,
+            // Not sent when the deadline came: not errors, the server never saw them.
+            unsent: scheduled.saturating_sub(sent),
             completed: rec.completed,
             tiles: rec.tiles,
             bytes: rec.bytes,
@@ -459,14 +550,21 @@ async fn run(
     Ok(r)
 }
 
+/// Arrivals the scheduling thread may hand out ahead of the sends (the channel
+/// between them). Bounded, so that a schedule the connections cannot keep up with
+/// waits in the schedule (computed when needed) instead of piling up in memory: an
+/// unbounded queue held every arrival of `--rate 1e18` (2.9 GB after 25 s).
+const ARRIVALS_AHEAD: usize = 1024;
+
 /// The open model: each arrival at its instant, waiting for a free connection when
-/// all are busy. Returns the requests scheduled and sent per second and the backlog
-/// when the schedule ended.
+/// all are busy, until the schedule has been sent or the run's deadline (the
+/// schedule's end + `--timeout`) has come; arrivals not sent by then are not sent.
+/// Returns the requests sent per second and the backlog when the schedule ended.
 async fn open_loop(
     opts: &ReplayOptions,
     shared: &Arc<Shared>,
     schedule: &Schedule,
-) -> (Vec<u64>, Vec<u64>, u64) {
+) -> (Vec<u64>, u64) {
     let permits = if opts.http2 {
         opts.connections.saturating_mul(STREAMS_PER_CONNECTION)
     } else {
@@ -475,6 +573,10 @@ async fn open_loop(
     let sem = Arc::new(Semaphore::new(permits as usize));
     let start = shared.start;
     let total = schedule.scheduled();
+    // The hard end of the run, whatever the rate: a server that falls behind (or a
+    // rate no connection count keeps up with) makes requests wait, and without it
+    // `--rate 30000 --duration 2s` went on sending for 17.7 s.
+    let deadline = start + schedule.span() + opts.timeout;
     // The backlog is read when the schedule's last instant has passed (plus a timer
     // tick), by a task of its own, since the scheduler may be waiting for a connection.
     let end_of_schedule = start + schedule.span() + Duration::from_millis(2);
@@ -489,7 +591,7 @@ async fn open_loop(
     // of 1 ms and rounds up, which would add up to a millisecond to every corrected
     // latency; a thread's sleep is good to tens of microseconds. It only sleeps and
     // sends; the sends themselves happen on the runtime, in order.
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<super::schedule::Arrival>();
+    let (tx, mut rx) = tokio::sync::mpsc::channel::<super::schedule::Arrival>(ARRIVALS_AHEAD);
     let ticker = {
         let (schedule, start) = (schedule.clone(), start.into_std());
         std::thread::Builder::new()
@@ -502,22 +604,26 @@ async fn open_loop(
                     if at > now {
                         std::thread::sleep(at - now);
                     }
-                    if tx.send(a).is_err() {
+                    // Fails once the sends have stopped (the deadline): so does this.
+                    if tx.blocking_send(a).is_err() {
                         break;
                     }
                 }
             })
     };
-    let mut scheduled_per_s = Vec::new();
     let mut sent_per_s = Vec::new();
-    while let Some(a) = rx.recv().await {
+    // `None` when the deadline comes first.
+    while let Ok(Some(a)) = tokio::time::timeout_at(deadline, rx.recv()).await {
         let at = start + a.at;
-        bump(&mut scheduled_per_s, a.at.as_secs());
-        let permit = sem
-            .clone()
-            .acquire_owned()
-            .await
-            .expect("the semaphore is never closed");
+        let Ok(Ok(permit)) = tokio::time::timeout_at(deadline, sem.clone().acquire_owned()).await
+        else {
+            break;
+        };
+        // A connection freed just as the deadline passed (a late timer) sends
+        // nothing either: the run is over.
+        if Instant::now() >= deadline {
+            break;
+        }
         bump(&mut sent_per_s, shared.second(Instant::now()));
         shared.sent.fetch_add(1, Relaxed);
         let sh = shared.clone();
@@ -526,18 +632,23 @@ async fn open_loop(
             drop(permit);
         });
     }
+    // The scheduling thread's next hand-out fails, and it ends: it never sleeps past
+    // the deadline, since every instant is within the schedule.
+    drop(rx);
     if let Ok(t) = ticker {
         let _ = t.join();
     }
     let backlog = if Instant::now() < end_of_schedule {
+        // Every arrival sent before the schedule ended (0), or a deadline before its
+        // end (a `--timeout` under the watcher's tick): what was not sent.
         watcher.abort();
-        0
+        total.saturating_sub(shared.sent.load(Relaxed))
     } else {
         watcher.await.unwrap_or(0)
     };
-    // Wait for the requests in flight: all permits back, or the timeout.
-    let _ = tokio::time::timeout(opts.timeout, sem.acquire_many(permits)).await;
-    (scheduled_per_s, sent_per_s, backlog)
+    // Wait for the requests in flight: all permits back, or the deadline.
+    let _ = tokio::time::timeout_at(deadline, sem.acquire_many(permits)).await;
+    (sent_per_s, backlog)
 }
 
 /// Saturation: `connections` workers, each sending the next request (in trace order,
@@ -668,39 +779,68 @@ mod tests {
         assert!(r.timeline.iter().map(|s| s.scheduled).sum::<u64>() == 2);
     }
 
-    /// 10 requests over 0.5 s (20/s) on `connections` connections, each given 300 ms,
-    /// to a listening socket that never accepts: connections open (the kernel's
-    /// backlog) and requests go out, but no answer ever comes.
-    fn replay_to_a_silent_server(connections: u32) -> ReplayReport {
+    /// `rate` requests/s for `ms` milliseconds on `connections` connections, each
+    /// request given `timeout_ms`, to a listening socket that never accepts:
+    /// connections open (the kernel's backlog) and requests go out, but no answer
+    /// ever comes.
+    fn replay_silently(rate: f64, ms: u64, connections: u32, timeout_ms: u64) -> ReplayReport {
         let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         let port = silent.local_addr().unwrap().port();
         let mut opts = ReplayOptions::new(trace(&format!("http://127.0.0.1:{port}")));
         opts.pacing = Pacing::Constant {
-            rate: super::super::schedule::Rate::new(20.0).unwrap(),
-            duration: Duration::from_millis(500),
+            rate: super::super::schedule::Rate::new(rate).unwrap(),
+            duration: Duration::from_millis(ms),
         };
         opts.connections = connections;
-        opts.timeout = Duration::from_millis(300);
+        opts.timeout = Duration::from_millis(timeout_ms);
         let r = replay(&opts).unwrap();
         drop(silent);
         r
+    }
+
+    /// 10 requests over 0.5 s (20/s), each given 300 ms.
+    fn replay_to_a_silent_server(connections: u32) -> ReplayReport {
+        replay_silently(20.0, 500, connections, 300)
     }
 
     #[test]
     fn a_server_that_never_answers_falls_behind_and_times_out() {
         let r = replay_to_a_silent_server(1);
         assert_eq!(r.mode, Mode::Rate);
-        assert_eq!((r.scheduled, r.sent, r.completed), (10, 10, 0));
-        assert_eq!(r.errors.timeout, 10);
-        assert_eq!(r.errors.total(), 10);
-        // One connection held 300 ms per request: when the schedule ended (0.5 s)
-        // only the first two had been sent.
-        assert!(r.backlog >= 6, "backlog {}", r.backlog);
+        assert_eq!((r.scheduled, r.completed), (10, 0));
+        // One connection held 300 ms per request, and the run ends at its deadline,
+        // 0.5 s + 300 ms: a request can only have gone out at 0, 0.3 and 0.6 s (each
+        // frees the connection no sooner than its timeout). The rest were never sent
+        // (they used to be, one every 300 ms, for 3 s).
+        assert!(r.sent <= 3, "sent {}", r.sent);
+        assert_eq!(r.sent + r.unsent, 10);
+        // Those sent timed out; those never sent are not errors.
+        assert_eq!(r.errors.timeout, r.sent);
+        assert_eq!(r.errors.total(), r.sent);
+        // When the schedule ended (0.5 s) at most two had been sent.
+        assert!(r.backlog >= 8, "backlog {}", r.backlog);
+        assert!(r.backlog >= r.unsent);
         assert_eq!(r.rate_held, Some(false));
         assert_eq!(r.target_rate, Some(20.0));
-        // Ten sends 300 ms apart: the run lasted about 3 s, not the schedule's 0.5.
-        assert!(r.seconds >= 2.9, "{}", r.seconds);
         assert_eq!(r.latency_ms, super::super::report::Percentiles::default());
+        // Every scheduled request is in the timeline, sent or not.
+        assert_eq!(r.timeline.iter().map(|s| s.scheduled).sum::<u64>(), 10);
+        assert_eq!(r.timeline.iter().map(|s| s.sent).sum::<u64>(), r.sent);
+        assert!(r.to_string().contains("never sent"), "{r}");
+    }
+
+    #[test]
+    fn a_rate_the_connections_cannot_hold_stops_at_the_deadline() {
+        // 400/s for 0.5 s (200 requests) on 2 connections that each hold a request
+        // 200 ms: the run ends 0.5 s + 200 ms after its start, having sent at most
+        // 2 × ⌈0.7 / 0.2⌉ = 8. It used to send all 200, 100 rounds of 200 ms (20 s):
+        // `--rate 30000 --duration 2s` sent for 17.7 s.
+        let r = replay_silently(400.0, 500, 2, 200);
+        assert_eq!(r.scheduled, 200);
+        assert!(r.sent <= 8, "sent {}", r.sent);
+        assert_eq!(r.unsent, 200 - r.sent);
+        assert_eq!(r.errors.total(), r.sent);
+        assert_eq!(r.rate_held, Some(false));
     }
 
     #[test]
@@ -708,8 +848,8 @@ mod tests {
         // The same silent server, but connections to spare: the open model sends
         // every request at its instant although none is ever answered.
         let r = replay_to_a_silent_server(16);
-        assert_eq!((r.scheduled, r.sent, r.completed), (10, 10, 0));
-        assert_eq!(r.errors.timeout, 10);
+        assert_eq!((r.scheduled, r.sent + r.unsent, r.completed), (10, 10, 0));
+        assert_eq!(r.errors.timeout, r.sent);
         // Waiting for answers, only 2 could have gone out by the end of the schedule
         // (0.5 s) and the run would last 10 × 300 ms; on schedule, all are out by
         // 0.45 s (a little slack for a loaded machine) and the run ends one timeout
@@ -719,6 +859,72 @@ mod tests {
         assert!(r.seconds < 2.5, "{}", r.seconds);
         // Nothing was answered: the rate was not held even though nothing fell behind.
         assert_eq!(r.rate_held, Some(false));
+    }
+
+    #[test]
+    fn connection_counts_the_open_file_limit_cannot_hold_are_refused() {
+        // The default soft limit of many systems: 1024 files, 960 connections.
+        assert_eq!(max_connections(Some(1024)), 960);
+        assert_eq!(check_connections(960, Some(1024)), Ok(()));
+        let e = check_connections(1_000_000, Some(1024)).unwrap_err();
+        assert_eq!(
+            e,
+            ConnectionsError::OpenFiles {
+                requested: 1_000_000,
+                limit: 1024,
+                max: 960,
+                needed: 1_000_064
+            }
+        );
+        let text = e.to_string();
+        assert!(
+            text.contains("RLIMIT_NOFILE") && text.contains("ulimit -n 1000064"),
+            "{text}"
+        );
+        // A limit below the reserve leaves no connection at all.
+        assert_eq!(max_connections(Some(10)), 0);
+        assert!(check_connections(1, Some(10)).is_err());
+        // Unlimited or unknown, or a limit above it: the fixed bound.
+        for limit in [None, Some(10_000_000)] {
+            assert_eq!(max_connections(limit), MAX_CONNECTIONS);
+            assert_eq!(
+                check_connections(1_000_000, limit),
+                Err(ConnectionsError::TooMany {
+                    requested: 1_000_000
+                })
+            );
+        }
+        // And the engine refuses it before opening anything (it took 915 MB).
+        let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
+        opts.connections = 1_000_000;
+        let e = format!("{:#}", replay(&opts).unwrap_err());
+        assert!(e.contains("--connections 1000000"), "{e}");
+    }
+
+    #[test]
+    fn runs_no_clock_can_hold_are_refused() {
+        // A trace built in code (Trace::read refuses it first) with a time of 1e300 ms
+        // used to panic converting it to a Duration.
+        let mut t = trace("http://127.0.0.1:1");
+        t.requests[3].t_ms = 1e300;
+        let e = format!("{:#}", replay(&ReplayOptions::new(t)).unwrap_err());
+        assert!(e.contains("1e300") && e.contains("7 days"), "{e}");
+        let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
+        opts.timeout = Duration::from_secs(7200);
+        let e = format!("{:#}", replay(&opts).unwrap_err());
+        assert!(e.contains("--timeout"), "{e}");
+        opts.timeout = Duration::from_secs(1);
+        opts.pacing = Pacing::Saturation {
+            duration: MAX_RUN * 2,
+        };
+        let e = format!("{:#}", replay(&opts).unwrap_err());
+        assert!(e.contains("--duration") && e.contains("7 days"), "{e}");
+        opts.pacing = Pacing::Constant {
+            rate: super::super::schedule::Rate::new(1e18).unwrap(),
+            duration: Duration::from_secs(1),
+        };
+        let e = format!("{:#}", replay(&opts).unwrap_err());
+        assert!(e.contains("1000000 requests/s"), "{e}");
     }
 
     #[test]

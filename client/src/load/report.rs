@@ -324,6 +324,11 @@ pub struct ReplayReport {
     pub bytes: u64,
     /// Requests scheduled but not yet sent when the schedule ended.
     pub backlog: u64,
+    /// Requests scheduled but never sent: the run's deadline (the schedule's end +
+    /// `--timeout`) came first. Not errors: the server never saw them. (0 in reports
+    /// written before the deadline existed.)
+    #[serde(default)]
+    pub unsent: u64,
     pub errors: ErrorCounts,
     pub requests_per_s: f64,
     pub tiles_per_s: f64,
@@ -380,6 +385,7 @@ impl ReplayReport {
             tiles: 0,
             bytes: 0,
             backlog: 0,
+            unsent: 0,
             errors: ErrorCounts::default(),
             requests_per_s: 0.0,
             tiles_per_s: 0.0,
@@ -503,6 +509,7 @@ pub fn merge(reports: &[ReplayReport]) -> anyhow::Result<ReplayReport> {
         out.tiles += r.tiles;
         out.bytes += r.bytes;
         out.backlog += r.backlog;
+        out.unsent += r.unsent;
         out.errors.add_all(&r.errors);
         out.target_rate = out.target_rate.zip(r.target_rate).map(|(a, b)| a + b);
         out.rate_held = out.rate_held.zip(r.rate_held).map(|(a, b)| a && b);
@@ -602,6 +609,13 @@ impl std::fmt::Display for ReplayReport {
         if self.backlog > 0 {
             write!(f, "; {} not yet sent when the schedule ended", self.backlog)?;
         }
+        if self.unsent > 0 {
+            write!(
+                f,
+                "; {} never sent (the run stops at the schedule's end + --timeout)",
+                self.unsent
+            )?;
+        }
         write!(f, ".")
     }
 }
@@ -671,6 +685,7 @@ mod tests {
             tiles: 16 * n as u64,
             bytes: 1000 * n as u64,
             backlog: 1,
+            unsent: 0,
             errors: ErrorCounts {
                 timeout: 3,
                 corrupt: seed,

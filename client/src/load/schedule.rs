@@ -128,17 +128,18 @@ pub enum ScheduleError {
     #[error("the schedule sends no request: its rate is 0 throughout, or its duration too short")]
     Empty,
     #[error(
-        "a rate of {rate} requests/s for this process is above the {max} requests/s one load process can schedule; use a lower rate, or split it over processes with --shard K/N",
+        "a rate of {rate:?} requests/s for this process is above the {max} requests/s one load process can schedule; use a lower rate, or split it over processes with --shard K/N",
         max = MAX_RATE
     )]
     RateTooHigh { rate: f64 },
     #[error(
-        "the schedule lasts {seconds} s, longer than the {max} s (7 days) a replay runs",
+        "the schedule lasts {seconds:?} s, longer than the {max} s (7 days) a replay runs",
         max = MAX_RUN.as_secs()
     )]
     TooLong { seconds: f64 },
     #[error(
-        "request {index} of the replayed requests is at {t_ms} ms: not a time from 0 to {max} ms (7 days)",
+        "request {number} of the replayed requests is at {t_ms:?} ms: not a time from 0 to {max} ms (7 days)",
+        number = .index + 1,
         max = MAX_RUN.as_secs() * 1000
     )]
     Time { index: usize, t_ms: f64 },
@@ -406,6 +407,43 @@ impl Schedule {
         }
     }
 
+    /// How many arrivals are scheduled before `t` (at instants `< t`), computed from
+    /// the schedule without listing its arrivals: a run that stops at its deadline
+    /// still reports every second's scheduled requests, however many it never got to.
+    pub fn scheduled_before(&self, t: Duration) -> u64 {
+        match &self.kind {
+            Kind::Recorded(times) => {
+                let t = t.as_secs_f64();
+                times.partition_point(|&x| x < t) as u64
+            }
+            Kind::Segments(segs) => {
+                let t = t.as_secs_f64();
+                // The segment holding t (the last one past the end).
+                let i = segs.partition_point(|s| s.t0 + s.d <= t);
+                let Some(s) = segs.get(i) else {
+                    return self.scheduled;
+                };
+                let tau = (t - s.t0).clamp(0.0, s.d);
+                // The cumulative count N(t); arrival k is at N = k, so those before t
+                // are k < N(t): ⌈N(t)⌉ of them (with `new`'s epsilon).
+                let n = s.n0 + s.r0 * tau + (s.r1 - s.r0) * tau * tau / (2.0 * s.d);
+                ((n - 1e-9).ceil().max(0.0) as u64).min(self.scheduled)
+            }
+        }
+    }
+
+    /// The requests scheduled in each second of the run (second `s` holds the
+    /// arrivals at instants in `[s, s + 1)`), for the report's timeline.
+    pub fn per_second(&self) -> Vec<u64> {
+        let seconds = self.span.as_secs() + 1;
+        (0..seconds)
+            .map(|s| {
+                self.scheduled_before(Duration::from_secs(s + 1))
+                    - self.scheduled_before(Duration::from_secs(s))
+            })
+            .collect()
+    }
+
     /// Every arrival, in order.
     pub fn arrivals(&self) -> impl Iterator<Item = Arrival> + '_ {
         (0..self.scheduled).map(|k| self.arrival(k))
@@ -643,11 +681,57 @@ mod tests {
         assert_eq!(s.scheduled(), 604_800_000_000);
         let last = s.arrival(s.scheduled() - 1);
         assert!(
-            last.at < MAX_RUN && last.at > MAX_RUN - secs(1e-5),
+            last.at < MAX_RUN && last.at + secs(1e-5) > MAX_RUN,
             "{:?}",
             last.at
         );
         assert_eq!(last.request, ((s.scheduled() - 1) % 3) as usize);
+    }
+
+    #[test]
+    fn per_second_counts_agree_with_the_arrivals() {
+        let schedules = [
+            Schedule::new(
+                &Pacing::Constant {
+                    rate: Rate::new(100.0).unwrap(),
+                    duration: secs(2.0),
+                },
+                &[0.0, 5.0],
+                1,
+            ),
+            Schedule::new(
+                &Pacing::Constant {
+                    rate: Rate::new(2.5).unwrap(),
+                    duration: secs(3.3),
+                },
+                &[0.0],
+                1,
+            ),
+            Schedule::new(
+                &Pacing::Ramp {
+                    start: 0.0,
+                    stages: "10s:100,5s:100,3s:0".parse().unwrap(),
+                },
+                &[0.0],
+                3,
+            ),
+            Schedule::new(
+                &Pacing::Recorded,
+                &[0.0, 12.5, 999.9, 1000.0, 1000.0, 3000.0],
+                1,
+            ),
+        ];
+        for s in schedules {
+            let s = s.unwrap().unwrap();
+            let mut want = vec![0u64; s.span().as_secs() as usize + 1];
+            for a in s.arrivals() {
+                want[a.at.as_secs() as usize] += 1;
+            }
+            assert_eq!(s.per_second(), want, "{s:?}");
+            assert_eq!(s.per_second().iter().sum::<u64>(), s.scheduled());
+            assert_eq!(s.scheduled_before(Duration::ZERO), 0);
+            assert_eq!(s.scheduled_before(s.span() + secs(1.0)), s.scheduled());
+        }
     }
 
     #[test]
