@@ -213,12 +213,12 @@ pub const MAX_T_MS: f64 = super::schedule::MAX_RUN.as_secs() as f64 * 1e3;
 /// Why a request's `t_ms` is not a time in a trace.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 pub enum TimeError {
-    #[error("{0} is not a number of milliseconds")]
+    #[error("{0:?} is not a number of milliseconds")]
     NotFinite(f64),
-    #[error("{0} is negative: times are milliseconds after the recording started")]
+    #[error("{0:?} is negative: times are milliseconds after the recording started")]
     Negative(f64),
     #[error(
-        "{t} ms is more than {max} ms (7 days, the longest schedule a replay runs) after the recording started",
+        "{t:?} ms is more than {max} ms (7 days, the longest schedule a replay runs) after the recording started",
         max = MAX_T_MS
     )]
     TooLate { t: f64 },
