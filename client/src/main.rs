@@ -453,18 +453,8 @@ fn load_merge(
     json: bool,
     out: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
-    let read = reports
-        .iter()
-        .map(|p| {
-            let file = if p.is_dir() {
-                p.join("load.json")
-            } else {
-                p.clone()
-            };
-            ReplayReport::read(&file)
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let merged = report::merge(&read).with_context(|| {
+    // Each file once: the same shard twice would count its requests twice.
+    let merged = report::merge_files(reports).with_context(|| {
         format!(
             "cannot merge {}",
             reports

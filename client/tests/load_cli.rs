@@ -1,0 +1,85 @@
+//! `tessera load merge` and `tessera report` run as the real binary against hostile
+//! input (issue 32 item 6): shards given twice and implausible fields are refused
+//! with one line naming the file, and output to a reader that has gone away (`|
+//! head -1`) ends the command quietly, never in a panic.
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use tessera_client::load::report::{Http, LatencyFrom, Mode, ReplayReport};
+
+/// A small report of shard `shard`, written as `dir/NAME/load.json`.
+fn shard(dir: &Path, name: &str, shard: &str, edit: impl FnOnce(&mut ReplayReport)) -> PathBuf {
+    let mut r = ReplayReport {
+        shard: shard.into(),
+        scheduled: 100,
+        sent: 100,
+        completed: 100,
+        seconds: 2.0,
+        target_rate: Some(50.0),
+        connections: 4,
+        ..ReplayReport::empty(Mode::Rate, Http::Http1, LatencyFrom::Scheduled)
+    };
+    edit(&mut r);
+    let out = dir.join(name);
+    r.write_json(&out).unwrap();
+    out
+}
+
+fn tessera(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn merge_refuses_a_shard_given_twice_and_implausible_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = shard(dir.path(), "a", "0/2", |_| {});
+    let b = shard(dir.path(), "b", "1/2", |_| {});
+    let merge = |paths: &[&Path]| {
+        let mut args: Vec<&std::ffi::OsStr> = vec!["load".as_ref(), "merge".as_ref()];
+        args.extend(paths.iter().map(|p| p.as_os_str()));
+        args.push("--json".as_ref());
+        tessera(&args)
+    };
+    let ok = merge(&[&a, &b]);
+    assert!(ok.status.success(), "{}", stderr(&ok));
+    let v: serde_json::Value = serde_json::from_slice(&ok.stdout).unwrap();
+    assert_eq!(v["completed"], 200);
+    // The same shard twice was counted twice.
+    let twice = merge(&[&a, &b, &a]);
+    assert_eq!(twice.status.code(), Some(1));
+    assert!(stderr(&twice).contains("again"), "{}", stderr(&twice));
+    assert!(twice.stdout.is_empty());
+    // A timeline second of 4·10⁹ aborted on a 1.4 TB allocation.
+    let far = shard(dir.path(), "far", "1/2", |r| {
+        r.timeline = vec![tessera_client::load::report::Second {
+            second: 4_000_000_000,
+            ..Default::default()
+        }];
+    });
+    let o = merge(&[&a, &far]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("far/load.json") && e.contains("timeline[0].second 4000000000"),
+        "{e}"
+    );
+    // completed u64::MAX wrapped silently.
+    let wrap = shard(dir.path(), "wrap", "1/2", |r| r.completed = u64::MAX);
+    let o = merge(&[&a, &wrap]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(
+        e.contains("wrap/load.json") && e.contains("completed 18446744073709551615"),
+        "{e}"
+    );
+    assert!(!e.contains("panicked"), "{e}");
+}
