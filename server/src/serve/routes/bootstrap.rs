@@ -128,13 +128,18 @@ async fn build(
     let g = *p.geometry();
     let (record_levels, table_levels) = bootstrap::plan(p);
     let focused = focus_levels(ds, focus, record_levels);
+    let planned = planned_bytes(ds, record_levels, table_levels, &focused);
+    // The body, and a level's records read before they are copied into it.
     let _memory = ticket
-        .reserve_async(planned_bytes(ds, record_levels, table_levels, &focused))
+        .reserve_async(2 * planned)
         .await
         .map_err(Stop::into_error)?;
     // The first part of a record: its error table (FORMAT.md "Tile record").
     let table_len = ErrorTable::byte_len(g.tile_log2());
-    let mut body = encode_head(&describe(ds), record_levels, table_levels);
+    // Allocated once at its planned size: a vector grown by doubling would hold up
+    // to twice the body, unaccounted, for as long as a client holds the response.
+    let mut body = Vec::with_capacity(usize::try_from(planned).unwrap_or(0));
+    body.extend(encode_head(&describe(ds), record_levels, table_levels));
     let (mut tiles, mut errors) = (0u64, 0u64);
     for level in g.levels() {
         let l = level.get();
@@ -186,6 +191,7 @@ async fn build(
     }
     let root = Level::new(0).expect("level 0");
     body.extend(wire::trailer_frame(root, tiles, errors, &[]));
+    tracing::debug!(dataset = %ds.name, planned, bytes = body.len(), "bootstrap built");
     Ok((body, tiles, errors))
 }
 
