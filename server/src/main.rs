@@ -144,6 +144,11 @@ enum Command {
         /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
         #[arg(long, default_value = "512MiB", value_parser = parse_bytes)]
         memory: u64,
+        /// Most samples (width × height) an input may declare: a larger one is refused
+        /// before anything is read, as is one whose spool (4 bytes a sample) does not fit
+        /// in the free disk space. The default, 2^40, passes a planet at 1″.
+        #[arg(long, value_name = "N", default_value_t = tessera_server::build::plausible::DEFAULT_MAX_SAMPLES)]
+        max_samples: u64,
         /// Also build the imagery pyramid of this image (GeoTIFF, or PNG/JPEG with a world
         /// file and .prj; any CRS, reprojected onto the DEM's grid) as OUTPUT with the
         /// extension .tessimg: the DEM's tiles, levels and Morton layout, a JPEG per tile.
@@ -305,6 +310,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             resampling,
             spacing,
             memory,
+            max_samples,
             quiet,
             part,
             assemble,
@@ -329,6 +335,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 scale,
                 offset,
                 memory_budget: memory,
+                max_samples,
                 nodata,
                 vertical_datum: vertical_datum.map(DatumArg::datum),
                 crs,

@@ -20,6 +20,7 @@ pub mod interrupt;
 pub mod memory;
 pub mod mesh_error;
 pub mod parts;
+pub mod plausible;
 pub mod raster;
 pub mod spool;
 pub mod writer;
@@ -52,6 +53,8 @@ pub struct BuildOptions {
     pub offset: f64,
     /// Bound on the memory the build uses, in bytes.
     pub memory_budget: u64,
+    /// Most samples (width × height) an input may declare ([`plausible`]).
+    pub max_samples: u64,
     /// Overrides the input's own no-data value (each input's, in a mosaic).
     pub nodata: Option<f64>,
     /// Which input wins where a mosaic's inputs overlap and disagree.
@@ -80,6 +83,7 @@ impl Default for BuildOptions {
             scale: 1.0,
             offset: 0.0,
             memory_budget: 512 << 20,
+            max_samples: plausible::DEFAULT_MAX_SAMPLES,
             nodata: None,
             overlap: ingest::Overlap::Error,
             vertical_datum: None,
@@ -148,8 +152,13 @@ pub fn build_inputs(
 ) -> anyhow::Result<BuildReport> {
     let started = Instant::now();
     let dir = output_dir(output);
-    let prepared = prepare(inputs, dir, opts)?;
-    let writer = create_output(output, prepared.geometry, meta_reserve(&prepared.meta))?;
+    let folders = plausible::Folders {
+        spool: dir.to_path_buf(),
+        output: dir.to_path_buf(),
+    };
+    let prepared = prepare(inputs, &folders, 1, opts)?;
+    let writer = create_output(output, prepared.geometry, meta_reserve(&prepared.meta))
+        .with_context(|| prepared.label.clone())?;
     let loaded = prepared.load(dir, opts, started, None)?;
     build_tiles(&loaded, writer, opts, started)
 }
@@ -200,13 +209,17 @@ struct Loaded {
     meta: Metadata,
 }
 
-/// Opens the inputs, applies `--crs`/`--bounds`/`--to`, and sizes the pyramid.
-/// `dir` holds temporary files (reprojection's).
+/// Opens the inputs, applies `--crs`/`--bounds`/`--to`, and sizes the pyramid; refuses
+/// a raster larger than `--max-samples` or than the free disk space takes
+/// ([`plausible`]) before any sample is read. `folders.spool` holds temporary files
+/// (reprojection's, then the spool); `folders.output` gets `1/share` of the pyramid.
 fn prepare(
     inputs: &ingest::InputSpec,
-    dir: &Path,
+    folders: &plausible::Folders,
+    share: u32,
     opts: &BuildOptions,
 ) -> anyhow::Result<Prepared> {
+    let dir = folders.spool.as_path();
     anyhow::ensure!(
         opts.scale.is_finite() && opts.scale > 0.0 && opts.offset.is_finite(),
         "--scale must be a positive number and --offset a finite number"
@@ -247,6 +260,30 @@ fn prepare(
         }
         source @ Input::Synthetic(_) => source,
     };
+    // What the inputs declare, checked before a sample is read: the source a `--to`
+    // spools whole first, then the raster the pyramid is built from.
+    let declared = match &source {
+        Input::Rows(r) => Some(plausible::Declared {
+            width: r.info().width,
+            height: r.info().height,
+        }),
+        Input::Synthetic(_) => None,
+    };
+    let reproject_spool = match (declared, &opts.reproject) {
+        (Some(size), Some(_)) => {
+            plausible::check_samples(&label, "declares", size, opts.max_samples)?;
+            let need = plausible::reproject_need(size);
+            plausible::check_disk(
+                &label,
+                &format!("declares {}", size.describe()),
+                folders,
+                need,
+                plausible::DiskNeed::default(),
+            )?;
+            need
+        }
+        _ => plausible::DiskNeed::default(),
+    };
     // Reprojection reads the source whole first; its output marks no-data as NaN,
     // so the spool below needs no no-data value of its own.
     let (source, spool_nodata) = match (source, &opts.reproject) {
@@ -267,8 +304,26 @@ fn prepare(
         Input::Rows(r) => (r.info().width, r.info().height),
         Input::Synthetic(s) => (s.width(), s.height()),
     };
+    let size = plausible::Declared { width, height };
+    let what = if opts.reproject.is_some() {
+        "--to makes"
+    } else {
+        "declares"
+    };
+    plausible::check_samples(input, what, size, opts.max_samples)?;
     let geometry =
         TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
+    let spool = match &source {
+        Input::Rows(_) => plausible::spool_need(size),
+        Input::Synthetic(_) => plausible::DiskNeed::default(),
+    };
+    plausible::check_disk(
+        input,
+        &format!("{what} {}", size.describe()),
+        folders,
+        reproject_spool + spool,
+        plausible::output_need(&geometry, share),
+    )?;
     let input_bytes = match &source {
         Input::Rows(r) => r.buffer_bytes(),
         Input::Synthetic(s) => s.memory_bytes(),

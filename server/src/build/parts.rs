@@ -353,7 +353,11 @@ pub fn build_part(
     // The input is spooled (and reprojected) in TMPDIR, node-local scratch in an
     // Indexed Job: N parts would otherwise put N copies of it on the shared folder.
     let scratch = std::env::temp_dir();
-    let prepared = super::prepare(inputs, &scratch, opts)?;
+    let folders = super::plausible::Folders {
+        spool: scratch.clone(),
+        output: dir.to_path_buf(),
+    };
+    let prepared = super::prepare(inputs, &folders, spec.n, opts)?;
     let geometry = prepared.geometry;
     let split = Split::new(&geometry, spec.n);
     let tops = split.tops(spec.k);

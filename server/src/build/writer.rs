@@ -138,6 +138,23 @@ pub(super) fn remove_stale_partials(dir: &Path, name: &str) {
     }
 }
 
+/// Why a pyramid's records cannot start at `records_offset`: the index before them
+/// (mostly holes on disk) makes the file longer than its file system allows.
+fn header_region_too_long(geometry: &TileGeometry, records_offset: u64, dir: &Path) -> String {
+    let side = geometry.finest().tiles_per_side();
+    format!(
+        "the pyramid's records would start at byte {records_offset} ({}), past the longest \
+         file the file system of {} holds: the tile grid is square, so the index of a {} × {} \
+         DEM in tiles of {} has {side} × {side} slots at its finest level (use a larger \
+         --tile-size, or split the raster)",
+        super::plausible::bytes(records_offset),
+        dir.display(),
+        geometry.width(),
+        geometry.height(),
+        geometry.tile_size(),
+    )
+}
+
 /// Index bytes for all levels.
 fn index_len(geometry: &TileGeometry) -> u64 {
     geometry
@@ -184,7 +201,8 @@ impl PyramidWriter {
         for level in geometry.levels() {
             let file = if level == geometry.finest() {
                 let mut f = partial.reopen()?;
-                f.seek(SeekFrom::Start(records_offset))?;
+                f.seek(SeekFrom::Start(records_offset))
+                    .with_context(|| header_region_too_long(&geometry, records_offset, &dir))?;
                 f
             } else {
                 tempfile::tempfile_in(&dir)

@@ -54,6 +54,8 @@ impl SourceImage {
     /// Reads the image and its georeferencing. Errors name the problem; callers add
     /// the file name.
     pub fn open(path: &Path) -> anyhow::Result<Self> {
+        // A FIFO or a device would block or mislead the readers below: refused first.
+        crate::ingest::open_regular(path)?;
         let ext = path
             .extension()
             .and_then(|e| e.to_str())

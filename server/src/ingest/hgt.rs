@@ -4,7 +4,6 @@
 
 use super::{RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
-use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::Path;
 use tessera_shared::{GeoRef, RasterType};
@@ -46,9 +45,9 @@ fn parse_name(stem: &str) -> Option<(i32, i32)> {
 
 impl Hgt {
     pub fn open(path: &Path) -> anyhow::Result<Self> {
-        let len = std::fs::metadata(path).context("cannot read input")?.len();
+        let (file, meta) = super::open_regular(path)?;
+        let len = meta.len();
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
-        let file = File::open(path).context("cannot open")?;
         Self::from_reader(stem, len, BufReader::with_capacity(1 << 16, file))
     }
 

@@ -101,7 +101,10 @@ pub fn expand(spec: &InputSpec) -> anyhow::Result<Expanded> {
         expand_one(Path::new(a), &mut files)?;
     }
     if let Some(list) = &spec.list {
-        let text = std::fs::read_to_string(list)
+        let (file, _) = super::open_regular(list)
+            .with_context(|| format!("{}: cannot read the input list", list.display()))?;
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut std::io::BufReader::new(file), &mut text)
             .with_context(|| format!("{}: cannot read the input list", list.display()))?;
         let base = list.parent().unwrap_or(Path::new(""));
         let before = files.len();

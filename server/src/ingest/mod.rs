@@ -158,17 +158,64 @@ pub fn open(input: &str) -> anyhow::Result<Input> {
     Ok(Input::Rows(source))
 }
 
+/// What kind of file `meta` describes, when it is not a regular file.
+fn special_kind(meta: &std::fs::Metadata) -> Option<&'static str> {
+    use std::os::unix::fs::FileTypeExt;
+    let t = meta.file_type();
+    if t.is_file() {
+        None
+    } else if t.is_dir() {
+        Some("a directory")
+    } else if t.is_fifo() {
+        Some("a FIFO (named pipe)")
+    } else if t.is_socket() {
+        Some("a socket")
+    } else if t.is_char_device() {
+        Some("a character device")
+    } else if t.is_block_device() {
+        Some("a block device")
+    } else {
+        Some("not a regular file")
+    }
+}
+
+/// Opens an input file for reading, refusing anything but a regular file (a symlink
+/// to one is fine) before reading a byte: opening a FIFO for reading waits for a
+/// writer (a `tiles.vrt` that is a pipe blocked `build` forever), and a device,
+/// socket or directory is no DEM. The file is opened non-blocking and checked again
+/// once open, so one swapped for a pipe in between cannot block either. Errors say
+/// what the path is; callers name the file.
+pub fn open_regular(path: &Path) -> anyhow::Result<(std::fs::File, std::fs::Metadata)> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let refuse = |kind: &str| {
+        anyhow::anyhow!(
+            "is {kind}, not a regular file: inputs are read from regular files (or symlinks to them)"
+        )
+    };
+    let meta = std::fs::metadata(path).context("cannot read input")?;
+    if let Some(kind) = special_kind(&meta) {
+        return Err(refuse(kind));
+    }
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
+        .open(path)
+        .context("cannot open")?;
+    let meta = file.metadata().context("cannot read input")?;
+    if let Some(kind) = special_kind(&meta) {
+        return Err(refuse(kind));
+    }
+    Ok((file, meta))
+}
+
 /// Opens a raster file (not a VRT): its reader and its format's name.
 pub fn open_raster(path: &Path) -> anyhow::Result<(Box<dyn RowSource>, &'static str)> {
-    let meta = std::fs::metadata(path).context("cannot read input")?;
-    if !meta.is_file() {
-        bail!("input is not a regular file");
-    }
+    let (mut file, meta) = open_regular(path)?;
     if meta.len() == 0 {
         bail!("input file is empty");
     }
     let mut magic = [0u8; 8];
-    let n = std::io::Read::read(&mut std::fs::File::open(path)?, &mut magic)?;
+    let n = std::io::Read::read(&mut file, &mut magic)?;
     let magic = &magic[..n];
     let is_hgt = path
         .extension()

@@ -5,7 +5,6 @@
 
 use super::{RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
-use std::fs::File;
 use std::io::{BufRead, BufReader, Seek, SeekFrom};
 use std::path::Path;
 
@@ -31,7 +30,7 @@ impl std::fmt::Debug for Png16 {
 
 impl Png16 {
     pub fn open(path: &Path) -> anyhow::Result<Self> {
-        let file = File::open(path).context("cannot open")?;
+        let (file, _) = super::open_regular(path)?;
         Self::from_reader(BufReader::new(file))
     }
 

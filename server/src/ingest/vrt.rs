@@ -64,7 +64,9 @@ pub fn is_vrt(path: &Path) -> bool {
         return true;
     }
     let mut head = [0u8; 256];
-    let Ok(mut f) = std::fs::File::open(path) else {
+    // Only a regular file is peeked at: opening a FIFO would wait for a writer. What
+    // else the path is, opening it as a raster says.
+    let Ok((mut f, _)) = super::open_regular(path) else {
         return false;
     };
     let n = std::io::Read::read(&mut f, &mut head).unwrap_or(0);
@@ -76,14 +78,18 @@ pub fn is_vrt(path: &Path) -> bool {
 impl Vrt {
     /// Reads and parses a VRT file. Errors say what is wrong; the caller names the file.
     pub fn open(path: &Path) -> anyhow::Result<Self> {
-        let len = std::fs::metadata(path).context("cannot read input")?.len();
+        let (file, meta) = super::open_regular(path)?;
+        let len = meta.len();
         if len > MAX_VRT_BYTES {
             bail!(
                 "VRT is {len} bytes; VRTs over {} MiB are not read (list the files with --inputs instead)",
                 MAX_VRT_BYTES >> 20
             );
         }
-        let text = std::fs::read_to_string(path).context("cannot read the VRT as UTF-8 text")?;
+        let mut text = String::new();
+        // The file is bounded above; `take` keeps it so if it grows meanwhile.
+        std::io::Read::read_to_string(&mut std::io::Read::take(file, MAX_VRT_BYTES + 1), &mut text)
+            .context("cannot read the VRT as UTF-8 text")?;
         let base = path.parent().unwrap_or(Path::new(""));
         Self::parse(&text, base)
     }

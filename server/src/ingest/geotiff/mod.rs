@@ -31,7 +31,6 @@ use anyhow::{Context, bail};
 use georef::read_georef;
 use layout::{Compression, Layout};
 use std::fmt;
-use std::fs::File;
 use std::io::{BufReader, ErrorKind, Read, Seek, SeekFrom};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
@@ -167,7 +166,7 @@ fn tag_u16(decoder: &mut Decoder<Reader>, tag: Tag, name: &str) -> anyhow::Resul
 impl GeoTiff {
     /// Opens a GeoTIFF and checks that it can be read, without decoding any samples.
     pub fn open(path: &Path) -> anyhow::Result<Self> {
-        let file = File::open(path).context("cannot open file")?;
+        let (file, _) = super::open_regular(path)?;
         Self::from_reader(BufReader::with_capacity(1 << 16, file))
     }
 
