@@ -9,6 +9,7 @@ use tessera_client::app::fly::{self, FlyOptions};
 use tessera_client::app::headless::{Draws, RenderSetup};
 use tessera_client::app::{load_test, window};
 use tessera_client::globe::GlobeMode;
+use tessera_client::load::output;
 use tessera_client::load::replay::{self, ReplayOptions};
 use tessera_client::load::report::{self, ReplayReport};
 use tessera_client::load::schedule::{Pacing, RampStages, RateArg};
@@ -396,16 +397,17 @@ enum LoadAction {
 
 /// Prints a replay's report (JSON or the summary) and writes it under `out`.
 fn emit_replay(r: &ReplayReport, json: bool, out: Option<&std::path::Path>) -> anyhow::Result<()> {
-    // Printed first, so that a directory that cannot be written loses no results.
-    if json {
-        println!("{}", serde_json::to_string_pretty(r)?);
+    // Printed first, so that a directory that cannot be written loses no results;
+    // written even when stdout has gone away (`| head -1`), which is said after.
+    let printed = if json {
+        output::print_line(serde_json::to_string_pretty(r)?)
     } else {
-        println!("{r}");
-    }
+        output::print_line(r)
+    };
     if let Some(dir) = out {
         r.write_dir(dir)?;
     }
-    Ok(())
+    printed
 }
 
 /// `tessera load --replay TRACE …`.
@@ -471,8 +473,12 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // The reader of our output went away (`| head -1`): not an error to report.
+        Err(e) if output::is_stdout_closed(&e) => {
+            std::process::ExitCode::from(output::STDOUT_CLOSED_EXIT)
+        }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            output::progress(format_args!("error: {e:#}\n"));
             std::process::ExitCode::FAILURE
         }
     }
@@ -540,11 +546,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let r = load_test::load(&opts)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&r)?);
+                output::print_line(serde_json::to_string_pretty(&r)?)
             } else {
-                println!("{r}");
+                output::print_line(&r)
             }
-            Ok(())
         }
         Command::Fly {
             source,
@@ -723,7 +728,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             use tessera_client::report::animation;
             let summary =
                 tessera_client::report::flight::write_report(&stats, frames.as_deref(), &out)?;
-            println!("{summary}");
+            // A reader gone away (`| head -1`) stops the printing, not the report's files.
+            let mut printed = output::print_line(&summary);
             if let Some(dir) = &frames {
                 let file = out.join("flight.png");
                 let opts = animation::AnimationOptions {
@@ -731,17 +737,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     ..animation::AnimationOptions::default()
                 };
                 let a = animation::write_animation(&animation::frame_files(dir)?, &file, opts)?;
-                println!(
-                    "{}: {} frames of {}×{} (every {}), {:.1} MB",
-                    file.display(),
-                    a.frames,
-                    a.width,
-                    a.height,
-                    a.step,
-                    a.bytes as f64 / 1e6
-                );
+                if printed.is_ok() {
+                    printed = output::print_line(format_args!(
+                        "{}: {} frames of {}×{} (every {}), {:.1} MB",
+                        file.display(),
+                        a.frames,
+                        a.width,
+                        a.height,
+                        a.step,
+                        a.bytes as f64 / 1e6
+                    ));
+                }
             }
-            Ok(())
+            printed
         }
         Command::Inspect { file } => {
             let p = Pyramid::open_file(&file).with_context(|| file.display().to_string())?;

@@ -6,7 +6,7 @@
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
 use tessera_client::load::report::{Http, LatencyFrom, Mode, ReplayReport};
 
 /// A small report of shard `shard`, written as `dir/NAME/load.json`.
@@ -82,4 +82,78 @@ fn merge_refuses_a_shard_given_twice_and_implausible_fields() {
         "{e}"
     );
     assert!(!e.contains("panicked"), "{e}");
+}
+
+/// Runs `tessera ARGS` with its standard output a pipe whose reader has already
+/// gone (as `| head -1` leaves it once `head` has its line): every write fails with
+/// EPIPE, deterministically.
+fn tessera_into_a_closed_pipe(args: &[&std::ffi::OsStr]) -> Output {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args(args)
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap()
+}
+
+/// The quiet end of a command whose reader went away: 141 (128 + SIGPIPE, what a
+/// shell reports), nothing on stderr, and no panic (which was status 101 and
+/// "failed printing to stdout: Broken pipe").
+fn assert_quiet_end(o: &Output) {
+    let e = stderr(o);
+    assert!(!e.contains("panicked"), "{e}");
+    assert_eq!(o.status.code(), Some(141), "{e}");
+    assert!(e.is_empty(), "{e}");
+}
+
+#[test]
+fn load_merge_into_a_closed_pipe_ends_quietly_and_still_writes_its_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = shard(dir.path(), "a", "0/2", |_| {});
+    let b = shard(dir.path(), "b", "1/2", |_| {});
+    let out = dir.path().join("merged");
+    for json in [false, true] {
+        let mut args: Vec<&std::ffi::OsStr> = vec![
+            "load".as_ref(),
+            "merge".as_ref(),
+            a.as_os_str(),
+            b.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ];
+        if json {
+            args.push("--json".as_ref());
+        }
+        let o = tessera_into_a_closed_pipe(&args);
+        assert_quiet_end(&o);
+        // The report is written although it could not be printed.
+        assert_eq!(
+            ReplayReport::read(&out.join("load.json"))
+                .unwrap()
+                .completed,
+            200
+        );
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+}
+
+#[test]
+fn report_into_a_closed_pipe_ends_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let stats = dir.path().join("stats.jsonl");
+    let lines: Vec<String> = (0..5)
+        .map(|f| format!(r#"{{"frame":{f},"tiles":3,"triangles":100,"deficit":0.5}}"#))
+        .collect();
+    std::fs::write(&stats, lines.join("\n") + "\n").unwrap();
+    let out = dir.path().join("out");
+    let o = tessera_into_a_closed_pipe(&[
+        "report".as_ref(),
+        stats.as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert_quiet_end(&o);
+    assert!(out.join("stats.png").is_file());
 }

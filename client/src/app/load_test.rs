@@ -190,12 +190,13 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 std::thread::sleep(Duration::from_millis(500));
                 let t = tiles.load(Ordering::Relaxed);
                 let s = started.elapsed().as_secs_f64();
-                eprint!(
+                // Best-effort: a closed stderr must not end the run.
+                crate::load::output::progress(format_args!(
                     "\r{s:6.1} s  {t:>8} tiles  {:>8.0} tiles/s   ",
                     t as f64 / s.max(1e-9)
-                );
+                ));
             }
-            eprintln!();
+            crate::load::output::progress('\n');
         })
     });
     let paths = ["canyon", "pass", "orbit"];

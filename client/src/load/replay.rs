@@ -485,7 +485,7 @@ async fn run(
             && std::io::IsTerminal::is_terminal(&std::io::stderr())
         {
             // End the progress line.
-            eprintln!();
+            super::output::progress('\n');
         }
     }
     let end = Instant::now();
@@ -717,7 +717,8 @@ async fn progress_line(shared: Arc<Shared>) {
             .tally
             .lock()
             .map_or(0.0, |r| r.corrected.quantile_ms(0.99));
-        eprint!(
+        // Best-effort: a closed stderr must not end the run (eprint! would panic).
+        super::output::progress(format_args!(
             "{start}{:>5.0} s  sent {}  done {}  {:.0} tiles/s  p99 {:.2} ms  errors {}{end}",
             (now - shared.start).as_secs_f64(),
             shared.sent.load(Relaxed),
@@ -725,7 +726,7 @@ async fn progress_line(shared: Arc<Shared>) {
             (tiles - last_tiles) as f64 / dt,
             p99,
             shared.errors.load(Relaxed),
-        );
+        ));
         last_tiles = tiles;
         last_at = now;
     }
