@@ -36,7 +36,7 @@ pub fn print_line(text: impl Display) -> anyhow::Result<()> {
 /// Whether `e` is standard output closing under the command (the command should
 /// end quietly with [`STDOUT_CLOSED_EXIT`]).
 pub fn is_stdout_closed(e: &anyhow::Error) -> bool {
-    e.chain().any(|c| c.is::<StdoutClosed>())
+    e.chain().any(<dyn std::error::Error>::is::<StdoutClosed>)
 }
 
 /// Writes a progress or diagnostic text to stderr, ignoring failure: a closed or full
