@@ -14,7 +14,9 @@ use tessera_shared::wire::{Frame, WireError};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ErrorKind {
-    /// No connection (refused, reset before an answer, DNS).
+    /// A socket failure: no connection (refused, DNS, TLS), or the connection broke
+    /// before an answer's head arrived (reset, closed). Never an HTTP status: an
+    /// answer with one is `HttpStatus` (or as recorded).
     Connect,
     /// No complete answer within `--timeout` (or still in flight when the run ended).
     Timeout,
@@ -26,17 +28,28 @@ pub enum ErrorKind {
     Truncated,
     /// Well formed, but not the recorded tiles (count or digest) or body.
     Mismatch,
+    /// The HTTP client could not make the request at all (not a valid HTTP request),
+    /// so nothing was sent: not the server's doing, and not a socket failure.
+    Request,
 }
 
 impl ErrorKind {
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 7] = [
         Self::Connect,
         Self::Timeout,
         Self::HttpStatus,
         Self::Corrupt,
         Self::Truncated,
         Self::Mismatch,
+        Self::Request,
     ];
+
+    /// Whether a request that failed this way was answered (had a status and
+    /// perhaps a body, whatever was wrong with them): not for a socket failure, a
+    /// timeout or a request never made.
+    pub fn answered(self) -> bool {
+        !matches!(self, Self::Connect | Self::Timeout | Self::Request)
+    }
 
     /// The JSON key.
     pub fn name(self) -> &'static str {
@@ -47,6 +60,7 @@ impl ErrorKind {
             Self::Corrupt => "corrupt",
             Self::Truncated => "truncated",
             Self::Mismatch => "mismatch",
+            Self::Request => "request",
         }
     }
 }

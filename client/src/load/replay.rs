@@ -115,6 +115,10 @@ pub fn open_file_limit() -> Option<u64> {
         .ok()
 }
 
+/// The longest URL a request may have: the `http` crate's URI limit (`u16::MAX - 1`
+/// bytes), under reqwest and hyper. A longer one cannot be sent at all.
+const MAX_URL_BYTES: usize = u16::MAX as usize - 1;
+
 /// What to replay and how.
 #[derive(Clone, Debug)]
 pub struct ReplayOptions {
@@ -198,6 +202,8 @@ struct Tally {
     tiles: u64,
     bytes: u64,
     errors: ErrorCounts,
+    /// The `http_status` errors by status.
+    statuses: std::collections::BTreeMap<u16, u64>,
     corrected: Latency,
     uncorrected: Latency,
     /// Finished seconds.
@@ -218,6 +224,7 @@ impl Tally {
             tiles: 0,
             bytes: 0,
             errors: ErrorCounts::default(),
+            statuses: std::collections::BTreeMap::new(),
             corrected: Latency::new(),
             uncorrected: Latency::new(),
             seconds: Vec::new(),
@@ -245,14 +252,21 @@ impl Tally {
         }
     }
 
-    fn record(&mut self, out: &Outcome, second: u64, corrected: Duration, uncorrected: Duration) {
+    /// Counts a finished request: `status` is the answer's, if one came.
+    fn record(
+        &mut self,
+        out: &Outcome,
+        status: Option<u16>,
+        second: u64,
+        corrected: Duration,
+        uncorrected: Duration,
+    ) {
         if self.closed {
             return;
         }
         self.roll_to(second);
         self.finished += 1;
-        let answered = !matches!(out.error, Some(ErrorKind::Connect | ErrorKind::Timeout));
-        if answered {
+        if out.error.is_none_or(ErrorKind::answered) {
             self.completed += 1;
             self.tiles += u64::from(out.tiles);
             self.bytes += out.bytes;
@@ -266,7 +280,26 @@ impl Tally {
         if let Some(kind) = out.error {
             self.errors.add(kind, 1);
             self.cur.errors += 1;
+            if let (ErrorKind::HttpStatus, Some(status)) = (kind, status) {
+                *self.statuses.entry(status).or_insert(0) += 1;
+            }
         }
+    }
+}
+
+/// What a failed send was: only a socket failure is `connect`. A request the client
+/// could not make was never sent; an error carrying a status (reqwest's
+/// `error_for_status`, not used here, but classified all the same) is an answer.
+fn send_error_kind(e: &reqwest::Error) -> ErrorKind {
+    if e.is_timeout() {
+        ErrorKind::Timeout
+    } else if e.is_builder() {
+        ErrorKind::Request
+    } else if e.status().is_some() {
+        ErrorKind::HttpStatus
+    } else {
+        // Refused, DNS, TLS, or reset or closed before an answer's head.
+        ErrorKind::Connect
     }
 }
 
@@ -301,17 +334,15 @@ impl Shared {
         };
         let client = &self.clients[slot];
         let sent = Instant::now();
+        let mut status = None;
         let outcome = match client.get(req.url.clone()).send().await {
             Err(e) => Outcome {
                 tiles: 0,
                 bytes: 0,
-                error: Some(if e.is_timeout() {
-                    ErrorKind::Timeout
-                } else {
-                    ErrorKind::Connect
-                }),
+                error: Some(send_error_kind(&e)),
             },
             Ok(mut resp) => {
+                status = Some(resp.status().as_u16());
                 let mut check = Check::new(req.expect.as_ref(), req.frames, resp.status().as_u16());
                 loop {
                     match resp.chunk().await {
@@ -339,14 +370,14 @@ impl Shared {
         if outcome.error.is_some() {
             self.errors.fetch_add(1, Relaxed);
         }
-        if !matches!(outcome.error, Some(ErrorKind::Connect | ErrorKind::Timeout)) {
+        if outcome.error.is_none_or(ErrorKind::answered) {
             self.completed.fetch_add(1, Relaxed);
             self.tiles.fetch_add(u64::from(outcome.tiles), Relaxed);
         }
         let mut r = self.tally.lock().expect("tally lock");
         // The second is taken under the lock, so seconds only ever move forward.
         let second = self.second(Instant::now());
-        r.record(&outcome, second, done - scheduled, done - sent);
+        r.record(&outcome, status, second, done - scheduled, done - sent);
     }
 }
 
@@ -418,10 +449,20 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<ReplayReport> {
         .enumerate()
         .map(|(i, r)| {
             let url = format!("{base}{}", r.target);
+            let url = reqwest::Url::parse(&url).with_context(|| {
+                format!("request {} of the shard: {url:?} is not a URL", i + 1)
+            })?;
+            // A longer one was counted as a `connect` error per request: the client
+            // refuses to send it, so no server ever answers it (not even 414).
+            anyhow::ensure!(
+                url.as_str().len() <= MAX_URL_BYTES,
+                "request {} of the shard: its URL ({}…) is {} bytes, more than the {MAX_URL_BYTES} an HTTP request can carry here; shorten its target",
+                i + 1,
+                url.as_str().chars().take(60).collect::<String>(),
+                url.as_str().len()
+            );
             Ok(Prepared {
-                url: reqwest::Url::parse(&url).with_context(|| {
-                    format!("request {} of the shard: {url:?} is not a URL", i + 1)
-                })?,
+                url,
                 expect: r.expect.clone(),
                 frames: r.kind.is_frame_stream(),
                 one_tile: r.kind == RequestKind::Tile
@@ -536,6 +577,7 @@ async fn run(
             bytes: rec.bytes,
             backlog,
             errors: rec.errors,
+            http_statuses: std::mem::take(&mut rec.statuses),
             latency_ms: rec.corrected.percentiles(),
             uncorrected_latency_ms: rec.uncorrected.percentiles(),
             histograms: Histograms::of(&rec.corrected, &rec.uncorrected),
@@ -926,6 +968,104 @@ mod tests {
         };
         let e = format!("{:#}", replay(&opts).unwrap_err());
         assert!(e.contains("1000000 requests/s"), "{e}");
+    }
+
+    /// A stand-in server that reads each request's head and answers it with the
+    /// status `status_of(target)` and a small JSON body, then closes the
+    /// connection. Returns its base URL.
+    fn answering(status_of: fn(&str) -> u16) -> String {
+        use std::io::{BufRead, Write};
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let url = format!("http://{}", listener.local_addr().unwrap());
+        std::thread::spawn(move || {
+            for stream in listener.incoming() {
+                let Ok(mut stream) = stream else { return };
+                std::thread::spawn(move || {
+                    let mut reader = std::io::BufReader::new(stream.try_clone().unwrap());
+                    let mut request = String::new();
+                    let _ = reader.read_line(&mut request);
+                    let mut line = String::new();
+                    while reader.read_line(&mut line).unwrap_or(0) > 2 {
+                        line.clear();
+                    }
+                    let target = request.split(' ').nth(1).unwrap_or_default();
+                    let status = status_of(target);
+                    let _ = write!(
+                        stream,
+                        "HTTP/1.1 {status} Status\r\ncontent-type: application/json\r\ncontent-length: 2\r\nconnection: close\r\n\r\n{{}}"
+                    );
+                });
+            }
+        });
+        url
+    }
+
+    #[test]
+    fn an_http_status_is_counted_by_status_never_as_connect() {
+        // Requests 0 and 2 answered 414 (URI Too Long), 1 and 3 503.
+        let url = answering(|target| {
+            if target.ends_with("0-0") || target.ends_with("0-2") {
+                414
+            } else {
+                503
+            }
+        });
+        let r = replay(&ReplayOptions::new(trace(&url))).unwrap();
+        assert_eq!((r.sent, r.completed), (4, 4));
+        assert_eq!(r.errors.connect, 0, "{:?}", r.errors);
+        assert_eq!(r.errors.http_status, 4, "{:?}", r.errors);
+        assert_eq!(r.errors.total(), 4);
+        assert_eq!(
+            r.http_statuses,
+            std::collections::BTreeMap::from([(414, 2), (503, 2)])
+        );
+        let summary = r.to_string();
+        assert!(
+            summary.contains("http_status 4 (414: 2, 503: 2)"),
+            "{summary}"
+        );
+        // And through the JSON, as `"http_statuses": {"414": 2, "503": 2}`.
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(v["http_statuses"]["414"], 2);
+    }
+
+    #[test]
+    fn a_url_too_long_to_send_is_refused_not_counted_as_connect() {
+        // A query of 100 000 bytes: a server would answer 414, but the HTTP client
+        // cannot even send it, and each such request used to count as `connect`.
+        let url = answering(|_| 414);
+        let mut t = trace(&url);
+        t.requests[2].target = format!(
+            "/v1/datasets/moon/levels/1/tiles?ranges={}",
+            "0".repeat(100_000)
+        );
+        let e = format!("{:#}", replay(&ReplayOptions::new(t.clone())).unwrap_err());
+        assert!(
+            e.contains("request 3") && e.contains("65534") && e.contains("100"),
+            "{e}"
+        );
+        // The longest URL that fits is sent, and answered by status.
+        let room = MAX_URL_BYTES - url.len() - "/v1/x?q=".len();
+        t.requests[2].target = format!("/v1/x?q={}", "0".repeat(room));
+        let r = replay(&ReplayOptions::new(t)).unwrap();
+        assert_eq!(r.errors.connect, 0, "{:?}", r.errors);
+        assert_eq!(r.http_statuses.get(&414), Some(&4));
+    }
+
+    #[test]
+    fn a_connection_closed_before_an_answer_is_a_connect_error() {
+        // A server that accepts and hangs up at once: a socket failure, not an answer.
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let url = format!("http://{}", listener.local_addr().unwrap());
+        std::thread::spawn(move || {
+            for stream in listener.incoming() {
+                drop(stream);
+            }
+        });
+        let r = replay(&ReplayOptions::new(trace(&url))).unwrap();
+        assert_eq!((r.sent, r.completed), (4, 0));
+        assert_eq!(r.errors.connect, 4, "{:?}", r.errors);
+        assert!(r.http_statuses.is_empty());
     }
 
     #[test]

@@ -171,6 +171,9 @@ pub struct ErrorCounts {
     pub corrupt: u64,
     pub truncated: u64,
     pub mismatch: u64,
+    /// (0 in reports written before the kind existed.)
+    #[serde(default)]
+    pub request: u64,
 }
 
 impl ErrorCounts {
@@ -182,6 +185,7 @@ impl ErrorCounts {
             ErrorKind::Corrupt => self.corrupt,
             ErrorKind::Truncated => self.truncated,
             ErrorKind::Mismatch => self.mismatch,
+            ErrorKind::Request => self.request,
         }
     }
 
@@ -193,6 +197,7 @@ impl ErrorCounts {
             ErrorKind::Corrupt => &mut self.corrupt,
             ErrorKind::Truncated => &mut self.truncated,
             ErrorKind::Mismatch => &mut self.mismatch,
+            ErrorKind::Request => &mut self.request,
         }
     }
 
@@ -340,6 +345,11 @@ pub struct ReplayReport {
     #[serde(default)]
     pub unsent: u64,
     pub errors: ErrorCounts,
+    /// The `http_status` errors by the status that came back (`{"414": 3, "503":
+    /// 10}`): a 4xx (the request) is not a 5xx (the server). Empty in reports
+    /// written before it existed.
+    #[serde(default)]
+    pub http_statuses: std::collections::BTreeMap<u16, u64>,
     pub requests_per_s: f64,
     pub tiles_per_s: f64,
     pub mb_per_s: f64,
@@ -397,6 +407,7 @@ impl ReplayReport {
             backlog: 0,
             unsent: 0,
             errors: ErrorCounts::default(),
+            http_statuses: std::collections::BTreeMap::new(),
             requests_per_s: 0.0,
             tiles_per_s: 0.0,
             mb_per_s: 0.0,
@@ -523,6 +534,18 @@ impl ReplayReport {
                         "errors.{k} {}: more errors than requests sent ({})",
                         self.errors.get(k),
                         self.sent
+                    )
+                })?;
+        }
+        let mut statuses = 0u64;
+        for (&status, &n) in &self.http_statuses {
+            statuses = statuses
+                .checked_add(n)
+                .filter(|&t| t <= self.errors.http_status)
+                .with_context(|| {
+                    format!(
+                        "http_statuses.{status} {n}: more than the http_status errors ({})",
+                        self.errors.http_status
                     )
                 })?;
         }
@@ -678,6 +701,10 @@ fn merge_labelled(reports: &[(String, &ReplayReport)]) -> anyhow::Result<ReplayR
             let total = add64(out.errors.get(k), r.errors.get(k), &format!("errors.{k}"))?;
             out.errors.set(k, total);
         }
+        for (&status, &n) in &r.http_statuses {
+            let total = out.http_statuses.entry(status).or_insert(0);
+            *total = add64(*total, n, &format!("http_statuses.{status}"))?;
+        }
         out.target_rate = out.target_rate.zip(r.target_rate).map(|(a, b)| a + b);
         out.rate_held = out.rate_held.zip(r.rate_held).map(|(a, b)| a && b);
     }
@@ -795,7 +822,19 @@ impl std::fmt::Display for ReplayReport {
             let parts: Vec<String> = ErrorKind::ALL
                 .iter()
                 .filter(|&&k| self.errors.get(k) > 0)
-                .map(|&k| format!("{k} {}", self.errors.get(k)))
+                .map(|&k| {
+                    let n = self.errors.get(k);
+                    if k == ErrorKind::HttpStatus && !self.http_statuses.is_empty() {
+                        let by: Vec<String> = self
+                            .http_statuses
+                            .iter()
+                            .map(|(s, n)| format!("{s}: {n}"))
+                            .collect();
+                        format!("{k} {n} ({})", by.join(", "))
+                    } else {
+                        format!("{k} {n}")
+                    }
+                })
                 .collect();
             write!(f, "{}", parts.join(", "))?;
         }
@@ -879,6 +918,7 @@ mod tests {
             bytes: 1000 * n as u64,
             backlog: 1,
             unsent: 0,
+            http_statuses: std::collections::BTreeMap::new(),
             errors: ErrorCounts {
                 timeout: 3,
                 corrupt: seed,
