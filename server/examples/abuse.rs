@@ -462,23 +462,31 @@ async fn bootstrap(bin: &str, files: &[String], flags: &[String]) {
         .iter()
         .map(|p| {
             let (c, u) = (c.clone(), format!("{}{p}", srv.url));
-            tokio::spawn(async move { c.get(u).send().await.map(|r| r.status().as_u16()) })
+            tokio::spawn(async move { c.get(u).send().await })
         })
         .collect();
+    // The responses are kept (dropping one would reset its stream): their bodies stay
+    // unread.
     let mut held = Vec::new();
     for t in tasks {
         held.push(t.await.unwrap());
     }
-    // The tasks returned the heads; their bodies stay unread while `c` lives.
     tokio::time::sleep(Duration::from_secs(10)).await;
-    let ok = held.iter().filter(|s| matches!(s, Ok(200))).count();
-    let busy = held.iter().filter(|s| matches!(s, Ok(503))).count();
+    let status = |s: u16| {
+        held.iter()
+            .filter(|r| r.as_ref().is_ok_and(|r| r.status().as_u16() == s))
+            .count()
+    };
+    let (ok, busy) = (status(200), status(503));
     let rss = status_field(srv.pid(), "VmRSS:").unwrap_or(0) >> 10;
+    let reserved = metric(&client(), &srv.url, "tessera_compute_memory_bytes", &[]).await;
     println!(
-        "bootstrap: 150 non-reading HTTP/2 streams (window 0), held 10 s: {ok} heads 200, {busy} 503; RSS while held {rss} MiB, peak {} MiB; alive {}",
+        "bootstrap: 150 non-reading HTTP/2 streams (window 0), held 10 s: {ok} heads 200, {busy} 503; RSS while held {rss} MiB (reserved {:.0} MiB), peak {} MiB; alive {}",
+        reserved.unwrap_or(f64::NAN) / f64::from(1 << 20),
         srv.peak_mib(),
         srv.alive()
     );
+    drop(held);
     drop(c);
 }
 

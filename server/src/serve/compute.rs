@@ -86,8 +86,10 @@ impl ComputeLimits {
     /// Sized from this machine: one computation per core (they are CPU-bound; more
     /// would only hold more memory), a sixteenth of the memory the process may use
     /// (the smaller of physical memory and a cgroup limit) clamped to 256 MiB–1 GiB, a
-    /// queue of 32 per slot (at least 64: a map or globe client asks for up to ~20
-    /// tiles at once), and 10 s of waiting.
+    /// queue of 256 per slot (at least 512: a waiting computation costs a few hundred
+    /// bytes, and a map or globe client asks for up to ~20–100 tiles at once, so a
+    /// burst of a few clients waits rather than fails), and 10 s of waiting (which is
+    /// what keeps the queue short in time).
     pub fn for_this_machine() -> Self {
         let cores = std::thread::available_parallelism().map_or(2, std::num::NonZero::get);
         let max_compute = cores.max(2);
@@ -95,7 +97,7 @@ impl ComputeLimits {
         Self {
             max_compute,
             memory_bytes: memory,
-            queue: (32 * max_compute).max(64),
+            queue: (256 * max_compute).max(512),
             queue_wait: Duration::from_secs(10),
         }
     }

@@ -53,8 +53,8 @@ pub struct ServeArgs {
     #[arg(long, env = "TESSERA_MAX_COMPUTE_MIB", value_name = "MIB")]
     pub max_compute_mib: Option<u64>,
     /// Computations that may wait for a slot or memory; beyond them, and after
-    /// --compute-queue-secs, requests get 503 with Retry-After [default: 32 per slot,
-    /// at least 64].
+    /// --compute-queue-secs, requests get 503 with Retry-After [default: 256 per slot,
+    /// at least 512].
     #[arg(long, env = "TESSERA_COMPUTE_QUEUE", value_name = "N")]
     pub compute_queue: Option<usize>,
     /// Seconds a computation may wait for a slot or memory before a 503 [default: 10].
@@ -551,7 +551,7 @@ mod tests {
     fn compute_limits_come_from_the_flags_or_the_machine() {
         let d = args(&[]).unwrap().compute;
         assert_eq!(d, ComputeLimits::for_this_machine());
-        assert!(d.max_compute >= 2 && d.queue >= 64);
+        assert!(d.max_compute >= 2 && d.queue >= 512);
         assert!((256 << 20..=1 << 30).contains(&d.memory_bytes), "{d:?}");
         let s = args(&[
             "--max-compute",
