@@ -157,3 +157,42 @@ fn report_into_a_closed_pipe_ends_quietly() {
     assert_quiet_end(&o);
     assert!(out.join("stats.png").is_file());
 }
+
+#[test]
+fn report_drops_a_last_line_cut_short_with_a_warning_and_refuses_a_bad_middle_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let stats = dir.path().join("stats.jsonl");
+    let out = dir.path().join("out");
+    let frame = |f: u32| format!(r#"{{"frame":{f},"tiles":3,"triangles":100,"deficit":0.5}}"#);
+    let report = || {
+        tessera(&[
+            "report".as_ref(),
+            stats.as_os_str(),
+            "-o".as_ref(),
+            out.as_os_str(),
+        ])
+    };
+    // Five frames and the sixth cut by kill -9 after 17 bytes: the report is made
+    // of the five, and says what it dropped (it used to refuse the whole file).
+    let mut text: String = (0..5).map(|f| frame(f) + "\n").collect();
+    text.push_str(&frame(5)[..17]);
+    std::fs::write(&stats, &text).unwrap();
+    let o = report();
+    let e = stderr(&o);
+    assert!(o.status.success(), "{e}");
+    assert!(
+        e.contains("warning:") && e.contains("line 6 is cut short") && e.contains("17 bytes"),
+        "{e}"
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).starts_with("5 frames"));
+    // A bad line in the middle is damage: an error naming it, no report.
+    let mut text: String = (0..5).map(|f| frame(f) + "\n").collect();
+    text.replace_range(
+        text.find("\"frame\":2").unwrap()..text.find("\"frame\":3").unwrap() - 2,
+        "\"frame",
+    );
+    std::fs::write(&stats, &text).unwrap();
+    let o = report();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("line 3 is not JSON"), "{}", stderr(&o));
+}

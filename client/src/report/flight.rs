@@ -7,18 +7,86 @@ use anyhow::Context;
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Reads `stats.jsonl`: one JSON object per frame.
-pub fn read_stats(path: &Path) -> anyhow::Result<Vec<serde_json::Value>> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read", path.display()))?;
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            serde_json::from_str(l)
-                .with_context(|| format!("{}: line {} is not JSON", path.display(), i + 1))
-        })
-        .collect()
+/// A flight's statistics as read: the frames' records, and the last line if it was
+/// cut short and dropped.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Stats {
+    pub records: Vec<serde_json::Value>,
+    pub torn: Option<TornLine>,
+}
+
+/// The last line of a stats file, cut short (a flight killed mid-write, `kill -9`
+/// or a full disk) and dropped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TornLine {
+    /// 1-based.
+    pub line: usize,
+    /// The bytes of it dropped.
+    pub bytes: usize,
+}
+
+impl std::fmt::Display for TornLine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "line {} is cut short (the flight stopped while writing it): dropped its {} bytes",
+            self.line, self.bytes
+        )
+    }
+}
+
+/// Reads `stats.jsonl`: one JSON object per frame. A flight killed while writing
+/// leaves its last line cut short: that line (not ending in a newline, or ending
+/// mid-JSON) is dropped and said in [`Stats::torn`], since every frame before it is
+/// whole. Any other line that is not JSON is an error naming it: that is a damaged
+/// file, not a cut one.
+pub fn read_stats(path: &Path) -> anyhow::Result<Stats> {
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    parse_stats(&bytes).with_context(|| path.display().to_string())
+}
+
+/// [`read_stats`] on the file's bytes.
+pub fn parse_stats(bytes: &[u8]) -> anyhow::Result<Stats> {
+    // Bytes (not a String): a cut can split a UTF-8 character, which only the torn
+    // line may hold.
+    let complete = bytes.ends_with(b"\n");
+    let lines: Vec<&[u8]> = bytes
+        .strip_suffix(b"\n")
+        .unwrap_or(bytes)
+        .split(|&b| b == b'\n')
+        .collect();
+    let last = lines.iter().rposition(|l| !l.trim_ascii().is_empty());
+    let mut stats = Stats {
+        records: Vec::with_capacity(lines.len()),
+        torn: None,
+    };
+    for (i, line) in lines.iter().enumerate() {
+        if line.trim_ascii().is_empty() {
+            continue;
+        }
+        let n = i + 1;
+        let parsed = std::str::from_utf8(line)
+            .map_err(anyhow::Error::new)
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(t).map_err(Into::into));
+        match parsed {
+            Ok(v) => stats.records.push(v),
+            Err(e) if Some(i) == last && (!complete || ends_mid_json(&e)) => {
+                stats.torn = Some(TornLine {
+                    line: n,
+                    bytes: line.len(),
+                });
+            }
+            Err(e) => return Err(e.context(format!("line {n} is not JSON"))),
+        }
+    }
+    Ok(stats)
+}
+
+/// Whether a parse failed because the text ended inside a JSON value (what a cut
+/// leaves), not on bad syntax.
+fn ends_mid_json(e: &anyhow::Error) -> bool {
+    e.downcast_ref::<serde_json::Error>()
+        .is_some_and(|e| e.classify() == serde_json::error::Category::Eof)
 }
 
 fn column(records: &[serde_json::Value], key: &str, scale: f64) -> Vec<f64> {
@@ -37,7 +105,10 @@ fn median(v: &[f64]) -> f64 {
 /// Writes `out/stats.png` and, with `frames`, `out/contact_sheet.png` (12 frames
 /// spread over the flight). Returns a short summary for people.
 pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::Result<String> {
-    let records = read_stats(stats)?;
+    let Stats { records, torn } = read_stats(stats)?;
+    if let Some(torn) = torn {
+        crate::load::output::progress(format_args!("warning: {}: {torn}\n", stats.display()));
+    }
     anyhow::ensure!(!records.is_empty(), "{}: no frames", stats.display());
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
     let series = [
@@ -228,5 +299,82 @@ mod tests {
         std::fs::write(&stats, "{\"frame\":0}\nnot json\n").unwrap();
         let e = write_report(&stats, None, &out).unwrap_err();
         assert!(format!("{e:#}").contains("line 2 is not JSON"), "{e:#}");
+    }
+
+    const FRAME: &str = r#"{"frame":0,"tiles":3,"triangles":10,"last_error":"a é"}"#;
+
+    #[test]
+    fn a_last_line_cut_short_is_dropped_and_said() {
+        let whole = format!("{FRAME}\n{FRAME}\n{FRAME}\n");
+        let read = parse_stats(whole.as_bytes()).unwrap();
+        assert_eq!((read.records.len(), read.torn), (3, None));
+        // Cut anywhere inside the third line (kill -9 mid-write), even inside the
+        // two-byte é: two frames and the cut line said, with its length. The whole
+        // file used to be refused.
+        let third = 2 * (FRAME.len() + 1);
+        for cut in [
+            third + 1,
+            third + 10,
+            whole.len() - 5,
+            whole.len() - 4,
+            whole.len() - 3,
+            whole.len() - 2,
+        ] {
+            let read = parse_stats(&whole.as_bytes()[..cut]).unwrap();
+            assert_eq!(read.records.len(), 2, "cut at {cut}");
+            assert_eq!(
+                read.torn,
+                Some(TornLine {
+                    line: 3,
+                    bytes: cut - third
+                }),
+                "cut at {cut}"
+            );
+        }
+        let said = TornLine { line: 3, bytes: 17 }.to_string();
+        assert!(
+            said.contains("line 3") && said.contains("17 bytes"),
+            "{said}"
+        );
+        // Partial JSON with its newline (the rest of the line lost): dropped too.
+        let partial = format!("{FRAME}\n{}\n", &FRAME[..20]);
+        let read = parse_stats(partial.as_bytes()).unwrap();
+        assert_eq!(read.torn, Some(TornLine { line: 2, bytes: 20 }));
+        // A whole last line without its newline is a frame, not a cut.
+        let read = parse_stats(whole.trim_end().as_bytes()).unwrap();
+        assert_eq!((read.records.len(), read.torn), (3, None));
+        // Blank lines after the cut do not hide it.
+        let read = parse_stats(format!("{FRAME}\n{}\n\n", &FRAME[..9]).as_bytes()).unwrap();
+        assert_eq!(read.torn, Some(TornLine { line: 2, bytes: 9 }));
+    }
+
+    #[test]
+    fn a_bad_line_before_the_last_is_still_an_error_naming_it() {
+        let err = |text: String| format!("{:#}", parse_stats(text.as_bytes()).unwrap_err());
+        // Cut short in the middle: not what a killed writer leaves.
+        let e = err(format!("{FRAME}\n{}\n{FRAME}\n", &FRAME[..20]));
+        assert!(e.contains("line 2 is not JSON"), "{e}");
+        // A complete last line that is not JSON is damage, not a cut.
+        let e = err(format!("{FRAME}\n{FRAME}\nnot json\n"));
+        assert!(e.contains("line 3 is not JSON"), "{e}");
+        // Bytes that are not UTF-8, in the middle.
+        let mut bad = format!("{FRAME}\n").into_bytes();
+        bad.extend_from_slice(&[0xFF, 0xFE, b'\n']);
+        bad.extend_from_slice(FRAME.as_bytes());
+        let e = format!("{:#}", parse_stats(&bad).unwrap_err());
+        assert!(e.contains("line 2 is not JSON"), "{e}");
+        // Through the file, naming it.
+        let dir = tempfile::tempdir().unwrap();
+        let stats = dir.path().join("stats.jsonl");
+        std::fs::write(&stats, format!("{FRAME}\nnot json\n{FRAME}\n")).unwrap();
+        let e = format!("{:#}", read_stats(&stats).unwrap_err());
+        assert!(
+            e.contains("stats.jsonl") && e.contains("line 2 is not JSON"),
+            "{e}"
+        );
+        // And the report of a cut file is made from the frames before the cut.
+        std::fs::write(&stats, format!("{FRAME}\n{FRAME}\n{}", &FRAME[..30])).unwrap();
+        let summary = write_report(&stats, None, &dir.path().join("out")).unwrap();
+        assert!(summary.starts_with("2 frames"), "{summary}");
     }
 }
