@@ -196,7 +196,127 @@ fn every_error_is_json_and_sloppy_queries_are_rejected() {
     // Percent-encoded bytes that are not UTF-8 in the query: a JSON 400 too.
     let r = raw_get(srv.addr, "/v1/datasets/synth/levels/1/tiles?ranges=%ff");
     assert_eq!(r.status, 400);
-    assert!(json_error(&r).contains("malformed range"));
+    let msg = json_error(&r);
+    assert!(msg.contains("\"ranges\"") && msg.contains("UTF-8"), "{msg}");
+    // Percent-encoding that is not, and names that are empty, were taken as they
+    // came (`%zz` as itself, `=5` as a parameter named ""): now a 400 naming them.
+    for (query, want) in [
+        (
+            "ranges=0&%zz=1",
+            "name \"%zz\": '%' at byte 0 is not followed by two hex digits",
+        ),
+        ("ranges=0&v=a%2", "parameter \"v\": '%' at byte 1"),
+        ("ranges=0%2", "parameter \"ranges\": '%' at byte 1"),
+        ("ranges=0&=5", "\"=5\" has an empty name"),
+    ] {
+        for path in [
+            "/v1/datasets/synth/levels/1/tiles",
+            "/v1/datasets/synth/webmercator/tilejson.json",
+        ] {
+            let r = raw_get(srv.addr, &format!("{path}?{query}"));
+            assert_eq!(r.status, 400, "{path}?{query}");
+            let msg = json_error(&r);
+            assert!(msg.contains(want), "{path}?{query}: {msg}");
+        }
+    }
+}
+
+/// A request target longer than hyper's fixed limit (65 534 bytes) was answered by
+/// hyper itself: a bare 414, no JSON, no CORS. Now it is the 414 every other error
+/// is, and so is hyper's 400 for a request line that does not parse.
+#[test]
+fn the_http_layers_own_errors_are_json_with_cors() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    let origin = "Origin: https://map.example\r\n";
+    let long = format!("/v1/datasets/synth/tilejson.json?v={}", "a".repeat(70_000));
+    let bad_line = "/v1/datasets/synth HTTP/1.1 junk";
+    for (target, status, want) in [
+        (&*long, 414, "65534 bytes"),
+        (bad_line, 400, "malformed HTTP request"),
+    ] {
+        let r = raw_request(srv.addr, target, &format!("Host: x\r\n{origin}"));
+        assert_eq!(r.status, status, "{:?}", r.headers);
+        let msg = json_error(&r);
+        assert!(msg.contains(want), "{msg}");
+        assert_eq!(
+            r.headers
+                .get("access-control-allow-origin")
+                .map(String::as_str),
+            Some("*"),
+            "{:?}",
+            r.headers
+        );
+        assert!(
+            r.headers["access-control-expose-headers"].contains("retry-after"),
+            "{:?}",
+            r.headers
+        );
+    }
+    // The server answers on, and a long target it can parse gets our own 414.
+    let r = raw_request(
+        srv.addr,
+        &format!("/v1/datasets/synth/tilejson.json?v={}", "a".repeat(9000)),
+        &format!("Host: x\r\n{origin}"),
+    );
+    assert_eq!(r.status, 414);
+    assert!(json_error(&r).contains("-byte limit"));
+    assert_eq!(r.headers["access-control-allow-origin"], "*");
+}
+
+/// Error messages quote request input (path segments, dataset names, query names
+/// and values) in part: a 60 KB dataset name used to come back whole.
+#[test]
+fn errors_quote_long_request_input_in_part() {
+    let f = fixtures();
+    let srv = Server::start(&[&f.synth], &[]);
+    let long = "n".repeat(60_000);
+    for (target, length) in [
+        (format!("/v1/datasets/{long}"), 60_000),
+        (format!("/v1/datasets/{}", "%E2%9C%93".repeat(6000)), 18_000),
+        (
+            format!("/v1/datasets/synth/levels/{long}/tiles?ranges=0"),
+            60_000,
+        ),
+        (format!("/v1/datasets/synth/tiles/0/{long}/0"), 60_000),
+        (
+            format!("/v1/datasets/synth/webmercator/{long}/0/0.png"),
+            60_000,
+        ),
+        (format!("/v1/datasets/synth/{long}/tilejson.json"), 60_000),
+        (
+            format!(
+                "/v1/datasets/synth/levels/1/tiles?ranges={}",
+                "9".repeat(8000)
+            ),
+            8000,
+        ),
+        (
+            format!(
+                "/v1/datasets/synth/webmercator/tilejson.json?encoding={}",
+                "x".repeat(8000)
+            ),
+            8000,
+        ),
+        (
+            format!(
+                "/v1/datasets/synth/levels/1/tiles?ranges=0&{k}=1&{k}=2",
+                k = "k".repeat(4000)
+            ),
+            4000,
+        ),
+    ] {
+        let r = raw_get(srv.addr, &target);
+        assert!(
+            r.status == 400 || r.status == 404,
+            "{}: {}",
+            r.status,
+            &target[..60]
+        );
+        let msg = json_error(&r);
+        assert!(msg.len() < 400, "{} bytes: {msg}", msg.len());
+        assert!(msg.contains(&format!("… ({length} bytes)")), "{msg}");
+    }
 }
 
 #[test]

@@ -49,8 +49,9 @@ const ALLOW_HEADERS: [HeaderName; 8] = [
     header::CACHE_CONTROL,
 ];
 
-/// Response headers scripts may read beyond the CORS-safelisted ones.
-const EXPOSE_HEADERS: [&str; 10] = [
+/// Response headers scripts may read beyond the CORS-safelisted ones (also on the
+/// answers conn.rs writes itself).
+pub const EXPOSE_HEADERS: [&str; 10] = [
     "etag",
     "content-length",
     "content-range",

@@ -47,9 +47,42 @@ impl ApiError {
 }
 
 impl ApiError {
-    /// The JSON body every error response carries.
+    /// The JSON body every error response carries. A message longer than
+    /// [`MAX_MESSAGE_CHARS`] is cut (see [`quoted`]): a last bound for one that quotes
+    /// request input without [`quoted`] (a parser's error passed through whole).
     pub fn body(&self) -> serde_json::Value {
-        serde_json::json!({ "error": self.message })
+        serde_json::json!({ "error": capped(&self.message, MAX_MESSAGE_CHARS) })
+    }
+}
+
+/// Characters of request input an error message quotes (see [`quoted`]).
+pub const QUOTED_CHARS: usize = 64;
+/// Characters of an error message a client is sent ([`ApiError::body`]).
+pub const MAX_MESSAGE_CHARS: usize = 1024;
+
+/// Request input (a path segment, a dataset name, a query name or value) as an
+/// error message quotes it: debug-quoted, so control characters are escaped, and cut
+/// to its first [`QUOTED_CHARS`] characters with an ellipsis and its whole length
+/// when longer, so that a 1 MB path is not echoed back (or logged) whole:
+/// `"abc"`, or `"aaaa…"… (1048576 bytes)`.
+pub fn quoted(input: &str) -> String {
+    match input.char_indices().nth(QUOTED_CHARS) {
+        None => format!("{input:?}"),
+        Some((end, _)) => format!("{:?}… ({} bytes)", &input[..end], input.len()),
+    }
+}
+
+/// `message`, from a parser outside this module that debug-quotes `input` whole
+/// (`{input:?}`), with that quotation bounded as [`quoted`] bounds it.
+pub fn requoted(message: &str, input: &str) -> String {
+    message.replacen(&format!("{input:?}"), &quoted(input), 1)
+}
+
+/// `text` cut to its first `max` characters, saying how long it was.
+fn capped(text: &str, max: usize) -> std::borrow::Cow<'_, str> {
+    match text.char_indices().nth(max) {
+        None => text.into(),
+        Some((end, _)) => format!("{}… (cut: {} bytes in all)", &text[..end], text.len()).into(),
     }
 }
 
@@ -93,5 +126,29 @@ mod tests {
         .chain([ApiError::not_found("no such endpoint; see API.md").body()])
         .collect();
         insta::assert_snapshot!(serde_json::to_string_pretty(&bodies).unwrap());
+    }
+
+    #[test]
+    fn quoted_input_is_bounded_and_escaped() {
+        assert_eq!(quoted("N46E008"), "\"N46E008\"");
+        assert_eq!(quoted("a\u{7}\r\n"), "\"a\\u{7}\\r\\n\"");
+        let exact = "x".repeat(QUOTED_CHARS);
+        assert_eq!(quoted(&exact), format!("{exact:?}"));
+        let path = "é".repeat(1 << 19);
+        let q = quoted(&path);
+        assert_eq!(
+            q,
+            format!("{:?}… (1048576 bytes)", "é".repeat(QUOTED_CHARS))
+        );
+        let message = format!("unknown dataset {path:?}");
+        assert_eq!(requoted(&message, &path), format!("unknown dataset {q}"));
+        // Whatever a message holds, a client is sent a bounded one.
+        let body = ApiError::not_found(message).body().to_string();
+        assert!(
+            body.len() < 2 * 4 * MAX_MESSAGE_CHARS,
+            "{} bytes",
+            body.len()
+        );
+        assert!(body.contains("bytes in all"), "{body}");
     }
 }

@@ -23,7 +23,8 @@ impl Encoding {
             None | Some("terrarium") => Ok(Self::Terrarium),
             Some("mapbox") => Ok(Self::Mapbox),
             Some(other) => Err(ApiError::bad_request(format!(
-                "unknown encoding {other:?}: allowed values are {}",
+                "unknown encoding {}: allowed values are {}",
+                crate::serve::error::quoted(other),
                 Self::ALLOWED
             ))),
         }

@@ -14,8 +14,8 @@ pub mod wmts;
 
 use super::AppState;
 use super::dataset::{Dataset, RecordError, valid_name};
-use super::error::{ApiError, ApiResult};
-use axum::extract::{FromRequestParts, Path, Query};
+use super::error::{ApiError, ApiResult, quoted};
+use axum::extract::{FromRequestParts, Path};
 use axum::http::request::Parts;
 use bytes::Bytes;
 use std::collections::HashMap;
@@ -25,31 +25,78 @@ use tessera_shared::{Level, TileId};
 
 /// The query string as a map; an unparseable one, or one that names a parameter
 /// twice (which one would win is up to each cache and proxy), is a 400 with a JSON
-/// reason (axum's own `Query` rejection would answer in plain text).
+/// reason (axum's own `Query` rejection would answer in plain text, and it decodes
+/// leniently: `%zz` passed through as itself).
 #[derive(Debug, Clone, Default)]
 pub struct Params(pub HashMap<String, String>);
+
+impl Params {
+    /// Parses `name=value` pairs joined by `&` (`application/x-www-form-urlencoded`,
+    /// as browsers and `URLSearchParams` write them: `+` is a space, `%XX` a byte).
+    /// Refused: a `%` not followed by two hex digits, a pair with an empty name
+    /// (`=5`), a name or value that is not UTF-8 once decoded, and a name given twice.
+    /// Empty pairs (`a=1&&b=2`, a trailing `&`) say nothing and are skipped.
+    pub fn parse(query: &str) -> Result<Self, ApiError> {
+        let mut map = HashMap::new();
+        for pair in query.split('&').filter(|p| !p.is_empty()) {
+            let (raw_name, raw_value) = pair.split_once('=').unwrap_or((pair, ""));
+            if raw_name.is_empty() {
+                return Err(ApiError::bad_request(format!(
+                    "query parameter {} has an empty name: want name=value pairs joined by '&'",
+                    quoted(pair)
+                )));
+            }
+            let name = form_decode(raw_name).map_err(|why| {
+                ApiError::bad_request(format!("query parameter name {}: {why}", quoted(raw_name)))
+            })?;
+            let value = form_decode(raw_value).map_err(|why| {
+                ApiError::bad_request(format!("query parameter {}: {why}", quoted(&name)))
+            })?;
+            if map.contains_key(&name) {
+                return Err(ApiError::bad_request(format!(
+                    "query parameter {} is given more than once; give it once",
+                    quoted(&name)
+                )));
+            }
+            map.insert(name, value);
+        }
+        Ok(Params(map))
+    }
+}
+
+/// One form-encoded name or value, decoded; the error says what is wrong with it.
+fn form_decode(raw: &str) -> Result<String, String> {
+    let hex = |b: u8| char::from(b).to_digit(16);
+    let bytes = raw.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        match bytes[i] {
+            b'+' => out.push(b' '),
+            b'%' => {
+                let (Some(hi), Some(lo)) = (
+                    bytes.get(i + 1).copied().and_then(hex),
+                    bytes.get(i + 2).copied().and_then(hex),
+                ) else {
+                    return Err(format!(
+                        "'%' at byte {i} is not followed by two hex digits (write a '%' as %25)"
+                    ));
+                };
+                out.push((hi * 16 + lo) as u8);
+                i += 2;
+            }
+            b => out.push(b),
+        }
+        i += 1;
+    }
+    String::from_utf8(out).map_err(|_| "not UTF-8 once percent-decoded".to_string())
+}
 
 impl<S: Send + Sync> FromRequestParts<S> for Params {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, _state: &S) -> Result<Self, ApiError> {
-        let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(&parts.uri).map_err(
-            |_| {
-                ApiError::bad_request(
-                    "malformed query string: want name=value pairs joined by '&', percent-encoded UTF-8",
-                )
-            },
-        )?;
-        let mut map = HashMap::with_capacity(pairs.len());
-        for (k, v) in pairs {
-            if map.contains_key(&k) {
-                return Err(ApiError::bad_request(format!(
-                    "query parameter {k:?} is given more than once; give it once"
-                )));
-            }
-            map.insert(k, v);
-        }
-        Ok(Params(map))
+        Self::parse(parts.uri.query().unwrap_or(""))
     }
 }
 
@@ -87,14 +134,15 @@ where
 pub fn dataset(state: &AppState, name: &str) -> ApiResult<Arc<Dataset>> {
     if !valid_name(name) {
         return Err(ApiError::bad_request(format!(
-            "invalid dataset name {name:?}: names are letters, digits, '_', '-' or '.'"
+            "invalid dataset name {}: names are letters, digits, '_', '-' or '.'",
+            quoted(name)
         )));
     }
     let ds = state
         .registry()
         .get(name)
         .cloned()
-        .ok_or_else(|| ApiError::not_found(format!("unknown dataset {name:?}")))?;
+        .ok_or_else(|| ApiError::not_found(format!("unknown dataset {}", quoted(name))))?;
     ds.available().map_err(|r| unavailable(&r))?;
     Ok(ds)
 }
@@ -116,7 +164,8 @@ pub fn level(ds: &Dataset, raw: &str) -> ApiResult<Level> {
         .filter(|l| *l <= finest)
         .ok_or_else(|| {
             ApiError::not_found(format!(
-                "level {raw:?} is not in dataset {:?} (levels 0-{finest})",
+                "level {} is not in dataset {:?} (levels 0-{finest})",
+                quoted(raw),
                 ds.name
             ))
         })
@@ -130,7 +179,9 @@ pub fn tile(level: Level, x: &str, y: &str) -> ApiResult<TileId> {
     }
     .ok_or_else(|| {
         ApiError::not_found(format!(
-            "tile ({x}, {y}) is not in level {level} (x and y are 0-{})",
+            "tile ({}, {}) is not in level {level} (x and y are 0-{})",
+            quoted(x),
+            quoted(y),
             level.tiles_per_side() - 1
         ))
     })
@@ -182,4 +233,51 @@ pub fn xml_escape(s: &str) -> String {
 /// Whether the query pins the content with `v=<content hash>` (then responses are immutable).
 pub fn pinned(ds: &Dataset, query: &HashMap<String, String>) -> bool {
     query.get("v").is_some_and(|v| v == ds.content_hash())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refused(query: &str) -> String {
+        let e = Params::parse(query).unwrap_err();
+        assert_eq!(e.status, axum::http::StatusCode::BAD_REQUEST, "{query}");
+        e.message
+    }
+
+    #[test]
+    fn queries_decode_as_browsers_encode_them() {
+        let p = Params::parse("ranges=0-15%2C32-47&v=abc&name=a+b%20c&flag&&empty=").unwrap();
+        assert_eq!(p.0["ranges"], "0-15,32-47");
+        assert_eq!(p.0["name"], "a b c");
+        assert_eq!(p.0["flag"], "");
+        assert_eq!(p.0["empty"], "");
+        assert_eq!(p.0.len(), 5);
+        assert!(Params::parse("").unwrap().0.is_empty());
+        assert_eq!(
+            Params::parse("%C3%A9t%C3%A9=%E2%9C%93").unwrap().0["été"],
+            "✓"
+        );
+    }
+
+    #[test]
+    fn invalid_percent_encoding_and_empty_names_are_refused_naming_the_parameter() {
+        let e = refused("&%zz=1");
+        assert!(
+            e.contains("name \"%zz\"") && e.contains("two hex digits"),
+            "{e}"
+        );
+        let e = refused("ranges=0-3&v=ab%2");
+        assert!(e.contains("parameter \"v\"") && e.contains("byte 2"), "{e}");
+        let e = refused("ranges=%ff");
+        assert!(e.contains("\"ranges\"") && e.contains("UTF-8"), "{e}");
+        let e = refused("=5");
+        assert!(e.contains("\"=5\" has an empty name"), "{e}");
+        let e = refused("v=1&v=2");
+        assert!(e.contains("\"v\" is given more than once"), "{e}");
+        // A long name is quoted in part.
+        let long = "n".repeat(10_000);
+        let e = refused(&format!("{long}=1&{long}=2"));
+        assert!(e.len() < 300 && e.contains("(10000 bytes)"), "{e}");
+    }
 }

@@ -14,7 +14,7 @@
 
 use super::{Params, Segments, dataset, level, pinned, stored_record, tile, unavailable};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult};
+use crate::serve::error::{ApiError, ApiResult, requoted};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::body::Body;
 use axum::extract::State;
@@ -137,6 +137,18 @@ fn deferred(ds: &Dataset, level: Level, ranges: &[MortonRange]) -> Option<(Vec<F
     Some((frames, outside))
 }
 
+/// A refused `ranges=` value's message, with the range it quotes bounded (a range
+/// can be as long as the query string).
+fn range_message(e: &range_query::RangeQueryError) -> String {
+    use range_query::RangeQueryError as E;
+    match e {
+        E::Malformed(range) | E::Invalid(range, _) | E::OutsideLevel { range, .. } => {
+            requoted(&e.to_string(), range)
+        }
+        _ => e.to_string(),
+    }
+}
+
 pub(super) async fn stream(
     state: &AppState,
     name: &str,
@@ -151,7 +163,7 @@ pub(super) async fn stream(
     }
     let level: Level = level(&ds, level_raw)?;
     let ranges = range_query::parse(query.get("ranges").map(String::as_str), level, state.limits)
-        .map_err(|e| ApiError::bad_request(e.to_string()))?;
+        .map_err(|e| ApiError::bad_request(range_message(&e)))?;
     let pin = pinned(&ds, query);
     let canonical: Vec<String> = ranges.iter().map(ToString::to_string).collect();
     let kind = match payload {

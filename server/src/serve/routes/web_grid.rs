@@ -11,7 +11,7 @@ use super::web_tiles::base_url;
 use super::{Params, Segments, dataset, unavailable, xml_escape};
 use crate::serve::compute::{Kind, Made, Stop, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
-use crate::serve::error::{ApiError, ApiResult};
+use crate::serve::error::{ApiError, ApiResult, quoted};
 use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
 use crate::serve::{AppState, TilesServed, cache};
 use crate::web::encoding::{Encoding, ImageFormat, rgba};
@@ -35,7 +35,8 @@ pub const SIZES: [u32; 2] = [256, 512];
 pub fn grid(raw: &str) -> ApiResult<TileMatrixSet> {
     TileMatrixSet::parse(raw).ok_or_else(|| {
         ApiError::not_found(format!(
-            "unknown tile grid {raw:?}: the grids are webmercator (WebMercatorQuad) and crs84 (WorldCRS84Quad)"
+            "unknown tile grid {}: the grids are webmercator (WebMercatorQuad) and crs84 (WorldCRS84Quad)",
+            quoted(raw)
         ))
     })
 }
@@ -49,7 +50,7 @@ pub fn size(query: &HashMap<String, String>) -> ApiResult<u32> {
             .ok()
             .filter(|v| SIZES.contains(v))
             .ok_or_else(|| {
-                ApiError::bad_request(format!("unknown size {s:?}: sizes are 256 and 512"))
+                ApiError::bad_request(format!("unknown size {}: sizes are 256 and 512", quoted(s)))
             }),
     }
 }
@@ -77,7 +78,8 @@ fn web_tile(tms: TileMatrixSet, z: &str, x: &str, y: &str) -> ApiResult<WebTile>
     let z_ok = z.parse::<u8>().ok().filter(|z| *z <= MAX_ZOOM);
     let Some(zv) = z_ok else {
         return Err(ApiError::not_found(format!(
-            "zoom {z:?} is not in {} (zooms 0-{MAX_ZOOM})",
+            "zoom {} is not in {} (zooms 0-{MAX_ZOOM})",
+            quoted(z),
             tms.id()
         )));
     };
@@ -88,7 +90,9 @@ fn web_tile(tms: TileMatrixSet, z: &str, x: &str, y: &str) -> ApiResult<WebTile>
     .ok_or_else(|| {
         let (cols, rows) = tms.matrix_size(zv);
         ApiError::not_found(format!(
-            "tile ({x}, {y}) is not in {} zoom {zv} (x 0-{}, y 0-{})",
+            "tile ({}, {}) is not in {} zoom {zv} (x 0-{}, y 0-{})",
+            quoted(x),
+            quoted(y),
             tms.id(),
             cols - 1,
             rows - 1
