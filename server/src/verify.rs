@@ -7,6 +7,9 @@ use tessera_shared::format::{self, IndexEntry};
 use tessera_shared::reader::{FileSource, ReadError};
 use tessera_shared::{Pyramid, TileId, codec};
 
+/// What `records_offset` is a multiple of (FORMAT.md "Layout").
+pub const RECORDS_ALIGN: u64 = 4096;
+
 /// What verification found.
 #[derive(Debug, Default)]
 pub struct VerifyReport {
@@ -155,6 +158,15 @@ fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
         out.push(format!(
             "reserved header flags are set ({:#x})",
             p.header().flags
+        ));
+    }
+    // Readers do not need it, but FORMAT.md promises it: records start on a page, so a
+    // file whose header region ends elsewhere was not written by our writer.
+    let records_offset = p.header().records_offset;
+    if records_offset % RECORDS_ALIGN != 0 {
+        out.push(format!(
+            "records_offset {records_offset} is not a multiple of {RECORDS_ALIGN} (FORMAT.md \
+             \"Layout\": the header region is zero-padded to a {RECORDS_ALIGN}-byte boundary)"
         ));
     }
     if let Err(e) = meta.check_content_hash() {

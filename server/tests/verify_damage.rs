@@ -202,3 +202,29 @@ fn metadata_damage_is_named() {
     rehash_header(&mut b);
     assert_named(dir.path(), "hflags.tess", &b, "reserved header flags");
 }
+
+/// FORMAT.md says `records_offset` is a multiple of 4096; `verify` did not check it.
+/// Moved 8 bytes back into the padding (header checksum recomputed) the file still
+/// opens and reads, and `verify` must name the problem.
+#[test]
+fn a_records_offset_off_the_page_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, mut bytes) = pyramid(dir.path());
+    let mut h = header(&bytes);
+    assert_eq!(h.records_offset % 4096, 0);
+    let end = h.records_offset as usize;
+    assert!(bytes[end - 8..end].iter().all(|b| *b == 0), "padding");
+    h.records_offset -= 8;
+    bytes[..HEADER_LEN].copy_from_slice(&h.to_bytes());
+    rehash_header(&mut bytes);
+    Pyramid::open(bytes.clone()).expect("the file still opens");
+    assert_named(
+        dir.path(),
+        "offset.tess",
+        &bytes,
+        &format!(
+            "bad file: records_offset {} is not a multiple of 4096",
+            end - 8
+        ),
+    );
+}
