@@ -24,8 +24,15 @@
 //! Cheap routes (stored tiles, Morton ranges, health, metrics) never come here and
 //! keep their own concurrency (serve/mod.rs).
 
+mod budget;
+mod ticket;
+
+pub use budget::Reservation;
+pub use ticket::Ticket;
+
 use super::error::ApiError;
 use axum::body::Body;
+use budget::MemoryPool;
 use bytes::Bytes;
 use futures_util::FutureExt;
 use futures_util::future::{BoxFuture, WeakShared};
@@ -33,7 +40,7 @@ use prometheus::{IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore};
 
 /// What kind of work a computation is (a label in `/metrics`).
@@ -198,190 +205,9 @@ impl Made {
 
 type Outcome = Result<Made, ApiError>;
 
-/// The memory budget: reserved in bytes, waited on by blocking threads (a condvar)
-/// and by async tasks (a notify).
-#[derive(Debug)]
-struct MemoryPool {
-    limit: u64,
-    used: Mutex<u64>,
-    freed: Condvar,
-    notify: Notify,
-    gauge: IntGauge,
-}
-
-impl MemoryPool {
-    fn try_take(&self, bytes: u64) -> bool {
-        let mut used = self.used.lock().unwrap_or_else(PoisonError::into_inner);
-        if *used + bytes > self.limit {
-            return false;
-        }
-        *used += bytes;
-        self.gauge.set(i64::try_from(*used).unwrap_or(i64::MAX));
-        true
-    }
-
-    fn give(&self, bytes: u64) {
-        let mut used = self.used.lock().unwrap_or_else(PoisonError::into_inner);
-        *used = used.saturating_sub(bytes);
-        self.gauge.set(i64::try_from(*used).unwrap_or(i64::MAX));
-        drop(used);
-        self.freed.notify_all();
-        self.notify.notify_waiters();
-    }
-
-    /// Whatever one computation asks, it may have the whole budget, no more (then it
-    /// runs alone).
-    fn clamp(&self, bytes: u64) -> u64 {
-        bytes.clamp(1, self.limit)
-    }
-}
-
-/// Bytes reserved on the memory budget, given back on drop.
-#[derive(Debug)]
-pub struct Reservation {
-    pool: Arc<MemoryPool>,
-    bytes: u64,
-}
-
-impl Drop for Reservation {
-    fn drop(&mut self) {
-        self.pool.give(self.bytes);
-    }
-}
-
-/// The right to run one admitted computation: its slot, its cancellation flag, the
-/// memory budget. Dropped (slot given back) when the computation really ends.
-#[derive(Debug)]
-pub struct Ticket {
-    _slot: OwnedSemaphorePermit,
-    cancelled: Arc<AtomicBool>,
-    pool: Arc<MemoryPool>,
-    wait: Duration,
-    kind: Kind,
-    running: IntGaugeVec,
-}
-
-impl Drop for Ticket {
-    fn drop(&mut self) {
-        self.running.with_label_values(&[self.kind.label()]).dec();
-    }
-}
-
-impl Ticket {
-    /// `Err(Cancelled)` once every requester is gone: long loops call it at each step.
-    pub fn check(&self) -> Result<(), Stop> {
-        if self.cancelled.load(Ordering::Relaxed) {
-            Err(Stop::Cancelled)
-        } else {
-            Ok(())
-        }
-    }
-
-    /// Reserves `bytes` of working memory (a blocking thread waits for it, at most the
-    /// queue wait, while checking for cancellation).
-    pub fn reserve(&self, bytes: u64) -> Result<Reservation, Stop> {
-        let bytes = self.pool.clamp(bytes);
-        let deadline = Instant::now() + self.wait;
-        let mut used = self
-            .pool
-            .used
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        loop {
-            self.check()?;
-            if *used + bytes <= self.pool.limit {
-                *used += bytes;
-                self.pool
-                    .gauge
-                    .set(i64::try_from(*used).unwrap_or(i64::MAX));
-                return Ok(Reservation {
-                    pool: self.pool.clone(),
-                    bytes,
-                });
-            }
-            let now = Instant::now();
-            if now >= deadline {
-                return Err(busy_memory(self.pool.limit, bytes));
-            }
-            // Woken by every release; a short timeout so that a cancellation is seen.
-            let step = (deadline - now).min(Duration::from_millis(20));
-            used = self
-                .pool
-                .freed
-                .wait_timeout(used, step)
-                .unwrap_or_else(PoisonError::into_inner)
-                .0;
-        }
-    }
-
-    /// [`Ticket::reserve`] for async work (its cancellation is its future's drop).
-    pub async fn reserve_async(&self, bytes: u64) -> Result<Reservation, Stop> {
-        let bytes = self.pool.clamp(bytes);
-        let deadline = tokio::time::Instant::now() + self.wait;
-        loop {
-            let freed = self.pool.notify.notified();
-            tokio::pin!(freed);
-            freed.as_mut().enable();
-            if self.pool.try_take(bytes) {
-                return Ok(Reservation {
-                    pool: self.pool.clone(),
-                    bytes,
-                });
-            }
-            tokio::select! {
-                () = freed => {}
-                () = tokio::time::sleep_until(deadline) => {
-                    return Err(busy_memory(self.pool.limit, bytes));
-                }
-            }
-        }
-    }
-
-    /// Runs `work` on a blocking thread with this ticket (given back when it ends).
-    pub async fn blocking<T: Send + 'static>(
-        self,
-        work: impl FnOnce(&Ticket) -> T + Send + 'static,
-    ) -> Result<T, ApiError> {
-        let kind = self.kind;
-        tokio::task::spawn_blocking(move || work(&self))
-            .await
-            .map_err(|e| ApiError::internal(format!("{} task failed: {e}", kind.label())))
-    }
-
-    /// `made`, holding a reservation of its size from now on (taken without waiting:
-    /// the working memory it came from is given back at the same time).
-    pub fn made(&self, bytes: Bytes, tiles: u64) -> Made {
-        let n = self.pool.clamp(bytes.len() as u64);
-        // Accounted even over the limit: the bytes exist; later work waits for them.
-        let mut used = self
-            .pool
-            .used
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        *used += n;
-        self.pool
-            .gauge
-            .set(i64::try_from(*used).unwrap_or(i64::MAX));
-        drop(used);
-        Made {
-            bytes,
-            tiles,
-            cacheable: true,
-            hold: Some(Arc::new(Reservation {
-                pool: self.pool.clone(),
-                bytes: n,
-            })),
-        }
-    }
-}
-
-fn busy_memory(limit: u64, bytes: u64) -> Stop {
-    Stop::Busy(format!(
-        "the server is at its memory limit for computed responses ({} MiB; this one needs {} MiB); retry shortly",
-        limit >> 20,
-        bytes.div_ceil(1 << 20)
-    ))
-}
+/// The flights in progress, by kind and key, held weakly: a flight lives as long as
+/// a request awaits it.
+type Flights = HashMap<(Kind, String), WeakShared<BoxFuture<'static, Outcome>>>;
 
 /// Sets the cancellation flag when the computation's future is dropped unfinished.
 struct CancelOnDrop {
@@ -418,7 +244,7 @@ pub struct Compute {
     slots: Arc<Semaphore>,
     pool: Arc<MemoryPool>,
     waiting: AtomicUsize,
-    flights: Mutex<HashMap<(Kind, String), WeakShared<BoxFuture<'static, Outcome>>>>,
+    flights: Mutex<Flights>,
     /// `tessera_compute_total{kind, outcome=started|joined|busy|cancelled}`.
     outcomes: IntCounterVec,
     /// `tessera_compute_running{kind}`.
@@ -625,11 +451,11 @@ impl Compute {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use std::sync::atomic::AtomicU32;
 
-    fn limits(max_compute: usize, memory: u64, queue: usize) -> ComputeLimits {
+    pub(super) fn limits(max_compute: usize, memory: u64, queue: usize) -> ComputeLimits {
         ComputeLimits {
             max_compute,
             memory_bytes: memory,
@@ -638,7 +464,7 @@ mod tests {
         }
     }
 
-    fn compute(l: ComputeLimits) -> (Arc<Compute>, Registry) {
+    pub(super) fn compute(l: ComputeLimits) -> (Arc<Compute>, Registry) {
         let r = Registry::new();
         (Arc::new(Compute::new(l, &r)), r)
     }
@@ -647,7 +473,7 @@ mod tests {
         r.gather()
             .iter()
             .filter(|f| f.name() == "tessera_compute_total")
-            .flat_map(|f| f.get_metric())
+            .flat_map(prometheus::proto::MetricFamily::get_metric)
             .find(|m| {
                 let l = m.get_label();
                 l.iter().any(|p| p.value() == kind) && l.iter().any(|p| p.value() == outcome)
@@ -792,48 +618,5 @@ mod tests {
         );
         assert_eq!(started.load(Ordering::SeqCst), 1, "the queued one started");
         assert_eq!(metric(&r, "terrain", "cancelled"), 2);
-    }
-
-    #[test]
-    fn memory_waits_for_reservations_and_refuses_after_the_wait() {
-        let rt = tokio::runtime::Runtime::new().unwrap();
-        let (c, _r) = compute(ComputeLimits {
-            queue_wait: Duration::from_millis(200),
-            ..limits(4, 1000, 8)
-        });
-        let ticket = |c: &Arc<Compute>| Ticket {
-            _slot: c.slots.clone().try_acquire_owned().unwrap(),
-            cancelled: Arc::new(AtomicBool::new(false)),
-            pool: c.pool.clone(),
-            wait: c.limits.queue_wait,
-            kind: Kind::Bootstrap,
-            running: c.running.clone(),
-        };
-        let (a, b) = (ticket(&c), ticket(&c));
-        let first = a.reserve(600).unwrap();
-        assert_eq!(c.memory_used(), 600);
-        // Over the budget: waits, then is refused with a reason.
-        let Err(Stop::Busy(why)) = b.reserve(600) else {
-            panic!("reserved over the budget")
-        };
-        assert!(why.contains("memory limit"), "{why}");
-        // More than the whole budget is clamped to it: it runs alone.
-        drop(first);
-        let all = b.reserve(10_000).unwrap();
-        assert_eq!(c.memory_used(), 1000);
-        drop(all);
-        // A made body holds its size until the last holder lets go.
-        let made = rt.block_on(async {
-            a.reserve_async(100)
-                .await
-                .map(|_| a.made(Bytes::from(vec![0; 300]), 0))
-        });
-        let made = made.unwrap();
-        assert_eq!(c.memory_used(), 300);
-        let body = made.body();
-        drop(made);
-        assert_eq!(c.memory_used(), 300, "the body still holds it");
-        drop(body);
-        assert_eq!(c.memory_used(), 0);
     }
 }
