@@ -345,8 +345,9 @@ struct ReplayArgs {
     #[arg(long, value_name = "TRACE", conflicts_with = "record")]
     replay: Option<PathBuf>,
     /// With --replay: a constant arrival rate, requests/s (all --shard processes
-    /// together), for --duration, cycling through the trace; or `max`: saturation,
-    /// each of --connections sending its next request when its last one finished.
+    /// together, at most 1000000/s for each), for --duration, cycling through the
+    /// trace; or `max`: saturation, each of --connections sending its next request
+    /// when its last one finished.
     #[arg(long, value_name = "N|max", requires = "replay")]
     rate: Option<RateArg>,
     /// With --replay: ramping arrival rate, stages DURATION:RATE,… (e.g.
@@ -356,7 +357,8 @@ struct ReplayArgs {
     ramp: Option<RampStages>,
     /// With --replay: HTTP/1.1: at most C requests in flight, on C keep-alive
     /// connections; with --http2: C connections, each carrying up to 100 requests.
-    /// When all are busy, a request waits, and the wait counts in its latency.
+    /// When all are busy, a request waits, and the wait counts in its latency. At
+    /// most the open-file limit (`ulimit -n`) less 64, and 65536.
     #[arg(long, value_name = "C", default_value_t = 64, requires = "replay",
           value_parser = clap::value_parser!(u32).range(1..))]
     connections: u32,
@@ -364,8 +366,10 @@ struct ReplayArgs {
     /// clients c with c % N == K at 1/N of --rate.
     #[arg(long, value_name = "K/N", default_value = "0/1", requires = "replay")]
     shard: Shard,
-    /// With --replay: a request's limit, and how long to wait for the requests still
-    /// in flight when the schedule ends (those count as timeout errors).
+    /// With --replay: a request's limit (at most 1h), and how long to wait for the
+    /// requests still in flight when the schedule ends (those count as timeout
+    /// errors). The run stops then, whatever the rate: requests not yet sent are
+    /// not sent, and reported as unsent.
     #[arg(long, default_value = "10s", value_parser = parse_duration, requires = "replay")]
     timeout: std::time::Duration,
     /// With --replay: runtime threads (1: everything on one core).
