@@ -630,3 +630,65 @@ fn tilejson_parameters_and_empty_tiles() {
         "an empty tile is as cacheable as a full one"
     );
 }
+
+/// Web Mercator zoom 0 of N46E008 was a 404 although the TileJSON says `minzoom` 0:
+/// a 1° tile is 0.7 of a zoom-0 pixel, and no pixel centre fell inside it. Now the
+/// pixels the DEM covers show it (the DEM's heights), with the apron around them,
+/// and every other pixel is transparent.
+#[test]
+fn zoom_0_shows_a_dem_smaller_than_a_pixel() {
+    let Some(b) = built() else { return };
+    let srv = Server::start(&[&b.n46e008], &[]);
+    for px in [256u32, 512] {
+        let tj = srv
+            .get(&format!(
+                "/v1/datasets/N46E008/webmercator/tilejson.json?size={px}"
+            ))
+            .expect(200)
+            .json();
+        assert_eq!(tj["minzoom"], 0);
+        let png = srv
+            .get(&format!(
+                "/v1/datasets/N46E008/webmercator/0/0/0.png?size={px}"
+            ))
+            .expect(200);
+        let (side, rgba) = decode_rgba(&png.body);
+        assert_eq!(side, px);
+        // The DEM's pixel box (sample areas: half a 3″ sample beyond 8°..9°, 46°..47°),
+        // by the XYZ scheme's own formulas.
+        let n = f64::from(px);
+        let x = |lon: f64| (lon + 180.0) / 360.0 * n;
+        let y = |lat: f64| {
+            let l = f64::to_radians(lat);
+            (1.0 - (l.tan() + 1.0 / l.cos()).ln() / std::f64::consts::PI) / 2.0 * n
+        };
+        let half = 1.0 / 2400.0;
+        let (x0, x1) = (x(8.0 - half), x(9.0 + half));
+        let (y0, y1) = (y(47.0 + half), y(46.0 - half));
+        // A pixel touching the box shows the DEM; the apron reaches two more.
+        let slack = 1.0 + 2.0;
+        let mut opaque = 0;
+        for (k, p) in rgba.chunks(4).enumerate() {
+            if p[3] == 0 {
+                continue;
+            }
+            opaque += 1;
+            let (i, j) = ((k as u32 % px) as f64, (k as u32 / px) as f64);
+            assert!(
+                i + 1.0 >= x0 - slack
+                    && i <= x1 + slack
+                    && j + 1.0 >= y0 - slack
+                    && j <= y1 + slack,
+                "{px} px: pixel ({i}, {j}) is far from the DEM's box x {x0}..{x1}, y {y0}..{y1}"
+            );
+            let h = terrarium(p);
+            assert!((187.0..=4173.0).contains(&h), "{px} px: ({i}, {j}) {h} m");
+        }
+        // The pixels inside the box at least (x 133..=134 and y 90..=91 at 256 px).
+        let inside = (x1.floor() - x0.floor() + 1.0) * (y1.floor() - y0.floor() + 1.0);
+        assert!(
+            f64::from(opaque) >= inside,
+            "{px} px: {opaque} opaque pixels"
+        );
+    }
+}

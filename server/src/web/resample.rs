@@ -7,7 +7,12 @@
 //! 2. **Level.** At the point of the tile nearest the dataset's centre, one pixel
 //!    step east and south is carried to the dataset's samples; the level whose
 //!    stride is nearest (in log₂) to that footprint is read — the finest when the
-//!    map zooms in beyond the data.
+//!    map zooms in beyond the data, the coarsest (level 0) when it zooms out beyond
+//!    it. There a pixel can span many samples, and a dataset smaller than a pixel
+//!    (a 1° SRTM tile is 0.7 px of a zoom-0 tile) may hold no pixel centre at all:
+//!    a pixel then reads the dataset where it is nearest the pixel's centre when it
+//!    lies within half a pixel of it (`Plan::reach`), so a zoom-0 tile shows the
+//!    data in its small footprint instead of nothing.
 //! 3. **Coordinates.** Every pixel centre is carried to the level's sample
 //!    coordinates through the projection library. Where the grid's axes map to the
 //!    dataset's (a longitude/latitude dataset in either grid), exactly: one
@@ -71,6 +76,10 @@ pub struct Plan {
     /// The level's tiles the window reads: first column and row, columns, rows.
     tiles: [u32; 4],
     tile_size: u32,
+    /// How far beyond the level's grid, in its samples along columns and rows, a
+    /// point still reads it (clamped): half a sample, or half a pixel where a pixel
+    /// spans more than one sample of the coarsest level (see the module doc, step 2).
+    reach: [f64; 2],
 }
 
 /// Where a window's pixels fall among the level's samples.
@@ -117,8 +126,9 @@ struct AxisPos {
 }
 
 impl AxisPos {
-    /// `None` for a point that did not transform.
-    fn new(v: f64, t: u32, n: u32, limit: f64) -> Option<Self> {
+    /// `None` for a point that did not transform; `reach` is [`Plan::reach`]'s for
+    /// this axis.
+    fn new(v: f64, t: u32, n: u32, limit: f64, reach: f64) -> Option<Self> {
         if !v.is_finite() {
             return None;
         }
@@ -127,7 +137,7 @@ impl AxisPos {
         let u = clamped - f64::from(tile * t);
         let cell = (u as u32).min(t - 1);
         Some(Self {
-            in_range: (-0.5..=limit + 0.5).contains(&v),
+            in_range: (-reach..=limit + reach).contains(&v),
             clamped,
             tile,
             cell,
@@ -143,9 +153,16 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
     }
     let window = window(fp, tile, px)?;
     let finest = geometry.finest();
-    let k = stride_log2(fp, tile, px).min(u32::from(finest.get()));
+    let pixel = pixel_steps(fp, tile, px);
+    let k = stride_log2(pixel).min(u32::from(finest.get()));
     let level = Level::new(finest.get() - k as u8)?;
     let stride = f64::from(1u32 << k);
+    // Half a sample, or half a pixel where pixels are coarser than level 0's samples:
+    // the half-extent of the pixel's parallelogram along each axis.
+    let reach = pixel.map_or([0.5, 0.5], |[e, s]| {
+        let half = |a: usize| ((e[a].abs() + s[a].abs()) / stride / 2.0).max(0.5);
+        [half(0), half(1)]
+    });
     let [i0, j0, i1, j1] = window;
     let (w, h) = ((i1 - i0) as usize, (j1 - j0) as usize);
     let exact = |i: usize, j: usize| {
@@ -173,8 +190,8 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
         };
         let cols = axis(w, &|i| exact(i, h / 2).map(|p| p[0]));
         let rows = axis(h, &|j| exact(w / 2, j).map(|p| p[1]));
-        let within = |v: &f64| (-0.5..=limit + 0.5).contains(v);
-        terrain_possible = cols.iter().any(within) && rows.iter().any(within);
+        let within = |reach: f64| move |v: &f64| (-reach..=limit + reach).contains(v);
+        terrain_possible = cols.iter().any(within(reach[0])) && rows.iter().any(within(reach[1]));
         for &c in cols.iter().filter(|v| v.is_finite()) {
             c0 = c0.min(c);
             c1 = c1.max(c);
@@ -190,7 +207,7 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
             if !(c.is_finite() && r.is_finite()) {
                 continue;
             }
-            terrain_possible |= in_range(c, r, limit);
+            terrain_possible |= in_range(c, r, limit, reach);
             c0 = c0.min(c);
             r0 = r0.min(r);
             c1 = c1.max(c);
@@ -213,6 +230,7 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
         coords,
         tiles: [tx0, ty0, tx1 - tx0 + 1, ty1 - ty0 + 1],
         tile_size: t,
+        reach,
     })
 }
 
@@ -234,10 +252,9 @@ fn window(fp: &Footprint, tile: WebTile, px: u32) -> Option<[i64; 4]> {
     (i0 < i1.min(px) && j0 < j1.min(px) && i1 > 0 && j1 > 0).then_some([i0, j0, i1, j1])
 }
 
-/// log₂ of the finest-level stride that best matches one pixel of `tile`: the
-/// footprint of a pixel step at the point of the tile nearest the dataset's centre,
-/// in finest samples, rounded in log₂ (0 when the pixel is finer than a sample).
-fn stride_log2(fp: &Footprint, tile: WebTile, px: u32) -> u32 {
+/// One pixel step east and one south in finest samples (column, row), at the point
+/// of `tile` nearest the dataset's centre; `None` where the projection fails there.
+fn pixel_steps(fp: &Footprint, tile: WebTile, px: u32) -> Option<[[f64; 2]; 2]> {
     let [x0, y0, x1, y1] = tile.bounds();
     let [bx0, by0, bx1, by1] = fp.grid_bounds(tile.tms);
     let c = tile.tms.cell_size(tile.z, px);
@@ -245,11 +262,19 @@ fn stride_log2(fp: &Footprint, tile: WebTile, px: u32) -> u32 {
     let cy = f64::midpoint(by0, by1).clamp(y0 + c, y1 - c);
     let at = |x: f64, y: f64| fp.to_samples(tile.tms, x, y);
     let (Some(p), Some(e), Some(s)) = (at(cx, cy), at(cx + c, cy), at(cx, cy - c)) else {
-        return 0;
+        return None;
     };
-    let d = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
-    let f = (d(p, e) * d(p, s)).sqrt();
-    let k = f.log2().round();
+    let step = |to: [f64; 2]| [to[0] - p[0], to[1] - p[1]];
+    Some([step(e), step(s)])
+}
+
+/// log₂ of the finest-level stride that best matches a pixel of `steps` (the
+/// geometric mean of the steps' lengths, in finest samples), rounded in log₂ (0 when
+/// the pixel is finer than a sample or unknown).
+fn stride_log2(steps: Option<[[f64; 2]; 2]>) -> u32 {
+    let k = steps.map_or(0.0, |[e, s]| {
+        (e[0].hypot(e[1]) * s[0].hypot(s[1])).sqrt().log2().round()
+    });
     if k.is_finite() && k > 0.0 {
         k.min(31.0) as u32
     } else {
@@ -257,9 +282,10 @@ fn stride_log2(fp: &Footprint, tile: WebTile, px: u32) -> u32 {
     }
 }
 
-/// Whether a point is within half a sample of the level's grid (of `limit` cells).
-fn in_range(c: f64, r: f64, limit: f64) -> bool {
-    c >= -0.5 && r >= -0.5 && c <= limit + 0.5 && r <= limit + 0.5
+/// Whether a point is within `reach` samples (along columns, rows) of the level's
+/// grid (of `limit` cells).
+fn in_range(c: f64, r: f64, limit: f64, [rc, rr]: [f64; 2]) -> bool {
+    c >= -rc && r >= -rr && c <= limit + rc && r <= limit + rr
 }
 
 /// The tile (of `n` per side, `t` cells each) holding level coordinate `v ≥ 0`; a
@@ -340,19 +366,22 @@ impl Plan {
             let bottom = lerp(at(side), at(side + 1), a.frac);
             heights[k] = lerp(top, bottom, b.frac);
         };
-        let axis = |v: f64| AxisPos::new(v, t, n, limit);
+        let axis = |v: f64, reach: f64| AxisPos::new(v, t, n, limit, reach);
         match &self.coords {
             Coords::Grid(grid) => {
                 for (k, &[c, r]) in grid.iter().enumerate() {
-                    if let (Some(a), Some(b)) = (axis(c), axis(r)) {
+                    if let (Some(a), Some(b)) = (axis(c, self.reach[0]), axis(r, self.reach[1])) {
                         pixel(k, &a, &b);
                     }
                 }
             }
             Coords::Separable { cols, rows } => {
-                let cols: Vec<Option<AxisPos>> = cols.iter().map(|&c| axis(c)).collect();
+                let cols: Vec<Option<AxisPos>> =
+                    cols.iter().map(|&c| axis(c, self.reach[0])).collect();
                 for (j, &r) in rows.iter().enumerate() {
-                    let Some(b) = axis(r) else { continue };
+                    let Some(b) = axis(r, self.reach[1]) else {
+                        continue;
+                    };
                     for (i, a) in cols.iter().enumerate() {
                         if let Some(a) = a {
                             pixel(j * w + i, a, &b);
@@ -535,6 +564,52 @@ mod tests {
         let fp = Footprint::new(&m).unwrap();
         let far = WebTile::new(TileMatrixSet::WebMercatorQuad, 7, 0, 0).unwrap();
         assert!(plan(&fp, &g, far, 256).is_none());
+    }
+
+    #[test]
+    fn a_dataset_smaller_than_a_pixel_shows_where_it_lies() {
+        // 1° of samples at 10° E, 50° N: in a 256-px Web Mercator zoom-0 tile a pixel
+        // is 1.4°, so no pixel centre falls inside the dataset (the tile was empty).
+        let d = 1.0 / 64.0;
+        let (m, g) = plane_dataset(65, d, 64);
+        let fp = Footprint::new(&m).unwrap();
+        let src = [Some(Arc::new(plane_tile(65)))];
+        let tile = WebTile::new(TileMatrixSet::WebMercatorQuad, 0, 0, 0).unwrap();
+        let plan = plan(&fp, &g, tile, 256).expect("the tile covers the dataset");
+        assert_eq!(plan.level.get(), 0);
+        let out = plan.sample(&src);
+        let px = |lon: f64| ((lon + 180.0) / 360.0 * 256.0) as usize;
+        let py = |lat: f64| {
+            let y = (1.0 - f64::to_radians(lat).tan().asinh() / std::f64::consts::PI) / 2.0;
+            (y * 256.0) as usize
+        };
+        // Every pixel the dataset's box covers is terrain, its height the plane's
+        // (0 ..= 3·64 + 5·64 m) at the point nearest the pixel's centre; pixels
+        // further than a pixel and the apron are no-data.
+        let (cols, rows) = (
+            px(10.0 - d / 2.0)..=px(11.0 + d / 2.0),
+            py(50.0 + d / 2.0)..=py(49.0 - d / 2.0),
+        );
+        let mut terrain = 0;
+        for (k, h) in out.iter().enumerate() {
+            let (i, j) = (k % 256, k / 256);
+            if cols.contains(&i) && rows.contains(&j) {
+                assert!((0.0..=512.0).contains(h), "({i}, {j}): {h}");
+                terrain += 1;
+            } else if h.is_finite() {
+                // Half a pixel of reach (a pixel that touches the box), then the apron.
+                let beyond = 1 + APRON as usize;
+                let near = |v: usize, r: &std::ops::RangeInclusive<usize>| {
+                    v + beyond >= *r.start() && v <= r.end() + beyond
+                };
+                assert!(near(i, &cols) && near(j, &rows), "({i}, {j}): {h}");
+            }
+        }
+        assert!(terrain >= 1, "no pixel shows the dataset");
+        // Where pixels are finer than the coarsest level's samples, a pixel's centre
+        // still has to fall within half a sample of the grid (unchanged).
+        let fine = WebTile::new(TileMatrixSet::WorldCrs84Quad, 7, 135, 28).unwrap();
+        assert_eq!(super::plan(&fp, &g, fine, 256).unwrap().reach, [0.5, 0.5]);
     }
 
     #[test]
