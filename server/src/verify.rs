@@ -163,7 +163,7 @@ fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
     // Readers do not need it, but FORMAT.md promises it: records start on a page, so a
     // file whose header region ends elsewhere was not written by our writer.
     let records_offset = p.header().records_offset;
-    if records_offset % RECORDS_ALIGN != 0 {
+    if !records_offset.is_multiple_of(RECORDS_ALIGN) {
         out.push(format!(
             "records_offset {records_offset} is not a multiple of {RECORDS_ALIGN} (FORMAT.md \
              \"Layout\": the header region is zero-padded to a {RECORDS_ALIGN}-byte boundary)"

@@ -590,11 +590,9 @@ fn inputs_that_are_not_regular_files_are_refused_without_blocking() {
     let source_fifo = d.join("source.vrt");
     std::fs::write(
         &source_fifo,
-        format!(
-            "<VRTDataset rasterXSize=\"10\" rasterYSize=\"10\"><VRTRasterBand band=\"1\">\
-             <SimpleSource><SourceFilename relativeToVRT=\"1\">dem.tif</SourceFilename>\
-             </SimpleSource></VRTRasterBand></VRTDataset>"
-        ),
+        "<VRTDataset rasterXSize=\"10\" rasterYSize=\"10\"><VRTRasterBand band=\"1\">\
+         <SimpleSource><SourceFilename relativeToVRT=\"1\">dem.tif</SourceFilename>\
+         </SimpleSource></VRTRasterBand></VRTDataset>",
     )
     .unwrap();
     let source_dir = d.join("dirsource.vrt");
