@@ -56,6 +56,28 @@ fn gauge(samples: &[Sample], name: &str) -> f64 {
     serve_support::metric(samples, name)
 }
 
+/// `n` concurrent GETs of `url`: (status, body) each.
+fn identical(url: &str, n: usize) -> Vec<(u16, Vec<u8>)> {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let client = reqwest::Client::new();
+    rt.block_on(async {
+        let all: Vec<_> = (0..n)
+            .map(|_| {
+                let (c, u) = (client.clone(), url.to_string());
+                tokio::spawn(async move {
+                    let r = c.get(u).send().await.unwrap();
+                    (r.status().as_u16(), r.bytes().await.unwrap().to_vec())
+                })
+            })
+            .collect();
+        let mut out = Vec::new();
+        for t in all {
+            out.push(t.await.unwrap());
+        }
+        out
+    })
+}
+
 #[test]
 fn identical_requests_for_a_terrain_tile_make_one_mesh() {
     let Some(p) = dem_pyramid("N46E008.tif", 256) else {
@@ -63,23 +85,7 @@ fn identical_requests_for_a_terrain_tile_make_one_mesh() {
     };
     // The server's defaults: nothing configured.
     let srv = Server::start(&[&p], &[]);
-    let url = srv.url(TERRAIN);
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let client = reqwest::Client::new();
-    let bodies: Vec<(u16, Vec<u8>)> = rt.block_on(async {
-        let all = (0..64).map(|_| {
-            let (c, u) = (client.clone(), url.clone());
-            tokio::spawn(async move {
-                let r = c.get(u).send().await.unwrap();
-                (r.status().as_u16(), r.bytes().await.unwrap().to_vec())
-            })
-        });
-        let mut out = Vec::new();
-        for t in all.collect::<Vec<_>>() {
-            out.push(t.await.unwrap());
-        }
-        out
-    });
+    let bodies = identical(&srv.url(TERRAIN), 64);
     assert!(
         bodies.iter().all(|(s, _)| *s == 200),
         "{:?}",
@@ -115,6 +121,33 @@ fn non_reader() -> reqwest::Client {
         .http2_initial_stream_window_size(Some(0))
         .build()
         .unwrap()
+}
+
+#[test]
+fn identical_requests_for_a_grid_tile_or_a_bootstrap_are_made_once() {
+    let Some(p) = dem_pyramid("N46E008.tif", 256) else {
+        return;
+    };
+    let srv = Server::start(&[&p], &[]);
+    for (path, kind) in [
+        (
+            "/v1/datasets/N46E008/webmercator/9/268/181.png",
+            "grid_tile",
+        ),
+        ("/v1/datasets/N46E008/bootstrap?focus=0.5,0.5", "bootstrap"),
+    ] {
+        let bodies = identical(&srv.url(path), 32);
+        assert!(
+            bodies.iter().all(|(s, b)| *s == 200 && *b == bodies[0].1),
+            "{path}"
+        );
+        let m = metrics(&srv);
+        assert_eq!(
+            compute(&m, "tessera_compute_total", kind, Some("started")),
+            1.0,
+            "{path}"
+        );
+    }
 }
 
 #[test]
