@@ -146,10 +146,11 @@ pub fn output_need(geometry: &TileGeometry, share: u32) -> DiskNeed {
 
 /// Bytes free to an unprivileged writer in the file system holding `dir`, and that
 /// file system's identity (so two folders on one disk are counted together). `None`
-/// when it cannot be asked (then nothing is checked: the build still stops cleanly
-/// if the disk fills).
+/// when it cannot be asked, or the file system reports no size at all (sysfs, procfs
+/// and some FUSE or network file systems say 0 blocks): then nothing is checked, and
+/// the build still stops cleanly if the disk fills.
 fn free_space(dir: &Path) -> Option<(u64, u64)> {
-    let st = rustix::fs::statvfs(dir).ok()?;
+    let st = rustix::fs::statvfs(dir).ok().filter(|st| st.f_blocks > 0)?;
     let dev = std::os::unix::fs::MetadataExt::dev(&std::fs::metadata(dir).ok()?);
     Some((st.f_bavail.saturating_mul(st.f_frsize), dev))
 }
