@@ -420,7 +420,7 @@ fn own_error(head: &[u8]) -> Option<(&'static str, String)> {
             "414 URI Too Long",
             format!(
                 "request target longer than {MAX_TARGET_BYTES} bytes, the HTTP layer's limit \
-                 (query strings have their own, --max-query-bytes; API.md \"Limits\")"
+                 (query strings have their own, --max-query-bytes; API.md \"Errors\")"
             ),
         ),
         "431" => (
