@@ -530,6 +530,28 @@ fn a_vrt_declaring_more_than_the_disk_holds_is_refused_before_spooling() {
     );
     assert!(line.contains("spooling them writes "), "{line}");
     assert!(line.contains(&d.display().to_string()), "{line}");
+    // A part of a distributed build spools in TMPDIR: the same refusal, naming it.
+    let parts = d.join("parts");
+    let o = bin()
+        .arg("build")
+        .arg(&vrt)
+        .args([
+            "--part",
+            "0/2",
+            "--quiet",
+            "--max-samples",
+            &u64::MAX.to_string(),
+            "-o",
+        ])
+        .arg(&parts)
+        .env("TMPDIR", d)
+        .output()
+        .unwrap();
+    let line = assert_clean_failure(&o, "tiles.vrt", "are free there", &parts.join("x"));
+    assert!(
+        line.contains(&format!("to {} (", d.display())) && line.contains("TMPDIR"),
+        "{line}"
+    );
 }
 
 /// `--max-samples` (default 2^40) refuses a raster larger than any DEM, naming the
