@@ -156,6 +156,11 @@ async fn metric(c: &reqwest::Client, url: &str, name: &str, parts: &[&str]) -> O
     (!v.is_empty()).then(|| v.iter().sum())
 }
 
+/// Terrain computations the server counted (`None` from a server without the metric).
+async fn meshes(c: &reqwest::Client, url: &str) -> Option<f64> {
+    metric(c, url, "tessera_compute_total", &["terrain", "started"]).await
+}
+
 /// Every available tile of zooms 0..=8 of a dataset's layer.json.
 async fn terrain_tiles(c: &reqwest::Client, url: &str, name: &str) -> Vec<String> {
     let text = c
@@ -306,13 +311,7 @@ async fn distinct(bin: &str, files: &[String], flags: &[String]) {
     let (mut lat, failed) = prober.await.unwrap();
     lat.sort_by(f64::total_cmp);
     let alive = srv.alive();
-    let started = metric(
-        &c,
-        &srv.url,
-        "tessera_compute_total",
-        &["terrain", "started"],
-    )
-    .await;
+    let started = meshes(&c, &srv.url).await;
     println!(
         "distinct: 1024 terrain tiles in {wall:.1} s: {}; computations {started:?}; peak RSS {} MiB, {} threads; stored tile during the flood: {} answered, {failed} failed, p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; alive {alive}",
         statuses(&r),
@@ -342,13 +341,7 @@ async fn identical(bin: &str, files: &[String], flags: &[String]) {
         let srv = Server::start(bin, files, flags);
         let c = client();
         let r = flood(&c, &srv.url, vec![path.to_string(); 64]).await;
-        let started = metric(
-            &c,
-            &srv.url,
-            "tessera_compute_total",
-            &["terrain", "started"],
-        )
-        .await;
+        let started = meshes(&c, &srv.url).await;
         let peak = srv.peak_mib();
         println!(
             "identical {label}: one request peak RSS {} MiB (idle {} MiB), {:.2} CPU-s, {}; 64 requests peak RSS {peak} MiB ({:.2}x), {:.2} CPU-s, {}; computations {started:?}",

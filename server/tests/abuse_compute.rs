@@ -114,13 +114,28 @@ fn identical_requests_for_a_terrain_tile_make_one_mesh() {
     assert_eq!(joined + hits, 63.0, "joined {joined}, cache hits {hits}");
 }
 
-/// An HTTP/2 client that takes responses' heads but no body bytes (window 0).
-fn non_reader() -> reqwest::Client {
-    reqwest::Client::builder()
+/// A server with a 1 MiB compute budget and a `queue_secs` wait, and a bootstrap
+/// body (~0.7 MB) made whole, then held by an HTTP/2 client that takes the head but
+/// no body bytes (window 0): the rest of the budget is less than any mesh needs.
+fn budget_held(
+    p: &std::path::Path,
+    queue_secs: &str,
+) -> (Server, tokio::runtime::Runtime, reqwest::Response) {
+    let srv = Server::start(
+        &[p],
+        &["--max-compute-mib", "1", "--compute-queue-secs", queue_secs],
+    );
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let client = reqwest::Client::builder()
         .http2_prior_knowledge()
         .http2_initial_stream_window_size(Some(0))
         .build()
-        .unwrap()
+        .unwrap();
+    let held = rt
+        .block_on(client.get(srv.url("/v1/datasets/N46E008/bootstrap")).send())
+        .unwrap();
+    assert_eq!(held.status(), 200);
+    (srv, rt, held)
 }
 
 #[test]
@@ -155,17 +170,7 @@ fn a_client_that_stops_reading_pins_only_the_budget_and_the_rest_get_503_with_re
     let Some(p) = dem_pyramid("N46E008.tif", 256) else {
         return;
     };
-    let srv = Server::start(
-        &[&p],
-        &["--max-compute-mib", "1", "--compute-queue-secs", "1"],
-    );
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let client = non_reader();
-    // A bootstrap body, made whole and then held by a client that never reads it.
-    let held = rt
-        .block_on(client.get(srv.url("/v1/datasets/N46E008/bootstrap")).send())
-        .unwrap();
-    assert_eq!(held.status(), 200);
+    let (srv, _rt, held) = budget_held(&p, "1");
     let len: u64 = held.headers()["content-length"]
         .to_str()
         .unwrap()
@@ -209,17 +214,8 @@ fn work_whose_requesters_are_gone_stops() {
     let Some(p) = dem_pyramid("N46E008.tif", 256) else {
         return;
     };
-    let srv = Server::start(
-        &[&p],
-        &["--max-compute-mib", "1", "--compute-queue-secs", "600"],
-    );
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let client = non_reader();
-    // The whole memory budget held, so admitted work waits inside its computation.
-    let held = rt
-        .block_on(client.get(srv.url("/v1/datasets/N46E008/bootstrap")).send())
-        .unwrap();
-    assert_eq!(held.status(), 200);
+    // The budget held, so admitted work waits inside its computation.
+    let (srv, rt, held) = budget_held(&p, "600");
 
     // HTTP/1: a request admitted (it holds a slot, waiting for memory), then the
     // connection closed.

@@ -425,15 +425,7 @@ impl Terrain {
     ) -> Result<TerrainMesh, D::Error> {
         let plan = *plan;
         let rect = tile.rect();
-        let stride = self.geometry.spacing(plan.level) as f64;
-        let cells = (1u32 << plan.level.get()) * self.geometry.tile_size();
-        // The data region in level coordinates: the DEM's finest sample centres.
-        let data_box = [
-            0.0,
-            0.0,
-            f64::from(self.geometry.width() - 1) / stride,
-            f64::from(self.geometry.height() - 1) / stride,
-        ];
+        let (stride, cells, data_box) = self.level_frame(plan.level);
         let mut builder = Builder::new(rect);
         if let Some(squares) = self.squares(rect, &plan, stride, cells, data_box) {
             let window = self.window(&plan, cells, squares, stride, data)?;
@@ -457,18 +449,25 @@ impl Terrain {
         Ok(builder.finish(self))
     }
 
-    /// An upper estimate of the memory [`Terrain::mesh_with`] uses for `tile`: its
-    /// window of samples and the source tiles it holds (admission control reserves
-    /// it before meshing: serve/compute.rs).
-    pub fn mesh_bytes(&self, tile: CesiumTile, plan: &ZoomPlan) -> u64 {
-        let stride = self.geometry.spacing(plan.level) as f64;
-        let cells = (1u32 << plan.level.get()) * self.geometry.tile_size();
+    /// A level's stride (finest samples per level sample), its cells per side, and
+    /// the data region in level coordinates (the DEM's finest sample centres).
+    fn level_frame(&self, level: Level) -> (f64, u32, [f64; 4]) {
+        let stride = self.geometry.spacing(level) as f64;
+        let cells = (1u32 << level.get()) * self.geometry.tile_size();
         let data_box = [
             0.0,
             0.0,
             f64::from(self.geometry.width() - 1) / stride,
             f64::from(self.geometry.height() - 1) / stride,
         ];
+        (stride, cells, data_box)
+    }
+
+    /// An upper estimate of the memory [`Terrain::mesh_with`] uses for `tile`: its
+    /// window of samples and the source tiles it holds (admission control reserves
+    /// it before meshing: serve/compute.rs).
+    pub fn mesh_bytes(&self, tile: CesiumTile, plan: &ZoomPlan) -> u64 {
+        let (stride, cells, data_box) = self.level_frame(plan.level);
         let Some(sq) = self.squares(tile.rect(), plan, stride, cells, data_box) else {
             return 0;
         };

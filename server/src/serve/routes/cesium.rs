@@ -135,17 +135,16 @@ pub async fn tile(
     };
     let (normals, metadata) = extensions(&headers);
     let pin = super::pinned(&ds, &query);
-    let etag = cache::etag(
-        ds.content_hash(),
-        &format!(
-            "terrain {}/{}/{} n{} m{}",
-            t.z,
-            t.x,
-            t.y,
-            u8::from(normals),
-            u8::from(metadata)
-        ),
+    // What the tile depends on besides the dataset: its ETag and its flight's key.
+    let variant = format!(
+        "terrain {}/{}/{} n{} m{}",
+        t.z,
+        t.x,
+        t.y,
+        u8::from(normals),
+        u8::from(metadata)
     );
+    let etag = cache::etag(ds.content_hash(), &variant);
     let vary = |r: &mut Response| {
         r.headers_mut()
             .append(header::VARY, HeaderValue::from_static("Accept"));
@@ -173,15 +172,7 @@ pub async fn tile(
         Made::unaccounted(b, 1)
     } else {
         let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
-        let flight = format!(
-            "{:016x} {}/{}/{} n{} m{}",
-            key.dataset,
-            t.z,
-            t.x,
-            t.y,
-            u8::from(normals),
-            u8::from(metadata)
-        );
+        let flight = format!("{} {variant}", ds.content_hash());
         // One mesh per distinct tile at a time, admitted and cancellable; meshing
         // takes milliseconds to a second: keep it off the runtime.
         state

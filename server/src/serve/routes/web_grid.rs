@@ -206,18 +206,17 @@ pub async fn tile(
     let px = size(&query)?;
     let tile = web_tile(tms, &z, &x, y)?;
     let pin = super::pinned(&ds, &query);
-    let etag = cache::etag(
-        ds.content_hash(),
-        &format!(
-            "grid {} {px} {} {} {}/{}/{}",
-            tms.path(),
-            enc.name(),
-            format.extension(),
-            tile.z,
-            tile.x,
-            tile.y
-        ),
+    // What the tile depends on besides the dataset: its ETag and its flight's key.
+    let variant = format!(
+        "grid {} {px} {} {} {}/{}/{}",
+        tms.path(),
+        enc.name(),
+        format.extension(),
+        tile.z,
+        tile.x,
+        tile.y
     );
+    let etag = cache::etag(ds.content_hash(), &variant);
     if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
     {
         return Ok(r);
@@ -234,16 +233,7 @@ pub async fn tile(
         Made::unaccounted(b, 1)
     } else {
         let (st, d) = (state.clone(), ds.clone());
-        let flight = format!(
-            "{:016x} {} {px} {} {} {}/{}/{}",
-            key.dataset,
-            tms.path(),
-            enc.name(),
-            format.extension(),
-            tile.z,
-            tile.x,
-            tile.y
-        );
+        let flight = format!("{} {variant}", ds.content_hash());
         // One tile per distinct key at a time, admitted and cancellable; resampling
         // and compressing take milliseconds: keep them off the runtime.
         state
