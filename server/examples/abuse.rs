@@ -295,7 +295,7 @@ async fn distinct(bin: &str, files: &[String], flags: &[String]) {
                             failed += 1;
                             continue;
                         }
-                        lat.push(t.elapsed().as_secs_f64() * 1e3)
+                        lat.push(t.elapsed().as_secs_f64() * 1e3);
                     }
                     _ => failed += 1,
                 }

@@ -285,6 +285,14 @@ fn errors_quote_long_request_input_in_part() {
         ),
         (format!("/v1/datasets/synth/{long}/tilejson.json"), 60_000),
         (
+            format!("/v1/datasets/synth/cesium/{long}/0/0.terrain"),
+            60_000,
+        ),
+        (
+            format!("/v1/datasets/synth/bootstrap?focus={}", "1".repeat(8000)),
+            8000,
+        ),
+        (
             format!(
                 "/v1/datasets/synth/levels/1/tiles?ranges={}",
                 "9".repeat(8000)

@@ -148,8 +148,8 @@ fn busy_memory(limit: u64, bytes: u64) -> Stop {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::serve::compute::{Compute, ComputeLimits};
     use crate::serve::compute::tests::{compute, limits};
+    use crate::serve::compute::{Compute, ComputeLimits};
 
     #[test]
     fn memory_waits_for_reservations_and_refuses_after_the_wait() {

@@ -19,7 +19,7 @@ use super::datasets::describe;
 use super::{Params, Segments, dataset, pinned, unavailable};
 use crate::serve::compute::{Kind, Made, Stop, Ticket};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult};
+use crate::serve::error::{ApiError, ApiResult, requoted};
 use crate::serve::{AppState, TilesServed, cache};
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
@@ -220,7 +220,7 @@ pub async fn get(
     // body and the tiles all follow the same point.
     let focus = query
         .get("focus")
-        .map(|f| Focus::parse(f).map_err(ApiError::bad_request))
+        .map(|f| Focus::parse(f).map_err(|e| ApiError::bad_request(requoted(&e, f))))
         .transpose()?;
     let variant = focus.map_or_else(|| "bootstrap".to_string(), |f| format!("bootstrap@{f}"));
     let pin = pinned(&ds, &query);

@@ -13,7 +13,7 @@ use crate::cesium::terrain::{LevelData, Terrain};
 use crate::cesium::tiling::CesiumTile;
 use crate::serve::compute::{Kind, Made, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
-use crate::serve::error::{ApiError, ApiResult};
+use crate::serve::error::{ApiError, ApiResult, quoted};
 use crate::serve::web_cache::{TerrainKey, dataset_key};
 use crate::serve::{AppState, TilesServed, cache};
 use crate::web::resample::SourceTile;
@@ -129,7 +129,10 @@ pub async fn tile(
     };
     let Some(t) = parsed else {
         return Err(ApiError::not_found(format!(
-            "terrain tile {z}/{x}/{y} is not in the EPSG:4326 TMS grid (zooms 0-{}, x < 2^(z+1), y < 2^z)",
+            "terrain tile {}/{}/{} is not in the EPSG:4326 TMS grid (zooms 0-{}, x < 2^(z+1), y < 2^z)",
+            quoted(&z),
+            quoted(&x),
+            quoted(y),
             crate::cesium::tiling::MAX_ZOOM
         )));
     };
