@@ -120,7 +120,12 @@ fn identical_requests_for_a_terrain_tile_make_one_mesh() {
 fn budget_held(
     p: &std::path::Path,
     queue_secs: &str,
-) -> (Server, tokio::runtime::Runtime, reqwest::Response) {
+) -> (
+    Server,
+    tokio::runtime::Runtime,
+    reqwest::Client,
+    reqwest::Response,
+) {
     let srv = Server::start(
         &[p],
         &["--max-compute-mib", "1", "--compute-queue-secs", queue_secs],
@@ -135,7 +140,7 @@ fn budget_held(
         .block_on(client.get(srv.url("/v1/datasets/N46E008/bootstrap")).send())
         .unwrap();
     assert_eq!(held.status(), 200);
-    (srv, rt, held)
+    (srv, rt, client, held)
 }
 
 #[test]
@@ -170,7 +175,7 @@ fn a_client_that_stops_reading_pins_only_the_budget_and_the_rest_get_503_with_re
     let Some(p) = dem_pyramid("N46E008.tif", 256) else {
         return;
     };
-    let (srv, _rt, held) = budget_held(&p, "1");
+    let (srv, rt, client, held) = budget_held(&p, "1");
     let len: u64 = held.headers()["content-length"]
         .to_str()
         .unwrap()
@@ -207,6 +212,23 @@ fn a_client_that_stops_reading_pins_only_the_budget_and_the_rest_get_503_with_re
     });
     let r = srv.get(TERRAIN).expect(200);
     assert!(!r.body.is_empty());
+
+    // A body from a cache pins its memory alike while a client holds it unread.
+    let again = rt
+        .block_on(client.get(srv.url("/v1/datasets/N46E008/bootstrap")).send())
+        .unwrap();
+    assert_eq!(again.status(), 200);
+    let m = metrics(&srv);
+    assert_eq!(gauge(&m, "tessera_compute_memory_bytes"), len as f64);
+    assert_eq!(
+        compute(&m, "tessera_compute_total", "bootstrap", Some("started")),
+        1.0,
+        "the second one was the kept body"
+    );
+    // (TERRAIN itself is in the tile cache now: another tile of the same window.)
+    srv.get("/v1/datasets/N46E008/cesium/4/16/12.terrain")
+        .error(503);
+    drop(again);
 }
 
 #[test]
@@ -215,7 +237,7 @@ fn work_whose_requesters_are_gone_stops() {
         return;
     };
     // The budget held, so admitted work waits inside its computation.
-    let (srv, rt, held) = budget_held(&p, "600");
+    let (srv, rt, _client, held) = budget_held(&p, "600");
 
     // HTTP/1: a request admitted (it holds a slot, waiting for memory), then the
     // connection closed.

@@ -166,17 +166,6 @@ pub struct Made {
 }
 
 impl Made {
-    /// A result whose memory is not accounted (a cache hit: the cache is bounded
-    /// on its own).
-    pub fn unaccounted(bytes: Bytes, tiles: u64) -> Self {
-        Self {
-            bytes,
-            tiles,
-            cacheable: true,
-            hold: None,
-        }
-    }
-
     /// The same, marked as not for caches.
     #[must_use]
     pub fn not_cacheable(self) -> Self {
@@ -438,6 +427,32 @@ impl Compute {
                 self.limits.max_compute
             )),
         }
+    }
+
+    /// A result found in a cache, its size reserved (without waiting) for as long as
+    /// a response holds it, as a made result's is: clients that stop reading pin at
+    /// most the budget, cached or not. A full budget is a 503 with `Retry-After`.
+    pub fn hit(&self, kind: Kind, bytes: Bytes, tiles: u64) -> Outcome {
+        let n = self.pool.clamp(bytes.len() as u64);
+        if !self.pool.try_take(n) {
+            self.count(kind, "busy");
+            return Err(ApiError::busy(
+                format!(
+                    "the server is at its memory limit for computed responses ({} MiB), held by responses not yet read; retry shortly",
+                    self.pool.limit >> 20
+                ),
+                RETRY_AFTER_SECS,
+            ));
+        }
+        Ok(Made {
+            bytes,
+            tiles,
+            cacheable: true,
+            hold: Some(Arc::new(Reservation {
+                pool: self.pool.clone(),
+                bytes: n,
+            })),
+        })
     }
 
     /// Bytes reserved now (running work and held bodies).

@@ -243,7 +243,7 @@ pub async fn get(
         .find(|b| b.key == key)
         .cloned();
     let (made, clean) = if let Some(b) = hit {
-        (Made::unaccounted(b.body, b.tiles), true)
+        (state.compute.hit(Kind::Bootstrap, b.body, b.tiles)?, true)
     } else {
         let (st, d) = (state.clone(), ds.clone());
         let made = state

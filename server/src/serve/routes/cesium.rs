@@ -11,7 +11,7 @@ use super::{Params, Segments, dataset, xml_escape};
 use crate::cesium::quantized_mesh::{Extensions, encode};
 use crate::cesium::terrain::{LevelData, Terrain};
 use crate::cesium::tiling::CesiumTile;
-use crate::serve::compute::{Kind, Made, Ticket};
+use crate::serve::compute::{Kind, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
 use crate::serve::error::{ApiError, ApiResult, quoted};
 use crate::serve::web_cache::{TerrainKey, dataset_key};
@@ -172,7 +172,7 @@ pub async fn tile(
         metadata,
     };
     let made = if let Some(b) = state.web.terrain_tile(&key) {
-        Made::unaccounted(b, 1)
+        state.compute.hit(Kind::Terrain, b, 1)?
     } else {
         let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
         let flight = format!("{} {variant}", ds.content_hash());

@@ -9,7 +9,7 @@
 
 use super::web_tiles::base_url;
 use super::{Params, Segments, dataset, unavailable, xml_escape};
-use crate::serve::compute::{Kind, Made, Stop, Ticket};
+use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
 use crate::serve::error::{ApiError, ApiResult, quoted};
 use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
@@ -230,7 +230,7 @@ pub async fn tile(
         format,
     };
     let made = if let Some(b) = state.web.made(&key) {
-        Made::unaccounted(b, 1)
+        state.compute.hit(Kind::GridTile, b, 1)?
     } else {
         let (st, d) = (state.clone(), ds.clone());
         let flight = format!("{} {variant}", ds.content_hash());
