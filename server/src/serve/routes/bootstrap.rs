@@ -17,7 +17,7 @@
 
 use super::datasets::describe;
 use super::{Params, Segments, dataset, pinned, unavailable};
-use crate::serve::compute::{Kind, Made, Stop, Ticket};
+use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult, requoted};
 use crate::serve::{AppState, TilesServed, cache};
