@@ -28,6 +28,28 @@ impl MemoryPool {
         true
     }
 
+    /// `bytes` (clamped) reserved if they fit now.
+    pub(super) fn try_reserve(self: &Arc<Self>, bytes: u64) -> Option<Reservation> {
+        let bytes = self.clamp(bytes);
+        self.try_take(bytes).then(|| Reservation {
+            pool: self.clone(),
+            bytes,
+        })
+    }
+
+    /// `bytes` (clamped) reserved now, over the limit if need be: for bytes that
+    /// already exist (later work waits for them).
+    pub(super) fn force(self: &Arc<Self>, bytes: u64) -> Reservation {
+        let bytes = self.clamp(bytes);
+        let mut used = self.used.lock().unwrap_or_else(PoisonError::into_inner);
+        *used += bytes;
+        self.gauge.set(i64::try_from(*used).unwrap_or(i64::MAX));
+        Reservation {
+            pool: self.clone(),
+            bytes,
+        }
+    }
+
     pub(super) fn give(&self, bytes: u64) {
         let mut used = self.used.lock().unwrap_or_else(PoisonError::into_inner);
         *used = used.saturating_sub(bytes);

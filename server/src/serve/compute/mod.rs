@@ -166,6 +166,16 @@ pub struct Made {
 }
 
 impl Made {
+    /// A result holding `hold` (its size on the budget) for as long as it lives.
+    fn held(bytes: Bytes, tiles: u64, hold: Reservation) -> Self {
+        Self {
+            bytes,
+            tiles,
+            cacheable: true,
+            hold: Some(Arc::new(hold)),
+        }
+    }
+
     /// The same, marked as not for caches.
     #[must_use]
     pub fn not_cacheable(self) -> Self {
@@ -433,8 +443,7 @@ impl Compute {
     /// a response holds it, as a made result's is: clients that stop reading pin at
     /// most the budget, cached or not. A full budget is a 503 with `Retry-After`.
     pub fn hit(&self, kind: Kind, bytes: Bytes, tiles: u64) -> Outcome {
-        let n = self.pool.clamp(bytes.len() as u64);
-        if !self.pool.try_take(n) {
+        let Some(hold) = self.pool.try_reserve(bytes.len() as u64) else {
             self.count(kind, "busy");
             return Err(ApiError::busy(
                 format!(
@@ -443,16 +452,8 @@ impl Compute {
                 ),
                 RETRY_AFTER_SECS,
             ));
-        }
-        Ok(Made {
-            bytes,
-            tiles,
-            cacheable: true,
-            hold: Some(Arc::new(Reservation {
-                pool: self.pool.clone(),
-                bytes: n,
-            })),
-        })
+        };
+        Ok(Made::held(bytes, tiles, hold))
     }
 
     /// Bytes reserved now (running work and held bodies).

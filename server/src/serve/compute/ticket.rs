@@ -84,11 +84,8 @@ impl Ticket {
             let freed = self.pool.notify.notified();
             tokio::pin!(freed);
             freed.as_mut().enable();
-            if self.pool.try_take(bytes) {
-                return Ok(Reservation {
-                    pool: self.pool.clone(),
-                    bytes,
-                });
+            if let Some(r) = self.pool.try_reserve(bytes) {
+                return Ok(r);
             }
             tokio::select! {
                 () = freed => {}
@@ -113,27 +110,8 @@ impl Ticket {
     /// `made`, holding a reservation of its size from now on (taken without waiting:
     /// the working memory it came from is given back at the same time).
     pub fn made(&self, bytes: Bytes, tiles: u64) -> Made {
-        let n = self.pool.clamp(bytes.len() as u64);
-        // Accounted even over the limit: the bytes exist; later work waits for them.
-        let mut used = self
-            .pool
-            .used
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        *used += n;
-        self.pool
-            .gauge
-            .set(i64::try_from(*used).unwrap_or(i64::MAX));
-        drop(used);
-        Made {
-            bytes,
-            tiles,
-            cacheable: true,
-            hold: Some(Arc::new(Reservation {
-                pool: self.pool.clone(),
-                bytes: n,
-            })),
-        }
+        let hold = self.pool.force(bytes.len() as u64);
+        Made::held(bytes, tiles, hold)
     }
 }
 
