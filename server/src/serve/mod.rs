@@ -11,6 +11,7 @@ pub mod http_range;
 pub mod imagery;
 pub mod metrics;
 pub mod object_storage;
+pub mod own_errors;
 pub mod routes;
 pub mod storage;
 pub mod tls;

@@ -12,7 +12,7 @@
 //! within [`bootstrap::FOCUS_BUDGET`]), so it is built in memory: admitted like any
 //! computed response (serve/compute.rs: one build per distinct body at a time, its
 //! size reserved on the memory budget, up front from the index, for as long as a
-//! response holds it), and the last few kept ([`KEPT_BYTES`]), since a body is the
+//! response holds it), and the last few kept (`KEPT_BYTES`), since a body is the
 //! same for every client of a dataset version and focus.
 
 use super::datasets::describe;
