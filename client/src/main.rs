@@ -9,9 +9,10 @@ use tessera_client::app::fly::{self, FlyOptions};
 use tessera_client::app::headless::{Draws, RenderSetup};
 use tessera_client::app::{load_test, window};
 use tessera_client::globe::GlobeMode;
+use tessera_client::load::merge::merge_files;
 use tessera_client::load::output;
 use tessera_client::load::replay::{self, ReplayOptions};
-use tessera_client::load::report::{self, ReplayReport};
+use tessera_client::load::report::ReplayReport;
 use tessera_client::load::schedule::{Pacing, RampStages, RateArg};
 use tessera_client::load::trace::{Shard, Trace};
 use tessera_client::render::gpu::Backend;
@@ -460,7 +461,7 @@ fn load_merge(
     out: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
     // Each file once: the same shard twice would count its requests twice.
-    let merged = report::merge_files(reports).with_context(|| {
+    let merged = merge_files(reports).with_context(|| {
         format!(
             "cannot merge {}",
             reports

@@ -17,6 +17,7 @@
 pub mod check;
 pub mod cpu;
 pub mod latency_plot;
+pub mod merge;
 pub mod output;
 pub mod record;
 pub mod replay;
