@@ -157,7 +157,7 @@ fn recorder_for(opts: &LoadOptions) -> anyhow::Result<Option<(Arc<Recorder>, Pat
 /// connect (each holds one connection at least), before any is started: past it they
 /// fail one by one, and a million of them would be a million threads.
 fn check_clients(clients: u32, fd_limit: Option<u64>) -> anyhow::Result<()> {
-    let max = crate::load::replay::max_connections(fd_limit);
+    let max = crate::load::connections::max_connections(fd_limit);
     anyhow::ensure!(
         clients <= max,
         "--clients {clients}: each client holds a connection at least, and this process may open {max} ({}, less what it keeps for itself, at most {}); raise the limit (`ulimit -n`, up to `ulimit -Hn`) or use fewer clients",
@@ -165,7 +165,7 @@ fn check_clients(clients: u32, fd_limit: Option<u64>) -> anyhow::Result<()> {
             || "no open-file limit".to_string(),
             |l| format!("its open-file limit, RLIMIT_NOFILE, is {l}")
         ),
-        crate::load::replay::MAX_CONNECTIONS
+        crate::load::connections::MAX_CONNECTIONS
     );
     Ok(())
 }
@@ -173,7 +173,7 @@ fn check_clients(clients: u32, fd_limit: Option<u64>) -> anyhow::Result<()> {
 /// Runs the clients (staggered along the built-in paths) and sums their traffic.
 pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
     anyhow::ensure!(opts.clients > 0, "--clients must be at least 1");
-    check_clients(opts.clients, crate::load::replay::open_file_limit())?;
+    check_clients(opts.clients, crate::load::connections::open_file_limit())?;
     let recording = recorder_for(opts)?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

@@ -15,6 +15,7 @@
 //! streaming code) is [`crate::app::load_test`].
 
 pub mod check;
+pub mod connections;
 pub mod cpu;
 pub mod latency_plot;
 pub mod merge;
