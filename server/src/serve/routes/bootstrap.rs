@@ -31,6 +31,9 @@ use tessera_shared::bootstrap::{self, encode_head};
 use tessera_shared::focus::Focus;
 use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId, morton, wire};
 
+/// The most a body's buffer is allocated up front (it grows past it if need be).
+const MAX_PLANNED_CAPACITY: u64 = 64 << 20;
+
 /// Built bodies kept, most recent last: one per dataset version (and focus) asked for
 /// lately, at most this many bytes in all.
 const KEPT_BYTES: usize = 32 << 20;
@@ -138,7 +141,10 @@ async fn build(
     let table_len = ErrorTable::byte_len(g.tile_log2());
     // Allocated once at its planned size: a vector grown by doubling would hold up
     // to twice the body, unaccounted, for as long as a client holds the response.
-    let mut body = Vec::with_capacity(usize::try_from(planned).unwrap_or(0));
+    // (The budgets keep a body near 14 MB; the cap only guards against an index
+    // whose lengths are wrong.)
+    let capacity = planned.min(MAX_PLANNED_CAPACITY);
+    let mut body = Vec::with_capacity(usize::try_from(capacity).unwrap_or(0));
     body.extend(encode_head(&describe(ds), record_levels, table_levels));
     let (mut tiles, mut errors) = (0u64, 0u64);
     for level in g.levels() {
