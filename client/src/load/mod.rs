@@ -17,6 +17,7 @@
 pub mod check;
 pub mod connections;
 pub mod cpu;
+pub mod latency;
 pub mod latency_plot;
 pub mod merge;
 pub mod output;
