@@ -213,7 +213,7 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
     m.tiles.inc_by(tiles);
     tracing::info!(
         %method,
-        uri = %logged_uri(&uri),
+        uri = %LoggedUri(&uri),
         status = status.as_u16(),
         bytes,
         tiles,
@@ -228,18 +228,23 @@ const LOGGED_URI_BYTES: usize = 512;
 
 /// The request target as the request log shows it: whole up to
 /// [`LOGGED_URI_BYTES`], else its start, an ellipsis and its length, so that a client
-/// sending 64 KB targets cannot make every log line 64 KB.
-fn logged_uri(uri: &axum::http::Uri) -> String {
-    let s = uri.to_string();
-    if s.len() <= LOGGED_URI_BYTES {
-        return s;
+/// sending 64 KB targets cannot make every log line 64 KB. Formatted only when the
+/// line is logged (nothing is done for it under `--quiet`).
+struct LoggedUri<'a>(&'a axum::http::Uri);
+
+impl std::fmt::Display for LoggedUri<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self.0.to_string();
+        if s.len() <= LOGGED_URI_BYTES {
+            return f.write_str(&s);
+        }
+        // A URI is ASCII, but cut on a character boundary whatever it holds.
+        let mut end = LOGGED_URI_BYTES;
+        while !s.is_char_boundary(end) {
+            end -= 1;
+        }
+        write!(f, "{}… ({} bytes)", &s[..end], s.len())
     }
-    // A URI is ASCII, but cut on a character boundary whatever it holds.
-    let mut end = LOGGED_URI_BYTES;
-    while !s.is_char_boundary(end) {
-        end -= 1;
-    }
-    format!("{}… ({} bytes)", &s[..end], s.len())
 }
 
 /// Gives the few responses the framework makes itself (405 wrong method, 408 timeout,
@@ -413,11 +418,11 @@ mod tests {
     #[test]
     fn long_targets_are_logged_in_part() {
         let short: axum::http::Uri = "/v1/datasets/a?x=1".parse().unwrap();
-        assert_eq!(logged_uri(&short), "/v1/datasets/a?x=1");
+        assert_eq!(LoggedUri(&short).to_string(), "/v1/datasets/a?x=1");
         let long: axum::http::Uri = format!("/v1/datasets/{}", "n".repeat(60_000))
             .parse()
             .unwrap();
-        let shown = logged_uri(&long);
+        let shown = LoggedUri(&long).to_string();
         assert!(shown.len() < LOGGED_URI_BYTES + 40, "{}", shown.len());
         assert!(shown.ends_with("… (60013 bytes)"), "{shown}");
     }

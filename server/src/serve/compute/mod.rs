@@ -318,6 +318,18 @@ impl Compute {
         out
     }
 
+    /// [`Compute::run`] for CPU-bound work, done on a blocking thread that holds the
+    /// ticket (so the slot comes back only when the thread is done).
+    pub async fn run_blocking<F>(self: &Arc<Self>, kind: Kind, key: String, work: F) -> Outcome
+    where
+        F: FnOnce(&Ticket) -> Outcome + Send + 'static,
+    {
+        self.run(kind, key, move |ticket| async move {
+            ticket.blocking(work).await?
+        })
+        .await
+    }
+
     /// Waits for admission, then runs `work`; dropped unfinished, it cancels.
     async fn start<F, Fut>(self: Arc<Self>, kind: Kind, work: F) -> Outcome
     where

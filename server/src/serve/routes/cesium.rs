@@ -180,15 +180,11 @@ pub async fn tile(
         // takes milliseconds to a second: keep it off the runtime.
         state
             .compute
-            .run(Kind::Terrain, flight, move |ticket| async move {
-                ticket
-                    .blocking(move |ticket| {
-                        let b = make(&st, &d, &tr, key, ticket)
-                            .map_err(|f| failure_error(&st, &d, &t.to_string(), f))?;
-                        st.web.keep_terrain(key, b.clone());
-                        Ok(ticket.made(b, 1))
-                    })
-                    .await?
+            .run_blocking(Kind::Terrain, flight, move |ticket| {
+                let b = make(&st, &d, &tr, key, ticket)
+                    .map_err(|f| failure_error(&st, &d, &t.to_string(), f))?;
+                st.web.keep_terrain(key, b.clone());
+                Ok(ticket.made(b, 1))
             })
             .await?
     };

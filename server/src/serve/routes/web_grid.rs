@@ -238,15 +238,11 @@ pub async fn tile(
         // and compressing take milliseconds: keep them off the runtime.
         state
             .compute
-            .run(Kind::GridTile, flight, move |ticket| async move {
-                ticket
-                    .blocking(move |ticket| {
-                        let b = make(&st, &d, &fp, key, ticket)
-                            .map_err(|f| failure_error(&st, &d, &tile.to_string(), f))?;
-                        st.web.keep(key, b.clone());
-                        Ok(ticket.made(b, 1))
-                    })
-                    .await?
+            .run_blocking(Kind::GridTile, flight, move |ticket| {
+                let b = make(&st, &d, &fp, key, ticket)
+                    .map_err(|f| failure_error(&st, &d, &tile.to_string(), f))?;
+                st.web.keep(key, b.clone());
+                Ok(ticket.made(b, 1))
             })
             .await?
     };

@@ -122,22 +122,18 @@ pub async fn png(
     // compressing a big tile take milliseconds: keep them off the runtime.
     let png = state
         .compute
-        .run(Kind::PngTile, flight, move |ticket| async move {
-            ticket
-                .blocking(move |ticket| {
-                    let t = geometry.tile_size();
-                    // Decoded heights, RGB and the encoder's buffers.
-                    let samples = u64::from(t + 1).pow(2);
-                    let _memory = ticket.reserve(samples * 16).map_err(Stop::into_error)?;
-                    let decoded = codec::decode_record(&record, layout)
-                        .map_err(|e| png_error(&st, &d, tile, PngFailure::Corrupt(e)))?;
-                    ticket.check().map_err(Stop::into_error)?;
-                    let rgb = render(&decoded.heights, t as usize, &q, encoding);
-                    let png = encode_png(&rgb, t)
-                        .map_err(|e| png_error(&st, &d, tile, PngFailure::Encode(e)))?;
-                    Ok(ticket.made(Bytes::from(png), 1))
-                })
-                .await?
+        .run_blocking(Kind::PngTile, flight, move |ticket| {
+            let t = geometry.tile_size();
+            // Decoded heights, RGB and the encoder's buffers.
+            let samples = u64::from(t + 1).pow(2);
+            let _memory = ticket.reserve(samples * 16).map_err(Stop::into_error)?;
+            let decoded = codec::decode_record(&record, layout)
+                .map_err(|e| png_error(&st, &d, tile, PngFailure::Corrupt(e)))?;
+            ticket.check().map_err(Stop::into_error)?;
+            let rgb = render(&decoded.heights, t as usize, &q, encoding);
+            let png =
+                encode_png(&rgb, t).map_err(|e| png_error(&st, &d, tile, PngFailure::Encode(e)))?;
+            Ok(ticket.made(Bytes::from(png), 1))
         })
         .await?;
     let len = png.bytes.len();
