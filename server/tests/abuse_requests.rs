@@ -62,15 +62,30 @@ fn overlapping_byte_ranges_never_send_more_than_the_file() {
 // ---------------------------------------------------------------------------
 // 10. Host header
 
-fn tiles_url(srv: &Server, headers: &str) -> String {
+/// The TileJSON's first tile URL and its `Cache-Control` and `Vary` headers.
+fn tiles_url(srv: &Server, headers: &str) -> (String, String, String) {
     let r = raw_request(srv.addr, "/v1/datasets/synth/tilejson.json", headers);
     assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
     let j: serde_json::Value = serde_json::from_slice(&r.body).unwrap();
-    j["tiles"][0].as_str().unwrap().to_string()
+    let header = |name: &str| r.headers.get(name).cloned().unwrap_or_default();
+    (
+        j["tiles"][0].as_str().unwrap().to_string(),
+        header("cache-control"),
+        header("vary").to_ascii_lowercase(),
+    )
+}
+
+/// A response built from the request's `Host` must never reach a shared cache.
+fn assert_private(cache_control: &str, vary: &str, what: &str) {
+    assert!(
+        cache_control.starts_with("private"),
+        "{what}: Cache-Control {cache_control:?}"
+    );
+    assert!(vary.contains("host"), "{what}: Vary {vary:?}");
 }
 
 #[test]
-fn tilejson_urls_never_come_from_the_host_header() {
+fn tilejson_urls_are_absolute_and_private_when_they_come_from_the_host_header() {
     let f = fixtures();
     let hash = Pyramid::open_file(&f.synth)
         .unwrap()
@@ -79,55 +94,104 @@ fn tilejson_urls_never_come_from_the_host_header() {
         .clone();
     let path = format!("/v1/datasets/synth/{{z}}/{{x}}/{{y}}.png?encoding=terrarium&v={hash}");
 
-    // Default: relative URLs, whatever Host (or none) and forwarded headers say.
+    // Default flags: absolute URLs on the Host the client used (a page on another
+    // origin than the tiles needs them: MapLibre does not resolve relative ones),
+    // private to that client, so a shared cache never hands one client's Host to
+    // another; forwarded headers are not trusted.
     let srv = Server::start(&[&f.synth], &[]);
-    for headers in [
-        "Host: evil.example\r\n",
-        "",
-        "Host: evil.example\r\nX-Forwarded-Host: evil2.example\r\nX-Forwarded-Proto: https\r\n",
+    for (headers, host) in [
+        (format!("Host: {}\r\n", srv.addr), srv.addr.to_string()),
+        (
+            "Host: evil.example\r\n".to_string(),
+            "evil.example".to_string(),
+        ),
+        (
+            "Host: evil.example\r\nX-Forwarded-Host: evil2.example\r\nX-Forwarded-Proto: https\r\n"
+                .to_string(),
+            "evil.example".to_string(),
+        ),
     ] {
-        let url = tiles_url(&srv, headers);
-        assert_eq!(url, path, "{headers:?}");
+        let (url, cc, vary) = tiles_url(&srv, &headers);
+        assert_eq!(url, format!("http://{host}{path}"), "{headers:?}");
+        assert_private(&cc, &vary, &headers);
     }
-    // The relative template resolves on this server.
-    let png = srv.get(
-        &path
-            .replace("{z}", "1")
-            .replace("{x}", "0")
-            .replace("{y}", "1"),
-    );
+    // No Host, or one that is not a plain host[:port]: relative, and then shareable.
+    for headers in ["", "Host: evil.example/x?y\r\n", "Host: a\r\nHost: b\r\n"] {
+        let (url, cc, _) = tiles_url(&srv, headers);
+        assert_eq!(url, path, "{headers:?}");
+        assert!(!cc.starts_with("private"), "{headers:?}: {cc}");
+    }
+    // The absolute template, filled, is a tile of this server.
+    let (url, ..) = tiles_url(&srv, &format!("Host: {}\r\n", srv.addr));
+    let tile = url
+        .strip_prefix(&format!("http://{}", srv.addr))
+        .unwrap()
+        .replace("{z}", "1")
+        .replace("{x}", "0")
+        .replace("{y}", "1");
+    let png = srv.get(&tile);
     assert_eq!(png.expect(200).must("content-type"), "image/png");
+    // A revalidation is private too.
+    let r = raw_request(
+        srv.addr,
+        "/v1/datasets/synth/tilejson.json",
+        "Host: a.example\r\n",
+    );
+    let etag = r.headers["etag"].clone();
+    let r = raw_request(
+        srv.addr,
+        "/v1/datasets/synth/tilejson.json",
+        &format!("Host: a.example\r\nIf-None-Match: {etag}\r\n"),
+    );
+    assert_eq!(r.status, 304);
+    assert_private(
+        &r.headers["cache-control"],
+        &r.headers["vary"].to_ascii_lowercase(),
+        "304",
+    );
+    // Another Host, another document: the ETag names the base.
+    let other = raw_request(
+        srv.addr,
+        "/v1/datasets/synth/tilejson.json",
+        "Host: b.example\r\n",
+    );
+    assert_ne!(other.headers["etag"], etag);
     drop(srv);
 
-    // --public-url: exactly that, whatever the request says.
+    // --public-url: exactly that, whatever the request says, and shareable.
     let srv = Server::start(&[&f.synth], &["--public-url", "https://tiles.example.org/"]);
     for headers in [
         "Host: evil.example\r\n",
         "",
         "X-Forwarded-Host: evil.example\r\n",
     ] {
+        let (url, cc, vary) = tiles_url(&srv, headers);
         assert_eq!(
-            tiles_url(&srv, headers),
+            url,
             format!("https://tiles.example.org{path}"),
             "{headers:?}"
         );
+        assert!(cc.starts_with("public"), "{headers:?}: {cc}");
+        assert!(!vary.contains("host"), "{headers:?}: {vary}");
     }
     drop(srv);
 
-    // --trust-forwarded: the proxy's headers, checked; never Host.
+    // --trust-forwarded: the proxy's headers, checked, and shareable; the Host only
+    // when the proxy sent none (then private again).
     let srv = Server::start(&[&f.synth], &["--trust-forwarded"]);
-    assert_eq!(
-        tiles_url(
-            &srv,
-            "Host: evil.example\r\nX-Forwarded-Host: cdn.example\r\nX-Forwarded-Proto: https\r\n"
-        ),
-        format!("https://cdn.example{path}")
+    let (url, cc, _) = tiles_url(
+        &srv,
+        "Host: evil.example\r\nX-Forwarded-Host: cdn.example\r\nX-Forwarded-Proto: https\r\n",
     );
+    assert_eq!(url, format!("https://cdn.example{path}"));
+    assert!(cc.starts_with("public"), "{cc}");
+    let (url, cc, vary) = tiles_url(&srv, "Host: origin.example\r\n");
     assert_eq!(
-        tiles_url(&srv, "Host: evil.example\r\n"),
-        path,
-        "no forwarded host: relative"
+        url,
+        format!("http://origin.example{path}"),
+        "no forwarded host"
     );
+    assert_private(&cc, &vary, "no forwarded host");
     let r = raw_request(
         srv.addr,
         "/v1/datasets/synth/tilejson.json",

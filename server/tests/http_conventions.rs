@@ -614,7 +614,10 @@ fn https_negotiates_h2_by_alpn_and_serves_http1_too() {
     let f = fixtures();
     let dir = tempfile::tempdir().unwrap();
     let (cert, c, k) = write_pems(dir.path());
-    let plain = Server::start(&[&f.synth], &[]);
+    // One public URL for both, so the TileJSON (whose URLs are otherwise the
+    // request's own scheme and Host) is the same document on each.
+    let public = ["--public-url", "https://tiles.example.org"];
+    let plain = Server::start(&[&f.synth], &public);
     let srv = Server::start(
         &[&f.synth],
         &[
@@ -622,6 +625,8 @@ fn https_negotiates_h2_by_alpn_and_serves_http1_too() {
             c.to_str().unwrap(),
             "--tls-key",
             k.to_str().unwrap(),
+            public[0],
+            public[1],
         ],
     );
     assert_eq!(srv.scheme, "https", "the listening line must say https://");

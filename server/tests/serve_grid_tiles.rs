@@ -563,6 +563,12 @@ fn tilejson_parameters_and_empty_tiles() {
         template.contains("encoding=mapbox") && template.contains("size=512"),
         "{template}"
     );
+    // Absolute, on the origin the client used (default flags: from its Host), so a
+    // page on another origin fetches the tiles from this server.
+    let origin = format!("http://{}", srv.addr);
+    let template = template
+        .strip_prefix(&origin)
+        .unwrap_or_else(|| panic!("{template} is not on {origin}"));
     let (x, y) = xyz_tile(8.5911, 46.635, 9);
     let path = template
         .replace("{z}", "9")

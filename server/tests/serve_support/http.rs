@@ -94,7 +94,8 @@ pub fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
 }
 
-/// Parses a response head (`HTTP/1.1 200 OK\r\nName: value\r\n…`).
+/// Parses a response head (`HTTP/1.1 200 OK\r\nName: value\r\n…`); a field
+/// sent twice is one, its values joined.
 pub fn parse_head(head: &str) -> (u16, BTreeMap<String, String>) {
     let mut lines = head.split("\r\n");
     let status_line = lines.next().unwrap();
@@ -103,10 +104,17 @@ pub fn parse_head(head: &str) -> (u16, BTreeMap<String, String>) {
         .nth(1)
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("bad status line {status_line:?}"));
-    let headers = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
-        .collect();
+    // A repeated field is one list, its values joined with ", " (RFC 9110 §5.3).
+    let mut headers = BTreeMap::<String, String>::new();
+    for (k, v) in lines.filter_map(|l| l.split_once(':')) {
+        headers
+            .entry(k.trim().to_ascii_lowercase())
+            .and_modify(|all| {
+                all.push_str(", ");
+                all.push_str(v.trim());
+            })
+            .or_insert_with(|| v.trim().to_string());
+    }
     (status, headers)
 }
 

@@ -5,8 +5,8 @@
 //! - `GET /v1/datasets/{name}/cesium/{z}/{x}/{y}.terrain` — extensions as CesiumJS
 //!   asks for them in `Accept: application/vnd.quantized-mesh;extensions=a-b`.
 
+use super::base_url;
 use super::web_grid::{Failure, failure_error, source};
-use super::web_tiles::base_url;
 use super::{Params, Segments, dataset, xml_escape};
 use crate::cesium::quantized_mesh::{Extensions, encode};
 use crate::cesium::terrain::{LevelData, Terrain};
@@ -300,7 +300,7 @@ pub async fn layer(
     let ds = dataset(&state, &name)?;
     // The base URL is not in the document (tiles are relative), but checking it
     // keeps a bad Host/X-Forwarded-Host answered as everywhere else.
-    base_url(&state, &headers)?;
+    base_url::configured(&state, &headers)?;
     let pin = super::pinned(&ds, &query);
     let etag = cache::etag(
         ds.content_hash(),

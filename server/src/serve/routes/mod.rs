@@ -1,5 +1,6 @@
 //! HTTP handlers, one module per group of endpoints (API.md).
 
+pub mod base_url;
 pub mod bootstrap;
 pub mod cesium;
 pub mod datasets;

@@ -9,8 +9,8 @@
 //! Tiles are the web_grid tiles themselves (`?encoding=`, `?size=` as there); the
 //! tile path orders the row before the column, as the standard does.
 
+use super::base_url;
 use super::web_grid::{self, footprint};
-use super::web_tiles::base_url;
 use super::wmts::{
     ENCODINGS, MappedDataset, TILE_PX, combined_hash, decoding, latest, mapped_datasets,
     tile_limits,
@@ -232,7 +232,7 @@ pub async fn landing(
     State(state): State<Arc<AppState>>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    let base = base_url(&state, &headers)?;
+    let base = base_url::configured(&state, &headers)?;
     let etag = static_etag("landing", &base);
     Ok(respond(
         &state,
@@ -278,7 +278,7 @@ pub async fn tile_matrix_sets(
     State(state): State<Arc<AppState>>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    let base = base_url(&state, &headers)?;
+    let base = base_url::configured(&state, &headers)?;
     let etag = static_etag("tileMatrixSets", &base);
     Ok(respond(
         &state,
@@ -319,7 +319,7 @@ pub async fn tile_matrix_set(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let tms = grid(&id)?;
-    let base = base_url(&state, &headers)?;
+    let base = base_url::configured(&state, &headers)?;
     let etag = static_etag(&format!("tileMatrixSet {}", tms.id()), &base);
     Ok(respond(
         &state,
@@ -336,7 +336,7 @@ pub async fn collections(
     State(state): State<Arc<AppState>>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    let base = base_url(&state, &headers)?;
+    let base = base_url::configured(&state, &headers)?;
     let found = mapped_datasets(&state);
     let ds: Vec<Arc<Dataset>> = found.iter().map(|(d, _)| d.clone()).collect();
     let etag = cache::etag(
@@ -370,7 +370,7 @@ pub async fn collection(
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let (ds, fp) = mapped(&state, &name)?;
-    let base = base_url(&state, &headers)?;
+    let base = base_url::configured(&state, &headers)?;
     let etag = cache::etag(ds.content_hash(), &format!("ogcapi collection {base}"));
     let pin = pinned(&ds, &query);
     Ok(respond(
@@ -392,7 +392,7 @@ pub async fn tilesets(
 ) -> ApiResult<Response> {
     let (ds, fp) = mapped(&state, &name)?;
     let enc = web_grid::encoding(&query)?;
-    let base = base_url(&state, &headers)?;
+    let base = base_url::configured(&state, &headers)?;
     let etag = cache::etag(
         ds.content_hash(),
         &format!("ogcapi tilesets {base} {}", enc.name()),
@@ -446,7 +446,7 @@ pub async fn tileset(
     let (ds, fp) = mapped(&state, &name)?;
     let tms = grid(&id)?;
     let enc = web_grid::encoding(&query)?;
-    let base = base_url(&state, &headers)?;
+    let base = base_url::configured(&state, &headers)?;
     let etag = cache::etag(
         ds.content_hash(),
         &format!("ogcapi tileset {} {base} {}", tms.id(), enc.name()),

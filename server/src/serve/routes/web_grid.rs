@@ -7,7 +7,7 @@
 //! - `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.png|.webp?encoding=&size=`
 //! - `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`
 
-use super::web_tiles::base_url;
+use super::base_url;
 use super::{Params, Segments, dataset, unavailable, xml_escape};
 use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
@@ -20,7 +20,7 @@ use crate::web::resample::{self, SourceTile};
 use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet, WebTile};
 use axum::Json;
 use axum::extract::State;
-use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, Uri, header};
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
 use std::collections::HashMap;
@@ -346,49 +346,57 @@ pub fn tilejson_doc(
     doc
 }
 
-/// `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`.
+/// `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`. Its URLs are
+/// absolute (routes/base_url.rs), from the request's `Host` when nothing is
+/// configured, so a map on another origin fetches the tiles from this server.
 pub async fn tilejson(
     State(state): State<Arc<AppState>>,
     Segments((name, grid_name)): Segments<(String, String)>,
     Params(query): Params,
     headers: HeaderMap,
+    uri: Uri,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
     let tms = grid(&grid_name)?;
     let enc = encoding(&query)?;
     let px = size(&query)?;
-    let base = base_url(&state, &headers)?;
+    let base = base_url::absolute(&state, &headers, &uri)?;
+    let (url, from_host) = base.map_or((String::new(), false), |b| (b.url, b.from_host));
     let pin = super::pinned(&ds, &query);
     let etag = cache::etag(
         ds.content_hash(),
         &format!(
-            "grid tilejson {} {base} {} {px} {:?}",
+            "grid tilejson {} {url} {} {px} {:?}",
             tms.path(),
             enc.name(),
             state.web.config.attribution
         ),
     );
-    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    let mut r = match cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
     {
-        return Ok(r);
-    }
-    let fp = footprint(&state, &ds)?;
-    let doc = tilejson_doc(
-        &ds,
-        &fp,
-        tms,
-        &base,
-        enc,
-        px,
-        state.web.config.attribution.as_deref(),
-    );
-    let mut r = Json(doc).into_response();
-    cache::set_headers(
-        r.headers_mut(),
-        &etag,
-        ds.last_modified,
-        pin,
-        state.cache_max_age,
-    );
+        Some(r) => r,
+        None => {
+            let fp = footprint(&state, &ds)?;
+            let doc = tilejson_doc(
+                &ds,
+                &fp,
+                tms,
+                &url,
+                enc,
+                px,
+                state.web.config.attribution.as_deref(),
+            );
+            let mut r = Json(doc).into_response();
+            cache::set_headers(
+                r.headers_mut(),
+                &etag,
+                ds.last_modified,
+                pin,
+                state.cache_max_age,
+            );
+            r
+        }
+    };
+    base_url::private(r.headers_mut(), from_host, state.cache_max_age);
     Ok(r)
 }

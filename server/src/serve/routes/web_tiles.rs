@@ -9,7 +9,7 @@
 //! Tiles line up with a Web Mercator map only when the DEM itself is in that grid;
 //! maps use the standard grids (routes/web_grid.rs) instead.
 
-use super::{Params, Segments, dataset, level, pinned, stored_record, tile, xml_escape};
+use super::{Params, Segments, base_url, dataset, level, pinned, stored_record, tile, xml_escape};
 use crate::serve::compute::{Kind, Stop};
 use crate::serve::dataset::Dataset;
 use crate::serve::error::{ApiError, ApiResult};
@@ -17,7 +17,7 @@ use crate::serve::{AppState, TilesServed, cache};
 pub use crate::web::encoding::{Encoding, mapbox, terrarium};
 use axum::Json;
 use axum::extract::State;
-use axum::http::{HeaderMap, HeaderValue, header};
+use axum::http::{HeaderMap, HeaderValue, Uri, header};
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
 use std::sync::Arc;
@@ -146,62 +146,6 @@ pub async fn png(
     Ok(r)
 }
 
-/// Whether `s` is a plain `host[:port]`: host names, IPv4 and bracketed IPv6
-/// addresses and ports only (RFC 9110 §7.2), nothing that could change a URL's meaning.
-pub fn valid_host(s: &str) -> bool {
-    !s.is_empty()
-        && s.len() <= 255
-        && s.bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b".-_:[]".contains(&b))
-}
-
-/// The first element of the only `name` header, if there is exactly one such header.
-fn forwarded<'a>(headers: &'a HeaderMap, name: &str) -> ApiResult<Option<&'a str>> {
-    let mut all = headers.get_all(name).iter();
-    let Some(v) = all.next() else {
-        return Ok(None);
-    };
-    let bad = || ApiError::bad_request(format!("invalid {name} header"));
-    if all.next().is_some() {
-        return Err(bad());
-    }
-    let s = v.to_str().map_err(|_| bad())?;
-    // A chain of proxies appends; the first element is what the client used.
-    Ok(Some(s.split(',').next().unwrap_or("").trim()))
-}
-
-/// Scheme and authority for absolute URLs, or `""` for URLs relative to the server.
-///
-/// The `Host` header is never used: it is whatever the client sent, and a CDN that
-/// caches the document would hand one client's `Host` to everyone. The configured
-/// `--public-url` wins; `X-Forwarded-Host`/`X-Forwarded-Proto` count only with
-/// `--trust-forwarded` (a proxy in front sets them); otherwise the URLs are relative.
-pub fn base_url(state: &AppState, headers: &HeaderMap) -> ApiResult<String> {
-    if let Some(u) = &state.public_url {
-        return Ok(u.clone());
-    }
-    if !state.trust_forwarded {
-        return Ok(String::new());
-    }
-    let Some(host) = forwarded(headers, "x-forwarded-host")? else {
-        return Ok(String::new());
-    };
-    if !valid_host(host) {
-        return Err(ApiError::bad_request("invalid X-Forwarded-Host header"));
-    }
-    let proto = match forwarded(headers, "x-forwarded-proto")? {
-        None => "http",
-        Some(p) if p.eq_ignore_ascii_case("http") => "http",
-        Some(p) if p.eq_ignore_ascii_case("https") => "https",
-        Some(_) => {
-            return Err(ApiError::bad_request(
-                "invalid X-Forwarded-Proto header: want http or https",
-            ));
-        }
-    };
-    Ok(format!("{proto}://{host}"))
-}
-
 /// The TileJSON 3.0.0 document of a dataset's own-grid tiles, their URLs under
 /// `base` (scheme and authority, or `""` for server-relative URLs).
 ///
@@ -254,40 +198,47 @@ pub fn tilejson_doc(
     doc
 }
 
-/// `GET /v1/datasets/{name}/tilejson.json`: see [`tilejson_doc`].
+/// `GET /v1/datasets/{name}/tilejson.json`: see [`tilejson_doc`]. Its URLs are
+/// absolute (routes/base_url.rs), from the request's `Host` when nothing is configured.
 pub async fn tilejson(
     State(state): State<Arc<AppState>>,
     Segments(name): Segments<String>,
     Params(query): Params,
     headers: HeaderMap,
+    uri: Uri,
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
-    let base = base_url(&state, &headers)?;
+    let base = base_url::absolute(&state, &headers, &uri)?;
     let encoding = Encoding::from_query(query.get("encoding").map(String::as_str))?;
     let pin = pinned(&ds, &query);
+    let (url, from_host) = base.map_or((String::new(), false), |b| (b.url, b.from_host));
     // The document names the base URL and the encoding, so the ETag does too.
     let etag = cache::etag(
         ds.content_hash(),
         // The attribution is configuration, not content: a new one must change the tag.
         &format!(
-            "tilejson {base} {} {:?}",
+            "tilejson {url} {} {:?}",
             encoding.name(),
             state.web.config.attribution
         ),
     );
-    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    let mut r = match cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
     {
-        return Ok(r);
-    }
-    let attribution = state.web.config.attribution.as_deref();
-    let mut r = Json(tilejson_doc(&ds, &base, encoding, attribution)).into_response();
-    cache::set_headers(
-        r.headers_mut(),
-        &etag,
-        ds.last_modified,
-        pin,
-        state.cache_max_age,
-    );
+        Some(r) => r,
+        None => {
+            let attribution = state.web.config.attribution.as_deref();
+            let mut r = Json(tilejson_doc(&ds, &url, encoding, attribution)).into_response();
+            cache::set_headers(
+                r.headers_mut(),
+                &etag,
+                ds.last_modified,
+                pin,
+                state.cache_max_age,
+            );
+            r
+        }
+    };
+    base_url::private(r.headers_mut(), from_host, state.cache_max_age);
     Ok(r)
 }
 
@@ -349,13 +300,7 @@ mod tests {
     }
 
     #[test]
-    fn hosts_are_checked() {
-        for good in ["tiles.example:8080", "[::1]:80", "127.0.0.1"] {
-            assert!(valid_host(good), "{good:?}");
-        }
-        for bad in ["evil/path", "a b", "x@y", "", "a\"b"] {
-            assert!(!valid_host(bad), "{bad:?}");
-        }
+    fn attributions_are_escaped() {
         assert_eq!(xml_escape("a<b>&\"c\""), "a&lt;b&gt;&amp;&quot;c&quot;");
     }
 }

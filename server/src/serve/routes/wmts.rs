@@ -12,8 +12,8 @@
 //! URLs: they come from `--public-url` (or trusted forwarded headers), else from the
 //! request's `Host`, and then the document is marked private (see [`absolute_base`]).
 
+use super::base_url;
 use super::web_grid::footprint;
-use super::web_tiles::{base_url, valid_host};
 use super::{Params, Segments, dataset, pinned, xml_escape};
 use crate::serve::AppState;
 use crate::serve::cache::{self, LastModified};
@@ -246,46 +246,16 @@ fn matrix_set(x: &mut String, tms: TileMatrixSet, deepest: u8) {
 }
 
 /// Scheme and authority for the document's absolute URLs, and whether they came
-/// from the request's `Host` (DECISIONS "WMTS capabilities and the Host header").
-///
-/// `--public-url` (or `X-Forwarded-*` with `--trust-forwarded`) wins, as for
-/// TileJSON. Without either, WMTS clients still need absolute URLs (GDAL and QGIS
-/// do not resolve relative templates), so the request's `Host` (HTTP/2: its
-/// `:authority`) is used, checked to be a plain `host[:port]`; such a response is
-/// `Cache-Control: private` with `Vary: Host`, so no shared cache hands it to a
-/// client that asked under another name.
-pub fn absolute_base(
-    state: &AppState,
-    headers: &HeaderMap,
-    uri: &Uri,
-) -> ApiResult<(String, bool)> {
-    let base = base_url(state, headers)?;
-    if !base.is_empty() {
-        return Ok((base, false));
-    }
-    let mut hosts = headers.get_all(header::HOST).iter();
-    let host = match (hosts.next(), hosts.next()) {
-        (Some(h), None) => h.to_str().ok().map(str::to_string),
-        (None, _) => uri.authority().map(|a| a.as_str().to_string()),
-        (Some(_), Some(_)) => None,
-    };
-    let host = host.filter(|h| valid_host(h)).ok_or_else(|| {
-        ApiError::bad_request(
-            "the WMTS capabilities need absolute URLs: send one valid Host header (host[:port]), or run the server with --public-url",
-        )
-    })?;
-    let scheme = if state.tls { "https" } else { "http" };
-    Ok((format!("{scheme}://{host}"), true))
-}
-
-/// Marks a response built from the request's `Host` as private to that client.
-fn privately(h: &mut HeaderMap, from_host: bool, max_age: u64) {
-    if from_host {
-        if let Ok(v) = HeaderValue::from_str(&format!("private, max-age={max_age}")) {
-            h.insert(header::CACHE_CONTROL, v);
-        }
-        h.append(header::VARY, HeaderValue::from_static("host"));
-    }
+/// from the request's `Host` (routes/base_url.rs): WMTS clients (GDAL, QGIS) do not
+/// resolve relative templates, so without one the request is a 400.
+fn absolute_base(state: &AppState, headers: &HeaderMap, uri: &Uri) -> ApiResult<(String, bool)> {
+    base_url::absolute(state, headers, uri)?
+        .map(|b| (b.url, b.from_host))
+        .ok_or_else(|| {
+            ApiError::bad_request(
+                "the WMTS capabilities need absolute URLs: send one valid Host header (host[:port]), or run the server with --public-url",
+            )
+        })
 }
 
 /// The XML response, or its 304, with the given validators.
@@ -315,7 +285,7 @@ fn respond(
         );
         r
     };
-    privately(r.headers_mut(), from_host, state.cache_max_age);
+    base_url::private(r.headers_mut(), from_host, state.cache_max_age);
     r
 }
 
