@@ -128,3 +128,30 @@ fn fly_exits_non_zero_when_the_whole_flight_drew_nothing() {
     }
     assert!(text.lines().last().is_some_and(|l| l.contains("503")));
 }
+
+/// `tessera fly` run directly, headless, without `./run` (which exports
+/// `NODEVICE_SELECT=1`): Mesa's device-select layer must not print "XDG_RUNTIME_DIR
+/// is invalid" (issue 33 item 6). The flight draws through lavapipe (or any GPU).
+#[test]
+fn fly_run_directly_headless_prints_no_display_noise() {
+    let (url, _) = failing_server();
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args(["fly", "--server", &url, "--dataset", "terrain"])
+        .args(["--path", "orbit", "--frames", "2", "--width", "64", "--height", "64"])
+        .arg("--out")
+        .arg(dir.path())
+        .env_remove("NODEVICE_SELECT")
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    // It drew nothing (every tile is a 503), but it did open a GPU to render with.
+    assert!(stderr.contains("drew nothing"), "{stderr}");
+    assert!(
+        !stderr.contains("XDG_RUNTIME_DIR"),
+        "display noise on a headless run: {stderr}"
+    );
+}
