@@ -639,8 +639,9 @@ fn tilejson_parameters_and_empty_tiles() {
 
 /// Web Mercator zoom 0 of N46E008 was a 404 although the TileJSON says `minzoom` 0:
 /// a 1° tile is 0.7 of a zoom-0 pixel, and no pixel centre fell inside it. Now the
-/// pixels the DEM covers show it (the DEM's heights), with the apron around them,
-/// and every other pixel is transparent.
+/// pixels the DEM covers show it (the DEM's heights), with the apron around them;
+/// every other pixel is the dataset's lowest height (issue 33: never −32768 m),
+/// opaque by default and transparent with `nodata=transparent`.
 #[test]
 fn zoom_0_shows_a_dem_smaller_than_a_pixel() {
     let Some(b) = built() else { return };
@@ -655,11 +656,32 @@ fn zoom_0_shows_a_dem_smaller_than_a_pixel() {
         assert_eq!(tj["minzoom"], 0);
         let png = srv
             .get(&format!(
-                "/v1/datasets/N46E008/webmercator/0/0/0.png?size={px}"
+                "/v1/datasets/N46E008/webmercator/0/0/0.png?size={px}&nodata=transparent"
             ))
             .expect(200);
         let (side, rgba) = decode_rgba(&png.body);
         assert_eq!(side, px);
+        // By default the same pixels, all opaque: the data where it is, its lowest
+        // height (187 m) everywhere else.
+        let opaque_png = srv
+            .get(&format!(
+                "/v1/datasets/N46E008/webmercator/0/0/0.png?size={px}"
+            ))
+            .expect(200);
+        let (_, all) = decode_rgba(&opaque_png.body);
+        for (k, (a, b)) in rgba.chunks(4).zip(all.chunks(4)).enumerate() {
+            assert_eq!(b[3], 255, "{px} px: pixel {k} is not opaque by default");
+            if a[3] == 255 {
+                assert_eq!(a, b, "{px} px: pixel {k}");
+            } else {
+                assert_eq!(terrarium(b), 187.0, "{px} px: pixel {k} beyond the DEM");
+                assert_eq!(
+                    &a[..3],
+                    &b[..3],
+                    "{px} px: pixel {k}'s colour is the fill in both"
+                );
+            }
+        }
         // The DEM's pixel box (sample areas: half a 3″ sample beyond 8°..9°, 46°..47°),
         // by the XYZ scheme's own formulas.
         let n = f64::from(px);
@@ -697,4 +719,88 @@ fn zoom_0_shows_a_dem_smaller_than_a_pixel() {
             "{px} px: {opaque} opaque pixels"
         );
     }
+}
+
+/// Every tile within the TileJSON's `bounds` answers 200 with plausible heights
+/// (issue 33): web maps ask for each of them, and a 404 is an error in their
+/// console. aletsch is EPSG:2056, a rotated rectangle in Web Mercator, so some tiles
+/// at the corners of its bounds hold no data: those are the flat fill, the
+/// dataset's lowest height, opaque (wholly transparent with `nodata=transparent`).
+#[test]
+fn every_tile_within_the_bounds_is_served_and_plausible() {
+    let Some(b) = built() else { return };
+    let srv = Server::start(&[&b.aletsch], &[]);
+    let tj = srv
+        .get("/v1/datasets/aletsch/webmercator/tilejson.json")
+        .expect(200)
+        .json();
+    let bounds: Vec<f64> = tj["bounds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let doc = srv.get("/v1/datasets/aletsch").expect(200).json();
+    let lowest = doc["metadata"]["min_height"]
+        .as_f64()
+        .or_else(|| doc["min_height"].as_f64())
+        .unwrap_or_else(|| panic!("no min_height in {doc}"));
+    let highest = 4216.3;
+    let mut flat = 0;
+    let mut check = |z: u8, x: u32, y: u32| {
+        let url = format!("/v1/datasets/aletsch/webmercator/{z}/{x}/{y}.png");
+        let (_, rgba) = decode_rgba(&srv.get(&url).expect(200).body);
+        let heights: Vec<f64> = rgba
+            .chunks(4)
+            .map(|p| {
+                assert_eq!(p[3], 255, "{url}: not opaque");
+                terrarium(p)
+            })
+            .collect();
+        assert!(
+            heights
+                .iter()
+                .all(|h| (lowest - 0.01..=highest + 0.01).contains(h)),
+            "{url}: a height outside {lowest}..{highest} m"
+        );
+        if heights.iter().all(|&h| (h - lowest).abs() < 0.01) {
+            flat += 1;
+            let t = srv.get(&format!("{url}?nodata=transparent")).expect(200);
+            let (_, rgba) = decode_rgba(&t.body);
+            assert!(
+                rgba.chunks(4).all(|p| p[3] == 0),
+                "{url}: no data, yet opaque pixels"
+            );
+        }
+    };
+    // Every tile of zoom 11, and the four corner tiles of the bounds at deeper zooms
+    // (where a corner tile is small enough to miss the rotated footprint).
+    let corners = |z: u8| {
+        let (x0, y0) = xyz_tile(bounds[0], bounds[3], z);
+        let (x1, y1) = xyz_tile(bounds[2], bounds[1], z);
+        (x0, y0, x1, y1)
+    };
+    let (x0, y0, x1, y1) = corners(11);
+    for x in x0..=x1 {
+        for y in y0..=y1 {
+            check(11, x, y);
+        }
+    }
+    for z in 12..=18 {
+        let (x0, y0, x1, y1) = corners(z);
+        for (x, y) in [(x0, y0), (x1, y0), (x0, y1), (x1, y1)] {
+            check(z, x, y);
+        }
+    }
+    assert!(
+        flat > 0,
+        "no tile of the bounds' corners lies off the rotated footprint"
+    );
+    // Beyond the bounds: 404 as before.
+    let (_, y0, x1, _) = corners(11);
+    srv.get(&format!(
+        "/v1/datasets/aletsch/webmercator/11/{}/{y0}.png",
+        x1 + 2
+    ))
+    .expect(404);
 }

@@ -7,7 +7,7 @@
 use crate::cesium::terrain::Terrain;
 use crate::cesium::tiling::CesiumTile;
 use crate::geoid::Geoid;
-use crate::web::encoding::{Encoding, ImageFormat};
+use crate::web::encoding::{Encoding, ImageFormat, NoData};
 use crate::web::footprint::Footprint;
 use crate::web::resample::SourceTile;
 use crate::web::tile_matrix::WebTile;
@@ -71,6 +71,7 @@ pub struct MadeKey {
     pub px: u32,
     pub encoding: Encoding,
     pub format: ImageFormat,
+    pub nodata: NoData,
 }
 
 /// A made Cesium terrain tile's identity: the tile and the extensions it carries.

@@ -1,6 +1,6 @@
 //! How heights become pixels of web tiles: Mapzen Terrarium and Mapbox Terrain-RGB
-//! colours (exact formulas below), an alpha channel for no-data, and the image
-//! formats (PNG, lossless WebP) they travel in.
+//! colours (exact formulas below), what pixels without data look like ([`NoData`]),
+//! and the image formats (PNG, lossless WebP) they travel in.
 
 use crate::serve::error::{ApiError, ApiResult};
 
@@ -71,17 +71,71 @@ pub fn mapbox(h: f64) -> [u8; 3] {
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
 }
 
-/// The colour of every height, RGBA: no-data (NaN) is transparent black, so maps
-/// draw nothing there (DESIGN §9: no-data is never served as terrain).
-pub fn rgba(heights: &[f64], encoding: Encoding) -> Vec<u8> {
-    let mut out = Vec::with_capacity(heights.len() * 4);
-    for &h in heights {
-        if h.is_nan() {
-            out.extend_from_slice(&[0, 0, 0, 0]);
-        } else {
-            let [r, g, b] = encoding.rgb(h);
-            out.extend_from_slice(&[r, g, b, 255]);
+/// What the pixels without data look like (`?nodata=`): they always carry a
+/// plausible height in their colour (resample.rs, step 6); alpha marks them only
+/// when asked.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum NoData {
+    /// Opaque, like the data: what web maps need. MapLibre, deck.gl and OpenLayers
+    /// read elevation tiles through a premultiplied 2D canvas, where a transparent
+    /// pixel's colour is lost (it would decode as −32768 m).
+    #[default]
+    Opaque,
+    /// Alpha 0, colour still the fill height: for clients that read PNG pixels
+    /// exactly and honour alpha (GDAL's WMTS and OGC API drivers). Lossless WebP may
+    /// drop the colour of fully transparent pixels.
+    Transparent,
+}
+
+impl NoData {
+    /// What `?nodata=` accepts.
+    pub const ALLOWED: &str = "opaque, transparent";
+
+    /// The mode a query asks for (opaque when it names none), or 400.
+    pub fn from_query(value: Option<&str>) -> ApiResult<Self> {
+        match value {
+            None | Some("opaque") => Ok(Self::Opaque),
+            Some("transparent") => Ok(Self::Transparent),
+            Some(other) => Err(ApiError::bad_request(format!(
+                "unknown nodata {}: allowed values are {}",
+                crate::serve::error::quoted(other),
+                Self::ALLOWED
+            ))),
         }
+    }
+
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Opaque => "opaque",
+            Self::Transparent => "transparent",
+        }
+    }
+}
+
+/// The colour of every height, RGBA. A pixel with data is opaque; one without
+/// (`data[k]` false) is opaque or transparent as `nodata` says, and its colour is
+/// its height when it has one (a void's fill) or `fill` (beyond the data).
+pub fn rgba(
+    heights: &[f64],
+    data: &[bool],
+    encoding: Encoding,
+    nodata: NoData,
+    fill: f64,
+) -> Vec<u8> {
+    debug_assert_eq!(heights.len(), data.len());
+    let fill_rgb = encoding.rgb(fill);
+    let hidden = match nodata {
+        NoData::Opaque => 255,
+        NoData::Transparent => 0,
+    };
+    let mut out = Vec::with_capacity(heights.len() * 4);
+    for (&h, &d) in heights.iter().zip(data) {
+        let [r, g, b] = if h.is_nan() {
+            fill_rgb
+        } else {
+            encoding.rgb(h)
+        };
+        out.extend_from_slice(&[r, g, b, if d { 255 } else { hidden }]);
     }
     out
 }
@@ -215,32 +269,73 @@ mod tests {
         assert!(e.message.contains("terrarium, mapbox"), "{}", e.message);
     }
 
-    #[test]
-    fn no_data_is_transparent_and_both_formats_decode_to_the_same_pixels() {
-        let side = 16u32;
-        let heights: Vec<f64> = (0..side * side)
-            .map(|k| {
-                if k % 7 == 0 {
-                    f64::NAN
-                } else {
-                    f64::from(k) * 3.25 - 40.0
-                }
+    /// 16 × 16 heights, every 7th pixel without data: a third of those a void
+    /// with its fill height, the rest nothing (NaN).
+    fn sampled(side: u32) -> (Vec<f64>, Vec<bool>) {
+        (0..side * side)
+            .map(|k| match (k % 7, k % 3) {
+                (0, 0) => (f64::from(k) * 0.5, false),
+                (0, _) => (f64::NAN, false),
+                _ => (f64::from(k) * 3.25 - 40.0, true),
             })
-            .collect();
-        let px = rgba(&heights, Encoding::Terrarium);
-        for (k, h) in heights.iter().enumerate() {
-            let p = &px[k * 4..k * 4 + 4];
-            if h.is_nan() {
-                assert_eq!(p, [0, 0, 0, 0]);
-            } else {
-                assert_eq!(p[3], 255);
+            .unzip()
+    }
+
+    #[test]
+    fn no_data_carries_a_plausible_height_and_alpha_only_when_asked() {
+        let side = 16u32;
+        let (heights, data) = sampled(side);
+        let fill = 187.0;
+        for nodata in [NoData::Opaque, NoData::Transparent] {
+            let px = rgba(&heights, &data, Encoding::Terrarium, nodata, fill);
+            for (k, h) in heights.iter().enumerate() {
+                let p = &px[k * 4..k * 4 + 4];
+                let want = if h.is_nan() { fill } else { *h };
                 assert_eq!(
                     terrarium_height([p[0], p[1], p[2]]),
-                    *h,
-                    "exact in 1/256 m steps"
+                    want,
+                    "pixel {k}: exact in 1/256 m steps, never -32768"
                 );
+                let alpha = if data[k] || nodata == NoData::Opaque {
+                    255
+                } else {
+                    0
+                };
+                assert_eq!(p[3], alpha, "pixel {k} {nodata:?}");
             }
         }
+        let px = rgba(&heights, &data, Encoding::Mapbox, NoData::Opaque, fill);
+        assert_eq!(
+            [px[4], px[5], px[6]],
+            mapbox(fill),
+            "pixel 1 has no height: the fill"
+        );
+    }
+
+    #[test]
+    fn nodata_from_query() {
+        assert_eq!(NoData::from_query(None).unwrap(), NoData::Opaque);
+        assert_eq!(NoData::from_query(Some("opaque")).unwrap(), NoData::Opaque);
+        assert_eq!(
+            NoData::from_query(Some("transparent")).unwrap(),
+            NoData::Transparent
+        );
+        let e = NoData::from_query(Some("alpha")).unwrap_err();
+        assert_eq!(e.status, axum::http::StatusCode::BAD_REQUEST);
+        assert!(e.message.contains("opaque, transparent"), "{}", e.message);
+    }
+
+    #[test]
+    fn both_formats_decode_to_the_same_pixels() {
+        let side = 16u32;
+        let (heights, data) = sampled(side);
+        let px = rgba(
+            &heights,
+            &data,
+            Encoding::Terrarium,
+            NoData::Transparent,
+            0.0,
+        );
         let png = ImageFormat::Png.encode(&px, side).unwrap();
         let mut reader = png::Decoder::new(std::io::Cursor::new(png))
             .read_info()

@@ -25,13 +25,21 @@
 //!    format v2). So a point half a sample beyond the DEM's edge still reads the
 //!    edge, and a valid summit beside a void is served, interpolated over the
 //!    void's fill (nearest valid heights).
-//! 5. **Apron.** Pixels that are not terrain are no-data (NaN: transparent), except
-//!    those within [`APRON`] pixels of a terrain pixel (this tile's or a
-//!    neighbour's), which carry the fill's height (clamped to the grid at the DEM's
-//!    outer edge). Web clients interpolate elevation tiles bilinearly and ignore
-//!    alpha (MapLibre reads pixels up to 1.5 px east and south of a point, and a
-//!    transparent pixel decodes as −32768 m): without the apron, every lookup at
-//!    the edge of the data would sink into a pit.
+//! 5. **Apron.** Pixels within [`APRON`] pixels of a terrain pixel (this tile's or
+//!    a neighbour's) carry the fill's height (clamped to the grid at the DEM's outer
+//!    edge) and count as data. Web clients interpolate elevation tiles bilinearly
+//!    and ignore alpha (MapLibre reads pixels up to 1.5 px east and south of a
+//!    point): without the apron, a lookup at the edge of the data would mix in the
+//!    fill beyond it.
+//! 6. **No-data.** Every other pixel still carries a plausible height, never
+//!    −32768 m (DESIGN §9): a void inside the DEM's extent its fill (the nearest
+//!    valid sample's height, stored by the build), anything beyond the DEM the
+//!    dataset's lowest height, flat ([`crate::web::encoding::NoData`]). Flat, so
+//!    hillshading draws nothing beyond the data; the lowest height, so 3D terrain
+//!    stands on a plinth no deeper than the dataset's own relief instead of on
+//!    walls 32 km deep. Alpha marks it only when asked (`nodata=transparent`):
+//!    browsers read tiles through a premultiplied canvas, where a transparent
+//!    pixel loses its colour and decodes as −32768 m again.
 
 use super::footprint::Footprint;
 use super::tile_matrix::WebTile;
@@ -76,6 +84,9 @@ pub struct Plan {
     /// The level's tiles the window reads: first column and row, columns, rows.
     tiles: [u32; 4],
     tile_size: u32,
+    /// The DEM's last sample column and row in the level's sample coordinates: the
+    /// grid beyond them is padding, not the DEM (see [`Sampled::heights`]).
+    extent: [f64; 2],
     /// How far beyond the level's grid, in its samples along columns and rows, a
     /// point still reads it (clamped): half a sample, or half a pixel where a pixel
     /// spans more than one sample of the coarsest level (see the module doc, step 2).
@@ -115,6 +126,8 @@ fn separable(w: usize, h: usize, exact: &impl Fn(usize, usize) -> Option<[f64; 2
 /// `n·t` cells in all).
 #[derive(Clone, Copy, Debug)]
 struct AxisPos {
+    /// The coordinate itself, unclamped.
+    raw: f64,
     /// Within half a sample of the grid (can be terrain).
     in_range: bool,
     /// Clamped to the grid.
@@ -137,6 +150,7 @@ impl AxisPos {
         let u = clamped - f64::from(tile * t);
         let cell = (u as u32).min(t - 1);
         Some(Self {
+            raw: v,
             in_range: (-reach..=limit + reach).contains(&v),
             clamped,
             tile,
@@ -230,6 +244,10 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
         coords,
         tiles: [tx0, ty0, tx1 - tx0 + 1, ty1 - ty0 + 1],
         tile_size: t,
+        extent: [
+            f64::from(geometry.width() - 1) / stride,
+            f64::from(geometry.height() - 1) / stride,
+        ],
         reach,
     })
 }
@@ -306,10 +324,10 @@ impl Plan {
             .collect()
     }
 
-    /// The tile's `px × px` heights in metres, row-major, NaN where there is no
-    /// terrain (and no apron). `sources[k]` is the `k`-th of [`Self::source_tiles`],
-    /// `None` when the pyramid has no such tile (outside the DEM, or wholly no-data).
-    pub fn sample<T: AsRef<SourceTile>>(&self, sources: &[Option<T>]) -> Vec<f64> {
+    /// The tile's `px × px` heights (see [`Sampled`]). `sources[k]` is the `k`-th
+    /// of [`Self::source_tiles`], `None` when the pyramid has no such tile (outside
+    /// the DEM, or wholly no-data).
+    pub fn sample<T: AsRef<SourceTile>>(&self, sources: &[Option<T>]) -> Sampled {
         let [i0, j0, i1, j1] = self.window;
         let w = (i1 - i0) as usize;
         let [tx0, ty0, cols, rows] = self.tiles;
@@ -338,6 +356,9 @@ impl Plan {
         let len = (w as i64 * (j1 - j0)) as usize;
         let mut heights = vec![f64::NAN; len];
         let mut terrain = vec![false; len];
+        // Within half a sample of the DEM's own extent (not the padded grid).
+        let mut in_dem = vec![false; len];
+        let [ex, ey] = self.extent;
         // Neighbouring pixels mostly read the same tile: look it up once per run.
         let mut last: Option<((u32, u32), Option<&SourceTile>)> = None;
         let mut pixel = |k: usize, a: &AxisPos, b: &AxisPos| {
@@ -352,6 +373,7 @@ impl Plan {
             let Some(src) = src else {
                 return;
             };
+            in_dem[k] = (-0.5..=ex + 0.5).contains(&a.raw) && (-0.5..=ey + 0.5).contains(&b.raw);
             terrain[k] = a.in_range
                 && b.in_range
                 && (src.mask.is_valid(a.cell, b.cell) || {
@@ -392,6 +414,7 @@ impl Plan {
         }
         let px = i64::from(self.px);
         let mut out = vec![f64::NAN; (px * px) as usize];
+        let mut data = vec![false; (px * px) as usize];
         // Window pixels with a terrain pixel within the apron: a square dilation,
         // done as a pass along rows and one down columns.
         let hi = (j1 - j0) as usize;
@@ -411,12 +434,37 @@ impl Plan {
                 let k = jj * w + ii;
                 let h = heights[k];
                 let near = || (top..=bottom).any(|r| along[r * w + ii]);
+                let o = (j * px + i) as usize;
                 if terrain[k] || (h.is_finite() && near()) {
-                    out[(j * px + i) as usize] = h;
+                    out[o] = h;
+                    data[o] = true;
+                } else if in_dem[k] {
+                    // A void in the DEM: the build's fill (its nearest valid sample).
+                    out[o] = h;
                 }
             }
         }
-        out
+        Sampled { heights: out, data }
+    }
+}
+
+/// One standard-grid tile's heights, as [`Plan::sample`] reads them.
+#[derive(Debug)]
+pub struct Sampled {
+    /// `px × px` heights in metres, row-major: terrain, the apron, and voids inside
+    /// the DEM's extent (the build's fill, the nearest valid sample's height); NaN
+    /// elsewhere (beyond the DEM and its apron), which the encoder fills
+    /// ([`crate::web::encoding::NoData`]).
+    pub heights: Vec<f64>,
+    /// Whether each pixel is terrain or its apron (module doc, step 5): what
+    /// `nodata=transparent` leaves opaque.
+    pub data: Vec<bool>,
+}
+
+impl Sampled {
+    /// Whether no pixel holds data.
+    pub fn is_empty(&self) -> bool {
+        !self.data.contains(&true)
     }
 }
 
@@ -499,34 +547,43 @@ mod tests {
             let (nc, nr) = (c.round(), r.round());
             in_pixels && !((10.0..=11.0).contains(&nc) && (20.0..=21.0).contains(&nr))
         };
-        let (mut terrain, mut apron, mut none) = (0, 0, 0);
+        let (mut terrain, mut apron, mut void, mut none) = (0, 0, 0, 0);
         for j in 0..256u32 {
             for i in 0..256u32 {
                 let (c, r) = at(i, j);
-                let h = out[(j * 256 + i) as usize];
+                let k = (j * 256 + i) as usize;
+                let (h, data) = (out.heights[k], out.data[k]);
                 // The plane is the fill too: apron pixels read it, clamped to the grid.
                 let want = 3.0 * c.clamp(0.0, 64.0) + 5.0 * r.clamp(0.0, 64.0);
                 let near = (j.saturating_sub(2)..=(j + 2).min(255)).any(|jj| {
                     (i.saturating_sub(2)..=(i + 2).min(255)).any(|ii| is_terrain(ii, jj))
                 });
+                let in_dem = (-0.5..=64.5).contains(&c) && (-0.5..=64.5).contains(&r);
                 if is_terrain(i, j) {
                     terrain += 1;
                     assert!((h - want).abs() < 1e-6, "({i}, {j}): {h} vs {want}");
+                    assert!(data, "({i}, {j}) is terrain");
                 } else if near {
                     apron += 1;
                     assert!((h - want).abs() < 1e-6, "apron ({i}, {j}): {h} vs {want}");
+                    assert!(data, "apron ({i}, {j}) counts as data");
+                } else if in_dem {
+                    // The masked samples, beyond the apron: the void's fill, no data.
+                    void += 1;
+                    assert!((h - want).abs() < 1e-6, "void ({i}, {j}): {h} vs {want}");
+                    assert!(!data, "void ({i}, {j}) is no data");
                 } else {
                     none += 1;
                     assert!(
-                        h.is_nan(),
-                        "({i}, {j}) at ({c}, {r}) should be no-data: {h}"
+                        h.is_nan() && !data,
+                        "({i}, {j}) at ({c}, {r}) lies beyond the DEM: {h}"
                     );
                 }
             }
         }
         assert!(
-            terrain > 1000 && apron > 0 && none > 0,
-            "{terrain} terrain, {apron} apron, {none} none"
+            terrain > 1000 && apron > 0 && void > 0 && none > 0,
+            "{terrain} terrain, {apron} apron, {void} void, {none} none"
         );
     }
 
@@ -551,8 +608,9 @@ mod tests {
             let fast = p.sample(&src);
             p.coords = Coords::Grid(grid);
             let general = p.sample(&src);
-            assert!(fast.iter().any(|h| h.is_finite()), "{tile}");
-            for (a, b) in fast.iter().zip(&general) {
+            assert!(fast.heights.iter().any(|h| h.is_finite()), "{tile}");
+            assert_eq!(fast.data, general.data, "{tile}");
+            for (a, b) in fast.heights.iter().zip(&general.heights) {
                 assert!(a == b || (a.is_nan() && b.is_nan()), "{tile}: {a} vs {b}");
             }
         }
@@ -591,10 +649,11 @@ mod tests {
             py(50.0 + d / 2.0)..=py(49.0 - d / 2.0),
         );
         let mut terrain = 0;
-        for (k, h) in out.iter().enumerate() {
+        for (k, h) in out.heights.iter().enumerate() {
             let (i, j) = (k % 256, k / 256);
             if cols.contains(&i) && rows.contains(&j) {
                 assert!((0.0..=512.0).contains(h), "({i}, {j}): {h}");
+                assert!(out.data[k], "({i}, {j}) shows the dataset");
                 terrain += 1;
             } else if h.is_finite() {
                 // Half a pixel of reach (a pixel that touches the box), then the apron.

@@ -51,3 +51,31 @@ export function heights(file, lonLats) {
       voids4: 16 - valid16.length, block: s16, t: [tx, ty], cell: [i, j], spacing: [dx, -dy] };
   });
 }
+
+// The lowest and highest valid sample (`gdalinfo -mm`: GDAL computes them exactly).
+export function minMax(file) {
+  const band = JSON.parse(execFileSync('gdalinfo', ['-json', '-mm', file], { encoding: 'utf8' })).bands[0];
+  return [band.computedMin, band.computedMax];
+}
+
+// GDAL's bilinear height at many [lon, lat] points of a geographic DEM at once (one
+// gdallocationinfo run): the 2×2 samples around each point, at their cells' centres, weighted by
+// the point's fractions. `null` where any of the four is no-data (no renormalising here: the
+// half-pixel test wants points where the value is the plain bilinear one).
+export function bilinearAt(file, lonLats) {
+  const info = gdalinfo(file);
+  const [x0, dx, , y0, , dy] = info.geoTransform;
+  const nodata = info.bands[0].noDataValue;
+  const cells = lonLats.map(([lon, lat]) => {
+    const fx = (lon - x0) / dx - 0.5, fy = (lat - y0) / dy - 0.5;
+    const i = Math.floor(fx), j = Math.floor(fy);
+    return { i, j, tx: fx - i, ty: fy - j };
+  });
+  const points = cells.flatMap(({ i, j }) => [[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]);
+  const v = locationValues(file, points);
+  return cells.map(({ tx, ty }, k) => {
+    const s = v.slice(4 * k, 4 * k + 4);
+    if (s.some((x) => x === nodata || Number.isNaN(x))) return null;
+    return s[0] * (1 - tx) * (1 - ty) + s[1] * tx * (1 - ty) + s[2] * (1 - tx) * ty + s[3] * tx * ty;
+  });
+}

@@ -46,3 +46,20 @@ export function tileOutside(polygon, { z, x, y }, tileSize) {
   const dx = (e - w) / tileSize, dy = (n - s) / tileSize;
   return overlapArea(polygon, [w + dx, s + dy, e - dx, n - dy]) === 0;
 }
+
+// The centre of pixel (i, j) of XYZ tile z/x/y of `size` pixels, shifted by (di, dj) pixels, as
+// [lon, lat]: pixel i spans [i, i + 1) of the tile's `size`, its centre at i + ½ (what MapLibre
+// and GDAL both mean by a raster pixel).
+export function pixelCentre(z, x, y, size, i, j, di = 0, dj = 0) {
+  const n = 2 ** z * size;
+  const px = x * size + i + 0.5 + di, py = y * size + j + 0.5 + dj;
+  return [(px / n) * 360 - 180, (Math.atan(Math.sinh(Math.PI * (1 - (2 * py) / n))) * 180) / Math.PI];
+}
+
+// The tile and pixel of `size`-pixel XYZ tiles at zoom z holding [lon, lat].
+export function pixelAt(z, size, lon, lat) {
+  const n = 2 ** z * size, r = (lat * Math.PI) / 180;
+  const px = ((lon + 180) / 360) * n, py = ((1 - Math.log(Math.tan(r) + 1 / Math.cos(r)) / Math.PI) / 2) * n;
+  const X = Math.floor(px), Y = Math.floor(py);
+  return { z, x: Math.floor(X / size), y: Math.floor(Y / size), i: X % size, j: Y % size };
+}

@@ -3,27 +3,23 @@ import * as maplibregl from '/maplibre/maplibre-gl.mjs';
 
 const BACKGROUND = [255, 0, 255]; // magenta: no hillshade colour comes near it
 
-// The TileJSON with its tile URL templates made absolute. The server gives them relative to
-// itself when it has no --public-url (API.md); TileJSON says they resolve against the document's
-// URL, but MapLibre 6 uses `tiles` as given (loadTileJson copies them), so a relative template
-// would be fetched from this page's origin. Resolving here keeps the test to the contract.
+// The standard-grid TileJSON's URL, and the document as the page fetches it (cross-origin: it
+// fails without CORS). The server's defaults must give `tiles` that work from this page's origin
+// (absolute, on the tile server): the map below takes them exactly as MapLibre does, from the
+// TileJSON `url`, with nothing resolved or rewritten here.
 async function tileJSON(server, dataset, size) {
   const url = `${server}/v1/datasets/${encodeURIComponent(dataset)}/webmercator/tilejson.json?encoding=terrarium&size=${size}`;
   const response = await fetch(url);
   if (!response.ok) throw new Error(`${url}: HTTP ${response.status}`);
-  const doc = await response.json();
-  // (URL percent-encodes the braces of {z}/{x}/{y}; they are put back)
-  const resolve = (t) => new URL(t, url).href.replace(/%7B(z|x|y)%7D/gi, '{$1}');
-  return { ...doc, tiles: doc.tiles.map(resolve) };
+  return { url, doc: await response.json() };
 }
 
-// A raster-dem source from the TileJSON. `bounds` is left out on purpose: with it MapLibre would
-// request only tiles inside the bounds the server states, which could hide tiles drawn in the
-// wrong place; without it every tile in view is asked for and the server's 404s for tiles
-// outside the data are expected (see maplibre.test.mjs, expected404).
-function demSource(tj) {
-  return { type: 'raster-dem', tiles: tj.tiles, tileSize: tj.tileSize, minzoom: tj.minzoom,
-    maxzoom: tj.maxzoom, encoding: tj.encoding }; // scheme: MapLibre 6's raster-dem has none (xyz)
+// A raster-dem source on the TileJSON `url`, as a MapLibre user writes it: MapLibre reads
+// `tiles`, `bounds`, `minzoom` and `maxzoom` from the document (so it asks only for tiles within
+// the bounds); `tileSize` and `encoding` are the source's own options (MapLibre does not take
+// them from TileJSON).
+function demSource({ url, doc }) {
+  return { type: 'raster-dem', url, tileSize: doc.tileSize, encoding: doc.encoding };
 }
 
 // Resolves at the next 'idle' (every tile in view loaded, nothing moving), or once polling sees
@@ -47,36 +43,48 @@ function idle(map) {
 
 let map;
 
+const RELIEF_LOW = [255, 0, 0]; // color-relief below the plausible range: pure red
+const RELIEF_OK = [96, 96, 96];
+
 // mode 'placement': hillshade only, flat map, no basemap, over a plain background.
 // mode 'terrain': hillshade plus 3D terrain with exaggeration 1 (two sources, as MapLibre advises).
+// mode 'relief': 3D terrain draped with a color-relief layer that is pure red below `low` metres
+// and grey from there up (the walls test: a height below `low` anywhere MapLibre draws is red).
 // view: { bounds: [w, s, e, n], padding } or { center, zoom } (zoom may be 'maxzoom'): where
 // the map starts.
-async function open({ server, dataset, mode, view, size = 512 }) {
+async function open({ server, dataset, mode, view, size = 512, low = -1e6 }) {
   const tj = await tileJSON(server, dataset, size);
   const style = {
     version: 8,
-    sources: { hillshade: demSource(tj) },
+    sources: { dem: demSource(tj) },
     layers: [
       { id: 'background', type: 'background', paint: { 'background-color': `rgb(${BACKGROUND.join(',')})` } },
-      { id: 'hillshade', type: 'hillshade', source: 'hillshade',
-        paint: { 'hillshade-exaggeration': 1, 'hillshade-shadow-color': '#000000',
-          'hillshade-highlight-color': '#ffffff', 'hillshade-accent-color': '#000000' } },
     ],
   };
-  if (mode === 'terrain') {
+  if (mode === 'relief') {
+    style.layers.push({ id: 'relief', type: 'color-relief', source: 'dem',
+      paint: { 'color-relief-color': ['interpolate', ['linear'], ['elevation'],
+        low - 0.01, `rgb(${RELIEF_LOW.join(',')})`, low, `rgb(${RELIEF_OK.join(',')})`] } });
+  } else {
+    style.layers.push({ id: 'hillshade', type: 'hillshade', source: 'dem',
+      paint: { 'hillshade-exaggeration': 1, 'hillshade-shadow-color': '#000000',
+        'hillshade-highlight-color': '#ffffff', 'hillshade-accent-color': '#000000' } });
+  }
+  if (mode === 'terrain' || mode === 'relief') {
     style.sources.terrain = demSource(tj);
     style.terrain = { source: 'terrain', exaggeration: 1 };
   }
+  const doc = tj.doc;
   map = new maplibregl.Map({
     container: 'map', style, ...(view.bounds
       ? { bounds: [[view.bounds[0], view.bounds[1]], [view.bounds[2], view.bounds[3]]], fitBoundsOptions: { padding: view.padding } }
-      : { center: view.center, zoom: view.zoom === 'maxzoom' ? tj.maxzoom : view.zoom }),
+      : { center: view.center, zoom: view.zoom === 'maxzoom' ? doc.maxzoom : view.zoom }),
     attributionControl: false, fadeDuration: 0, pitch: 0,
     canvasContextAttributes: { preserveDrawingBuffer: true, antialias: false },
   });
   map.on('error', (e) => console.error(`maplibre error: ${e.error?.message ?? e.error ?? e}`));
   await idle(map);
-  return { ...tj, zoom: map.getZoom() };
+  return { ...doc, zoom: map.getZoom() };
 }
 
 // Fits [w, s, e, n] with `padding` px of margin; waits until every tile in view has loaded.
@@ -128,10 +136,27 @@ function placement(polygon, band = 2) {
   return { drawnIn, drawnBand, drawnOut, area, width: w, height: h, polygonOnScreen: poly };
 }
 
-async function jump(center, zoom) {
-  map.jumpTo({ center, zoom, pitch: 0, bearing: 0 });
+async function jump(center, zoom, { pitch = 0, bearing = 0 } = {}) {
+  map.jumpTo({ center, zoom, pitch, bearing });
   await idle(map);
   return { zoom: map.getZoom() };
+}
+
+// Counts the pixels the color-relief layer paints red (a height below its `low`), the grey
+// ones (a plausible height) and the rest (background, sky).
+function reliefPixels() {
+  const canvas = map.getCanvas();
+  const c2 = document.createElement('canvas');
+  c2.width = canvas.width; c2.height = canvas.height;
+  const ctx = c2.getContext('2d');
+  ctx.drawImage(canvas, 0, 0);
+  const px = ctx.getImageData(0, 0, c2.width, c2.height).data;
+  const near = (k, c) => Math.abs(px[k] - c[0]) + Math.abs(px[k + 1] - c[1]) + Math.abs(px[k + 2] - c[2]) <= 24;
+  let low = 0, ok = 0, other = 0;
+  for (let k = 0; k < px.length; k += 4) {
+    if (near(k, RELIEF_LOW)) low++; else if (near(k, RELIEF_OK)) ok++; else other++;
+  }
+  return { low, ok, other };
 }
 
 function elevation(lngLat) {
@@ -144,7 +169,9 @@ function elevation(lngLat) {
 function demZoom(lngLat) {
   try {
     const terrain = map.terrain;
-    const zoom = Math.min(map._camera.projectedCamera.tileZoom, terrain.tileManager.maxzoom);
+    // the terrain's tiles are tileSize · 2^deltaZoom px (1024 for a 512-px source), so at tile
+    // zoom T they are zoom T − 1; getSourceTile goes deltaZoom further down for the DEM
+    const zoom = map._camera.projectedCamera.tileZoom - Math.log2(terrain.tileManager.tileSize / 512);
     const { tileID } = terrain._getOverscaledTileIDFromLngLatZoom(maplibregl.LngLat.convert(lngLat), zoom);
     const source = terrain.tileManager.getSourceTile(tileID, true);
     return source?.dem ? source.tileID.canonical.z : null;
@@ -153,4 +180,16 @@ function demZoom(lngLat) {
   }
 }
 
-window.tessera = { open, fit, placement, jump, elevation, demZoom, ready: true };
+// queryTerrainElevation once MapLibre's CPU elevation index reads the DEM tiles loaded now.
+// MapLibre 6.20 builds that index (TerrainCoverage) when first asked and keeps each tile's
+// sampler until the set of rendered tiles changes, even when the sampler was made from a loaded
+// parent's DEM (one zoom coarser) while the tile's own was loading: queryTerrainElevation then
+// answers from the coarser DEM although the terrain is drawn from the fine one. A jump out one
+// zoom and back changes the rendered set, which drops the index; public API only.
+async function freshElevation(lngLat, zoom) {
+  await jump(lngLat, zoom - 1);
+  await jump(lngLat, zoom);
+  return map.queryTerrainElevation(lngLat);
+}
+
+window.tessera = { open, fit, placement, jump, elevation, freshElevation, demZoom, reliefPixels, ready: true };

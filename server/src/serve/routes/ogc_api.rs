@@ -183,8 +183,9 @@ pub fn tileset_doc(
                 "type": "image/png",
                 "title": format!("{} tiles", enc.name()),
                 "templated": true,
+                // GDAL's OGC API driver reads PNG pixels exactly: alpha marks no-data.
                 "href": format!(
-                    "{here}/{{tileMatrix}}/{{tileRow}}/{{tileCol}}?encoding={}&v={}",
+                    "{here}/{{tileMatrix}}/{{tileRow}}/{{tileCol}}?encoding={}&nodata=transparent&v={}",
                     enc.name(),
                     ds.content_hash()
                 ),

@@ -14,7 +14,7 @@ use crate::serve::dataset::{Dataset, RecordError};
 use crate::serve::error::{ApiError, ApiResult, quoted};
 use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
 use crate::serve::{AppState, TilesServed, cache};
-use crate::web::encoding::{Encoding, ImageFormat, rgba};
+use crate::web::encoding::{Encoding, ImageFormat, NoData, rgba};
 use crate::web::footprint::Footprint;
 use crate::web::resample::{self, SourceTile};
 use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet, WebTile};
@@ -151,7 +151,10 @@ pub fn source(
 /// encoder's buffers.
 const GRID_BYTES_PER_PIXEL: u64 = 24;
 
-/// The encoded tile, or an empty body when it holds no data.
+/// The encoded tile, or an empty body when it lies beyond the dataset's bounds
+/// (what its TileJSON states). A tile within them but without data (a corner of a
+/// rotated dataset, a wholly void one) is the fill, flat: web maps ask for every
+/// tile within the bounds, and a 404 there would be an error in their console.
 fn make(
     state: &AppState,
     ds: &Dataset,
@@ -160,14 +163,33 @@ fn make(
     ticket: &Ticket,
 ) -> Result<Bytes, Failure> {
     let geometry = ds.pyramid.geometry();
+    let px2 = u64::from(key.px).pow(2);
+    let fill = ds.pyramid.metadata().min_height;
+    let encode = |heights: &[f64], data: &[bool]| {
+        let pixels = rgba(heights, data, key.encoding, key.nodata, fill);
+        key.format
+            .encode(&pixels, key.px)
+            .map(Bytes::from)
+            .map_err(Failure::Encode)
+    };
+    let flat = || -> Result<Bytes, Failure> {
+        if !fp.meets(key.tile) {
+            return Ok(Bytes::new());
+        }
+        let _memory = ticket
+            .reserve(px2 * GRID_BYTES_PER_PIXEL)
+            .map_err(Failure::Stopped)?;
+        let n = px2 as usize;
+        encode(&vec![f64::NAN; n], &vec![false; n])
+    };
     let Some(plan) = resample::plan(fp, geometry, key.tile, key.px) else {
-        return Ok(Bytes::new());
+        return flat();
     };
     let stop = |s| Failure::Stopped(s);
     let tiles = plan.source_tiles();
     let t = u64::from(geometry.tile_size()) + 1;
     let _memory = ticket
-        .reserve(u64::from(key.px).pow(2) * GRID_BYTES_PER_PIXEL + tiles.len() as u64 * t * t * 2)
+        .reserve(px2 * GRID_BYTES_PER_PIXEL + tiles.len() as u64 * t * t * 2)
         .map_err(stop)?;
     let sources = tiles
         .into_iter()
@@ -177,15 +199,12 @@ fn make(
         })
         .collect::<Result<Vec<_>, _>>()?;
     ticket.check().map_err(stop)?;
-    let heights = plan.sample(&sources);
-    if heights.iter().all(|h| h.is_nan()) {
-        return Ok(Bytes::new());
+    let sampled = plan.sample(&sources);
+    if sampled.is_empty() {
+        drop(_memory);
+        return flat();
     }
-    let pixels = rgba(&heights, key.encoding);
-    key.format
-        .encode(&pixels, key.px)
-        .map(Bytes::from)
-        .map_err(Failure::Encode)
+    encode(&sampled.heights, &sampled.data)
 }
 
 /// `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.{png,webp}?encoding=&size=`.
@@ -204,14 +223,16 @@ pub async fn tile(
     let tms = grid(&grid_name)?;
     let enc = encoding(&query)?;
     let px = size(&query)?;
+    let nodata = NoData::from_query(query.get("nodata").map(String::as_str))?;
     let tile = web_tile(tms, &z, &x, y)?;
     let pin = super::pinned(&ds, &query);
     // What the tile depends on besides the dataset: its ETag and its flight's key.
     let variant = format!(
-        "grid {} {px} {} {} {}/{}/{}",
+        "grid {} {px} {} {} {} {}/{}/{}",
         tms.path(),
         enc.name(),
         format.extension(),
+        nodata.name(),
         tile.z,
         tile.x,
         tile.y
@@ -228,6 +249,7 @@ pub async fn tile(
         px,
         encoding: enc,
         format,
+        nodata,
     };
     let made = if let Some(b) = state.web.made(&key) {
         state.compute.hit(Kind::GridTile, b, 1)?

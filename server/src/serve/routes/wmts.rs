@@ -212,8 +212,9 @@ fn layer(x: &mut String, m: &Mapped<'_>, enc: Encoding, base: &str) {
     }
     // {TileMatrixSet} is the standard identifier, which the tile route accepts as
     // the grid segment (web_grid.rs `grid`).
+    // GDAL and QGIS read PNG pixels exactly: alpha marks no-data for them.
     let template = format!(
-        "{base}/v1/datasets/{}/{{TileMatrixSet}}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?encoding={}&size={TILE_PX}&v={}",
+        "{base}/v1/datasets/{}/{{TileMatrixSet}}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?encoding={}&size={TILE_PX}&nodata=transparent&v={}",
         m.ds.name,
         enc.name(),
         m.ds.content_hash()
