@@ -67,26 +67,13 @@ fn tint(v: f32) -> [f32; 3] {
     STOPS[4].1
 }
 
-/// Renders `level` (or an automatic one) of `file` as a shaded-relief PNG at `out`.
-pub fn preview(
-    file: &Path,
-    out: &Path,
-    level: Option<u8>,
-    max_px: u32,
-) -> anyhow::Result<(Level, usize, usize)> {
-    let p = Pyramid::open_file(file)?;
-    let level = match level {
-        Some(l) => Level::new(l)
-            .filter(|l| *l <= p.geometry().finest())
-            .with_context(|| {
-                format!(
-                    "level {l} is not in this pyramid (0..={})",
-                    p.geometry().finest()
-                )
-            })?,
-        None => auto_level(&p, max_px),
-    };
-    let (w, h, z) = level_heights(&p, level)?;
+/// The shaded relief of `w × h` heights (metres, row-major) as 8-bit RGB:
+/// hypsometric tint between their lowest and highest value × Lambert hillshade
+/// (sun from the north-west, 45° up), the slopes scaled so the 90th-percentile
+/// one shows at 45° (a grid may carry no horizontal units). Also the server's
+/// preview pictures (serve/viewer/preview.rs).
+pub fn shade(w: usize, h: usize, z: &[f32]) -> Vec<u8> {
+    assert_eq!(z.len(), w * h, "w × h heights");
     let (lo, hi) = z
         .iter()
         .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
@@ -124,13 +111,37 @@ pub fn preview(
             let n = [-dx * zf, -dy * zf, 1.0];
             let len = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
             let lambert = ((n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]) / len).max(0.0);
-            let shade = 0.35 + 0.65 * lambert;
+            let light = 0.35 + 0.65 * lambert;
             let c = tint((at(x, y) - lo) / range);
             for i in 0..3 {
-                rgb[(y * w + x) * 3 + i] = (c[i] * shade * 255.0).round().clamp(0.0, 255.0) as u8;
+                rgb[(y * w + x) * 3 + i] = (c[i] * light * 255.0).round().clamp(0.0, 255.0) as u8;
             }
         }
     }
+    rgb
+}
+
+/// Renders `level` (or an automatic one) of `file` as a shaded-relief PNG at `out`.
+pub fn preview(
+    file: &Path,
+    out: &Path,
+    level: Option<u8>,
+    max_px: u32,
+) -> anyhow::Result<(Level, usize, usize)> {
+    let p = Pyramid::open_file(file)?;
+    let level = match level {
+        Some(l) => Level::new(l)
+            .filter(|l| *l <= p.geometry().finest())
+            .with_context(|| {
+                format!(
+                    "level {l} is not in this pyramid (0..={})",
+                    p.geometry().finest()
+                )
+            })?,
+        None => auto_level(&p, max_px),
+    };
+    let (w, h, z) = level_heights(&p, level)?;
+    let rgb = shade(w, h, &z);
     let dir = out
         .parent()
         .filter(|d| !d.as_os_str().is_empty())

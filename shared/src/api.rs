@@ -55,6 +55,15 @@ pub mod routes {
     /// One tile; OGC API orders the row before the column.
     pub const OGC_TILE: &str =
         "/ogcapi/collections/{name}/coverage/tiles/{tms}/{tile_matrix}/{tile_row}/{tile_col}";
+    /// A shaded-relief PNG of the whole dataset (at most 256 px a side); query `v=`.
+    pub const PREVIEW: &str = "/v1/datasets/{name}/preview.png";
+    /// The built-in viewer's landing page (HTML): every dataset and its interfaces.
+    pub const LANDING: &str = "/";
+    /// The built-in viewer of one dataset (HTML: MapLibre GL JS, CesiumJS).
+    pub const VIEWER: &str = "/viewer/{name}";
+    /// The viewer's static files: `{lib}` is `maplibre`, `cesium` (third-party, from
+    /// `--viewer-assets`) or `tessera` (the viewer's own, in the binary).
+    pub const VIEWER_ASSET: &str = "/viewer/assets/{lib}/{*path}";
 }
 
 /// `template` with each `{key}` of `params` replaced by its value. Placeholders not
@@ -122,6 +131,48 @@ pub struct DatasetLinks {
     pub errors: String,
     pub tile: String,
     pub png: String,
+    /// The interfaces a server offers beyond the pyramid itself (issue 33), each only
+    /// where it applies to the dataset; absent in documents made from the file alone
+    /// ([`DatasetInfo::new`]) and from servers that predate them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bootstrap: Option<String>,
+    /// A shaded-relief PNG of the whole dataset.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preview: Option<String>,
+    /// TileJSON of the standard grids (datasets with a place on a map).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub standard_grids: Option<StandardGridLinks>,
+    /// WMTS 1.0.0 capabilities of this dataset.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wmts: Option<String>,
+    /// OGC API – Tiles: the dataset's collection.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ogcapi_collection: Option<String>,
+    /// OGC API – Tiles: the collection's coverage tilesets.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ogcapi_tilesets: Option<String>,
+    /// Cesium terrain (quantized-mesh-1.0) `layer.json`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cesium: Option<String>,
+    /// The server's built-in viewer of the dataset (HTML), unless `--no-viewer`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub viewer: Option<String>,
+}
+
+/// TileJSON documents of one standard grid, per height encoding.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct EncodingLinks {
+    pub terrarium: String,
+    pub mapbox: String,
+}
+
+/// TileJSON documents of the two standard grids (OGC tile matrix set identifiers).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StandardGridLinks {
+    #[serde(rename = "WebMercatorQuad")]
+    pub web_mercator_quad: EncodingLinks,
+    #[serde(rename = "WorldCRS84Quad")]
+    pub world_crs84_quad: EncodingLinks,
 }
 
 /// `GET /v1/datasets`.
@@ -167,6 +218,14 @@ impl DatasetInfo {
                 errors: format!("{}?ranges={{ranges}}", at(routes::ERRORS)),
                 tile: at(routes::TILE),
                 png: format!("{}.png?encoding=terrarium", at(routes::WEB_TILE)),
+                bootstrap: None,
+                preview: None,
+                standard_grids: None,
+                wmts: None,
+                ogcapi_collection: None,
+                ogcapi_tilesets: None,
+                cesium: None,
+                viewer: None,
             },
             imagery: None,
             body: meta

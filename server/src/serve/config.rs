@@ -2,6 +2,7 @@
 //! file (`--config`), then defaults — the first that says something wins.
 
 use super::compute::ComputeLimits;
+use super::viewer::ViewerConfig;
 use super::web_cache::{EmptyTiles, WebConfig};
 use anyhow::Context;
 use serde::Deserialize;
@@ -77,8 +78,9 @@ pub struct ServeArgs {
     /// limit allows [default: the open-file limit less a reserve].
     #[arg(long, env = "TESSERA_MAX_CONNECTIONS")]
     pub max_connections: Option<usize>,
-    /// Scheme and authority for absolute URLs in TileJSON, e.g. https://tiles.example.org
-    /// (the Host header is never used) [default: none: URLs are relative].
+    /// Scheme and authority for absolute URLs in TileJSON and WMTS, e.g.
+    /// https://tiles.example.org; documents built with it are shareable by caches
+    /// [default: none: the request's Host, and those documents are private].
     #[arg(long, env = "TESSERA_PUBLIC_URL")]
     pub public_url: Option<String>,
     /// Build absolute URLs from X-Forwarded-Host and X-Forwarded-Proto (only behind a
@@ -125,6 +127,15 @@ pub struct ServeArgs {
     /// Debian's proj-data; without one, such heights are served as-is with a warning].
     #[arg(long, value_name = "GTX")]
     pub geoid: Option<PathBuf>,
+    /// Turn the built-in viewer off: `/` and `/viewer/...` then answer 404 like any
+    /// unknown path (the API is unchanged).
+    #[arg(long, env = "TESSERA_NO_VIEWER")]
+    pub no_viewer: bool,
+    /// Directory holding the viewer's MapLibre GL JS and CesiumJS files, as
+    /// server/viewer-assets.sh prepares it [default: beside the executable,
+    /// ../viewer-assets, then ../share/tessera/viewer-assets].
+    #[arg(long, env = "TESSERA_VIEWER_ASSETS", value_name = "DIR")]
+    pub viewer_assets: Option<PathBuf>,
     /// Log only errors (no request lines or warnings); RUST_LOG still overrides.
     #[arg(short, long)]
     pub quiet: bool,
@@ -159,6 +170,8 @@ struct FileConfig {
     tile_cache_mib: Option<u64>,
     block_cache_mib: Option<u64>,
     geoid: Option<PathBuf>,
+    no_viewer: Option<bool>,
+    viewer_assets: Option<PathBuf>,
 }
 
 /// `cors_origin = "*"` or `cors_origin = ["https://a.example", "https://b.example"]`.
@@ -214,6 +227,8 @@ pub struct Settings {
     pub web: WebConfig,
     /// Capacity of the object-store block cache, in bytes (0: no cache).
     pub block_cache_bytes: u64,
+    /// The built-in viewer (`/`, `/viewer/…`): on or off, and where its assets are.
+    pub viewer: ViewerConfig,
 }
 
 impl Default for Settings {
@@ -237,6 +252,7 @@ impl Default for Settings {
             tls: None,
             web: WebConfig::default(),
             block_cache_bytes: 256 << 20,
+            viewer: ViewerConfig::default(),
         }
     }
 }
@@ -478,6 +494,10 @@ impl Settings {
                 .block_cache_mib
                 .or(file.block_cache_mib)
                 .map_or(d.block_cache_bytes, |m| m.saturating_mul(1 << 20)),
+            viewer: ViewerConfig {
+                enabled: !(args.no_viewer || file.no_viewer.unwrap_or(false)),
+                assets: args.viewer_assets.clone().or(file.viewer_assets),
+            },
         };
         Ok(s)
     }
@@ -652,6 +672,25 @@ mod tests {
                 key: "k.pem".into()
             })
         );
+    }
+
+    #[test]
+    fn the_viewer_is_on_unless_turned_off() {
+        let s = args(&[]).unwrap();
+        assert!(s.viewer.enabled);
+        assert_eq!(s.viewer.assets, None);
+        let s = args(&["--no-viewer", "--viewer-assets", "/opt/va"]).unwrap();
+        assert!(!s.viewer.enabled);
+        assert_eq!(s.viewer.assets, Some(PathBuf::from("/opt/va")));
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("t.toml");
+        std::fs::write(&cfg, "no_viewer = true\nviewer_assets = \"/srv/va\"\n").unwrap();
+        let s = args(&["--config", cfg.to_str().unwrap()]).unwrap();
+        assert!(!s.viewer.enabled);
+        assert_eq!(s.viewer.assets, Some(PathBuf::from("/srv/va")));
+        // The flag beats the file.
+        let s = args(&["--config", cfg.to_str().unwrap(), "--viewer-assets", "x"]).unwrap();
+        assert_eq!(s.viewer.assets, Some(PathBuf::from("x")));
     }
 
     #[test]

@@ -15,6 +15,7 @@ pub mod own_errors;
 pub mod routes;
 pub mod storage;
 pub mod tls;
+pub mod viewer;
 pub mod web_cache;
 
 use axum::Router;
@@ -60,6 +61,8 @@ pub struct AppState {
     pub web: web_cache::WebTiles,
     /// Admission, sharing and cancellation of computed responses.
     pub compute: Arc<compute::Compute>,
+    /// The built-in viewer (`/`, `/viewer/…`): on or off, and its assets.
+    pub viewer: viewer::Viewer,
 }
 
 impl AppState {
@@ -111,6 +114,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::GRID_TILE, get(routes::web_grid::tile))
         .route(paths::CESIUM_TILE, get(routes::cesium::tile))
         .route(paths::OGC_TILE, get(routes::ogc_api::tile))
+        .route(paths::PREVIEW, get(viewer::preview::get))
         .route_layer(GlobalConcurrencyLimitLayer::with_semaphore(computed_slots));
     let cheap = Router::new()
         .route("/healthz", get(routes::health::healthz))
@@ -142,8 +146,14 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::OGC_COLLECTIONS, get(routes::ogc_api::collections))
         .route(paths::OGC_COLLECTION, get(routes::ogc_api::collection))
         .route(paths::OGC_TILESETS, get(routes::ogc_api::tilesets))
-        .route(paths::OGC_TILESET, get(routes::ogc_api::tileset))
-        .route_layer(GlobalConcurrencyLimitLayer::with_semaphore(cheap_slots));
+        .route(paths::OGC_TILESET, get(routes::ogc_api::tileset));
+    // `--no-viewer`: its pages are not routed at all (the fallback's 404).
+    let cheap = if state.viewer.enabled {
+        cheap.merge(viewer::routes())
+    } else {
+        cheap
+    }
+    .route_layer(GlobalConcurrencyLimitLayer::with_semaphore(cheap_slots));
     let api = cheap
         .merge(computed)
         .fallback(|| async { ApiError::not_found("no such endpoint; see API.md") })
@@ -331,6 +341,7 @@ pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
         store,
         web,
         compute,
+        viewer: viewer::Viewer::new(&settings.viewer),
         limits: RangeLimits {
             max_ranges: settings.max_ranges,
             max_tiles: settings.max_tiles,

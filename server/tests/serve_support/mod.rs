@@ -283,6 +283,8 @@ const ENV_VARS: &[&str] = &[
     "TESSERA_SOURCE_CACHE_MIB",
     "TESSERA_TILE_CACHE_MIB",
     "TESSERA_BLOCK_CACHE_MIB",
+    "TESSERA_NO_VIEWER",
+    "TESSERA_VIEWER_ASSETS",
 ];
 
 impl Server {

@@ -55,14 +55,17 @@ pub enum Kind {
     PngTile,
     /// A bootstrap body.
     Bootstrap,
+    /// A dataset's preview picture (the viewer's landing page).
+    Preview,
 }
 
 impl Kind {
-    pub const ALL: [Kind; 4] = [
+    pub const ALL: [Kind; 5] = [
         Kind::Terrain,
         Kind::GridTile,
         Kind::PngTile,
         Kind::Bootstrap,
+        Kind::Preview,
     ];
 
     pub fn label(self) -> &'static str {
@@ -71,6 +74,7 @@ impl Kind {
             Kind::GridTile => "grid_tile",
             Kind::PngTile => "png_tile",
             Kind::Bootstrap => "bootstrap",
+            Kind::Preview => "preview",
         }
     }
 }
@@ -211,7 +215,7 @@ impl Compute {
         let outcomes = IntCounterVec::new(
             Opts::new(
                 "tessera_compute_total",
-                "Computed responses (Cesium meshes, grid and PNG tiles, bootstrap bodies) by kind and outcome: started (a computation admitted), joined (a request that waited on one already in flight), busy (503: queue full or memory not freed in time), cancelled (every requester gone before it ended)",
+                "Computed responses (Cesium meshes, grid and PNG tiles, bootstrap bodies, previews) by kind and outcome: started (a computation admitted), joined (a request that waited on one already in flight), busy (503: queue full or memory not freed in time), cancelled (every requester gone before it ended)",
             ),
             &["kind", "outcome"],
         )

@@ -15,7 +15,7 @@
 //! response holds it), and the last few kept (`KEPT_BYTES`), since a body is the
 //! same for every client of a dataset version and focus.
 
-use super::datasets::describe;
+use super::datasets::describe_served;
 use super::{Params, Segments, dataset, pinned, unavailable};
 use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::Dataset;
@@ -145,7 +145,11 @@ async fn build(
     // whose lengths are wrong.)
     let capacity = planned.min(MAX_PLANNED_CAPACITY);
     let mut body = Vec::with_capacity(usize::try_from(capacity).unwrap_or(0));
-    body.extend(encode_head(&describe(ds), record_levels, table_levels));
+    body.extend(encode_head(
+        &describe_served(state, ds),
+        record_levels,
+        table_levels,
+    ));
     let (mut tiles, mut errors) = (0u64, 0u64);
     for level in g.levels() {
         let l = level.get();
@@ -228,7 +232,11 @@ pub async fn get(
         .get("focus")
         .map(|f| Focus::parse(f).map_err(|e| ApiError::bad_request(requoted(&e, f))))
         .transpose()?;
-    let variant = focus.map_or_else(|| "bootstrap".to_string(), |f| format!("bootstrap@{f}"));
+    // The document inside names the viewer unless it is off (datasets.rs).
+    let variant = super::datasets::document_variant(
+        &state,
+        &focus.map_or_else(|| "bootstrap".to_string(), |f| format!("bootstrap@{f}")),
+    );
     let pin = pinned(&ds, &query);
     let etag = cache::etag(ds.content_hash(), &variant);
     if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)

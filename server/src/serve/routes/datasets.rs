@@ -42,6 +42,30 @@ pub fn describe(ds: &Dataset) -> DatasetInfo {
     info
 }
 
+/// [`describe`] with the links of every interface this server offers for the dataset
+/// (standard grids, WMTS, OGC API, Cesium, preview, viewer: only those that apply).
+/// What the document routes and the bootstrap send.
+pub fn describe_served(state: &AppState, ds: &Dataset) -> DatasetInfo {
+    let mut info = describe(ds);
+    let offered = crate::serve::viewer::interfaces::offered(state, ds);
+    crate::serve::viewer::interfaces::add_links(
+        &mut info.links,
+        &ds.name,
+        &offered,
+        state.viewer.enabled,
+    );
+    info
+}
+
+/// The ETag variant of the document: its links name the viewer unless it is off.
+pub fn document_variant(state: &AppState, base: &str) -> String {
+    if state.viewer.enabled {
+        base.to_string()
+    } else {
+        format!("{base} no-viewer")
+    }
+}
+
 pub async fn list(State(state): State<Arc<AppState>>) -> impl IntoResponse {
     // A dataset whose file changed under the server is left out of the list (its own
     // URL answers 503 with the reason) rather than failing the whole list.
@@ -50,7 +74,7 @@ pub async fn list(State(state): State<Arc<AppState>>) -> impl IntoResponse {
         .datasets
         .values()
         .filter(|d| d.available().is_ok())
-        .map(|d| describe(d))
+        .map(|d| describe_served(&state, d))
         .collect();
     Json(DatasetList { datasets })
 }
@@ -62,9 +86,12 @@ pub async fn get_one(
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
     // The document names the imagery too: its hash is part of the tag.
-    let variant = ds.imagery.as_ref().map_or_else(
-        || "metadata".to_string(),
-        |i| format!("metadata {}", i.content_hash()),
+    let variant = document_variant(
+        &state,
+        &ds.imagery.as_ref().map_or_else(
+            || "metadata".to_string(),
+            |i| format!("metadata {}", i.content_hash()),
+        ),
     );
     let etag = cache::etag(ds.content_hash(), &variant);
     if cache::not_modified(&headers, &etag, ds.last_modified) {
@@ -75,7 +102,7 @@ pub async fn get_one(
             state.cache_max_age,
         ));
     }
-    let mut r = Json(describe(&ds)).into_response();
+    let mut r = Json(describe_served(&state, &ds)).into_response();
     cache::set_headers(
         r.headers_mut(),
         &etag,
