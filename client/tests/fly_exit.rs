@@ -138,7 +138,9 @@ fn fly_run_directly_headless_prints_no_display_noise() {
     let dir = tempfile::tempdir().unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_tessera"))
         .args(["fly", "--server", &url, "--dataset", "terrain"])
-        .args(["--path", "orbit", "--frames", "2", "--width", "64", "--height", "64"])
+        .args([
+            "--path", "orbit", "--frames", "2", "--width", "64", "--height", "64",
+        ])
         .arg("--out")
         .arg(dir.path())
         .env_remove("NODEVICE_SELECT")
