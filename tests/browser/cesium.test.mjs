@@ -49,10 +49,11 @@ const footprint = wgs84Footprint(path.join(DATA, `${DATASET}.tif`));
 
 before(async () => {
   if (!fs.existsSync(EGM96_GRID)) throw new Error(`missing the EGM96 grid ${EGM96_GRID} (Debian's proj-data)`);
-  // --vertical-datum egm96: SRTM heights are above EGM96; the server adds the geoid's undulation
-  // from the same grid PROJ uses for the reference (named, so a missing grid fails loudly)
-  const dir = process.env.TESSERA_TILE_SERVER ? null : buildPyramids([DATASET], { args: ['--vertical-datum', 'egm96'] });
-  tiles = await startTileServer(dir, { args: ['--geoid', EGM96_GRID] });
+  // The user's defaults (issue 33 item 3): no --vertical-datum (the build recognises the SRTM
+  // GeoTIFF's datum, EGM96, from its DTED metadata) and no --geoid (the server finds the grid PROJ
+  // uses for the reference, Debian's proj-data, by itself); layer.json must then carry no warning.
+  const dir = process.env.TESSERA_TILE_SERVER ? null : buildPyramids([DATASET]);
+  tiles = await startTileServer(dir);
   pages = await startStaticServer();
   browser = await launchBrowser();
   ({ page: tab, problems } = await openPage(browser, pages.url, { ...VIEW, file: 'cesium.html' }));
@@ -78,6 +79,9 @@ test(`${DATASET}: layer.json as CesiumJS reads it`, async () => {
   assert.equal(layer.status, 200, 'layer.json fetched cross-origin from the page');
   const doc = layer.doc;
   assert.equal(doc.format, 'quantized-mesh-1.0');
+  // heights on the ellipsoid with the server's defaults: datum recognised, geoid found
+  assert.equal(doc.metadata?.verticalDatum, 'egm96', `verticalDatum ${doc.metadata?.verticalDatum}`);
+  assert.equal(doc.metadata?.warning, undefined, `layer.json warns: ${doc.metadata?.warning}`);
   assert.equal(doc.scheme, 'tms');
   assert.equal(doc.projection, 'EPSG:4326');
   // Normals only: with `metadata` listed, CesiumJS 1.145 needs `metadataAvailability`
