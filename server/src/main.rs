@@ -108,7 +108,9 @@ enum Command {
         nodata: Option<f64>,
         /// What the heights are measured from, recorded so outputs that need another
         /// reference (Cesium: the ellipsoid) can convert. Default: what the input says
-        /// (SRTM .hgt: egm96), else unknown.
+        /// (SRTM .hgt: egm96; a GeoTIFF's vertical GeoKeys, its DTED metadata, or the
+        /// file name of a product such as USGS SRTM or Copernicus DEM), else unknown,
+        /// with a warning giving the error Cesium terrain would show.
         #[arg(long, value_enum)]
         vertical_datum: Option<DatumArg>,
         /// The input's horizontal CRS: EPSG:CODE or a PROJ string (e.g. '+proj=longlat
@@ -377,6 +379,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     r.file_bytes as f64 / 1e6,
                     r.seconds
                 );
+                for w in &r.warnings {
+                    eprintln!("warning: {w}");
+                }
                 return Ok(ExitCode::SUCCESS);
             }
             // An object URL (s3://…) is built locally first, then uploaded whole.
@@ -411,6 +416,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 r.seconds,
                 r.samples as f64 / r.seconds / 1e6
             );
+            // After the summary, whatever --quiet says: a build that succeeded but whose
+            // heights Cesium terrain will misplace.
+            for w in &r.warnings {
+                eprintln!("warning: {w}");
+            }
             if let Some(prepared) = &imagery {
                 let i = tessera_server::imagery::build_beside(prepared, &output, &opts.interrupt)?;
                 println!(

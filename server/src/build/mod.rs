@@ -15,6 +15,7 @@
 //! quadruple of tiles per level, whatever the DEM's size.
 
 mod coarse;
+mod datum;
 mod finest;
 pub mod interrupt;
 pub mod memory;
@@ -104,6 +105,9 @@ pub struct BuildReport {
     pub tiles: u64,
     pub file_bytes: u64,
     pub seconds: f64,
+    /// What the command prints after its summary, also under `--quiet`: the heights'
+    /// vertical datum is unknown ([`datum`]).
+    pub warnings: Vec<String>,
 }
 
 /// A tile with what its parent needs: heights, exact block errors for every spacing,
@@ -157,10 +161,12 @@ pub fn build_inputs(
         output: dir.to_path_buf(),
     };
     let prepared = prepare(inputs, &folders, 1, opts)?;
+    let warnings = prepared.warnings.clone();
     let writer = create_output(output, prepared.geometry, meta_reserve(&prepared.meta))
         .with_context(|| prepared.label.clone())?;
     let loaded = prepared.load(dir, opts, started, None)?;
-    build_tiles(&loaded, writer, opts, started)
+    let report = build_tiles(&loaded, writer, opts, started)?;
+    Ok(BuildReport { warnings, ..report })
 }
 
 /// The folder beside `output` where its temporary files go.
@@ -183,6 +189,8 @@ struct Prepared {
     geometry: TileGeometry,
     plan: memory::Plan,
     meta: Metadata,
+    /// For [`BuildReport::warnings`].
+    warnings: Vec<String>,
 }
 
 /// The DEM as the tiler reads it.
@@ -260,6 +268,9 @@ fn prepare(
         }
         source @ Input::Synthetic(_) => source,
     };
+    // Decided on the input as read (georeferenced by --crs/--bounds if given), before
+    // --to resamples it: reprojection moves the samples, not the heights' reference.
+    let datum = datum::decide(opts.vertical_datum, &source, &label);
     // What the inputs declare, checked before a sample is read: the source a `--to`
     // spools whole first, then the raster the pyramid is built from.
     let declared = match &source {
@@ -337,10 +348,6 @@ fn prepare(
     let ground_spacing = georef
         .as_mut()
         .and_then(|g| ground_geometry(g, width, height, input));
-    let vertical_datum = opts.vertical_datum.unwrap_or_else(|| match &source {
-        Input::Rows(r) => r.vertical_datum().unwrap_or_default(),
-        Input::Synthetic(_) => VerticalDatum::Unknown,
-    });
     let meta = Metadata {
         width,
         height,
@@ -356,7 +363,7 @@ fn prepare(
         nodata_count: 0,
         nodata_fill: "nearest valid sample".into(),
         ground_spacing,
-        vertical_datum,
+        vertical_datum: datum.datum,
         level_counts: Vec::new(),
         georef,
         source: format!("{description} ({source_name})"),
@@ -370,6 +377,7 @@ fn prepare(
         geometry,
         plan,
         meta,
+        warnings: datum.warning.into_iter().collect(),
     })
 }
 
@@ -391,6 +399,7 @@ impl Prepared {
             geometry,
             plan,
             mut meta,
+            warnings: _,
         } = self;
         let dem = match source {
             Input::Rows(mut rows) => {
@@ -550,6 +559,7 @@ fn finish_output(
         tiles: total_tiles,
         file_bytes,
         seconds: started.elapsed().as_secs_f64(),
+        warnings: Vec::new(),
     })
 }
 

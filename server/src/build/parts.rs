@@ -322,6 +322,8 @@ pub struct PartReport {
     pub records: u64,
     pub file_bytes: u64,
     pub seconds: f64,
+    /// As [`BuildReport::warnings`].
+    pub warnings: Vec<String>,
 }
 
 /// Builds part `spec` of `inputs` into `dir` (created if missing) as
@@ -358,6 +360,7 @@ pub fn build_part(
         output: dir.to_path_buf(),
     };
     let prepared = super::prepare(inputs, &folders, spec.n, opts)?;
+    let warnings = prepared.warnings.clone();
     let geometry = prepared.geometry;
     let split = Split::new(&geometry, spec.n);
     let tops = split.tops(spec.k);
@@ -420,6 +423,7 @@ pub fn build_part(
         records,
         file_bytes,
         seconds: started.elapsed().as_secs_f64(),
+        warnings,
     })
 }
 

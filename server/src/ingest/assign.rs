@@ -108,6 +108,10 @@ impl RowSource for Assigned {
     fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
         self.inner.vertical_datum()
     }
+
+    fn datum_clue(&self) -> Option<super::DatumClue> {
+        self.inner.datum_clue()
+    }
 }
 
 /// How a GeoRef's CRS reads in messages, or `None` when it names none.

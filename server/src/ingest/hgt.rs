@@ -111,6 +111,13 @@ impl RowSource for Hgt {
         Some(tessera_shared::VerticalDatum::Egm96)
     }
 
+    fn datum_clue(&self) -> Option<super::DatumClue> {
+        Some(super::DatumClue {
+            datum: self.vertical_datum(),
+            why: "SRTM .hgt heights are above the EGM96 geoid".into(),
+        })
+    }
+
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
         let w = self.info.width as usize;
         let mut raw = vec![0u8; 2 * w];

@@ -76,6 +76,29 @@ pub trait RowSource: Send + std::fmt::Debug {
     fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
         None
     }
+
+    /// What the input says about its vertical datum and where it says it, for the
+    /// build's log: a GeoTIFF's GeoKeys, GDAL metadata or product file name
+    /// ([`geotiff`]'s `vertical` module). Readers that only know a datum from their
+    /// format keep the default, which names no more than that.
+    fn datum_clue(&self) -> Option<DatumClue> {
+        self.vertical_datum().map(|d| DatumClue {
+            datum: Some(d),
+            why: format!("the input's format gives {}", d.name()),
+        })
+    }
+}
+
+/// What an input states about the reference its heights are measured from, and how
+/// it knows ([`RowSource::datum_clue`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DatumClue {
+    /// The datum; `None` when the input names one the metadata cannot record
+    /// (NAVD88, DTED's EGM84-based "MSL"), so the heights stay `unknown`.
+    pub datum: Option<tessera_shared::VerticalDatum>,
+    /// Where it is stated: "GeoTIFF GDAL metadata DTED_VerticalDatum=E96", "file name
+    /// matches USGS SRTM GeoTIFF"; for a `None` datum, what was named instead.
+    pub why: String,
 }
 
 /// A parsed `INPUT` argument.

@@ -17,16 +17,19 @@
 //! pyramid and [`GeoRef::extent`](tessera_shared::GeoRef::extent) assume an axis-aligned grid.
 //!
 //! The `GDAL_NODATA` tag is reported as [`SourceInfo::nodata`]; samples are returned
-//! unchanged.
+//! unchanged. The heights' vertical datum comes from the vertical GeoKeys, GDAL's
+//! DTED metadata or a known product's file name ([`vertical`]).
 
 mod georef;
 mod layout;
+mod product_name;
 #[cfg(test)]
 mod test_tiff;
 #[cfg(test)]
 mod tests;
+mod vertical;
 
-use super::{RowSource, SampleType, SourceInfo};
+use super::{DatumClue, RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
 use georef::read_georef;
 use layout::{Compression, Layout};
@@ -67,6 +70,8 @@ pub struct GeoTiff {
     next_row: u32,
     /// Set when decoding failed: the decoder's state is then unknown.
     failed: bool,
+    /// What the file (or its name) says about the heights' vertical datum.
+    datum: Option<DatumClue>,
 }
 
 impl fmt::Debug for GeoTiff {
@@ -80,6 +85,7 @@ impl fmt::Debug for GeoTiff {
             .field("band_rows", &self.band_rows)
             .field("next_row", &self.next_row)
             .field("failed", &self.failed)
+            .field("datum", &self.datum)
             .finish_non_exhaustive()
     }
 }
@@ -139,13 +145,22 @@ pub fn georef_of(decoder: &mut Decoder<Box<dyn TiffInput>>) -> Option<tessera_sh
 
 /// Reads an ASCII (or byte) tag as text, without the crate's strict NUL handling.
 fn ascii_tag(decoder: &mut Decoder<Reader>, tag: Tag) -> anyhow::Result<Option<String>> {
+    text_tag(decoder, tag, MAX_ASCII_TAG)
+}
+
+/// [`ascii_tag`] with its own limit on the bytes read.
+fn text_tag(
+    decoder: &mut Decoder<Reader>,
+    tag: Tag,
+    limit: usize,
+) -> anyhow::Result<Option<String>> {
     let mut ifd = decoder.image_ifd();
     let Some(entry) = ifd.find_entry(tag) else {
         return Ok(None);
     };
     let len = usize::try_from(entry.count())
         .unwrap_or(usize::MAX)
-        .min(MAX_ASCII_TAG);
+        .min(limit);
     let mut buf = vec![0u8; len];
     let got = ifd
         .find_tag_bytes(tag, &mut buf, 0)
@@ -165,9 +180,15 @@ fn tag_u16(decoder: &mut Decoder<Reader>, tag: Tag, name: &str) -> anyhow::Resul
 
 impl GeoTiff {
     /// Opens a GeoTIFF and checks that it can be read, without decoding any samples.
+    /// A file that states no vertical datum gets the one its name implies, if it is
+    /// the name of a product whose datum is documented ([`product_name`]).
     pub fn open(path: &Path) -> anyhow::Result<Self> {
         let (file, _) = super::open_regular(path)?;
-        Self::from_reader(BufReader::with_capacity(1 << 16, file))
+        let mut tiff = Self::from_reader(BufReader::with_capacity(1 << 16, file))?;
+        if tiff.datum.is_none() {
+            tiff.datum = product_name::datum_of(path);
+        }
+        Ok(tiff)
     }
 
     /// Opens a GeoTIFF from any seekable reader (its length is found by seeking to
@@ -331,6 +352,7 @@ impl GeoTiff {
             }
         };
         let georef = read_georef(&mut decoder);
+        let datum = vertical::from_tags(&mut decoder);
 
         let layout_text = match layout {
             Layout::Strips { rows_per_strip } if rows_per_strip >= height => {
@@ -369,6 +391,7 @@ impl GeoTiff {
             band_rows: 0,
             next_row: 0,
             failed: false,
+            datum,
         })
     }
 
@@ -501,6 +524,14 @@ fn place<T: Copy>(
 impl RowSource for GeoTiff {
     fn info(&self) -> &SourceInfo {
         &self.info
+    }
+
+    fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
+        self.datum.as_ref().and_then(|c| c.datum)
+    }
+
+    fn datum_clue(&self) -> Option<DatumClue> {
+        self.datum.clone()
     }
 
     fn buffer_bytes(&self) -> u64 {

@@ -14,7 +14,7 @@
 //! valid one; two valid samples must be equal, or [`Overlap`] decides.
 
 use super::vrt::is_vrt;
-use super::{RowSource, SampleType, SourceInfo};
+use super::{DatumClue, RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
 use place::{file_group, names, vrt_group};
 use std::path::{Path, PathBuf};
@@ -63,8 +63,8 @@ struct Piece {
     nodata: Vec<f32>,
     /// Memory while open.
     bytes: u64,
-    /// What its heights are measured from, when its format says.
-    vertical_datum: Option<VerticalDatum>,
+    /// What its heights are measured from, when it says, and where it says so.
+    datum: Option<DatumClue>,
 }
 
 /// An open piece: its reader and its current row (no-data already NaN).
@@ -100,12 +100,51 @@ pub struct Mosaic {
     overlap: Overlap,
     opener: Opener,
     buffer_bytes: u64,
-    /// The inputs' vertical datum, when they all state the same one.
-    vertical_datum: Option<VerticalDatum>,
+    /// The inputs' vertical datum, when those that state one agree ([`agreed_datum`]).
+    datum: Option<DatumClue>,
     /// How build errors name the mosaic ("mosaic of 16 inputs", or the VRT).
     label: String,
     /// What the metadata's `source` names: the first file and the count.
     source_name: String,
+}
+
+/// The datum the pieces state, when those that state one agree (pieces that state
+/// nothing do not count), with where it is stated; pieces that disagree, or one that
+/// names a datum the metadata cannot record, leave it unknown and say so.
+fn agreed_datum(pieces: &[Piece]) -> Option<DatumClue> {
+    let mut stating = pieces.iter().filter_map(|p| Some((p, p.datum.as_ref()?)));
+    let (first, clue) = stating.next()?;
+    let count = 1 + stating.clone().count();
+    if let Some((other, o)) = stating.find(|(_, c)| c.datum != clue.datum) {
+        let says = |c: &DatumClue| c.datum.map_or("another datum", VerticalDatum::name);
+        return Some(DatumClue {
+            datum: None,
+            why: format!(
+                "the inputs disagree: {} says {} ({}), {} says {} ({})",
+                first.name,
+                says(clue),
+                clue.why,
+                other.name,
+                says(o),
+                o.why
+            ),
+        });
+    }
+    if pieces.len() == 1 {
+        return Some(clue.clone());
+    }
+    let whose = if count == pieces.len() {
+        format!("all {count} inputs")
+    } else {
+        format!(
+            "{count} of {} inputs, the others stating none",
+            pieces.len()
+        )
+    };
+    Some(DatumClue {
+        datum: clue.datum,
+        why: format!("{whose}, e.g. {}: {}", first.name, clue.why),
+    })
 }
 
 fn file_name(p: &Path) -> String {
@@ -177,15 +216,16 @@ impl Mosaic {
             formats.join("/"),
             types.join("/"),
         );
-        // The datum the inputs state, when those that state one agree.
-        let mut datums = pieces.iter().filter_map(|p| p.vertical_datum);
-        let vertical_datum = datums.next().filter(|d| datums.all(|e| e == *d));
+        let datum = agreed_datum(&pieces);
         let mut by_top: Vec<usize> = (0..pieces.len()).collect();
         by_top.sort_by_key(|&i| (pieces[i].y, i));
         let buffer_bytes = peak_open_bytes(&pieces)
             + pieces
                 .iter()
-                .map(|p| (size_of::<Piece>() + p.path.as_os_str().len() + p.name.len()) as u64)
+                .map(|p| {
+                    let why = p.datum.as_ref().map_or(0, |c| c.why.len());
+                    (size_of::<Piece>() + p.path.as_os_str().len() + p.name.len() + why) as u64
+                })
                 .sum::<u64>();
         Ok(Self {
             info: SourceInfo {
@@ -204,7 +244,7 @@ impl Mosaic {
             overlap,
             opener,
             buffer_bytes,
-            vertical_datum,
+            datum,
             label,
             source_name,
         })
@@ -397,7 +437,11 @@ impl RowSource for Mosaic {
     }
 
     fn vertical_datum(&self) -> Option<VerticalDatum> {
-        self.vertical_datum
+        self.datum.as_ref().and_then(|c| c.datum)
+    }
+
+    fn datum_clue(&self) -> Option<DatumClue> {
+        self.datum.clone()
     }
 }
 

@@ -38,7 +38,7 @@ pub(super) fn file_group(
         src_height: info.height,
         nodata: nodata_values(nodata, &[info.nodata]),
         bytes: piece_bytes(reader.as_ref()),
-        vertical_datum: reader.vertical_datum(),
+        datum: reader.datum_clue(),
     };
     Ok(Group {
         name,
@@ -103,7 +103,7 @@ pub(super) fn vrt_group(path: &Path, nodata: Option<f64>, opener: Opener) -> any
             src_height: info.height,
             nodata: nodata_values(nodata, &[info.nodata, s.nodata, vrt.nodata]),
             bytes: piece_bytes(reader.as_ref()),
-            vertical_datum: reader.vertical_datum(),
+            datum: reader.datum_clue(),
         });
     }
     if pieces.is_empty() {
