@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The browser tests (README.md here): MapLibre GL JS, then CesiumJS, in headless Chromium
-# against `tessera-server serve`. Called by `./run test` after cargo test; runs alone too:
+# The browser tests (README.md here): MapLibre GL JS, then CesiumJS, then the server's built-in
+# viewer, in headless Chromium against `tessera-server serve`. Called by `./run test` after
+# cargo test; runs alone too:
 #   tests/browser/run.sh          (TESSERA_SERVER=path/to/tessera-server, default target/debug/)
 # Needs node/npm and /usr/bin/chromium (./run installs chromium nodejs npm), gdal-bin, and
 # proj-bin (cs2cs) with proj-data (the EGM96 grid) for the Cesium heights.
@@ -14,18 +15,19 @@ if [ ! -x "$TESSERA_SERVER" ]; then
   echo "tests/browser: no server binary at $TESSERA_SERVER (cargo build -p tessera-server)" >&2
   exit 1
 fi
-# npm ci only when package-lock.json changed since the last install (a stamp in
-# node_modules), from a cache outside the clone so a clean clone installs offline and fast.
+# npm ci only when package-lock.json changed since the last install (npm-install.sh, shared
+# with server/viewer-assets.sh).
+"$here/npm-install.sh"
+# The built-in viewer's MapLibre GL JS and CesiumJS (viewer.test.mjs), from the same
+# node_modules into target/viewer-assets, where target/debug/tessera-server finds them.
+"$root/server/viewer-assets.sh"
 cd "$here"
-if ! cmp -s package-lock.json node_modules/.tessera-installed 2>/dev/null; then
-  echo "== npm ci (tests/browser)" >&2
-  npm ci --cache "${XDG_CACHE_HOME:-$HOME/.cache}/tessera/npm" --prefer-offline --no-audit --no-fund --loglevel=error >&2
-  cp package-lock.json node_modules/.tessera-installed
-fi
 echo "== browser tests (node --test, headless Chromium)" >&2
 rc=0
 node --test maplibre.test.mjs || rc=$?
 echo "== CesiumJS terrain (cesium.test.mjs, $(elapsed) s so far)" >&2
 node --test cesium.test.mjs || rc=$?
+echo "== the built-in viewer (viewer.test.mjs, $(elapsed) s so far)" >&2
+node --test viewer.test.mjs || rc=$?
 echo "browser tests took $(elapsed) s, npm ci included (screenshots in out/browser/)" >&2
 exit "$rc"

@@ -39,6 +39,12 @@ fn coord(v: f64) -> String {
     if s == "-0" { "0".into() } else { s.into() }
 }
 
+/// A height to the decimetre.
+fn metres(v: f64) -> String {
+    let s = format!("{v:.1}");
+    s.strip_suffix(".0").unwrap_or(&s).to_string()
+}
+
 /// One `<li>` of links: `label` then each `(text, href, data-link)`.
 fn links_item(out: &mut String, label: &str, links: &[(&str, String, &str)]) {
     let _ = write!(out, "<li><span class=\"what\">{}</span> ", esc(label));
@@ -122,10 +128,11 @@ fn facts(out: &mut String, info: &DatasetInfo, offered: &Offered) {
     row(
         "Size",
         &esc(&format!(
-            "{} × {} samples, {} levels of {}-cell tiles, {}",
+            "{} × {} samples, {} level{} of {}-cell tiles, {}",
             info.width,
             info.height,
             info.levels,
+            if info.levels == 1 { "" } else { "s" },
             info.tile_size,
             bytes(info.bytes)
         )),
@@ -143,8 +150,8 @@ fn facts(out: &mut String, info: &DatasetInfo, offered: &Offered) {
         "Heights",
         &esc(&format!(
             "{} … {} m; vertical datum {}",
-            coord(info.min_height),
-            coord(info.max_height),
+            metres(info.min_height),
+            metres(info.max_height),
             info.vertical_datum.name()
         )),
     );
@@ -347,5 +354,7 @@ mod tests {
         assert_eq!(coord(2_600_000.0), "2600000");
         assert_eq!(coord(45.999_583_333), "45.999583");
         assert_eq!(rel("/v1/datasets"), "v1/datasets");
+        assert_eq!(metres(502.020_996), "502");
+        assert_eq!(metres(4216.284_18), "4216.3");
     }
 }

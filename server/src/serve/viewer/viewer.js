@@ -177,14 +177,15 @@ async function openGlobe() {
     readout(Cesium.Math.toDegrees(c.longitude), Cesium.Math.toDegrees(c.latitude), c.height, 'Cesium terrain, above the ellipsoid');
   }, Cesium.ScreenSpaceEventType.MOUSE_MOVE);
   globe = { Cesium, viewer, provider, ellipsoid };
-  // Fly to the dataset: a bounding sphere over its middle, seen from the south, pitched down.
+  // Fly to the dataset: its middle, seen from the south, pitched down, near enough for the
+  // relief to show.
   const r = ellipsoid.maximumRadius;
   const rad = Math.PI / 180;
   const across = Math.hypot((e - w) * rad * r * Math.cos(lat * rad), (n - s) * rad * r);
   const centre = Cesium.Cartesian3.fromDegrees(lon, lat, (config.minHeight + config.maxHeight) / 2, ellipsoid);
   await new Promise((resolve) => {
     viewer.camera.flyToBoundingSphere(new Cesium.BoundingSphere(centre, across / 2), {
-      offset: new Cesium.HeadingPitchRange(0, -35 * rad, Math.max(across * 1.1, 2000)),
+      offset: new Cesium.HeadingPitchRange(0, -40 * rad, Math.max(across * 0.75, 2000)),
       duration: 1.5, complete: resolve, cancel: resolve,
     });
   });
@@ -245,6 +246,7 @@ async function setMode(mode) {
   $('mode-cesium').setAttribute('aria-pressed', String(mode === 'cesium'));
   $('map').hidden = mode !== 'maplibre';
   $('globe').hidden = mode !== 'cesium';
+  $('readout').textContent = 'Point at the terrain for its height';
   if (mode === 'cesium') {
     if (!globe) {
       status('Loading CesiumJS…');
@@ -270,9 +272,12 @@ window.addEventListener('unhandledrejection', (ev) => fail('unexpected', ev.reas
 
 Object.assign(api, {
   idle, elevation, centrePixels, setMode, globeTilesLoaded, globeSample,
-  get map() { return map; },
-  get globe() { return globe; },
   version: () => ({ maplibre: maplibregl?.getVersion?.() ?? null, cesium: window.Cesium?.VERSION ?? null }),
+});
+// (getters: Object.assign would copy their values of now)
+Object.defineProperties(api, {
+  map: { get: () => map },
+  globe: { get: () => globe },
 });
 
 try {
