@@ -355,6 +355,6 @@ mod tests {
         assert_eq!(coord(45.999_583_333), "45.999583");
         assert_eq!(rel("/v1/datasets"), "v1/datasets");
         assert_eq!(metres(502.020_996), "502");
-        assert_eq!(metres(4216.284_18), "4216.3");
+        assert_eq!(metres(4_216.284_18), "4216.3");
     }
 }
