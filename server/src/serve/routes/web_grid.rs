@@ -188,7 +188,7 @@ fn make(
     let stop = |s| Failure::Stopped(s);
     let tiles = plan.source_tiles();
     let t = u64::from(geometry.tile_size()) + 1;
-    let _memory = ticket
+    let memory = ticket
         .reserve(px2 * GRID_BYTES_PER_PIXEL + tiles.len() as u64 * t * t * 2)
         .map_err(stop)?;
     let sources = tiles
@@ -201,10 +201,13 @@ fn make(
     ticket.check().map_err(stop)?;
     let sampled = plan.sample(&sources);
     if sampled.is_empty() {
-        drop(_memory);
+        // The flat tile reserves its own, smaller share.
+        drop(memory);
         return flat();
     }
-    encode(&sampled.heights, &sampled.data)
+    let encoded = encode(&sampled.heights, &sampled.data);
+    drop(memory);
+    encoded
 }
 
 /// `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.{png,webp}?encoding=&size=`.
@@ -394,30 +397,30 @@ pub async fn tilejson(
             state.web.config.attribution
         ),
     );
-    let mut r = match cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
-    {
-        Some(r) => r,
-        None => {
-            let fp = footprint(&state, &ds)?;
-            let doc = tilejson_doc(
-                &ds,
-                &fp,
-                tms,
-                &url,
-                enc,
-                px,
-                state.web.config.attribution.as_deref(),
-            );
-            let mut r = Json(doc).into_response();
-            cache::set_headers(
-                r.headers_mut(),
-                &etag,
-                ds.last_modified,
-                pin,
-                state.cache_max_age,
-            );
-            r
-        }
+    let revalidated =
+        cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age);
+    let mut r = if let Some(r) = revalidated {
+        r
+    } else {
+        let fp = footprint(&state, &ds)?;
+        let doc = tilejson_doc(
+            &ds,
+            &fp,
+            tms,
+            &url,
+            enc,
+            px,
+            state.web.config.attribution.as_deref(),
+        );
+        let mut r = Json(doc).into_response();
+        cache::set_headers(
+            r.headers_mut(),
+            &etag,
+            ds.last_modified,
+            pin,
+            state.cache_max_age,
+        );
+        r
     };
     base_url::private(r.headers_mut(), from_host, state.cache_max_age);
     Ok(r)

@@ -222,21 +222,21 @@ pub async fn tilejson(
             state.web.config.attribution
         ),
     );
-    let mut r = match cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
-    {
-        Some(r) => r,
-        None => {
-            let attribution = state.web.config.attribution.as_deref();
-            let mut r = Json(tilejson_doc(&ds, &url, encoding, attribution)).into_response();
-            cache::set_headers(
-                r.headers_mut(),
-                &etag,
-                ds.last_modified,
-                pin,
-                state.cache_max_age,
-            );
-            r
-        }
+    let revalidated =
+        cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age);
+    let mut r = if let Some(r) = revalidated {
+        r
+    } else {
+        let attribution = state.web.config.attribution.as_deref();
+        let mut r = Json(tilejson_doc(&ds, &url, encoding, attribution)).into_response();
+        cache::set_headers(
+            r.headers_mut(),
+            &etag,
+            ds.last_modified,
+            pin,
+            state.cache_max_age,
+        );
+        r
     };
     base_url::private(r.headers_mut(), from_host, state.cache_max_age);
     Ok(r)
