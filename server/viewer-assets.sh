@@ -20,7 +20,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 out="${1:-${CARGO_TARGET_DIR:-$root/target}/viewer-assets}"
 case "$out" in /*) ;; *) out="$PWD/$out" ;; esac
 lock="$root/tests/browser/package-lock.json"
-stamp_want="$(sha256sum "$lock" "$0" | sha256sum | cut -d' ' -f1)"
+stamp_want="$(cat "$lock" "$0" | sha256sum | cut -d' ' -f1)"   # contents only, not paths
 if [ "$(cat "$out/.tessera-assets" 2>/dev/null)" = "$stamp_want" ]; then
   exit 0
 fi
@@ -48,4 +48,4 @@ echo "$stamp_want" > "$stage/.tessera-assets"
 rm -rf "$out"
 mv "$stage" "$out"
 trap - EXIT
-echo "== viewer assets ready: $out ($(cat "$out/versions.txt" | tr '\n' ' '))" >&2
+echo "== viewer assets ready: $out ($(tr '\n' ' ' < "$out/versions.txt" | sed 's/ $//'))" >&2
