@@ -306,9 +306,9 @@ mod tests {
         }
         let px = rgba(&heights, &data, Encoding::Mapbox, NoData::Opaque, fill);
         assert_eq!(
-            [px[4], px[5], px[6]],
+            [px[28], px[29], px[30]],
             mapbox(fill),
-            "pixel 1 has no height: the fill"
+            "pixel 7 has no height: the fill"
         );
     }
 
