@@ -86,9 +86,11 @@ fn every_record_served_from_s3_equals_the_local_files() {
         "/v1/datasets/synth/tiles/2/1/3",
         "/v1/datasets/synth/tilejson.json",
     ] {
+        // One Host for both: the TileJSON's absolute URLs are built from it.
+        let host = [("host", "tiles.test")];
         assert_eq!(
-            remote.get(path).expect(200).body,
-            local.get(path).expect(200).body,
+            remote.get_with(path, &host).expect(200).body,
+            local.get_with(path, &host).expect(200).body,
             "{path}"
         );
     }
