@@ -390,8 +390,14 @@ impl Server {
         self.child.id()
     }
 
+    /// The URL of `path` on this server; an absolute URL that already names this
+    /// server (what the TileJSON gives) as it is.
     pub fn url(&self, path: &str) -> String {
-        format!("{}://{}{path}", self.scheme, self.addr)
+        let me = format!("{}://{}", self.scheme, self.addr);
+        if path.starts_with(&format!("{me}/")) {
+            return path.to_string();
+        }
+        format!("{me}{path}")
     }
 
     pub fn get(&self, path: &str) -> Resp {
