@@ -7,6 +7,25 @@ use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::time::Duration;
 
+/// One request of every kind of cacheable response, on dataset `synth`.
+pub const CACHEABLE: [&str; 6] = [
+    "/v1/datasets/synth",
+    "/v1/datasets/synth/tilejson.json",
+    "/v1/datasets/synth/levels/2/tiles?ranges=0-15",
+    "/v1/datasets/synth/tiles/2/1/1",
+    "/v1/datasets/synth/2/1/1.png",
+    "/v1/datasets/synth/pyramid",
+];
+
+/// A gzip body, decompressed.
+pub fn gunzip(b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    flate2::read::GzDecoder::new(b)
+        .read_to_end(&mut out)
+        .unwrap();
+    out
+}
+
 #[derive(Debug)]
 pub struct Resp {
     pub path: String,

@@ -11,7 +11,7 @@ mod stream;
 
 // Each test binary uses some of these.
 #[allow(unused_imports)]
-pub use http::{RawResp, Resp, find, parse_head, raw_get, raw_request};
+pub use http::{CACHEABLE, RawResp, Resp, find, gunzip, parse_head, raw_get, raw_request};
 #[allow(unused_imports)]
 pub use metrics::{Sample, metric, parse_metrics};
 #[allow(unused_imports)]
