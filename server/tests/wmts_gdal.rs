@@ -488,8 +488,10 @@ fn ogc_api_tiles_lead_to_the_grid_tiles() {
             .replace("{tileRow}", &row.to_string())
             .replace("{tileCol}", &col.to_string());
         let via_ogc = srv.get(&item);
+        // The template asks for alpha-marked no-data (GDAL reads it), as the WMTS does.
+        assert!(item.contains("nodata=transparent"), "{item}");
         let direct = srv.get(&format!(
-            "/v1/datasets/N46E008/{id}/{z}/{col}/{row}.png?encoding=terrarium"
+            "/v1/datasets/N46E008/{id}/{z}/{col}/{row}.png?encoding=terrarium&nodata=transparent"
         ));
         assert_eq!((via_ogc.status, direct.status), (200, 200), "{item}");
         assert_eq!(via_ogc.body, direct.body, "{item}");
