@@ -11,6 +11,7 @@ pub mod api;
 pub mod body;
 pub mod bootstrap;
 pub mod codec;
+pub mod ellipsoid;
 pub mod error_table;
 pub mod focus;
 pub mod format;

@@ -1,9 +1,9 @@
 //! Globes and measurements the globe's and selection's tests share.
 
 use super::Globe;
-use super::ellipsoid::Ellipsoid;
 use super::grid::LonLatGrid;
 use glam::{DVec2, DVec3};
+use tessera_shared::ellipsoid::Ellipsoid;
 
 /// The moon 8192² grid (1/256°, from 43°E, 32.99°N) on its sphere.
 pub(crate) fn moon() -> Globe {

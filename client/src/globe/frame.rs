@@ -35,7 +35,7 @@ impl EyeFrame {
             .grid
             .lon_lat(p.x / globe.spacing.x, p.z / globe.spacing.y);
         Self {
-            ecef: globe.ellipsoid.ecef(lon, lat, p.y),
+            ecef: globe.ellipsoid.to_ecef(lon, lat, p.y),
             to_local: to_local(lon, lat),
             lon,
             lat,
@@ -60,11 +60,11 @@ mod tests {
         assert!((r * r.transpose() - DMat3::IDENTITY).abs_diff_eq(DMat3::ZERO, 1e-12));
         // Right-handed like the flat world: east × up = south... x × y = z.
         assert!((r.row(0).cross(r.row(1)) - r.row(2)).length() < 1e-12);
-        let e = crate::globe::ellipsoid::Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap();
-        let up = e.ecef(lon, lat, 1.0) - e.ecef(lon, lat, 0.0);
+        let e = tessera_shared::ellipsoid::Ellipsoid::new(6_378_137.0, 6_356_752.314_245).unwrap();
+        let up = e.to_ecef(lon, lat, 1.0) - e.to_ecef(lon, lat, 0.0);
         assert!((up - r.row(1)).length() < 1e-6);
         // North is a small step up in latitude: −south.
-        let north = e.ecef(lon, lat + 1e-7, 0.0) - e.ecef(lon, lat, 0.0);
+        let north = e.to_ecef(lon, lat + 1e-7, 0.0) - e.to_ecef(lon, lat, 0.0);
         assert!((north.normalize() + r.row(2)).length() < 1e-6);
     }
 }

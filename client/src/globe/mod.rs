@@ -11,7 +11,6 @@
 //! distances to, and culls, bounding spheres of the curved tiles ([`volume`]) and
 //! drops tiles behind the limb ([`horizon`]).
 
-pub mod ellipsoid;
 #[cfg(test)]
 pub(crate) mod fixtures;
 pub mod frame;
@@ -20,10 +19,10 @@ pub mod horizon;
 pub mod tables;
 pub mod volume;
 
-use ellipsoid::Ellipsoid;
 use glam::{DVec2, DVec3};
 use grid::LonLatGrid;
 use tessera_shared::api::DatasetInfo;
+use tessera_shared::ellipsoid::Ellipsoid;
 
 /// Whether to draw on the globe (`tessera fly --globe`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -91,7 +90,7 @@ impl Globe {
     /// position `relative()` approximates.
     pub fn ecef(&self, x: f64, y: f64, h: f64) -> DVec3 {
         let (lon, lat) = self.grid.lon_lat(x, y);
-        self.ellipsoid.ecef(lon, lat, h)
+        self.ellipsoid.to_ecef(lon, lat, h)
     }
 
     /// ECEF of a flat-world point `(x, h, z)` (a map pose, a box corner).
@@ -102,7 +101,7 @@ impl Globe {
     /// Radius of a sphere inside the body under every point of the dataset: the
     /// polar semi-axis lowered by the deepest height below the ellipsoid.
     pub fn occluder_radius(&self) -> f64 {
-        self.ellipsoid.b + self.min_height.min(0.0)
+        self.ellipsoid.polar_radius() + self.min_height.min(0.0)
     }
 }
 
@@ -129,7 +128,10 @@ mod tests {
         let s = DVec2::splat(100.0);
         let moon = info("+proj=longlat +R=1737400 +no_defs", None);
         let g = Globe::choose(GlobeMode::Auto, &moon, s).unwrap().unwrap();
-        assert_eq!((g.ellipsoid.a, g.ellipsoid.b), (1_737_400.0, 1_737_400.0));
+        assert_eq!(
+            (g.ellipsoid.equatorial_radius(), g.ellipsoid.polar_radius()),
+            (1_737_400.0, 1_737_400.0)
+        );
         // Sample (0, 0)'s centre is half a sample in from the corner.
         let (lon, lat) = g.grid.lon_lat(0.0, 0.0);
         assert!((lon.to_degrees() - (51.0 + 0.5 / 256.0)).abs() < 1e-12);

@@ -40,17 +40,17 @@ impl EyeTables {
     pub fn new(globe: &Globe, eye: &EyeFrame, cols: u32, rows: u32) -> Self {
         let e = &globe.ellipsoid;
         let he = eye.height;
-        let k = (e.n(eye.lat) + he) * eye.lat.cos();
+        let k = (e.prime_vertical_radius(eye.lat) + he) * eye.lat.cos();
         let ze = eye.ecef.z;
         let (se, ce) = eye.lon.sin_cos();
         let rows = (0..rows)
             .map(|j| {
                 let (_, lat) = globe.grid.lon_lat(0.0, f64::from(j));
                 let (s, c) = lat.sin_cos();
-                let n = e.n(lat);
+                let n = e.prime_vertical_radius(lat);
                 [
                     ((n + he) * c - k) as f32,
-                    ((n * (1.0 - e.e2) + he) * s - ze) as f32,
+                    ((n * (1.0 - e.eccentricity_squared()) + he) * s - ze) as f32,
                     c as f32,
                     s as f32,
                 ]
@@ -117,7 +117,7 @@ mod tests {
     #[test]
     fn the_mirror_matches_an_independent_geodetic_to_ecef() {
         let g = alps();
-        let (a, b) = (g.ellipsoid.a, g.ellipsoid.b);
+        let (a, b) = (g.ellipsoid.equatorial_radius(), g.ellipsoid.polar_radius());
         // Grid point (x, y) is at (8 + x/1200, 47 − y/1200) degrees.
         for (x, y, h) in [
             (0.0, 0.0, 0.0),

@@ -113,7 +113,10 @@ pub fn distance(globe: &Globe, eye: &EyeFrame, min: DVec3, max: DVec3) -> f64 {
         .step_by(2)
         .map(|p| p.length())
         .fold(0.0, f64::max);
-    let (a, b) = (globe.ellipsoid.a, globe.ellipsoid.b);
+    let (a, b) = (
+        globe.ellipsoid.equatorial_radius(),
+        globe.ellipsoid.polar_radius(),
+    );
     let span = (max.z - min.z).abs() / b;
     let above = e.length() - top - ((a - b) * span * span + 1.0);
     to_sphere.max(above).max(beside)
@@ -157,7 +160,10 @@ fn local_box_distance(
             }
         }
     }
-    let (a, b) = (globe.ellipsoid.a, globe.ellipsoid.b);
+    let (a, b) = (
+        globe.ellipsoid.equatorial_radius(),
+        globe.ellipsoid.polar_radius(),
+    );
     let rho = (b * b / a + lowest.min(0.0)).max(1.0);
     let margin = c * c / (4.0 * rho) + 1.0;
     let nearest = DVec3::ZERO.clamp(lo - margin, hi + margin);

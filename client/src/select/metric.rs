@@ -135,7 +135,7 @@ impl TileRho {
                     if excess <= 1e-9 * fine * fine {
                         0.0
                     } else {
-                        excess / (8.0 * g.ellipsoid.b)
+                        excess / (8.0 * g.ellipsoid.polar_radius())
                     }
                 }
                 _ => 0.0,
