@@ -13,7 +13,7 @@ pub mod imagery;
 pub mod info;
 pub mod ingest;
 pub mod preview;
-pub mod remote;
 pub mod serve;
+pub mod storage;
 pub mod verify;
 pub mod web;

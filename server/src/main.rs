@@ -386,7 +386,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             // An object URL (s3://…) is built locally first, then uploaded whole.
             let r =
-                tessera_server::remote::upload::with_output(
+                tessera_server::storage::upload::with_output(
                     &output,
                     !quiet,
                     |out| match &assemble {

@@ -1,9 +1,9 @@
 //! The datasets a server holds: one pyramid file each, named by its file stem.
 
 use super::cache::LastModified;
-use super::object_storage::{ObjectStorage, StoreContext};
-use super::storage::{FileStorage, Storage, StorageSource};
-use crate::remote::{self, Location};
+use crate::storage::{
+    self, FileStorage, Location, ObjectStorage, Storage, StorageSource, StoreContext,
+};
 use anyhow::{Context, bail};
 use bytes::Bytes;
 use std::collections::BTreeMap;
@@ -322,13 +322,13 @@ pub struct Registry {
 
 impl Registry {
     /// Loads every `.tess` file named, every `.tess` file directly inside each
-    /// directory named, and every object URL named (`s3://…`, [`remote::locate`]),
+    /// directory named, and every object URL named (`s3://…`, [`storage::locate`]),
     /// the objects read through `store` (its block cache and metrics).
     pub fn load(paths: &[PathBuf], store: &Arc<StoreContext>) -> anyhow::Result<Self> {
         let mut found: Vec<(String, PathBuf, Location)> = Vec::new();
         for p in paths {
             let raw = p.to_string_lossy();
-            if let Location::Object(o) = remote::locate(&raw, store.options)? {
+            if let Location::Object(o) = storage::locate(&raw, store.options)? {
                 found.push((o.stem(), p.clone(), Location::Object(o)));
                 continue;
             }

@@ -24,11 +24,11 @@ pub fn open_beside(ds: &Dataset, dem: &Path) -> anyhow::Result<Option<Arc<Datase
 /// block cache.
 pub fn open_beside_object(
     ds: &Dataset,
-    loc: crate::remote::ObjectLocation,
-    ctx: &Arc<super::object_storage::StoreContext>,
+    loc: crate::storage::ObjectLocation,
+    ctx: &Arc<crate::storage::StoreContext>,
 ) -> anyhow::Result<Option<Arc<Dataset>>> {
     let label = std::path::PathBuf::from(&loc.url);
-    let storage = match super::object_storage::ObjectStorage::open(loc, ctx.clone()) {
+    let storage = match crate::storage::ObjectStorage::open(loc, ctx.clone()) {
         Ok(s) => s,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(e.into()),

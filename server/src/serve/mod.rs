@@ -10,10 +10,8 @@ pub mod error;
 pub mod http_range;
 pub mod imagery;
 pub mod metrics;
-pub mod object_storage;
 pub mod own_errors;
 pub mod routes;
-pub mod storage;
 pub mod tls;
 pub mod viewer;
 pub mod web_cache;
@@ -49,7 +47,7 @@ pub struct AppState {
     pub metrics: Metrics,
     /// The object-store block cache, metrics and retry settings every object
     /// dataset shares (kept across reloads).
-    pub store: Arc<object_storage::StoreContext>,
+    pub store: Arc<crate::storage::StoreContext>,
     pub limits: RangeLimits,
     pub cache_max_age: u64,
     pub max_query_bytes: usize,
@@ -322,9 +320,9 @@ pub async fn shutdown_signal() {
 /// The shared state for `settings`' datasets and limits.
 pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
     let metrics = Metrics::new();
-    let store = Arc::new(object_storage::StoreContext::new(
+    let store = Arc::new(crate::storage::StoreContext::new(
         settings.block_cache_bytes,
-        crate::remote::StoreOptions::default(),
+        crate::storage::StoreOptions::default(),
         metrics.registry(),
     ));
     let registry = Registry::load(&settings.datasets, &store)?;

@@ -5,7 +5,7 @@
 //! sent with `Content-Length`. From a local file whose records in the ranges have
 //! all passed their checksum (the steady state), each frame (header and record in
 //! one buffer) is read as hyper asks for the next body chunk, into a reused buffer
-//! ([`Storage::framed`](crate::serve::storage::Storage::framed)): the record is
+//! ([`Storage::framed`](crate::storage::Storage::framed)): the record is
 //! copied from the page cache into a buffer still in the CPU's cache and from there
 //! into the socket, instead of every record of the response being read up front into
 //! megabytes of fresh memory (BENCHMARKS.md "Serving"). Otherwise (object storage, a

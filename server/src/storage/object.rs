@@ -7,12 +7,13 @@
 //! (`If-Match`), so a replaced object can never be mixed into a response: the first
 //! read that notices marks the dataset changed, and it answers 503 until a reload.
 //! The store's client retries 5xx answers, timeouts and broken connections with
-//! exponential backoff ([`crate::remote::StoreOptions`]); what still fails is an
+//! exponential backoff ([`StoreOptions`]); what still fails is an
 //! `io::Error` naming the URL, which the routes turn into a 503 with a JSON reason.
 
-use super::storage::Storage;
-use crate::remote::block_cache::{self, BLOCK, BlockCache};
-use crate::remote::{self, ObjectLocation, StoreOptions};
+use super::Storage;
+use super::block_cache::{self, BLOCK, BlockCache};
+use super::location::{ObjectLocation, StoreOptions};
+use super::runtime;
 use bytes::Bytes;
 use futures_util::future::{BoxFuture, Either};
 use object_store::{GetOptions, GetRange, ObjectStoreExt};
@@ -153,7 +154,7 @@ impl ObjectStorage {
     /// HEADs the object (blocking: servers open datasets at start-up and on reload).
     pub fn open(loc: ObjectLocation, ctx: Arc<StoreContext>) -> io::Result<Self> {
         let (store, key, url) = (loc.store.clone(), loc.key.clone(), loc.url.clone());
-        let head = remote::block_on(async move { store.head(&key).await });
+        let head = runtime::block_on(async move { store.head(&key).await });
         let meta = head.map_err(|e| {
             ctx.metrics
                 .requests
@@ -362,7 +363,7 @@ impl Storage for ObjectStorage {
     fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes> {
         let got = match self.read_range(offset, len)? {
             Either::Left(cached) => cached.into_inner(),
-            Either::Right(fetch) => remote::block_on(fetch),
+            Either::Right(fetch) => runtime::block_on(fetch),
         };
         self.settle(got)
     }
@@ -371,7 +372,7 @@ impl Storage for ObjectStorage {
         Box::pin(async move {
             let got = match self.read_range(offset, len)? {
                 Either::Left(cached) => cached.into_inner(),
-                Either::Right(fetch) => remote::run(fetch).await,
+                Either::Right(fetch) => runtime::run(fetch).await,
             };
             self.settle(got)
         })
@@ -396,7 +397,7 @@ impl Storage for ObjectStorage {
                 self.loc.key.clone(),
                 self.loc.url.clone(),
             );
-            let head = remote::run(async move {
+            let head = runtime::run(async move {
                 tokio::time::timeout(Duration::from_secs(2), store.head(&key)).await
             })
             .await;

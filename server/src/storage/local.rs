@@ -1,60 +1,13 @@
-//! Where pyramid bytes come from, behind one small trait so object storage can be
-//! added without touching the routes (DESIGN §4).
+//! A pyramid in a local file behind the [`Storage`] trait: positional reads on the
+//! descriptor opened at start-up, into pooled frame buffers.
 
+use super::Storage;
 use bytes::Bytes;
-use futures_util::future::BoxFuture;
 use std::io;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Mutex, PoisonError};
 use std::time::SystemTime;
-use tessera_shared::ByteSource;
-
-/// A pyramid file's bytes, answered by range.
-pub trait Storage: Send + Sync + std::fmt::Debug + 'static {
-    /// Total length in bytes, as it was when the storage was opened.
-    fn size(&self) -> u64;
-    /// Bytes `offset..offset + len`; an error if they cannot all be read.
-    fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes>;
-    /// `Err` naming what changed if the bytes may no longer be the ones opened
-    /// (a file truncated or rewritten in place). Cheap: called on every request.
-    fn check_unchanged(&self) -> Result<(), String>;
-    /// When the bytes were last modified, as it was when the storage was opened
-    /// (`Last-Modified`); `None` where unknown.
-    fn modified(&self) -> Option<SystemTime> {
-        None
-    }
-    /// [`Storage::slice`] for async callers. The default reads in place: a local
-    /// `pread` is brief, and served records are usually in the page cache. Object
-    /// storage fetches without blocking the caller's runtime.
-    fn read(&self, offset: u64, len: u64) -> BoxFuture<'_, io::Result<Bytes>> {
-        Box::pin(std::future::ready(self.slice(offset, len)))
-    }
-    /// Whether [`Storage::framed`] is a cheap local read, made while a response is
-    /// being written: then a range stream reads each record as hyper asks for it
-    /// instead of all of them up front. Object storage fetches each range once, up
-    /// front (one GET), so it says no.
-    fn reads_while_writing(&self) -> bool {
-        false
-    }
-    /// `head` followed by bytes `offset..offset + len`, in one buffer: a frame of a
-    /// range stream (its header, then the stored record). The default copies what
-    /// [`Storage::slice`] read; a storage that reads while writing reads in place.
-    fn framed(&self, head: &[u8], offset: u64, len: u64) -> io::Result<Bytes> {
-        let body = self.slice(offset, len)?;
-        let mut buf = Vec::with_capacity(head.len() + body.len());
-        buf.extend_from_slice(head);
-        buf.extend_from_slice(&body);
-        Ok(Bytes::from(buf))
-    }
-    /// Whether the bytes can be served now (`/healthz/ready`): `Err` with the reason
-    /// when the storage is unreachable or no longer what was opened.
-    fn ready(&self) -> BoxFuture<'_, Result<(), String>> {
-        Box::pin(std::future::ready(self.check_unchanged()))
-    }
-    /// Where the bytes are, for messages: a path or a URL.
-    fn label(&self) -> String;
-}
 
 /// A local file read with positional reads (`pread`) on the descriptor opened at
 /// start-up.
@@ -283,21 +236,6 @@ fn read_exact_at(file: &std::fs::File, mut buf: &mut [u8], mut offset: u64) -> i
         }
     }
     Ok(())
-}
-
-/// Lets the shared pyramid reader parse headers and indices from any [`Storage`].
-#[derive(Debug, Clone)]
-pub struct StorageSource(pub Arc<dyn Storage>);
-
-impl ByteSource for StorageSource {
-    fn size(&self) -> io::Result<u64> {
-        Ok(self.0.size())
-    }
-
-    fn read_at(&self, offset: u64, buf: &mut [u8]) -> io::Result<()> {
-        buf.copy_from_slice(&self.0.slice(offset, buf.len() as u64)?);
-        Ok(())
-    }
 }
 
 #[cfg(test)]

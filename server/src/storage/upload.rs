@@ -2,7 +2,7 @@
 //! multipart upload that is completed only when every part is in, and aborted
 //! otherwise, so the key never names a partial pyramid (DESIGN §8).
 
-use super::ObjectLocation;
+use super::location::{self, ObjectLocation};
 use object_store::{ObjectStoreExt, WriteMultipart};
 use std::io::Read;
 use std::path::Path;
@@ -20,7 +20,7 @@ pub fn upload_file(
 ) -> anyhow::Result<u64> {
     let local = local.to_path_buf();
     let to = to.clone();
-    super::block_on(async move {
+    super::runtime::block_on(async move {
         let size = std::fs::metadata(&local)
             .map_err(|e| anyhow::anyhow!("{}: {e}", local.display()))?
             .len();
@@ -103,7 +103,8 @@ pub fn with_output<R>(
     build: impl FnOnce(&Path) -> anyhow::Result<R>,
 ) -> anyhow::Result<R> {
     let raw = output.to_string_lossy();
-    let super::Location::Object(object) = super::locate(&raw, super::StoreOptions::default())?
+    let location::Location::Object(object) =
+        location::locate(&raw, location::StoreOptions::default())?
     else {
         return build(output);
     };
