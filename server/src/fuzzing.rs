@@ -10,11 +10,11 @@
 //! panic; for the valid seeds of `fuzz/corpus/` they return `Ok`. A few also check
 //! what an accepted result promises (ranges sorted, inside the level, within limits).
 
+use crate::http::range::{self, RangeRequest};
 use crate::ingest::RowSource;
 use crate::ingest::geotiff::GeoTiff;
 use crate::ingest::hgt::Hgt;
 use crate::ingest::png16::Png16;
-use crate::serve::http_range::{self, RangeRequest};
 use anyhow::bail;
 use std::io::Cursor;
 use tessera_shared::range_query::{self, RangeLimits};
@@ -196,11 +196,11 @@ pub fn http_range(data: &[u8]) -> Result<RangeRequest, String> {
     raw[..size.len()].copy_from_slice(size);
     let size = u64::from_le_bytes(raw);
     let header = String::from_utf8_lossy(header);
-    let answer = http_range::parse(&header, size);
+    let answer = range::parse(&header, size);
     match &answer {
         RangeRequest::Full => return Err("not a byte-range header: ignored".into()),
         RangeRequest::Partial(v) => {
-            assert!(!v.is_empty() && v.len() <= http_range::MAX_RANGES);
+            assert!(!v.is_empty() && v.len() <= range::MAX_RANGES);
             assert!(v.iter().all(|r| r.start <= r.end && r.end < size));
         }
         RangeRequest::Unsatisfiable | RangeRequest::TooMany(_) => {}

@@ -9,6 +9,7 @@ pub mod cesium;
 pub mod crs;
 pub mod fuzzing;
 pub mod geoid;
+pub mod http;
 pub mod imagery;
 pub mod info;
 pub mod ingest;

@@ -4,6 +4,8 @@
 use super::compute::ComputeLimits;
 use super::viewer::ViewerConfig;
 use super::web_cache::{EmptyTiles, WebConfig};
+use crate::http::conventions::CorsOrigins;
+use crate::http::tls::TlsFiles;
 use anyhow::Context;
 use serde::Deserialize;
 use std::net::SocketAddr;
@@ -180,24 +182,6 @@ struct FileConfig {
 enum OneOrMany {
     One(String),
     Many(Vec<String>),
-}
-
-/// Which browser origins may read responses (`Access-Control-Allow-Origin`).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum CorsOrigins {
-    /// `*`: any origin (no credentials are ever involved: the API is public and read-only).
-    Any,
-    /// No CORS headers at all (`--cors-origin none`).
-    Disabled,
-    /// Exactly these origins (`scheme://host[:port]`, lower-cased); responses vary by `Origin`.
-    List(Vec<String>),
-}
-
-/// The PEM files of `--tls-cert` and `--tls-key`.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TlsFiles {
-    pub cert: PathBuf,
-    pub key: PathBuf,
 }
 
 /// Resolved settings.

@@ -1,6 +1,6 @@
 //! The datasets a server holds: one pyramid file each, named by its file stem.
 
-use super::cache::LastModified;
+use crate::http::cache::LastModified;
 use crate::storage::{
     self, FileStorage, Location, ObjectStorage, Storage, StorageSource, StoreContext,
 };

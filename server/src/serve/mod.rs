@@ -1,21 +1,16 @@
 //! `tessera-server serve`: pyramids over HTTP (DESIGN §4, API.md).
 
-pub mod cache;
 pub mod compute;
 pub mod config;
-pub mod conn;
-pub mod conventions;
 pub mod dataset;
-pub mod error;
-pub mod http_range;
 pub mod imagery;
 pub mod metrics;
-pub mod own_errors;
 pub mod routes;
-pub mod tls;
 pub mod viewer;
 pub mod web_cache;
 
+use crate::http::error::ApiError;
+use crate::http::{conn, conventions, tls};
 use axum::Router;
 use axum::extract::{MatchedPath, Request, State};
 use axum::http::{StatusCode, header};
@@ -24,7 +19,6 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use config::Settings;
 use dataset::Registry;
-use error::ApiError;
 use metrics::Metrics;
 use std::path::PathBuf;
 use std::sync::{Arc, PoisonError, RwLock};
@@ -158,7 +152,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .with_state(state.clone());
     api.layer(
         ServiceBuilder::new()
-            // HTTP conventions for browsers and CDNs (conventions.rs; API.md "HTTP conventions").
+            // HTTP conventions for browsers and CDNs (http/conventions.rs; API.md "HTTP conventions").
             .layer(middleware::from_fn(conventions::options))
             .layer(conventions::cors(&settings.cors))
             .layer(middleware::from_fn(conventions::representation))
@@ -372,7 +366,13 @@ pub async fn serve_on(
     tls: Option<Arc<rustls::ServerConfig>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
-    let limits = conn::ConnLimits::from_settings(settings, state.registry().datasets.len())?;
+    let limits = conn::ConnLimits::new(
+        settings.header_timeout,
+        settings.idle_timeout,
+        settings.max_connections,
+        &settings.cors,
+        state.registry().datasets.len(),
+    )?;
     conn::serve(listener, app(state, settings), limits, tls, shutdown).await;
     Ok(())
 }

@@ -2,7 +2,7 @@
 //! colours (exact formulas below), what pixels without data look like ([`NoData`]),
 //! and the image formats (PNG, lossless WebP) they travel in.
 
-use crate::serve::error::{ApiError, ApiResult};
+use crate::http::error::{ApiError, ApiResult};
 
 /// How heights become the colours of a PNG tile.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -24,7 +24,7 @@ impl Encoding {
             Some("mapbox") => Ok(Self::Mapbox),
             Some(other) => Err(ApiError::bad_request(format!(
                 "unknown encoding {}: allowed values are {}",
-                crate::serve::error::quoted(other),
+                crate::http::error::quoted(other),
                 Self::ALLOWED
             ))),
         }
@@ -98,7 +98,7 @@ impl NoData {
             Some("transparent") => Ok(Self::Transparent),
             Some(other) => Err(ApiError::bad_request(format!(
                 "unknown nodata {}: allowed values are {}",
-                crate::serve::error::quoted(other),
+                crate::http::error::quoted(other),
                 Self::ALLOWED
             ))),
         }

@@ -32,7 +32,7 @@ pub use budget::Reservation;
 pub use limits::ComputeLimits;
 pub use ticket::Ticket;
 
-use super::error::ApiError;
+use crate::http::error::ApiError;
 use axum::body::Body;
 use budget::MemoryPool;
 use bytes::Bytes;

@@ -3,7 +3,7 @@
 
 use super::budget::{MemoryPool, Reservation};
 use super::{Kind, Made, Stop};
-use crate::serve::error::ApiError;
+use crate::http::error::ApiError;
 use bytes::Bytes;
 use prometheus::IntGaugeVec;
 use std::sync::atomic::{AtomicBool, Ordering};

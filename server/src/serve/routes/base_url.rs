@@ -16,8 +16,8 @@
 //! *page's* origin), and WMTS clients do not either: a page on another origin than
 //! the tiles is the usual case, so the default has to be absolute.
 
+use crate::http::error::{ApiError, ApiResult};
 use crate::serve::AppState;
-use crate::serve::error::{ApiError, ApiResult};
 use axum::http::{HeaderMap, HeaderValue, Uri, header};
 
 /// Whether `s` is a plain `host[:port]`: host names, IPv4 and bracketed IPv6

@@ -17,10 +17,11 @@
 
 use super::datasets::describe_served;
 use super::{Params, Segments, dataset, pinned, unavailable};
+use crate::http::cache;
+use crate::http::error::{ApiError, ApiResult, requoted};
 use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult, requoted};
-use crate::serve::{AppState, TilesServed, cache};
+use crate::serve::{AppState, TilesServed};
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::Response;

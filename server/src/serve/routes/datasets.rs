@@ -1,9 +1,10 @@
 //! `/v1/datasets` and `/v1/datasets/{name}`: metadata as JSON.
 
 use super::{Segments, dataset};
+use crate::http::cache;
+use crate::http::error::ApiResult;
+use crate::serve::AppState;
 use crate::serve::dataset::Dataset;
-use crate::serve::error::ApiResult;
-use crate::serve::{AppState, cache};
 use axum::Json;
 use axum::extract::State;
 use axum::http::HeaderMap;

@@ -6,9 +6,9 @@
 
 use super::tiles::{Payload, stream};
 use super::{Params, Segments};
+use crate::http::error::{ApiError, ApiResult};
 use crate::serve::AppState;
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult};
 use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::Response;

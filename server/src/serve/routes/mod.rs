@@ -15,7 +15,7 @@ pub mod wmts;
 
 use super::AppState;
 use super::dataset::{Dataset, RecordError, valid_name};
-use super::error::{ApiError, ApiResult, quoted};
+use crate::http::error::{ApiError, ApiResult, quoted};
 use axum::extract::{FromRequestParts, Path};
 use axum::http::request::Parts;
 use bytes::Bytes;

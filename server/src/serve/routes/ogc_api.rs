@@ -16,10 +16,10 @@ use super::wmts::{
     tile_limits,
 };
 use super::{Params, Segments, dataset, pinned};
+use crate::http::cache::{self, LastModified};
+use crate::http::error::ApiResult;
 use crate::serve::AppState;
-use crate::serve::cache::{self, LastModified};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::ApiResult;
 use crate::web::encoding::Encoding;
 use crate::web::footprint::Footprint;
 use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet};

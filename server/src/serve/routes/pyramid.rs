@@ -23,10 +23,11 @@
 //! - `If-None-Match` matching our ETag: 304 (checked before any range).
 
 use super::{Params, Segments, dataset, pinned};
-use crate::serve::cache::LastModified;
-use crate::serve::error::{ApiError, ApiResult};
-use crate::serve::http_range::{self, ByteRange, MAX_RANGES, RangeRequest};
-use crate::serve::{AppState, cache};
+use crate::http::cache;
+use crate::http::cache::LastModified;
+use crate::http::error::{ApiError, ApiResult};
+use crate::http::range::{self, ByteRange, MAX_RANGES, RangeRequest};
+use crate::serve::AppState;
 use crate::storage::Storage;
 use axum::body::Body;
 use axum::extract::State;
@@ -155,7 +156,7 @@ pub async fn raw(
     // RFC 9110 §14.2: range handling is defined for GET only (HEAD gets the 200 headers).
     let request = match range_header(&headers) {
         Some(v) if method == Method::GET && if_range_allows(&headers, &etag) => {
-            http_range::parse(v, size)
+            range::parse(v, size)
         }
         _ => RangeRequest::Full,
     };

@@ -13,9 +13,10 @@
 //! checked, as [`Dataset::records`](crate::serve::dataset::Dataset::records) does.
 
 use super::{Params, Segments, dataset, level, pinned, stored_record, tile, unavailable};
+use crate::http::cache;
+use crate::http::error::{ApiError, ApiResult, requoted};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult, requoted};
-use crate::serve::{AppState, TilesServed, cache};
+use crate::serve::{AppState, TilesServed};
 use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};

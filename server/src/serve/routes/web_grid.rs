@@ -9,11 +9,12 @@
 
 use super::base_url;
 use super::{Params, Segments, dataset, unavailable, xml_escape};
+use crate::http::cache;
+use crate::http::error::{ApiError, ApiResult, quoted};
 use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::{Dataset, RecordError};
-use crate::serve::error::{ApiError, ApiResult, quoted};
 use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
-use crate::serve::{AppState, TilesServed, cache};
+use crate::serve::{AppState, TilesServed};
 use crate::web::encoding::{Encoding, ImageFormat, NoData, rgba};
 use crate::web::footprint::Footprint;
 use crate::web::resample::{self, SourceTile};

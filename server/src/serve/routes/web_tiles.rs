@@ -10,10 +10,11 @@
 //! maps use the standard grids (routes/web_grid.rs) instead.
 
 use super::{Params, Segments, base_url, dataset, level, pinned, stored_record, tile, xml_escape};
+use crate::http::cache;
+use crate::http::error::{ApiError, ApiResult};
 use crate::serve::compute::{Kind, Stop};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult};
-use crate::serve::{AppState, TilesServed, cache};
+use crate::serve::{AppState, TilesServed};
 pub use crate::web::encoding::{Encoding, mapbox, terrarium};
 use axum::Json;
 use axum::extract::State;

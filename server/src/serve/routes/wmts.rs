@@ -15,10 +15,10 @@
 use super::base_url;
 use super::web_grid::footprint;
 use super::{Params, Segments, dataset, pinned, xml_escape};
+use crate::http::cache::{self, LastModified};
+use crate::http::error::{ApiError, ApiResult};
 use crate::serve::AppState;
-use crate::serve::cache::{self, LastModified};
 use crate::serve::dataset::Dataset;
-use crate::serve::error::{ApiError, ApiResult};
 use crate::web::encoding::Encoding;
 use crate::web::footprint::Footprint;
 use crate::web::tile_matrix::TileMatrixSet;

@@ -11,9 +11,9 @@
 //! resolved path (symbolic links followed) must still lie inside it.
 
 use super::super::AppState;
-use super::super::cache::{self, LastModified};
-use super::super::error::{ApiError, ApiResult};
 use super::super::routes::Segments;
+use crate::http::cache::{self, LastModified};
+use crate::http::error::{ApiError, ApiResult};
 use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
@@ -252,8 +252,8 @@ pub fn safe_relative(raw: &str) -> Option<PathBuf> {
 fn not_found(lib: &str, path: &str) -> ApiError {
     ApiError::not_found(format!(
         "no viewer asset {} in {}",
-        super::super::error::quoted(path),
-        super::super::error::quoted(lib)
+        crate::http::error::quoted(path),
+        crate::http::error::quoted(lib)
     ))
 }
 

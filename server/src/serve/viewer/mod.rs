@@ -22,7 +22,7 @@ pub mod page;
 pub mod preview;
 
 use super::AppState;
-use super::cache;
+use crate::http::cache;
 use axum::Router;
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};

@@ -11,11 +11,11 @@
 //! void) is transparent.
 
 use super::super::AppState;
-use super::super::cache;
 use super::super::compute::{Kind, Stop, Ticket};
 use super::super::dataset::{Dataset, RecordError};
-use super::super::error::{ApiError, ApiResult};
 use super::super::routes::{Params, Segments, dataset, pinned, unavailable};
+use crate::http::cache;
+use crate::http::error::{ApiError, ApiResult};
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::Response;

@@ -3,8 +3,9 @@
 //! [`MAX_TARGET_BYTES`], 431 for a head over its read buffer, 400 for a malformed
 //! one), with an empty body; [`OwnErrors`] puts the same status with a JSON reason
 //! and the CORS headers ([`OwnCors`]) in its place. The connection cap's 503
-//! (serve/conn.rs) is written with the same [`own_response`].
+//! (`http/conn.rs`) is written with the same [`own_response`].
 
+use crate::http::conventions::CorsOrigins;
 use std::io;
 use std::pin::Pin;
 use std::task::{Context, Poll};
@@ -22,11 +23,11 @@ pub enum OwnCors {
 }
 
 impl OwnCors {
-    pub(super) fn of(origins: &super::config::CorsOrigins) -> Self {
+    pub(super) fn of(origins: &CorsOrigins) -> Self {
         match origins {
-            super::config::CorsOrigins::Any => Self::Any,
-            super::config::CorsOrigins::List(_) => Self::List,
-            super::config::CorsOrigins::Disabled => Self::Disabled,
+            CorsOrigins::Any => Self::Any,
+            CorsOrigins::List(_) => Self::List,
+            CorsOrigins::Disabled => Self::Disabled,
         }
     }
 

@@ -19,7 +19,6 @@
 //! The request log and metrics (`observe`) sit inside these, so `bytes` counts the
 //! body before compression, and preflights are answered before they are logged.
 
-use super::config::CorsOrigins;
 use axum::extract::Request;
 use axum::http::{HeaderName, HeaderValue, Method, StatusCode, header};
 use axum::middleware::Next;
@@ -28,6 +27,17 @@ use std::time::Duration;
 use tower_http::compression::predicate::{Predicate, SizeAbove};
 use tower_http::compression::{CompressionLayer, CompressionLevel};
 use tower_http::cors::{AllowOrigin, CorsLayer, ExposeHeaders};
+
+/// Which browser origins may read responses (`Access-Control-Allow-Origin`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CorsOrigins {
+    /// `*`: any origin (no credentials are ever involved: the API is public and read-only).
+    Any,
+    /// No CORS headers at all (`--cors-origin none`).
+    Disabled,
+    /// Exactly these origins (`scheme://host[:port]`, lower-cased); responses vary by `Origin`.
+    List(Vec<String>),
+}
 
 /// The methods every endpoint answers.
 pub const ALLOW: &str = "GET, HEAD, OPTIONS";

@@ -34,7 +34,7 @@
 //!   reaching the idle timeout; idle HTTP/2 connections are closed by the header
 //!   timeout rule above instead, like idle HTTP/1.1 ones.
 
-use super::config::Settings;
+use super::conventions::CorsOrigins;
 use super::own_errors::{OwnCors, OwnErrors, own_response};
 use axum::Router;
 use axum::body::Body;
@@ -76,13 +76,20 @@ fn fd_reserve(datasets: usize) -> u64 {
 }
 
 impl ConnLimits {
-    /// The limits of `settings`, the connection cap clamped below the process's
-    /// open-file limit.
-    pub fn from_settings(settings: &Settings, datasets: usize) -> anyhow::Result<Self> {
+    /// The limits asked for (`max_connections`: `None` to derive it), the connection
+    /// cap clamped below the process's open-file limit, which `datasets` open files
+    /// share.
+    pub fn new(
+        header_timeout: Duration,
+        idle_timeout: Duration,
+        max_connections: Option<usize>,
+        cors: &CorsOrigins,
+        datasets: usize,
+    ) -> anyhow::Result<Self> {
         let fd_limit = open_file_limit();
         let room = fd_limit.map(|l| usize::try_from(l.saturating_sub(fd_reserve(datasets))));
         let room = room.map(|r| r.unwrap_or(usize::MAX));
-        let max_connections = match (settings.max_connections, room) {
+        let max_connections = match (max_connections, room) {
             (Some(n), Some(room)) if n > room => {
                 tracing::warn!(
                     requested = n,
@@ -103,15 +110,15 @@ impl ConnLimits {
         );
         tracing::info!(
             max_connections,
-            header_timeout_s = settings.header_timeout.as_secs(),
-            idle_timeout_s = settings.idle_timeout.as_secs(),
+            header_timeout_s = header_timeout.as_secs(),
+            idle_timeout_s = idle_timeout.as_secs(),
             "connection limits"
         );
         Ok(Self {
-            header_timeout: settings.header_timeout,
-            idle_timeout: settings.idle_timeout,
+            header_timeout,
+            idle_timeout,
             max_connections,
-            cors: OwnCors::of(&settings.cors),
+            cors: OwnCors::of(cors),
         })
     }
 }
