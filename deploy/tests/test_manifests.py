@@ -1,6 +1,7 @@
-"""The Kubernetes manifests (deploy/k8s): every Kustomize directory renders, every
-object is valid against the Kubernetes schemas in strict mode (unknown fields are
-errors), and the rules a reviewer checks hold; broken copies must be rejected."""
+"""The Kubernetes manifests (deploy/k8s): every Kustomize directory renders (with
+Kustomize itself: the pinned kubectl's `kubectl kustomize`), every object is valid
+against the Kubernetes schemas in strict mode (unknown fields are errors), and the
+rules a reviewer checks hold; broken copies must be rejected."""
 
 from __future__ import annotations
 
@@ -14,10 +15,8 @@ from k8s_rules import semantic_checks
 from manifests import (
     RenderError,
     describe,
-    kubectl_render,
     kustomize_dirs,
     load_yaml_documents,
-    object_key,
     referenced_files,
     render,
     validate_objects,
@@ -32,19 +31,6 @@ def test_renders(renderings, directory):
     objs = renderings[directory]
     assert not isinstance(objs, RenderError), f"render {rel(directory)}: {objs}"
     assert objs, f"{rel(directory)} renders no object"
-
-
-@pytest.mark.parametrize("directory", DIRS, ids=DIR_IDS)
-def test_renderer_equals_kubectl_kustomize(rendered, directory):
-    try:
-        theirs = kubectl_render(directory)
-    except RuntimeError as e:
-        pytest.fail(f"kubectl kustomize {rel(directory)}: {e}")
-    if theirs is None:
-        pytest.skip("kubectl is not installed: the renderer was not compared with kustomize itself")
-    objs = rendered[directory]
-    assert [object_key(o) for o in objs] == [object_key(o) for o in theirs] and objs == theirs, \
-        "the objects differ: fix deploy/kustomize_render.py"
 
 
 def test_every_yaml_file_is_used_by_a_kustomization():
@@ -184,7 +170,7 @@ def test_semantic_rules_catch_every_pod_replaying_shard_0(rendered):
     assert any("not $(JOB_COMPLETION_INDEX)" in p for p in problems), f"found {problems}"
 
 
-def test_renderer_refuses_what_it_cannot_render_faithfully(tmp_path):
-    (tmp_path / "kustomization.yaml").write_text("resources: [missing.yaml]\ncommonLabels: {a: b}\n")
-    with pytest.raises(RenderError):
+def test_kustomize_refuses_a_kustomization_with_a_missing_resource(tmp_path):
+    (tmp_path / "kustomization.yaml").write_text("resources: [missing.yaml]\n")
+    with pytest.raises(RenderError, match="missing.yaml"):
         render(str(tmp_path))
