@@ -141,7 +141,7 @@ def broken_copy(rendered, *path: str) -> list[dict]:
 
 def test_semantic_rules_catch_parts_completions_8_against_16(rendered):
     """completions 8 against --part $(JOB_COMPLETION_INDEX)/16."""
-    objs = broken_copy(rendered, "build", "parts")
+    objs = broken_copy(rendered, "pyramid-build", "parts")
     first(objs, "Job")["spec"]["completions"] = 8
     problems, _ = semantic_checks(objs, universe_of(objs), None)
     assert any("completions 8" in p for p in problems), f"found {problems}"

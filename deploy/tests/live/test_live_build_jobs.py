@@ -47,7 +47,7 @@ def content_hash(binary: str, path: str) -> str:
 def build(rendered, has_s3, s3_env, demo, server_bin, live_tmp, base_env) -> BuildRun:
     prerequisite(demo.build.ok, "build-demo")  # the bucket exists, the build writes to S3
     s3 = s3_env if has_s3 else None
-    objs = rendered.get(k8s("build", "parts"), []) + rendered.get(k8s("build", "assemble"), [])
+    objs = rendered.get(k8s("pyramid-build", "parts"), []) + rendered.get(k8s("pyramid-build", "assemble"), [])
     objects = {(o["kind"], o["metadata"]["name"]): o for o in objs}
     jobs = [o for o in objs if o["kind"] == "Job"]
     pj = next((j for j in jobs if j["spec"].get("completionMode") == "Indexed"), None)
