@@ -3,7 +3,7 @@
 
 use super::Node;
 use super::mesh_error::{self, CoarseCorners};
-use super::raster::Raster;
+use crate::ingest::raster::Raster;
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{CellMask, TileGeometry, TileId};
 

@@ -22,17 +22,16 @@ pub mod memory;
 pub mod mesh_error;
 pub mod parts;
 pub mod plausible;
-pub mod raster;
 pub mod spool;
 pub mod writer;
 
+use crate::ingest::raster::{self, Raster};
 use crate::ingest::{self, Input};
 use anyhow::Context;
 use coarse::Aggregator;
 use finest::finest_node;
 use indicatif::{ProgressBar, ProgressStyle};
 use mesh_error::BlockErrors;
-use raster::Raster;
 use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;

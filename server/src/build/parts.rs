@@ -27,12 +27,12 @@
 //!   trailer checksum, per-record and per-root checksums), naming the file.
 
 use super::coarse::Aggregator;
-use super::raster::{DepthCounts, Raster, depth};
 use super::writer::{SINK_BUFFER, partial_prefix, publish, remove_stale_partials};
 use super::{
     BuildOptions, BuildReport, Loaded, Node, Sink, Tiling, bar, count_tiles, create_output,
     finish_output, level_counts, memory, meta_reserve,
 };
+use crate::ingest::raster::{DepthCounts, Raster, depth};
 use crate::ingest::{self, RowSource, SourceInfo};
 use anyhow::{Context, bail, ensure};
 use std::collections::BTreeMap;
@@ -1574,7 +1574,7 @@ pub fn assemble(dir: &Path, output: &Path, opts: &BuildOptions) -> anyhow::Resul
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::build::raster::all_valid_depth_counts;
+    use crate::ingest::raster::all_valid_depth_counts;
 
     #[test]
     fn part_specs_parse_with_and_without_the_job_index() {

@@ -7,7 +7,7 @@
 //! already-filled row above it. Rows that precede the first valid sample copy the
 //! first filled row (their nearest valid samples lie straight below).
 
-use super::raster::{DepthCounts, Raster, depth};
+use crate::ingest::raster::{DepthCounts, Raster, depth};
 use crate::ingest::{RowSource, SampleType};
 use anyhow::{Context, bail};
 use std::fs::File;

@@ -21,7 +21,6 @@
 pub mod drape;
 pub mod source;
 pub mod stretch;
-pub mod verify;
 
 use crate::build::interrupt::Interrupt;
 use crate::build::writer::PyramidWriter;

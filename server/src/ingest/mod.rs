@@ -8,6 +8,7 @@ pub mod hgt;
 pub mod inputs;
 pub mod mosaic;
 pub mod png16;
+pub mod raster;
 pub mod reproject;
 pub mod synthetic;
 pub mod vrt;

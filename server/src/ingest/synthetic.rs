@@ -25,7 +25,7 @@
 //! order, on any thread, and a 262145² terrain holds no memory beyond the window
 //! being read.
 
-use crate::build::raster::Raster;
+use super::raster::{self, Raster};
 use anyhow::{Context, bail};
 
 /// Largest synthetic terrain.
@@ -278,8 +278,8 @@ impl Raster for Synthetic {
         self.size
     }
 
-    fn depth_counts(&self) -> crate::build::raster::DepthCounts {
-        crate::build::raster::all_valid_depth_counts(self.size, self.size)
+    fn depth_counts(&self) -> raster::DepthCounts {
+        raster::all_valid_depth_counts(self.size, self.size)
     }
 
     fn read_window(&self, x0: u32, y0: u32, w: u32, h: u32, out: &mut [u16]) -> anyhow::Result<()> {

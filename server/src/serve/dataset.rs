@@ -1,12 +1,10 @@
-//! The datasets a server holds: one pyramid file each, named by its file stem.
+//! One served dataset: a pyramid file (or object) and what its records were found
+//! to be.
 
 use crate::http::cache::LastModified;
-use crate::storage::{
-    self, FileStorage, Location, ObjectStorage, Storage, StorageSource, StoreContext,
-};
-use anyhow::{Context, bail};
+use crate::storage::{FileStorage, Storage, StorageSource};
+use anyhow::Context;
 use bytes::Bytes;
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -312,98 +310,6 @@ pub fn valid_name(name: &str) -> bool {
         && name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
-}
-
-/// All datasets by name.
-#[derive(Debug, Default)]
-pub struct Registry {
-    pub datasets: BTreeMap<String, Arc<Dataset>>,
-}
-
-impl Registry {
-    /// Loads every `.tess` file named, every `.tess` file directly inside each
-    /// directory named, and every object URL named (`s3://…`, [`storage::locate`]),
-    /// the objects read through `store` (its block cache and metrics).
-    pub fn load(paths: &[PathBuf], store: &Arc<StoreContext>) -> anyhow::Result<Self> {
-        let mut found: Vec<(String, PathBuf, Location)> = Vec::new();
-        for p in paths {
-            let raw = p.to_string_lossy();
-            if let Location::Object(o) = storage::locate(&raw, store.options)? {
-                found.push((o.stem(), p.clone(), Location::Object(o)));
-                continue;
-            }
-            let meta =
-                std::fs::metadata(p).with_context(|| format!("{}: cannot read", p.display()))?;
-            let files = if meta.is_dir() {
-                let mut files: Vec<PathBuf> = std::fs::read_dir(p)
-                    .with_context(|| format!("{}: cannot list", p.display()))?
-                    .flatten()
-                    .map(|e| e.path())
-                    .filter(|f| f.extension().is_some_and(|e| e == "tess") && f.is_file())
-                    .collect();
-                files.sort();
-                files
-            } else {
-                vec![p.clone()]
-            };
-            for f in files {
-                let stem = f
-                    .file_stem()
-                    .and_then(|s| s.to_str())
-                    .unwrap_or("")
-                    .to_string();
-                found.push((stem, f.clone(), Location::Local(f)));
-            }
-        }
-        if found.is_empty() {
-            bail!(
-                "no .tess pyramid files found in {}",
-                paths
-                    .iter()
-                    .map(|p| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            );
-        }
-        let mut datasets = BTreeMap::new();
-        for (name, label, location) in found {
-            if !valid_name(&name) {
-                bail!(
-                    "{}: dataset name {name:?} must be letters, digits, '_', '-' or '.'",
-                    label.display()
-                );
-            }
-            let ds = match location {
-                Location::Local(f) => {
-                    let mut ds = Dataset::open(name.clone(), &f)?;
-                    ds.imagery = super::imagery::open_beside(&ds, &f)?;
-                    ds
-                }
-                Location::Object(o) => {
-                    let beside = o.sibling(crate::imagery::EXTENSION);
-                    let storage: Arc<dyn Storage> =
-                        Arc::new(ObjectStorage::open(o, store.clone())?);
-                    let mut ds = Dataset::from_storage(name.clone(), label.clone(), storage)?;
-                    if let Some(beside) = beside {
-                        ds.imagery = super::imagery::open_beside_object(&ds, beside, store)?;
-                    }
-                    ds
-                }
-            };
-            if let Some(prev) = datasets.insert(name.clone(), Arc::new(ds)) {
-                bail!(
-                    "two datasets are named {name:?}: {} and {}",
-                    prev.path.display(),
-                    label.display()
-                );
-            }
-        }
-        Ok(Self { datasets })
-    }
-
-    pub fn get(&self, name: &str) -> Option<&Arc<Dataset>> {
-        self.datasets.get(name)
-    }
 }
 
 #[cfg(test)]

@@ -4,7 +4,9 @@ pub mod compute;
 pub mod config;
 pub mod dataset;
 pub mod imagery;
+pub mod interfaces;
 pub mod metrics;
+pub mod registry;
 pub mod routes;
 pub mod viewer;
 pub mod web_cache;
@@ -18,8 +20,8 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use config::Settings;
-use dataset::Registry;
 use metrics::Metrics;
+use registry::Registry;
 use std::path::PathBuf;
 use std::sync::{Arc, PoisonError, RwLock};
 use std::time::Instant;
@@ -119,7 +121,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::PYRAMID, get(routes::pyramid::raw))
         .route(paths::TILES, get(routes::tiles::ranges))
         .route(paths::ERRORS, get(routes::tiles::errors))
-        .route(paths::IMAGERY_TILES, get(routes::imagery::ranges))
+        .route(paths::IMAGERY_TILES, get(routes::tiles::imagery))
         .route(paths::TILE, get(routes::tiles::single))
         .route(paths::GRID_TILEJSON, get(routes::web_grid::tilejson))
         .route(paths::CESIUM_LAYER, get(routes::cesium::layer))

@@ -2,7 +2,18 @@
 //! colours (exact formulas below), what pixels without data look like ([`NoData`]),
 //! and the image formats (PNG, lossless WebP) they travel in.
 
-use crate::http::error::{ApiError, ApiResult};
+/// A query value that names no encoding or no-data mode this module knows (a 400
+/// for the server, which bounds the quoted value in its answer).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown {param} {value:?}: allowed values are {allowed}")]
+pub struct UnknownValue {
+    /// The query parameter (`encoding`, `nodata`).
+    pub param: &'static str,
+    /// The value as the request gave it.
+    pub value: String,
+    /// What the parameter accepts, for the message.
+    pub allowed: &'static str,
+}
 
 /// How heights become the colours of a PNG tile.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -17,16 +28,16 @@ impl Encoding {
     /// What `?encoding=` accepts.
     pub const ALLOWED: &str = "terrarium, mapbox";
 
-    /// The encoding a query asks for (Terrarium when it names none), or 400.
-    pub fn from_query(value: Option<&str>) -> ApiResult<Self> {
+    /// The encoding a query asks for (Terrarium when it names none).
+    pub fn from_query(value: Option<&str>) -> Result<Self, UnknownValue> {
         match value {
             None | Some("terrarium") => Ok(Self::Terrarium),
             Some("mapbox") => Ok(Self::Mapbox),
-            Some(other) => Err(ApiError::bad_request(format!(
-                "unknown encoding {}: allowed values are {}",
-                crate::http::error::quoted(other),
-                Self::ALLOWED
-            ))),
+            Some(other) => Err(UnknownValue {
+                param: "encoding",
+                value: other.to_string(),
+                allowed: Self::ALLOWED,
+            }),
         }
     }
 
@@ -91,16 +102,16 @@ impl NoData {
     /// What `?nodata=` accepts.
     pub const ALLOWED: &str = "opaque, transparent";
 
-    /// The mode a query asks for (opaque when it names none), or 400.
-    pub fn from_query(value: Option<&str>) -> ApiResult<Self> {
+    /// The mode a query asks for (opaque when it names none).
+    pub fn from_query(value: Option<&str>) -> Result<Self, UnknownValue> {
         match value {
             None | Some("opaque") => Ok(Self::Opaque),
             Some("transparent") => Ok(Self::Transparent),
-            Some(other) => Err(ApiError::bad_request(format!(
-                "unknown nodata {}: allowed values are {}",
-                crate::http::error::quoted(other),
-                Self::ALLOWED
-            ))),
+            Some(other) => Err(UnknownValue {
+                param: "nodata",
+                value: other.to_string(),
+                allowed: Self::ALLOWED,
+            }),
         }
     }
 
@@ -265,8 +276,10 @@ mod tests {
             Encoding::Mapbox
         );
         let e = Encoding::from_query(Some("webp")).unwrap_err();
-        assert_eq!(e.status, axum::http::StatusCode::BAD_REQUEST);
-        assert!(e.message.contains("terrarium, mapbox"), "{}", e.message);
+        assert_eq!(
+            e.to_string(),
+            "unknown encoding \"webp\": allowed values are terrarium, mapbox"
+        );
     }
 
     /// 16 × 16 heights, every 7th pixel without data: a third of those a void
@@ -321,8 +334,10 @@ mod tests {
             NoData::Transparent
         );
         let e = NoData::from_query(Some("alpha")).unwrap_err();
-        assert_eq!(e.status, axum::http::StatusCode::BAD_REQUEST);
-        assert!(e.message.contains("opaque, transparent"), "{}", e.message);
+        assert_eq!(
+            e.to_string(),
+            "unknown nodata \"alpha\": allowed values are opaque, transparent"
+        );
     }
 
     #[test]

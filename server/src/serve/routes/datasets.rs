@@ -48,13 +48,8 @@ pub fn describe(ds: &Dataset) -> DatasetInfo {
 /// What the document routes and the bootstrap send.
 pub fn describe_served(state: &AppState, ds: &Dataset) -> DatasetInfo {
     let mut info = describe(ds);
-    let offered = crate::serve::viewer::interfaces::offered(state, ds);
-    crate::serve::viewer::interfaces::add_links(
-        &mut info.links,
-        &ds.name,
-        &offered,
-        state.viewer.enabled,
-    );
+    let offered = crate::serve::interfaces::offered(state, ds);
+    crate::serve::interfaces::add_links(&mut info.links, &ds.name, &offered, state.viewer.enabled);
     info
 }
 

@@ -5,7 +5,6 @@ pub mod bootstrap;
 pub mod cesium;
 pub mod datasets;
 pub mod health;
-pub mod imagery;
 pub mod ogc_api;
 pub mod pyramid;
 pub mod tiles;
@@ -15,7 +14,8 @@ pub mod wmts;
 
 use super::AppState;
 use super::dataset::{Dataset, RecordError, valid_name};
-use crate::http::error::{ApiError, ApiResult, quoted};
+use crate::http::error::{ApiError, ApiResult, quoted, requoted};
+use crate::web::encoding::UnknownValue;
 use axum::extract::{FromRequestParts, Path};
 use axum::http::request::Parts;
 use bytes::Bytes;
@@ -23,6 +23,13 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use tessera_shared::format::IndexEntry;
 use tessera_shared::{Level, TileId};
+
+/// An unknown `?encoding=` or `?nodata=`: 400, the value quoted within bounds.
+impl From<UnknownValue> for ApiError {
+    fn from(e: UnknownValue) -> Self {
+        ApiError::bad_request(requoted(&e.to_string(), &e.value))
+    }
+}
 
 /// The query string as a map; an unparseable one, or one that names a parameter
 /// twice (which one would win is up to each cache and proxy), is a 400 with a JSON
@@ -239,6 +246,7 @@ pub fn pinned(ds: &Dataset, query: &HashMap<String, String>) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::web::encoding::{Encoding, NoData};
 
     fn refused(query: &str) -> String {
         let e = Params::parse(query).unwrap_err();
@@ -280,5 +288,22 @@ mod tests {
         let long = "n".repeat(10_000);
         let e = refused(&format!("{long}=1&{long}=2"));
         assert!(e.len() < 300 && e.contains("(10000 bytes)"), "{e}");
+    }
+
+    #[test]
+    fn an_unknown_encoding_is_a_400_quoting_the_value_within_bounds() {
+        let e = ApiError::from(Encoding::from_query(Some("webp")).unwrap_err());
+        assert_eq!(e.status, axum::http::StatusCode::BAD_REQUEST);
+        assert_eq!(
+            e.message,
+            "unknown encoding \"webp\": allowed values are terrarium, mapbox"
+        );
+        let long = "x".repeat(10_000);
+        let e = ApiError::from(NoData::from_query(Some(&long)).unwrap_err());
+        assert!(
+            e.message.contains("(10000 bytes)") && e.message.ends_with("opaque, transparent"),
+            "{}",
+            e.message
+        );
     }
 }

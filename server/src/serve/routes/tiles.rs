@@ -1,4 +1,11 @@
-//! Tile records: Morton-range streams, error tables only, and single tiles.
+//! Tile records: Morton-range streams, error tables only, a dataset's imagery
+//! records, and single tiles.
+//!
+//! The imagery stream (`GET /v1/datasets/{name}/imagery/levels/{level}/tiles?ranges=…`)
+//! sends a dataset's imagery records (JPEG, FORMAT.md "Imagery pyramids") framed
+//! exactly as the height records are (`tessera_shared::wire`), with the same limits,
+//! ETags (from the imagery's own content hash) and caching; 404 for a dataset
+//! without imagery.
 //!
 //! A range stream is the stored records (never re-encoded), each behind its 32-byte
 //! frame header, then a trailer; its exact length comes from the index, so it is
@@ -30,9 +37,9 @@ use tessera_shared::wire::{self, CONTENT_TYPE, FRAME_HEADER_LEN};
 use tessera_shared::{ErrorTable, Level, Morton, MortonRange, TileId};
 
 /// What to put in each frame: whole records or their error tables only, or the
-/// records of the dataset's imagery pyramid (`routes::imagery`).
+/// records of the dataset's imagery pyramid ([`imagery`]).
 #[derive(Clone, Copy, PartialEq, Eq)]
-pub(super) enum Payload {
+enum Payload {
     Records,
     ErrorTables,
     Imagery,
@@ -150,7 +157,7 @@ fn range_message(e: &range_query::RangeQueryError) -> String {
     }
 }
 
-pub(super) async fn stream(
+async fn stream(
     state: &AppState,
     name: &str,
     level_raw: &str,
@@ -160,7 +167,7 @@ pub(super) async fn stream(
 ) -> ApiResult<Response> {
     let mut ds = dataset(state, name)?;
     if payload == Payload::Imagery {
-        ds = super::imagery::of(&ds)?;
+        ds = imagery_of(&ds)?;
     }
     let level: Level = level(&ds, level_raw)?;
     let ranges = range_query::parse(query.get("ranges").map(String::as_str), level, state.limits)
@@ -311,6 +318,28 @@ pub async fn errors(
         Payload::ErrorTables,
     )
     .await
+}
+
+/// `GET /v1/datasets/{name}/imagery/levels/{level}/tiles?ranges=…`
+pub async fn imagery(
+    State(state): State<Arc<AppState>>,
+    Segments((name, level)): Segments<(String, String)>,
+    Params(query): Params,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    stream(&state, &name, &level, &query, &headers, Payload::Imagery).await
+}
+
+/// The imagery dataset of `ds`, or 404 saying it has none.
+fn imagery_of(ds: &Dataset) -> ApiResult<Arc<Dataset>> {
+    let imagery = ds.imagery.clone().ok_or_else(|| {
+        ApiError::not_found(format!(
+            "dataset {:?} has no imagery (build it with --imagery)",
+            ds.name
+        ))
+    })?;
+    imagery.available().map_err(|r| unavailable(&r))?;
+    Ok(imagery)
 }
 
 /// `GET /v1/datasets/{name}/tiles/{level}/{x}/{y}`: one stored record.

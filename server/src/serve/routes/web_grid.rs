@@ -58,7 +58,9 @@ pub fn size(query: &HashMap<String, String>) -> ApiResult<u32> {
 
 /// `?encoding=`, or 400.
 pub fn encoding(query: &HashMap<String, String>) -> ApiResult<Encoding> {
-    Encoding::from_query(query.get("encoding").map(String::as_str))
+    Ok(Encoding::from_query(
+        query.get("encoding").map(String::as_str),
+    )?)
 }
 
 /// The dataset's footprint, or 404 saying why it has no place on a map.

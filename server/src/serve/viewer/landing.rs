@@ -6,8 +6,8 @@
 use super::super::AppState;
 use super::super::dataset::Dataset;
 use super::super::routes::datasets::describe_served;
-use super::interfaces::{Offered, grid_tilejson, offered};
 use super::{assets, bytes, esc, html};
+use crate::serve::interfaces::{Offered, grid_tilejson, offered};
 use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::Response;

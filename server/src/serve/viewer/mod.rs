@@ -5,8 +5,7 @@
 //!
 //! - [`landing`]: the landing page; [`page`]: the viewer page; both HTML made here,
 //!   every dataset-derived string escaped.
-//! - [`interfaces`]: which interfaces a dataset offers (the same checks the routes
-//!   make), for the pages and for the dataset document's `links`.
+//! - The pages link only the interfaces [`super::interfaces`] finds a dataset offers.
 //! - [`preview`]: `GET /v1/datasets/{name}/preview.png`, a computed picture.
 //! - [`assets`]: the viewer's static files: its own (`viewer.js`, `viewer.css`, in
 //!   the binary) and the third-party libraries from a directory the project's script
@@ -16,7 +15,6 @@
 //! server, and every URL is relative to the page.
 
 pub mod assets;
-pub mod interfaces;
 pub mod landing;
 pub mod page;
 pub mod preview;

@@ -10,9 +10,9 @@
 use super::super::AppState;
 use super::super::dataset::Dataset;
 use super::super::routes::{Segments, dataset};
-use super::interfaces::{Offered, cesium_dir, grid_tilejson, offered};
 use super::{assets, esc, html, script_json};
 use crate::http::error::ApiResult;
+use crate::serve::interfaces::{Offered, cesium_dir, grid_tilejson, offered};
 use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::Response;

@@ -1,4 +1,5 @@
-//! Random access to a DEM's quantized samples, the builder's view of its input.
+//! Random access to a DEM's quantized samples: the builder's view of its input
+//! (a synthetic DEM, or the builder's spooled copy of a streamed one).
 
 /// A DEM whose quantized samples can be read by window, from any thread.
 pub trait Raster: Sync {
@@ -33,7 +34,7 @@ pub trait Raster: Sync {
     /// Valid and no-data sample counts by "depth": index `d` counts samples whose
     /// column and row are both multiples of `2^d` but not both of `2^(d+1)`
     /// (`d` capped at 32), so level `L` of `L_max` holds the sum over
-    /// `d ≥ L_max − L` (see [`super::level_counts`]).
+    /// `d ≥ L_max − L` (see [`crate::build::level_counts`]).
     fn depth_counts(&self) -> DepthCounts;
 }
 

@@ -1,4 +1,7 @@
 //! `tessera-server verify`: structure and every record's checksum (DESIGN §6 invariant 6).
+//! A DEM pyramid is checked here; an imagery pyramid by [`imagery`].
+
+pub mod imagery;
 
 use rayon::prelude::*;
 use std::path::Path;
@@ -35,8 +38,8 @@ impl VerifyReport {
 /// extremes). Structural damage is an `Err`; everything else is listed in the report.
 pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
     // An imagery pyramid (`.tessimg`) has its own record checks.
-    if crate::imagery::verify::is_imagery(path)? {
-        return crate::imagery::verify::verify(path);
+    if imagery::is_imagery(path)? {
+        return imagery::verify(path);
     }
     let p = Pyramid::open_file(path)?;
     let g = *p.geometry();

@@ -4,7 +4,7 @@
 //! fields (zero but the partial flag, FORMAT.md "Imagery pyramids") and the content
 //! hash.
 
-use crate::verify::VerifyReport;
+use super::VerifyReport;
 use std::path::Path;
 use tessera_shared::Pyramid;
 use tessera_shared::format::{self, ContentHasher};

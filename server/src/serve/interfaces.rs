@@ -2,8 +2,8 @@
 //! (the footprint for the standard grids, WMTS and OGC API – Tiles; the terrain plan
 //! for Cesium), so that a page or a document never links a URL that answers 404.
 
-use super::super::AppState;
-use super::super::dataset::Dataset;
+use super::AppState;
+use super::dataset::Dataset;
 use crate::cesium::terrain::Terrain;
 use crate::web::footprint::Footprint;
 use std::sync::Arc;
