@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Every benchmark of issue 6 in one run (`./run bench` calls this), then
+# Every benchmark (DECISIONS.md "Benchmarks") in one run (`./run bench` calls this), then
 # `tessera-bench report`, which rewrites BENCHMARKS.md and bench/plots/*.png from the
 # results. Expects the release binaries built and the tools installed (./run does both).
 #   bench/all.sh [SECTION...]   (default: build select serve load stream policy gonzalez ingest webtiles terrain upload popping)
@@ -29,7 +29,8 @@ for s in "${sections[@]}"; do
       SYNTH=$keep/synth.tess SYNTH_NAME=$name bench/select.sh
       rm -f "$keep/synth.tess" ;;
     serve) rm -f "$RESULTS/load.jsonl"; bench/serve.sh ;;
-    # Issue 18: tessera load --record, then --replay against wrk and oha.
+    # tessera load --record, then --replay against wrk and oha (DECISIONS.md "Load
+    # testing: the proof").
     load) rm -f "$RESULTS"/loadreplay{.jsonl,_record.json,_trace.jsonl}; bench/load.sh ;;
     # terrain writes terrain_mesh.jsonl and terrain_serve.jsonl, each replaced only by
     # the part that runs (TERRAIN_MESH=0 or TERRAIN_SERVE=0 keeps the other's).

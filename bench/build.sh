@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Build (issue 6 item 2): `tessera-server build` against GDAL's
+# Build (DECISIONS.md "Benchmarks"): `tessera-server build` against GDAL's
 #   gdal_translate -of GTiff -co TILED=YES -co COMPRESS=LZW -co PREDICTOR=2 IN out.tif
 #   gdaladdo -r nearest out.tif 2 4 8 16
 # on the moon 8192² mosaic (the two alternate within each run, after one untimed read

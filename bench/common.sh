@@ -1,6 +1,7 @@
 # Shared by the bench/*.sh section scripts (sourced, not run). Each section script
-# measures one comparison of DESIGN §7 / issue 6 and appends one JSON object per run
-# to $RESULTS/<section>.jsonl; `tessera-bench report` turns those into BENCHMARKS.md.
+# measures one comparison (docs/ARCHITECTURE.md#measuring, DECISIONS.md "Benchmarks") and
+# appends one JSON object per run to $RESULTS/<section>.jsonl; `tessera-bench report`
+# turns those into BENCHMARKS.md.
 #
 # Environment:
 #   RESULTS  where the .jsonl files go (default target/bench/results)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The González table (issue 6 item 5): on the moon 4096², `pass` path, 1280×720,
-# 30 fps, for τ = 1, 2, 4 px and each parallax mode (none, offset limiting,
+# The González table (DECISIONS.md "Benchmarks"): on the moon 4096², `pass` path,
+# 1280×720, 30 fps, for τ = 1, 2, 4 px and each parallax mode (none, offset limiting,
 # iterative, binary search + secant; González Figs. 7, 9, 10): MSE against the
 # full-resolution reference drawn without parallax (every 10th frame, settled, cached
 # across runs), and the frame time (GPU render per frame; lavapipe where there is no

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Real datasets (issue 13): what many inputs and reprojection cost.
+# Real datasets (DECISIONS.md "Mosaics", "Coordinate systems"): what many inputs and
+# reprojection cost.
 #
 # 1. Mosaic: the moon 8192² mosaic written by GDAL as one GeoTIFF, and cut by
 #    `gdal_translate -srcwin` into 64 GeoTIFFs (8 × 8, 1025² with shared borders, as

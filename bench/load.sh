@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Load replay against the peers (issue 18): does `tessera load --replay` measure the
-# server, not itself? The moon 8192² (512-cell tiles) on the release server; 64 real
-# clients fly once with `tessera load --record` (RECORD_SECONDS, default 20) and the
-# requests they got a 200 for are replayed, the same list by every tool, cycling:
+# Load replay against the peers (DECISIONS.md "Load testing: the proof"): does `tessera
+# load --replay` measure the server, not itself? The moon 8192² (512-cell tiles) on the
+# release server; 64 real clients fly once with `tessera load --record` (RECORD_SECONDS,
+# default 20) and the requests they got a 200 for are replayed, the same list by every
+# tool, cycling:
 #   (a) saturation, SAT_SECONDS (default 10) each, closed loops over CONNECTIONS
 #       (default 64), each load generator pinned to one core (`taskset -c $LOAD_CPU`,
 #       default 1; the server is not pinned):

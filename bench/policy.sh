@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Selection policy at equal quality (issue 6 item 4): the screen-space error policy
-# (τ in pixels of error) against the distance-only baseline (τ bounds a cell's size on
-# screen, González Fig. 2), on the moon 8192², `canyon` and `pass` paths, 1280×720,
+# Selection policy at equal quality (DECISIONS.md "Benchmarks"): the screen-space error
+# policy (τ in pixels of error) against the distance-only baseline (τ bounds a cell's size
+# on screen, González Fig. 2), on the moon 8192², `canyon` and `pass` paths, 1280×720,
 # 30 fps, lavapipe where there is no GPU. Every 10th frame is measured against the
 # full-resolution reference after settling (`--settle`: the selection has everything
 # it asks for, the eye on the finest ground), so every policy is judged on the same

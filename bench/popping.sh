@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Popping (issue 17 item 3): on the moon 8192², a descent (bench/paths/popping.json:
-# 12 km down to 1.5 km above the ground in 6 s, the height falling by the same
-# fraction every frame, so that the camera's own motion changes the picture at a
-# steady pace), settled at every frame (everything the selection asks for resident,
-# so only the level of detail changes the picture), in five modes: geomorphing over
-# time with shading fades (the default, transitions held within τ), the same
+# Popping (DECISIONS.md "Geomorphing over time"): on the moon 8192², a descent
+# (bench/paths/popping.json: 12 km down to 1.5 km above the ground in 6 s, the height
+# falling by the same fraction every frame, so that the camera's own motion changes the
+# picture at a steady pace), settled at every frame (everything the selection asks for
+# resident, so only the level of detail changes the picture), in five modes: geomorphing
+# over time with shading fades (the default, transitions held within τ), the same
 # without that limit (`--morph-error-limit inf`), with CDLOD's distance band as well
 # (`--morph-by-distance`), the distance band alone (`--morph-seconds 0
 # --morph-by-distance`), and none (`--no-morph`); at τ = 8 px (at τ = 1 a pop moves

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Scale-out (issue 16 acceptance): the same flight over the moon 8192² pyramid from four
-# places, side by side in one run — `tessera fly --no-render` (1920×1080, τ = 1 px,
-# 60 fps in real time, the default 4 ms budget), `pass` and `canyon` paths, at LATENCY
+# Scale-out (docs/ARCHITECTURE.md#scale-out): the same flight over the moon 8192² pyramid
+# from four places, side by side in one run — `tessera fly --no-render` (1920×1080, τ = 1
+# px, 60 fps in real time, the default 4 ms budget), `pass` and `canyon` paths, at LATENCY
 # ms added before every response (default 50, through `tessera-proxy`):
 #   local      tessera-server serve FILE.tess
 #   s3         tessera-server serve s3://tessera/moon8192.tess (moto_server on loopback;

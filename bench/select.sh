@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Selection time (issue 6 item 7): `tessera bench-select --json` (every error table
-# resident, one core, the selector's own clock) on the moon 8192² (118.45 m) and
+# Selection time (DECISIONS.md "Benchmarks"): `tessera bench-select --json` (every error
+# table resident, one core, the selector's own clock) on the moon 8192² (118.45 m) and
 # synthetic:65537 (30 m), `pass` and `canyon` paths run forward and back at 60 fps,
 # 1920×1080, τ = 1 px, 2000 timed frames. SYNTH names a built synthetic:65537 pyramid
 # to reuse (bench/build.sh leaves one when asked); else it is built here (~95 s).

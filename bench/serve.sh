@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Serving (issue 6 item 3): the finest level of the moon 8192² pyramid (512-cell tiles:
-# level 4, 16×16 tiles) on loopback, wrk with 2 threads at 64, 256 and 1024 connections:
+# Serving (DECISIONS.md "Benchmarks"): the finest level of the moon 8192² pyramid
+# (512-cell tiles: level 4, 16×16 tiles) on loopback, wrk with 2 threads at 64, 256 and
+# 1024 connections:
 #   (a) Tessera Morton-range batches of 4, 16 and 64 consecutive tiles from a random
 #       batch-aligned start (one Z-order quadtree block);
 #   (b) Tessera one tile per request (`/v1/datasets/NAME/tiles/L/X/Y`), a random tile;
@@ -10,14 +11,14 @@
 # limit (nginx's default closes a connection after 1000 requests; Tessera never does).
 # Then the real request pattern: `tessera load --clients 64` in both request modes.
 # wrk, nginx, the clients and the server share the machine's cores.
-# CPU per row (issue 16 item 7): user + system seconds of the server's processes
-# (Tessera's one; nginx's master and workers) from /proc/PID/stat before and after
-# the wrk run, wrk's own (GNU time), and every CPU's busy seconds (/proc/stat), so
-# that CPU per payload byte is compared in the same run and other load shows.
-# Appends to $RESULTS/serve.jsonl {server, request, tiles_per_request, connections,
-# run, duration_s, requests, errors, p50_ms, p99_ms, mean_tile_bytes, wrk_bytes,
-# server_cpu_s, wrk_cpu_s, machine_cpu_s} and to $RESULTS/load.jsonl {mode, run,
-# …`tessera load --json`}.
+# CPU per row (DECISIONS.md "Object storage", serving efficiency): user + system seconds
+# of the server's processes (Tessera's one; nginx's master and workers) from
+# /proc/PID/stat before and after the wrk run, wrk's own (GNU time), and every CPU's busy
+# seconds (/proc/stat), so that CPU per payload byte is compared in the same run and other
+# load shows. Appends to $RESULTS/serve.jsonl {server, request, tiles_per_request,
+# connections, run, duration_s, requests, errors, p50_ms, p99_ms, mean_tile_bytes,
+# wrk_bytes, server_cpu_s, wrk_cpu_s, machine_cpu_s} and to $RESULTS/load.jsonl {mode,
+# run, …`tessera load --json`}.
 #   ROW_SECONDS (default 4) per wrk row, LOAD_SECONDS (default 10) per load run.
 source "$(dirname "$0")/common.sh"
 row=${ROW_SECONDS:-4}

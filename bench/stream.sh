@@ -1,19 +1,20 @@
 #!/usr/bin/env bash
-# Streaming under latency (issue 6 item 6): `tessera fly --no-render` over the moon
-# 8192² on loopback, `pass` and `canyon` paths, 1920×1080, τ = 1 px, 60 fps in real
+# Streaming under latency (DECISIONS.md "Benchmarks"): `tessera fly --no-render` over the
+# moon 8192² on loopback, `pass` and `canyon` paths, 1920×1080, τ = 1 px, 60 fps in real
 # time, 4 ms streaming budget per frame, at 0, 50 and 150 ms added latency
 # (`tessera-proxy --delay-ms`, proxy/, holds each response that long before its first
 # byte), prefetch on and off. Appends to $RESULTS/stream.jsonl {dataset, path,
 # latency_ms, prefetch, run, summary}.
 #
-# Then (issue 17 item 1) three opens side by side in the same run at 150 ms, prefetch
-# on: the bootstrap focused on the path's start (the default: document, the coarsest
-# levels' records, the next levels' error tables, and the records around the start at
-# every finer level), the bootstrap every client shares (`--no-focus`), and the old
-# open (`--no-bootstrap`: the document, then the root and each level as frames ask).
-# Appends to $RESULTS/stream_bootstrap.jsonl {dataset, path, latency_ms, open
-# (focus|no-focus|no-bootstrap), bootstrap, run, frame0_tiles, frame0_coarsest_level,
-# first_drawn, summary (with open_bytes)}, and prints a table of medians.
+# Then (DECISIONS.md "The first view in one round trip") three opens side by side in the
+# same run at 150 ms, prefetch on: the bootstrap focused on the path's start (the default:
+# document, the coarsest levels' records, the next levels' error tables, and the records
+# around the start at every finer level), the bootstrap every client shares
+# (`--no-focus`), and the old open (`--no-bootstrap`: the document, then the root and each
+# level as frames ask). Appends to $RESULTS/stream_bootstrap.jsonl {dataset, path,
+# latency_ms, open (focus|no-focus|no-bootstrap), bootstrap, run, frame0_tiles,
+# frame0_coarsest_level, first_drawn, summary (with open_bytes)}, and prints a table of
+# medians.
 #
 # The proxy delays by watching a connection for silence (proxy/src/delay.rs), which
 # is honest for HTTP/1.1, where each response in flight has a connection of its own;

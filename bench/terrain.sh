@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Cesium terrain (issue 15): quantized-mesh tiles meshed per request from the pyramid
-# and its error tables (`/v1/datasets/NAME/cesium/{z}/{x}/{y}.terrain`).
+# Cesium terrain (DECISIONS.md "Cesium terrain"): quantized-mesh tiles meshed per request
+# from the pyramid and its error tables (`/v1/datasets/NAME/cesium/{z}/{x}/{y}.terrain`).
 #
 # Pyramids (built here, in $WORK):
 #   N46E008  ../shared/data/dem/N46E008.tif (SRTM 3", 1201²) with --vertical-datum egm96,

@@ -1,15 +1,15 @@
 #!/usr/bin/env bash
-# Tile uploads with normal maps built on the CPU against the GPU's compute pass (issue 17
-# item 2): the plain (unsettled) `canyon` flight over the moon 8192², rendered headless
-# (lavapipe where there is no GPU), 1920×1080, τ = 1 px, 60 fps, the default 4 ms
-# per-frame upload budget, `--normals cpu` and `--normals gpu` alternating in each of
-# $RUNS runs (side by side in one session). Appends to $RESULTS/upload.jsonl per flight
-# {dataset, path, normals, run, frames, upload_frames, tiles_uploaded,
-# median_upload_ms_per_tile (over frames that uploaded: the frame's upload_ms ÷ its
-# uploads), median_upload_ms (all frames), median_render_ms, warmup_frames (frames
-# before the first within τ), longest_unconverged_frames (after the warm-up: the longest
-# run of frames whose selection still wanted tiles), longest_outside_tau_frames (likewise
-# for frames not within τ), steady_within_tau, summary}.
+# Tile uploads with normal maps built on the CPU against the GPU's compute pass
+# (DECISIONS.md "Normal maps on the GPU"): the plain (unsettled) `canyon` flight over the
+# moon 8192², rendered headless (lavapipe where there is no GPU), 1920×1080, τ = 1 px, 60
+# fps, the default 4 ms per-frame upload budget, `--normals cpu` and `--normals gpu`
+# alternating in each of $RUNS runs (side by side in one session). Appends to
+# $RESULTS/upload.jsonl per flight {dataset, path, normals, run, frames, upload_frames,
+# tiles_uploaded, median_upload_ms_per_tile (over frames that uploaded: the frame's
+# upload_ms ÷ its uploads), median_upload_ms (all frames), median_render_ms, warmup_frames
+# (frames before the first within τ), longest_unconverged_frames (after the warm-up: the
+# longest run of frames whose selection still wanted tiles), longest_outside_tau_frames
+# (likewise for frames not within τ), steady_within_tau, summary}.
 #   UPLOAD_FRAMES  frames per flight (default 600 = 10 s; QUICK=1: 240)
 source "$(dirname "$0")/common.sh"
 frames=${UPLOAD_FRAMES:-600}

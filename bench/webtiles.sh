@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Standard-grid web tiles (issue 14): Web Mercator 512 px Terrarium PNG tiles from
-# Tessera (resampled per request from the pyramid) against TiTiler (a dynamic tiler
-# on rasterio/GDAL, reading the same DEM as a Cloud-Optimized GeoTIFF), one after the
-# other in the same run, on loopback.
+# Standard-grid web tiles (DECISIONS.md "Standard-grid web tiles"): Web Mercator 512 px
+# Terrarium PNG tiles from Tessera (resampled per request from the pyramid) against
+# TiTiler (a dynamic tiler on rasterio/GDAL, reading the same DEM as a Cloud-Optimized
+# GeoTIFF), one after the other in the same run, on loopback.
 #
 # Datasets: N46E008.tif (SRTM 1201², EPSG:4326) at zooms 8 to the TileJSON maxzoom,
 # and the moon 8192² written as an Int16 GeoTIFF (elevation = value − 10000) with a

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Usage: bench/reliability/abuse.sh BIN — issue 11 acceptance: 1024 keep-alive
-# connections with wrk on one tile (non-2xx, server RSS before/after) and a slowloris
-# of 100 sockets against a 5 s header timeout. Needs wrk and python3. Figures: RELIABILITY.md.
+# Usage: bench/reliability/abuse.sh BIN — the reliability campaign (RELIABILITY.md): 1024
+# keep-alive connections with wrk on one tile (non-2xx, server RSS before/after) and a
+# slowloris of 100 sockets against a 5 s header timeout. Needs wrk and python3. Figures:
+# RELIABILITY.md.
 BIN=$(realpath "$1"); W=${2:-/tmp/tessera-abuse}; rm -rf $W; mkdir -p $W; cd $W
 "$BIN" build synthetic:4097 --quiet -o synth.tess >/dev/null
 ulimit -n 4096

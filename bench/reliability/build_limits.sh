@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Usage: bench/reliability/build_limits.sh BIN WORKDIR
-# Reproduces the build defects of issue 11 (lying headers, damaged PNG, memory budget,
-# signals, full disk) with the tessera-server binary BIN; run it with an old and a new
-# binary side by side. Figures: RELIABILITY.md.
+# Reproduces the build defects RELIABILITY.md lists (lying headers, damaged PNG, memory
+# budget, signals, full disk) with the tessera-server binary BIN; run it with an old and a
+# new binary side by side. Figures: RELIABILITY.md.
 BIN=$(realpath "$1"); W=$2
 export DEM_DIR; DEM_DIR=$(realpath "$(dirname "$0")/../../../shared/data/dem")
 rm -rf "$W"; mkdir -p "$W"; cd "$W"

@@ -108,7 +108,8 @@ pub struct DatasetInfo {
     /// Size of the pyramid file in bytes.
     pub bytes: u64,
     pub links: DatasetLinks,
-    /// The dataset's imagery pyramid (issue 17 item 5), absent when it has none.
+    /// The dataset's imagery pyramid (DECISIONS.md "Imagery pyramids"), absent when it
+    /// has none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imagery: Option<crate::imagery::ImageryInfo>,
     /// The body the grid lies on and whether the grid is longitude/latitude (issue
@@ -131,9 +132,9 @@ pub struct DatasetLinks {
     pub errors: String,
     pub tile: String,
     pub png: String,
-    /// The interfaces a server offers beyond the pyramid itself (issue 33), each only
-    /// where it applies to the dataset; absent in documents made from the file alone
-    /// ([`DatasetInfo::new`]) and from servers that predate them.
+    /// The interfaces a server offers beyond the pyramid itself (DECISIONS.md "Real
+    /// clients"), each only where it applies to the dataset; absent in documents made
+    /// from the file alone ([`DatasetInfo::new`]) and from servers that predate them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bootstrap: Option<String>,
     /// A shaded-relief PNG of the whole dataset.

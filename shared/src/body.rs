@@ -1,4 +1,4 @@
-//! The body a dataset lies on (issue 17 item 4): its ellipsoid's semi-axes and
+//! The body a dataset lies on (DECISIONS.md "The globe"): its ellipsoid's semi-axes and
 //! whether the grid is geographic (longitude/latitude degrees, affine in the grid
 //! indices), which is what a client needs to draw the dataset on the globe.
 //!

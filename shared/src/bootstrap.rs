@@ -1,6 +1,6 @@
-//! The bootstrap (`application/vnd.tessera.bootstrap`): everything a client needs
-//! to draw its first frame, in one response (issue 17 item 1; API.md
-//! "`GET /v1/datasets/{name}/bootstrap`").
+//! The bootstrap (`application/vnd.tessera.bootstrap`): everything a client needs to draw
+//! its first frame, in one response (API.md "`GET /v1/datasets/{name}/bootstrap`";
+//! DECISIONS.md "The first view in one round trip").
 //!
 //! Without it a client makes one round trip for the dataset's document and one more
 //! per level before it draws anything. As 3D Tiles' `root.json` carries its root

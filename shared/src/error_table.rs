@@ -1,4 +1,4 @@
-//! Per-tile error tables (Kang §4.1, Yang §4.1, DESIGN §3).
+//! Per-tile error tables (Kang §4.1, Yang §4.1, docs/ARCHITECTURE.md#error-tables).
 //!
 //! For each within-tile level `2^n` (`n = 0..=t`: the tile drawn as a mesh of
 //! `2^n × 2^n` cells), an 8×8 grid of blocks holds the maximum vertical distance
@@ -84,7 +84,7 @@ impl ErrorTable {
     }
 
     /// The tile's error at its own full resolution (`n = t`): what decides between
-    /// drawing this tile and refining into its children (DESIGN §5).
+    /// drawing this tile and refining into its children (docs/ARCHITECTURE.md#selection).
     pub fn full_resolution_error(&self) -> f32 {
         self.level_errors(self.tile_log2)
             .iter()

@@ -1,6 +1,7 @@
-//! A bootstrap's focus (issue 17 item 1; API.md "Bootstrap"): the point of the
-//! dataset a client's first view is over, so that the one response of its open
-//! carries the records that view needs at every level, not only the coarsest.
+//! A bootstrap's focus (API.md "Bootstrap"; DECISIONS.md "The first view in one
+//! round trip"): the point of the dataset a client's first view is over, so that
+//! the one response of its open carries the records that view needs at every
+//! level, not only the coarsest.
 //!
 //! Why: a bootstrap that is the same for every client carries the coarsest levels.
 //! A camera near the ground needs the finest tiles under it from its first frame,
@@ -9,8 +10,8 @@
 //! every finer level: for level `L`, the children of the 2 × 2 tiles of level
 //! `L − 1` whose centres are nearest the point. That is 4 × 4 tiles (fewer at the
 //! DEM's edges), in whole sibling groups (selection refines a tile only when all
-//! its children are resident, DESIGN §5), with at least one tile of level `L`
-//! between the point and the block's border on every side.
+//! its children are resident, docs/ARCHITECTURE.md#selection), with at least one
+//! tile of level `L` between the point and the block's border on every side.
 //!
 //! The choice is geometric (the server runs no camera model) and depends on the
 //! point alone, so a focused bootstrap is as cacheable as any URL; the query keeps

@@ -7,7 +7,7 @@
 //!   · tile records, level by level (finest first), each level contiguous in Morton order
 //! ```
 //! Because every level's records are contiguous and in Morton order, a Morton range
-//! of one level is one byte range of the file (DESIGN §3).
+//! of one level is one byte range of the file (docs/ARCHITECTURE.md#the-file).
 
 use crate::imagery::ImageryMetadata;
 use crate::metadata::Metadata;
@@ -38,8 +38,9 @@ pub fn checksum(bytes: &[u8]) -> u64 {
     xxhash_rust::xxh3::xxh3_64(bytes)
 }
 
-/// Metadata is a few KiB; the limit stops a lying length prefix from allocating more
-/// than this while decoding (DESIGN §8: nothing allocated on a header's word alone).
+/// Metadata is a few KiB; the limit stops a lying length prefix from allocating more than
+/// this while decoding (nothing allocated on a header's word alone:
+/// docs/ARCHITECTURE.md#bad-input-is-an-error).
 const METADATA_LIMIT: usize = 1 << 20;
 
 fn bincode_config() -> impl bincode::config::Config {

@@ -1,6 +1,7 @@
-//! Verifying a frame stream as it arrives, without keeping its records (API.md
-//! "Frame stream"): what a load generator needs of an answer (`tessera load
-//! --replay`, issue 18), which must check every frame but has no use for the bytes.
+//! Verifying a frame stream as it arrives, without keeping its records (API.md "Frame
+//! stream"): what a load generator needs of an answer (`tessera load --replay`;
+//! DECISIONS.md "Load testing: replay"), which must check every frame but has no use for
+//! the bytes.
 //!
 //! [`FrameScanner`] refuses exactly the streams [`FrameDecoder`] refuses, with the
 //! same [`WireError`]s, at the same points: it reads the same headers

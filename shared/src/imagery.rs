@@ -1,5 +1,5 @@
-//! Imagery pyramids (issue 17 item 5): the texture hierarchy of Yang §3, "grid LOD
-//! and texture LOD corresponding each other".
+//! Imagery pyramids (DECISIONS.md "Imagery pyramids"): the texture hierarchy of
+//! Yang §3, "grid LOD and texture LOD corresponding each other".
 //!
 //! An imagery pyramid is a sibling file of a DEM pyramid (`NAME.tessimg` beside
 //! `NAME.tess`, DECISIONS "Imagery pyramids") in the same container (FORMAT.md

@@ -1,6 +1,7 @@
 //! The contract between the Tessera server and client.
 //!
-//! Everything both sides must agree on lives here and nowhere else (DESIGN §1):
+//! Everything both sides must agree on lives here and nowhere else
+//! (docs/ARCHITECTURE.md#crates):
 //! tile ids and Morton codes ([`tile`], [`morton`]), the pyramid file format
 //! ([`format`](mod@format), written down in `FORMAT.md`), dataset metadata ([`metadata`]),
 //! the tile-record codec ([`codec`]), tile validity masks ([`mask`]), error tables ([`error_table`]), the surface

@@ -1,4 +1,5 @@
-//! Which cells of a tile are terrain (format v2, DESIGN §3 and §9).
+//! Which cells of a tile are terrain (format v2;
+//! docs/ARCHITECTURE.md#heights-and-no-data).
 //!
 //! No-data samples are filled so the mesh never cracks, but a filled area, and the
 //! padding beyond the DEM's width and height, is not terrain: it must never be drawn

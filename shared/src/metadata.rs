@@ -79,9 +79,10 @@ impl GeoRef {
 }
 
 /// The distance on the ground between neighbouring samples, in metres, measured at
-/// the DEM's centre (DESIGN §9). For a geographic CRS the two differ (a degree of
-/// longitude shrinks with latitude); for a projected one they are the pixel size in
-/// metres. The client lays samples out with these, so its world is in metres.
+/// the DEM's centre (docs/ARCHITECTURE.md#coordinate-systems). For a geographic CRS
+/// the two differ (a degree of longitude shrinks with latitude); for a projected one
+/// they are the pixel size in metres. The client lays samples out with these, so its
+/// world is in metres.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GroundSpacing {
     /// East–west, between columns.
@@ -97,8 +98,9 @@ impl GroundSpacing {
     }
 }
 
-/// What the heights are measured from (DESIGN §9), so that outputs that want another
-/// reference (Cesium wants heights above the WGS84 ellipsoid) can convert.
+/// What the heights are measured from (docs/ARCHITECTURE.md#coordinate-systems), so
+/// that outputs that want another reference (Cesium wants heights above the WGS84
+/// ellipsoid) can convert.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum VerticalDatum {
@@ -146,7 +148,8 @@ pub struct Metadata {
     /// Lowest and highest valid height in metres, after quantization.
     pub min_height: f64,
     pub max_height: f64,
-    /// Input samples that were no-data and were filled (DESIGN §3).
+    /// Input samples that were no-data and were filled
+    /// (docs/ARCHITECTURE.md#heights-and-no-data).
     pub nodata_count: u64,
     /// How no-data was filled, e.g. "nearest valid sample".
     pub nodata_fill: String,

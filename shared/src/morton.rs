@@ -2,7 +2,7 @@
 //!
 //! Within a level, any quadtree subtree is one contiguous Morton range at every
 //! deeper level (Yang §3.3), so a viewport is a handful of ranges and a range is
-//! one contiguous byte range of the pyramid file (DESIGN §3).
+//! one contiguous byte range of the pyramid file (docs/ARCHITECTURE.md#the-file).
 
 use std::fmt;
 

@@ -1,5 +1,6 @@
 //! Reading a pyramid over any source of byte ranges: a local file now, object
-//! storage or HTTP Range requests later (DESIGN §3–4).
+//! storage or HTTP Range requests later (docs/ARCHITECTURE.md#the-file,
+//! docs/ARCHITECTURE.md#storage).
 
 use crate::codec::{self, CodecError, TileRecord};
 use crate::error_table::ErrorTable;
@@ -458,11 +459,11 @@ impl<'g> IndexCheck<'g> {
     }
 }
 
-/// Checks a whole pyramid without holding its index in memory: the header checksum,
-/// the metadata and level table, every level's index (read a chunk at a time) and
-/// every record's checksum. `each` sees every present tile's checked record, levels
-/// ascending, Morton order. Memory stays a few MiB whatever the file's size, which
-/// is what lets a build verify its output under `--memory` (DESIGN §8).
+/// Checks a whole pyramid without holding its index in memory: the header checksum, the
+/// metadata and level table, every level's index (read a chunk at a time) and every
+/// record's checksum. `each` sees every present tile's checked record, levels ascending,
+/// Morton order. Memory stays a few MiB whatever the file's size, which is what lets a
+/// build verify its output under `--memory` (docs/ARCHITECTURE.md#bad-input-is-an-error).
 pub fn check_streaming<S: ByteSource>(
     source: &S,
     each: impl FnMut(TileId, &IndexEntry, &[u8]) -> Result<(), ReadError>,

@@ -1,4 +1,5 @@
-//! Typed tile coordinates and the geometry of a pyramid (DESIGN §3).
+//! Typed tile coordinates and the geometry of a pyramid
+//! (docs/ARCHITECTURE.md#tiles-and-levels).
 //!
 //! A tile is `T = 2^t` cells wide (`T + 1` samples; neighbours share border
 //! samples). Level `L` covers the padded DEM with `2^L × 2^L` tiles; the finest
@@ -11,7 +12,8 @@ use std::fmt;
 /// Deepest level the format allows: Morton codes of `2^24 × 2^24` tiles fit a `u64` easily,
 /// and `2^24 · 2^12` finest samples per side is far beyond any DEM.
 pub const MAX_LEVEL: u8 = 24;
-/// Smallest tile: Kang's per-tile quadtree needs depth `t − 6 ≥ 0` (DESIGN §5).
+/// Smallest tile: Kang's per-tile quadtree needs depth `t − 6 ≥ 0`
+/// (docs/ARCHITECTURE.md#selection).
 pub const MIN_TILE_SIZE: u32 = 64;
 /// Largest tile: keeps a decoded tile (`(T+1)² · 2` bytes) near 32 MiB.
 pub const MAX_TILE_SIZE: u32 = 4096;

@@ -1,5 +1,6 @@
 //! How a regular grid of samples is triangulated: the surface that error tables
-//! measure and the renderer draws (DESIGN §3, §6).
+//! measure and the renderer draws (docs/ARCHITECTURE.md#error-tables,
+//! docs/ARCHITECTURE.md#crack-free-edges).
 //!
 //! A mesh of cell size `s` (in samples of the finest grid) has a vertex at every
 //! sample whose coordinates are multiples of `s`. Each cell is split along the

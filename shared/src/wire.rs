@@ -1,5 +1,5 @@
 //! The tile stream (`application/vnd.tessera.tiles`): what the range endpoint
-//! sends and what clients decode (DESIGN §4).
+//! sends and what clients decode (docs/ARCHITECTURE.md#contracts).
 //!
 //! A stream is a sequence of frames, the last of which is the one trailer frame;
 //! every frame is a fixed 32-byte little-endian header and a payload. The byte

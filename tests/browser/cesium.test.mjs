@@ -1,5 +1,6 @@
-// Tessera's Cesium terrain (quantized-mesh-1.0, issue 15) in CesiumJS, in headless Chromium
-// (DESIGN.md §9 "Tested with the real clients"). Run by ./run.sh after maplibre.test.mjs;
+// Tessera's Cesium terrain (quantized-mesh-1.0; DECISIONS.md "Cesium terrain") in CesiumJS, in
+// headless Chromium (DECISIONS.md "Browser tests"; docs/ARCHITECTURE.md#derived-outputs).
+// Run by ./run.sh after maplibre.test.mjs;
 // README.md "CesiumJS" explains the tolerance.
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
@@ -49,9 +50,10 @@ const footprint = wgs84Footprint(path.join(DATA, `${DATASET}.tif`));
 
 before(async () => {
   if (!fs.existsSync(EGM96_GRID)) throw new Error(`missing the EGM96 grid ${EGM96_GRID} (Debian's proj-data)`);
-  // The user's defaults (issue 33 item 3): no --vertical-datum (the build recognises the SRTM
-  // GeoTIFF's datum, EGM96, from its DTED metadata) and no --geoid (the server finds the grid PROJ
-  // uses for the reference, Debian's proj-data, by itself); layer.json must then carry no warning.
+  // The user's defaults (DECISIONS.md "Real clients"): no --vertical-datum (the build recognises
+  // the SRTM GeoTIFF's datum, EGM96, from its DTED metadata) and no --geoid (the server finds the
+  // grid PROJ uses for the reference, Debian's proj-data, by itself); layer.json must then carry no
+  // warning.
   const dir = process.env.TESSERA_TILE_SERVER ? null : buildPyramids([DATASET]);
   tiles = await startTileServer(dir);
   pages = await startStaticServer();

@@ -1,5 +1,5 @@
-// Tessera's Web Mercator outputs in MapLibre GL JS, in headless Chromium (issue 14 item 5;
-// DESIGN.md §9 "Tested with the real clients"). Run by ./run.sh; README.md explains the
+// Tessera's Web Mercator outputs in MapLibre GL JS, in headless Chromium (DECISIONS.md
+// "Browser tests"; docs/ARCHITECTURE.md#derived-outputs). Run by ./run.sh; README.md explains the
 // thresholds and tolerances.
 import assert from 'node:assert/strict';
 import http from 'node:http';
@@ -36,7 +36,7 @@ const REL_TOL = 0.25;
 // terrain tiles are the source's tile size · 2^deltaZoom = 1024 px (one zoom down), and each reads
 // the DEM tile deltaZoom = 1 further down (TerrainTileManager). So the map goes to maxzoom + 2 for
 // the terrain to read maxzoom tiles (at maxzoom + 1 it reads maxzoom − 1: measured, 15–25 m off
-// GDAL at sharp summits, what issue 33 item 5 took for half a pixel).
+// GDAL at sharp summits, what was once taken for half a pixel: README.md "Pixel centres").
 const DEM_ZOOM_OFFSET = 2;
 
 const LANDMARKS = [
@@ -190,8 +190,8 @@ test('N46E008: terrain heights at five landmarks match GDAL', async () => {
 
 
 
-// No walls (issue 33 item 2). Pixels without data must decode to a plausible height in what
-// MapLibre reads: it ignores alpha in raster-dem tiles and reads them through a premultiplied
+// No walls (DECISIONS.md "Real clients"). Pixels without data must decode to a plausible height in
+// what MapLibre reads: it ignores alpha in raster-dem tiles and reads them through a premultiplied
 // canvas, so a transparent pixel decodes as Terrarium −32768 m and 3D terrain stands on walls
 // 32 km deep. "Plausible": no drawn height lies more than the dataset's height range below its
 // lowest sample (GDAL's). Two checks: a pitched view of the dataset's edges draped with a
@@ -239,13 +239,13 @@ test('N46E008: a pitched 3D view has no walls, and heights just outside the data
   assertNoProblems(problems, dataset);
 });
 
-// Pixel positions (issue 33 item 5). MapLibre 6 places a raster-dem pixel's value at the pixel's
-// centre (DEMData.sampleBilinear with DEM_CELL_CENTER_OFFSET = −0.5, and the terrain shader's
-// `+ 1.5` into its 2-px bordered texture), as GDAL does; the server computes each pixel at its
-// centre. Queried exactly at maxzoom pixel centres, MapLibre must then give GDAL's bilinear value
-// there to the Terrarium step, not a value half a pixel away. The points are the pixel centres
-// near sharp summits where half a pixel changes the height most, so the shifted control (GDAL
-// half a pixel away, what either side using the pixel's corner would give) misses by metres.
+// Pixel positions (DECISIONS.md "Browser tests"). MapLibre 6 places a raster-dem pixel's value at
+// the pixel's centre (DEMData.sampleBilinear with DEM_CELL_CENTER_OFFSET = −0.5, and the terrain
+// shader's `+ 1.5` into its 2-px bordered texture), as GDAL does; the server computes each pixel at
+// its centre. Queried exactly at maxzoom pixel centres, MapLibre must then give GDAL's bilinear
+// value there to the Terrarium step, not a value half a pixel away. The points are the pixel
+// centres near sharp summits where half a pixel changes the height most, so the shifted control
+// (GDAL half a pixel away, what either side using the pixel's corner would give) misses by metres.
 const SUMMITS = [
   { name: 'Finsteraarhorn', lonLat: [8.1261, 46.5372] },
   { name: 'Tödi', lonLat: [8.9147, 46.8111] },

@@ -1,8 +1,8 @@
-// The server's built-in viewer (issue 33 item 4) in headless Chromium: `tessera-server serve`
-// with its default flags serves the landing page `/` and `/viewer/{name}` itself, with MapLibre
-// GL JS and CesiumJS from its own /viewer/assets/ (prepared by server/viewer-assets.sh, found
-// beside target/debug/tessera-server). Asserted: the landing page lists both datasets with their
-// links; MapLibre draws the terrain at the dataset's place with GDAL's heights; the Cesium
+// The server's built-in viewer (DECISIONS.md "Real clients") in headless Chromium: `tessera-server
+// serve` with its default flags serves the landing page `/` and `/viewer/{name}` itself, with
+// MapLibre GL JS and CesiumJS from its own /viewer/assets/ (prepared by server/viewer-assets.sh,
+// found beside target/debug/tessera-server). Asserted: the landing page lists both datasets with
+// their links; MapLibre draws the terrain at the dataset's place with GDAL's heights; the Cesium
 // switch loads the quantized-mesh terrain; no console error; and no request to any host but the
 // server. README.md "The built-in viewer" says why each bound is what it is.
 import assert from 'node:assert/strict';

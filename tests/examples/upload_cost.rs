@@ -1,10 +1,10 @@
 //! What a tile upload costs with normal maps built on the CPU against the GPU's
-//! compute pass (issue 17 item 2): every tile of the moon 4096² built with 256-cell
-//! tiles (257² samples), uploaded in batches of 8 on a headless renderer
-//! (lavapipe where there is no GPU), the arms alternating `RUNS` times (default 3).
-//! Per tile, medians over the batches: the CPU time of `upload` (what the per-frame
-//! upload budget pays), the flush that submits the compute pass, and the wait for
-//! the device (copies and, on the GPU path, the pass itself).
+//! compute pass (DECISIONS.md "Normal maps on the GPU"): every tile of the moon 4096²
+//! built with 256-cell tiles (257² samples), uploaded in batches of 8 on a headless
+//! renderer (lavapipe where there is no GPU), the arms alternating `RUNS` times (default
+//! 3). Per tile, medians over the batches: the CPU time of `upload` (what the per-frame
+//! upload budget pays), the flush that submits the compute pass, and the wait for the
+//! device (copies and, on the GPU path, the pass itself).
 //!
 //! `cargo run --release -p tessera-e2e --example upload_cost`
 

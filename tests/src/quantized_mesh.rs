@@ -1,6 +1,6 @@
-//! A quantized-mesh-1.0 decoder of our own for the end-to-end tests (issue 15),
-//! written from the spec (CesiumGS/quantized-mesh, README) and sharing nothing with
-//! the server's encoder, so that a round trip checks the encoder against the format
+//! A quantized-mesh-1.0 decoder of our own for the end-to-end tests (DECISIONS.md "Cesium
+//! terrain"), written from the spec (CesiumGS/quantized-mesh, README) and sharing nothing
+//! with the server's encoder, so that a round trip checks the encoder against the format
 //! rather than against itself.
 //!
 //! It is strict where the spec is definite (lengths, index ranges, the high-water

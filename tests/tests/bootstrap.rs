@@ -1,7 +1,7 @@
-//! Issue 17 item 1: one round trip to the first drawable frame. The bootstrap
-//! (`GET /v1/datasets/{name}/bootstrap`, API.md) against the routes it stands in
-//! for, its caching, its damage, and flights that open with it (or without it)
-//! through a proxy that adds 150 ms to every response — all over real sockets to a
+//! One round trip to the first drawable frame (DECISIONS.md "The first view in one round
+//! trip"). The bootstrap (`GET /v1/datasets/{name}/bootstrap`, API.md) against the routes
+//! it stands in for, its caching, its damage, and flights that open with it (or without
+//! it) through a proxy that adds 150 ms to every response — all over real sockets to a
 //! real server.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test

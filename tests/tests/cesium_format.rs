@@ -1,7 +1,8 @@
-//! Cesium terrain tiles (issue 15, DESIGN §9): meshes encoded by the server's
-//! quantized-mesh-1.0 writer and read back by the tests crate's own decoder, written
-//! from the spec. Every field must come back: vertices, triangles, edge lists,
-//! normals, metadata, and a header whose bounds hold for what a client decodes.
+//! Cesium terrain tiles (DECISIONS.md "Cesium terrain";
+//! docs/ARCHITECTURE.md#derived-outputs): meshes encoded by the server's
+//! quantized-mesh-1.0 writer and read back by the tests crate's own decoder, written from
+//! the spec. Every field must come back: vertices, triangles, edge lists, normals,
+//! metadata, and a header whose bounds hold for what a client decodes.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 

@@ -1,5 +1,6 @@
-//! Cesium terrain on real DEMs (issue 15): every tile checked by brute force against
-//! every finest sample it covers, and neighbouring tiles' shared edges.
+//! Cesium terrain on real DEMs (DECISIONS.md "Cesium terrain"): every tile checked by
+//! brute force against every finest sample it covers, and neighbouring tiles' shared
+//! edges.
 //!
 //! - **Error.** Each tile is meshed, encoded and decoded with our own decoder
 //!   (`tessera_e2e::quantized_mesh`, written from the spec); the decoded surface

@@ -1,4 +1,4 @@
-//! The globe (issue 17 item 4) on the real moon 4096² mosaic, built with its
+//! The globe (DECISIONS.md "The globe") on the real moon 4096² mosaic, built with its
 //! georeferencing (`--crs +proj=longlat +R=1737400`, `--bounds`): the `descent`
 //! flight rendered headless on the Moon's sphere. The first frame shows the whole
 //! dataset as a region with curved edges, sky all round it (flat, the same edges

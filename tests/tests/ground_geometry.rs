@@ -1,6 +1,7 @@
-//! True ground geometry and validity masks on real geographic DEMs (issue 13,
-//! items 2 and 4), end to end: `tessera-server build` → serve → the client's
-//! dataset document, selection, streaming and wgpu renderer (lavapipe here).
+//! True ground geometry and validity masks on real geographic DEMs (DECISIONS.md
+//! "Coordinate systems, masks and reprojection"), end to end: `tessera-server build` →
+//! serve → the client's dataset document, selection, streaming and wgpu renderer
+//! (lavapipe here).
 //!
 //! - A geographic DEM's cells are not square: N46E008's are 63.97 m east–west and
 //!   92.63 m north–south, and the client places samples with both spacings, so 1 km
@@ -236,7 +237,8 @@ fn world_from_server(f: &Fixture, name: &str) -> World {
 /// at the DEM's centre (46.5° N), not from the client: 1 km east is 15.6 columns,
 /// 1 km south 10.8 rows. The world is the one the client makes of the server's
 /// dataset document. Drawn with square cells (the east–west spacing for both
-/// axes, as before issue 13), north–south would be 31 % short.
+/// axes, as before the metadata carried both spacings), north–south would be 31 %
+/// short.
 #[test]
 fn a_kilometre_is_as_many_pixels_east_west_as_north_south() {
     let Some(f) = fixture() else { return };
@@ -366,13 +368,13 @@ fn footprint(terrain: &[bool], w: u32) -> (u32, u32) {
     (x1 - x0 + 1, y1 - y0 + 1)
 }
 
-/// The acceptance frame of issue 13: N46E008 straight down from 200 km above its
-/// centre, drawn by the real flight (`tessera fly` with a one-camera path JSON,
-/// settled), north up. Its footprint — terrain pixels against the sky, which
-/// is all that surrounds it now that masks keep the padding beyond the DEM's east
-/// and south edges from being drawn — is 76.8 km × 111.2 km on the ground, so
-/// 63.97/92.63 = 0.6906× as wide as tall; within 1 %. (Before issue 13 it was
-/// square, with streaks of padding beyond two edges.) The frame is written to
+/// The acceptance frame of true ground geometry: N46E008 straight down from 200 km above
+/// its centre, drawn by the real flight (`tessera fly` with a one-camera path JSON,
+/// settled), north up. Its footprint — terrain pixels against the sky, which is all that
+/// surrounds it now that masks keep the padding beyond the DEM's east and south edges
+/// from being drawn — is 76.8 km × 111.2 km on the ground, so 63.97/92.63 = 0.6906× as
+/// wide as tall; within 1 %. (Before two spacings and validity masks it was square, with
+/// streaks of padding beyond two edges.) The frame is written to
 /// `target/acceptance/N46E008/frame_00000.png` to be looked at.
 ///
 /// The 1 % holds the frame's own errors: a pixel at each edge of a ~530 px wide

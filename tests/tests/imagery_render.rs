@@ -1,7 +1,7 @@
-//! Issue 17 item 5, the renderer: the Olinda DEM drawn straight down with its
-//! Landsat imagery (bands 3,2,1) draped, on lavapipe. The imagery comes from a
-//! real server (in process, real sockets) through the client's fetch; the heights
-//! from the pyramid file.
+//! Imagery pyramids (DECISIONS.md "Imagery pyramids"), the renderer: the Olinda DEM drawn
+//! straight down with its Landsat imagery (bands 3,2,1) draped, on lavapipe. The imagery
+//! comes from a real server (in process, real sockets) through the client's fetch; the
+//! heights from the pyramid file.
 //!
 //! The check is the coastline. The expected frame is computed independently of the
 //! shader: for each pixel, the camera's own matrices give the ray under it, the ray

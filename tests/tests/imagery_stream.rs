@@ -1,8 +1,8 @@
-//! Issue 17 item 5, the client side as far as it goes: the client's imagery fetch
-//! (`tessera_client::stream::imagery`) against a real server (in process, real
-//! sockets) serving the real Olinda DEM with its Landsat imagery. Every tile the DEM
-//! has comes back decoded, exactly the texels of the file's own record, and nothing
-//! for tiles the DEM lacks.
+//! Imagery pyramids (DECISIONS.md "Imagery pyramids"), the client side as far as it goes:
+//! the client's imagery fetch (`tessera_client::stream::imagery`) against a real server
+//! (in process, real sockets) serving the real Olinda DEM with its Landsat imagery. Every
+//! tile the DEM has comes back decoded, exactly the texels of the file's own record, and
+//! nothing for tiles the DEM lacks.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 

@@ -1,4 +1,6 @@
-//! DESIGN §6 invariants 1 and 2, checked by brute force on real DEMs.
+//! Two pyramid invariants, checked by brute force on real DEMs:
+//! docs/ARCHITECTURE.md#borders-and-decimation and
+//! docs/ARCHITECTURE.md#exact-error-tables.
 //!
 //! Each DEM is built into a pyramid with small tiles (so there are several levels,
 //! partial edge tiles and absent tiles), then every sample and every error-table

@@ -1,7 +1,8 @@
-//! Issue 18 item 1, the recording half: `tessera load --record TRACE` writes the
-//! requests the full clients really sent. A real server over the moon 4096² DEM,
-//! real clients in process, and a logging proxy between them (`tessera-proxy`) that
-//! sees every request line on the wire, independently of the client's code.
+//! Load testing (DECISIONS.md "Load testing: the proof"), the recording half: `tessera
+//! load --record TRACE` writes the requests the full clients really sent. A real server
+//! over the moon 4096² DEM, real clients in process, and a logging proxy between them
+//! (`tessera-proxy`) that sees every request line on the wire, independently of the
+//! client's code.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 

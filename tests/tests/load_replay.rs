@@ -1,7 +1,7 @@
-//! Issue 18, the replay half: `tessera load --replay` against a real server over the
-//! moon 4096², with a trace recorded by the real full clients (`tessera load
-//! --record`), and proxies (`tessera-proxy`) that log, stall or damage what they
-//! relay, independently of the client's code:
+//! Load testing (DECISIONS.md "Load testing: the proof"), the replay half: `tessera load
+//! --replay` against a real server over the moon 4096², with a trace recorded by the real
+//! full clients (`tessera load --record`), and proxies (`tessera-proxy`) that log, stall
+//! or damage what they relay, independently of the client's code:
 //!
 //! - replayed as recorded, exactly the recorded requests reach the server;
 //! - a server that stops answering for a while makes the latency measured from the

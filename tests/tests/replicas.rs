@@ -1,9 +1,10 @@
-//! Stateless replicas (issue 16 item 4, DESIGN §4 and §9): two `tessera-server serve
-//! s3://…` processes over the same object in a real S3 server on loopback (moto,
-//! `tessera_shared::s3_server`), behind nginx as a round-robin load balancer
-//! (`tessera_e2e::nginx::Nginx::balance`: `proxy_next_upstream error timeout http_502
-//! http_503`, passive health with `max_fails`/`fail_timeout`), its access log
-//! recording which replica answered each request.
+//! Stateless replicas (DECISIONS.md "Stateless replicas";
+//! docs/ARCHITECTURE.md#scale-out): two `tessera-server serve s3://…` processes over the
+//! same object in a real S3 server on loopback (moto, `tessera_shared::s3_server`),
+//! behind nginx as a round-robin load balancer (`tessera_e2e::nginx::Nginx::balance`:
+//! `proxy_next_upstream error timeout http_502 http_503`, passive health with
+//! `max_fails`/`fail_timeout`), its access log recording which replica answered each
+//! request.
 //!
 //! - both replicas and the front answer every record of every level with the same
 //!   bytes; `tessera load` through the front is served by both without an error, and a

@@ -1,5 +1,6 @@
-//! Selection invariants on a real DEM (DESIGN §6 invariants 3 and 4), through the
-//! reference tessellator, for thousands of random cameras.
+//! Selection invariants on a real DEM (docs/ARCHITECTURE.md#crack-free-edges,
+//! docs/ARCHITECTURE.md#screen-space-error-met-or-reported), through the reference
+//! tessellator, for thousands of random cameras.
 //!
 //! The moon 4096² mosaic is built with 128-cell tiles (6 levels, 1365 tiles), every
 //! error table is resident, and cameras fly at random over it.

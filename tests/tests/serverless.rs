@@ -1,8 +1,8 @@
-//! Serverless reads (issue 16 item 3, DESIGN §9): `tessera fly --pyramid URL` and
-//! `tessera load --pyramid URL` read a pyramid file straight from a static host with
-//! HTTP Range, no Tessera server. nginx is the host, started by the tests
-//! (`tessera_e2e::nginx`; `SKIPPED` without it, a failure when `CI` is set), its
-//! access log recording every request's `Range`.
+//! Serverless reads (DECISIONS.md "Serverless reads"; docs/ARCHITECTURE.md#scale-out):
+//! `tessera fly --pyramid URL` and `tessera load --pyramid URL` read a pyramid file
+//! straight from a static host with HTTP Range, no Tessera server. nginx is the host,
+//! started by the tests (`tessera_e2e::nginx`; `SKIPPED` without it, a failure when `CI`
+//! is set), its access log recording every request's `Range`.
 //!
 //! - the same flight against `tessera-server` and against nginx converges to the same
 //!   selection, with one Range request per run of contiguous records (a Morton

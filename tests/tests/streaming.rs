@@ -1,8 +1,9 @@
-//! Streaming against a real server over real sockets (DESIGN §6 invariant 5): a
-//! flight never draws a hole once the root has arrived and converges to τ, settled
-//! quality frames reuse cached references, a flight keeps drawing through a proxy
-//! that delays every response (`tessera-proxy`), the load generator batches only in
-//! range mode, and the deficit is missing, not huge, while tiles are missing.
+//! Streaming against a real server over real sockets
+//! (docs/ARCHITECTURE.md#no-holes-no-stalls): a flight never draws a hole once the root
+//! has arrived and converges to τ, settled quality frames reuse cached references, a
+//! flight keeps drawing through a proxy that delays every response (`tessera-proxy`), the
+//! load generator batches only in range mode, and the deficit is missing, not huge, while
+//! tiles are missing.
 //!
 //! The server's outages are in `streaming_outage.rs`, damage in transit and on disk
 //! in `streaming_damage.rs`; the fixtures they share in `streaming_support/`.
@@ -204,12 +205,13 @@ fn load_generator_batches_in_range_mode_only() {
     );
 }
 
-/// Issue 11, item 12 (DESIGN §8: the deficit is reported as "missing", not as a
-/// huge number): in an ordinary flight the first frames have only the root, or
-/// nothing, and the eye is inside the root's error box. Those frames say `null`
-/// and count what is missing; a number is only ever a bounded error. The old
-/// selection clamped the distance to 1e-9 m, which made `ε·λ/d` at least 1e9 px
-/// for any error over a metre: no number that large is a measurement.
+/// The deficit is reported as "missing", not as a huge number
+/// (docs/ARCHITECTURE.md#the-client-never-goes-blind; DECISIONS.md "Reliability"): in an
+/// ordinary flight the first frames have only the root, or nothing, and the eye is inside
+/// the root's error box. Those frames say `null` and count what is missing; a number is
+/// only ever a bounded error. The old selection clamped the distance to 1e-9 m, which
+/// made `ε·λ/d` at least 1e9 px for any error over a metre: no number that large is a
+/// measurement.
 #[test]
 fn the_deficit_is_missing_rather_than_huge_while_tiles_are_missing() {
     let rt = tokio::runtime::Runtime::new().unwrap();

@@ -1,10 +1,10 @@
-//! Damage in transit and on disk (DESIGN §6 invariant 6, §8): tile frames that a
-//! proxy damages on the way (`tessera-proxy`: flipped bytes, streams cut short
-//! mid-frame) are rejected without crashing, never become resident and are retried
-//! with backoff, and a flight over tiles that always arrive damaged draws their
-//! ancestors. Records corrupt in the server's file (the root, or all of them) are
-//! retried, then written off; the flight draws what it can and says why, and fails
-//! when it drew nothing.
+//! Damage in transit and on disk (docs/ARCHITECTURE.md#corrupt-records-are-detected,
+//! docs/ARCHITECTURE.md#the-client-never-goes-blind): tile frames that a proxy damages on
+//! the way (`tessera-proxy`: flipped bytes, streams cut short mid-frame) are rejected
+//! without crashing, never become resident and are retried with backoff, and a flight
+//! over tiles that always arrive damaged draws their ancestors. Records corrupt in the
+//! server's file (the root, or all of them) are retried, then written off; the flight
+//! draws what it can and says why, and fails when it drew nothing.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
@@ -22,9 +22,10 @@ use tessera_client::stream::StreamConfig;
 use tessera_proxy::{Damage, Faults, Recurrence, RequestLog};
 use tessera_shared::{Level, TileId};
 
-/// DESIGN §6 invariant 6 in transit: damaged frames are rejected with an error that
-/// says why, counted, retried (a transient fault is not the server's corrupt record),
-/// and the flight goes on drawing what is resident, then recovers.
+/// Corrupt records are detected (docs/ARCHITECTURE.md#corrupt-records-are-detected) in
+/// transit: damaged frames are rejected with an error that says why, counted, retried (a
+/// transient fault is not the server's corrupt record), and the flight goes on drawing
+/// what is resident, then recovers.
 fn assert_survived_transient(
     frames: &[FrameRecord],
     summary: &tessera_client::app::fly::FlySummary,
@@ -256,11 +257,11 @@ fn level_requests(log: &RequestLog, level: u8) -> usize {
     log.targets().iter().filter(|t| t.contains(&needle)).count()
 }
 
-/// Issue 11 (DESIGN §8, "the client never goes blind"): the root's record is corrupt
-/// on disk, so the server answers it with an error frame every time. The client
-/// retries it with backoff before writing it off, meanwhile draws the root's
-/// children (level 1) instead of nothing, says why in `last_error`, and the flight
-/// succeeds because it drew.
+/// The client never goes blind (docs/ARCHITECTURE.md#the-client-never-goes-blind;
+/// DECISIONS.md "Reliability"): the root's record is corrupt on disk, so the server
+/// answers it with an error frame every time. The client retries it with backoff before
+/// writing it off, meanwhile draws the root's children (level 1) instead of nothing, says
+/// why in `last_error`, and the flight succeeds because it drew.
 #[test]
 fn flight_draws_level_one_when_the_root_record_is_corrupt() {
     let dir = tempfile::tempdir().unwrap();
@@ -338,9 +339,9 @@ fn flight_draws_level_one_when_the_root_record_is_corrupt() {
     summary.verdict().unwrap();
 }
 
-/// Issue 11: every record corrupt. The client retries, falls back level by level,
-/// and still has nothing to draw: the flight fails (`tessera fly` exits non-zero
-/// with this error), saying why, and every frame reports its deficit as missing.
+/// Every record corrupt (DECISIONS.md "Reliability"). The client retries, falls back
+/// level by level, and still has nothing to draw: the flight fails (`tessera fly` exits
+/// non-zero with this error), saying why, and every frame reports its deficit as missing.
 #[test]
 fn a_flight_that_draws_nothing_fails_and_says_why() {
     let dir = tempfile::tempdir().unwrap();

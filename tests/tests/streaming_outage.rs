@@ -1,7 +1,8 @@
-//! Streaming through the server's outages (DESIGN §6 invariant 5, §8): a flight
-//! recovers after the server is killed and restarted on the same port, whether its
-//! runtime is shut down under it or its process is killed with SIGKILL; it keeps
-//! drawing what it has meanwhile, never a hole.
+//! Streaming through the server's outages (docs/ARCHITECTURE.md#no-holes-no-stalls,
+//! docs/ARCHITECTURE.md#the-client-never-goes-blind): a flight recovers after the server
+//! is killed and restarted on the same port, whether its runtime is shut down under it or
+//! its process is killed with SIGKILL; it keeps drawing what it has meanwhile, never a
+//! hole.
 //!
 //! The SIGKILL test runs this test binary again as the server process, filtered to
 //! [`server_process_for_the_sigkill_test`].
@@ -98,8 +99,9 @@ fn spawn_server_process(addr: SocketAddr) -> std::process::Child {
     child
 }
 
-/// `kill -9` of a real server process mid-flight, then a restart on the same port:
-/// the flight notices, keeps drawing what it has, and recovers (DESIGN §8).
+/// `kill -9` of a real server process mid-flight, then a restart on the same port: the
+/// flight notices, keeps drawing what it has, and recovers
+/// (docs/ARCHITECTURE.md#the-client-never-goes-blind).
 #[test]
 fn recovers_after_the_server_process_is_killed_with_sigkill() {
     let addr = std::net::TcpListener::bind("127.0.0.1:0")
