@@ -204,7 +204,7 @@ pub fn section(records: Option<&[Stream]>, ctx: &Ctx) -> Section {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::results::{FlySummary, StreamTotals};
+    use crate::results::flights::{FlySummary, StreamTotals};
 
     fn rec(path: &str, latency_ms: f64, prefetch: bool, run: u32, within_2tau: f64) -> Stream {
         Stream {
