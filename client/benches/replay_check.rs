@@ -1,5 +1,5 @@
 //! What checking an answer costs the replay (issue 18: one core must drive the server
-//! as hard as `wrk`): `load::check::Check` over a frame stream of 16 tile frames of
+//! as hard as `wrk`): `loadtest::check::Check` over a frame stream of 16 tile frames of
 //! 20 kB records (a batch of the moon 4096² at 128-cell tiles is of this order), fed
 //! in chunks of 16, 64 and 256 KiB as a socket delivers them. Each sample checks one
 //! whole stream: the shared decoder's checksum of every record, the stream digest,
@@ -11,7 +11,7 @@
 
 use divan::Bencher;
 use divan::counter::BytesCount;
-use tessera_client::load::check::Check;
+use tessera_client::loadtest::check::Check;
 use tessera_shared::wire::{tile_header, trailer_frame};
 use tessera_shared::{Level, Morton};
 

@@ -2,24 +2,37 @@
 //! renderer, and the run modes built on them.
 //!
 //! - [`camera`]: a perspective camera and its frustum;
+//! - [`globe`]: datasets drawn on their body's ellipsoid (ECEF, horizon culling);
 //! - [`paths`]: the built-in camera paths and path files, and where they put the eye;
 //! - [`select`]: pyramid refinement by screen-space error, Kang's per-tile
 //!   quadtrees with power-of-two inner LODs, crack-free edge LODs;
 //! - [`tessellate`]: the exact vertex positions a patch produces;
 //! - [`stream`]: fetching, decoding and the CPU tile pool;
 //! - [`lru`]: the recency list behind the tile pool and the GPU slots;
-//! - [`render`]: the wgpu renderer (emulated tessellation, ≤ 7 terrain draws);
+//! - `render`: the wgpu renderer (emulated tessellation, ≤ 7 terrain draws), with
+//!   the default feature `render` only;
 //! - [`report`]: contact sheets and plots of a flight;
+//! - [`loadtest`]: load testing: request traces, their replay on a schedule, the
+//!   reports and their merge;
 //! - [`app`]: the run modes — flights ([`app::fly`]), headless rendering
-//!   ([`app::headless`]), the interactive window ([`app::window`]), load tests
-//!   ([`app::load_test`]) and the selection benchmark ([`app::bench_select`]).
+//!   (`app::headless`), the interactive window (`app::window`), load tests
+//!   ([`app::load_test`]) and the selection benchmark ([`app::bench_select`]);
+//! - [`cli`]: the command line of `tessera` and `tessera-load`;
+//! - [`output`]: standard output that a closed pipe (`| head -1`) ends quietly.
+//!
+//! Without the default feature `render` the crate links no wgpu, winit or naga: the
+//! load tester (`tessera-load`) is built that way (DECISIONS.md "Load tester and
+//! client layout").
 
 pub mod app;
 pub mod camera;
+pub mod cli;
 pub mod globe;
-pub mod load;
+pub mod loadtest;
 pub mod lru;
+pub mod output;
 pub mod paths;
+#[cfg(feature = "render")]
 pub mod render;
 pub mod report;
 pub mod select;

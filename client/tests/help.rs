@@ -1,4 +1,4 @@
-//! `--help` of `tessera` (the client) and of every command, as snapshots (`insta`): a
+//! `--help` of `tessera` (the client) and of every command, and of `tessera-load`, as snapshots (`insta`): a
 //! change to what users read is a reviewed change of `tests/snapshots/`.
 
 use std::path::Path;
@@ -12,4 +12,13 @@ fn help_texts_are_stable() {
         insta::assert_snapshot!(format!("tessera-{command}"), help_text(bin, &[command]));
     }
     insta::assert_snapshot!("tessera-load-merge", help_text(bin, &["load", "merge"]));
+}
+
+/// `tessera-load`, the load tester alone: `tessera load`'s arguments under a name
+/// of its own.
+#[test]
+fn load_tester_help_texts_are_stable() {
+    let bin = Path::new(env!("CARGO_BIN_EXE_tessera-load"));
+    insta::assert_snapshot!("tessera-load-bin", help_text(bin, &[]));
+    insta::assert_snapshot!("tessera-load-bin-merge", help_text(bin, &["merge"]));
 }

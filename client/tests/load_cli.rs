@@ -1,13 +1,14 @@
 //! `tessera load merge` and `tessera report` run as the real binary against hostile
 //! input (issue 32 item 6): shards given twice and implausible fields are refused
 //! with one line naming the file, and output to a reader that has gone away (`|
-//! head -1`) ends the command quietly, never in a panic.
+//! head -1`) ends the command quietly, never in a panic. `tessera-load` is `tessera
+//! load` alone: the same arguments, output and exit statuses.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
-use tessera_client::load::report::{Http, LatencyFrom, Mode, ReplayReport};
+use tessera_client::loadtest::report::{Http, LatencyFrom, Mode, ReplayReport};
 
 /// A small report of shard `shard`, written as `dir/NAME/load.json`.
 fn shard(dir: &Path, name: &str, shard: &str, edit: impl FnOnce(&mut ReplayReport)) -> PathBuf {
@@ -60,7 +61,7 @@ fn merge_refuses_a_shard_given_twice_and_implausible_fields() {
     assert!(twice.stdout.is_empty());
     // A timeline second of 4·10⁹ aborted on a 1.4 TB allocation.
     let far = shard(dir.path(), "far", "1/2", |r| {
-        r.timeline = vec![tessera_client::load::report::Second {
+        r.timeline = vec![tessera_client::loadtest::report::Second {
             second: 4_000_000_000,
             ..Default::default()
         }];
@@ -82,6 +83,44 @@ fn merge_refuses_a_shard_given_twice_and_implausible_fields() {
         "{e}"
     );
     assert!(!e.contains("panicked"), "{e}");
+}
+
+#[test]
+fn tessera_load_is_tessera_load() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = shard(dir.path(), "a", "0/2", |_| {});
+    let b = shard(dir.path(), "b", "1/2", |_| {});
+    let load_bin = |args: &[&std::ffi::OsStr]| {
+        Command::new(env!("CARGO_BIN_EXE_tessera-load"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    for tail in [
+        vec![a.as_os_str(), b.as_os_str(), "--json".as_ref()],
+        vec![a.as_os_str(), b.as_os_str()],
+        vec![a.as_os_str(), b.as_os_str(), a.as_os_str()],
+    ] {
+        let mut merge: Vec<&std::ffi::OsStr> = vec!["merge".as_ref()];
+        merge.extend(&tail);
+        let alone = load_bin(&merge);
+        let mut load_merge: Vec<&std::ffi::OsStr> = vec!["load".as_ref()];
+        load_merge.extend(&merge);
+        let within = tessera(&load_merge);
+        assert_eq!(
+            alone.status.code(),
+            within.status.code(),
+            "{}",
+            stderr(&alone)
+        );
+        assert_eq!(alone.stdout, within.stdout);
+        assert_eq!(stderr(&alone), stderr(&within));
+    }
+    // The load tester's own checks of its arguments.
+    let o = load_bin(&["--replay".as_ref(), "--rate".as_ref()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = load_bin(&["--rate".as_ref(), "10".as_ref()]);
+    assert!(stderr(&o).contains("--replay"), "{}", stderr(&o));
 }
 
 /// Runs `tessera ARGS` with its standard output a pipe whose reader has already

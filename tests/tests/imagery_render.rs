@@ -272,7 +272,7 @@ fn olinda_from_above_has_the_imagerys_coastline() {
     )
     .unwrap();
     assert!(
-        tessera_client::app::fly::imagery_feed(&mut tinted, &streamer)
+        tessera_client::app::headless::imagery_feed(&mut tinted, &streamer)
             .unwrap()
             .is_none()
     );

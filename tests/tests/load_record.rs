@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use streaming_support::start_server_for;
 use tessera_client::app::load_test::{LoadOptions, load};
-use tessera_client::load::trace::{RequestKind, StreamDigest, Trace, body_digest};
+use tessera_client::loadtest::trace::{RequestKind, StreamDigest, Trace, body_digest};
 use tessera_client::stream::TileSource;
 use tessera_server::build::{BuildOptions, build};
 use tessera_shared::wire::{Frame, FrameDecoder};
@@ -258,7 +258,7 @@ fn record_with_a_pyramid_source_is_a_named_error() {
 /// for that target, frame for frame.
 #[test]
 fn the_imagery_feed_records_its_requests() {
-    use tessera_client::load::record::{RecordHook, Recorder};
+    use tessera_client::loadtest::record::{RecordHook, Recorder};
     use tessera_client::stream::{StreamConfig, Streamer};
     let dir = tempfile::tempdir().unwrap();
     let Some(out) = streaming_support::olinda_with_imagery(dir.path()) else {

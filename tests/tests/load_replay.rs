@@ -25,12 +25,12 @@ use std::sync::{Mutex, MutexGuard, OnceLock, PoisonError};
 use std::time::Duration;
 use streaming_support::start_server_for;
 use tessera_client::app::load_test::{LoadOptions, load};
-use tessera_client::load::check::ErrorKind;
-use tessera_client::load::merge::merge;
-use tessera_client::load::replay::{ReplayOptions, replay};
-use tessera_client::load::report::ReplayReport;
-use tessera_client::load::schedule::{Pacing, Rate};
-use tessera_client::load::trace::{Shard, Trace};
+use tessera_client::loadtest::check::ErrorKind;
+use tessera_client::loadtest::merge::merge;
+use tessera_client::loadtest::replay::{ReplayOptions, replay};
+use tessera_client::loadtest::report::ReplayReport;
+use tessera_client::loadtest::schedule::{Pacing, Rate};
+use tessera_client::loadtest::trace::{Shard, Trace};
 use tessera_client::stream::TileSource;
 use tessera_proxy::{Damage, Faults, Recurrence, Stall};
 use tessera_server::build::{BuildOptions, build};
@@ -329,7 +329,7 @@ fn single_tile_requests_count_as_tiles() {
         .requests
         .iter()
         .filter(|r| {
-            r.kind == tessera_client::load::trace::RequestKind::Tile
+            r.kind == tessera_client::loadtest::trace::RequestKind::Tile
                 && r.expect.as_ref().is_some_and(|e| e.status == 200)
         })
         .count();

@@ -2,7 +2,8 @@
 //! rate, in real time against a real server (or a pyramid file on a static host,
 //! `--pyramid`), writing per-frame statistics.
 
-use super::headless::{Headless, RenderRecord, RenderSetup, fetch_reference_tiles, fetch_tiles};
+use super::frame_drawer::{FrameDrawer, RenderRecord, RenderSummary};
+use super::settle::{SETTLE_TIMEOUT, fetch_tiles};
 use crate::paths::{FlyPath, pose_camera};
 use crate::select::{FrameStats, SelectParams, Selector, World};
 use crate::stream::pool::TilePool;
@@ -46,7 +47,8 @@ pub struct FlyOptions {
     /// Tiles received so far, shared with a progress display.
     pub progress: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
     /// Render headless (`--out`); `None` for selection and streaming only.
-    pub render: Option<RenderSetup>,
+    #[cfg(feature = "render")]
+    pub render: Option<super::headless::RenderSetup>,
     /// Draw on the globe (`--globe`, issue 17 item 4).
     pub globe: crate::globe::GlobeMode,
 }
@@ -118,32 +120,6 @@ pub struct FlySummary {
     pub latencies_ms: Vec<f64>,
 }
 
-/// Rendering totals of a flight.
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
-pub struct RenderSummary {
-    pub gpu: String,
-    pub median_triangles: u64,
-    pub max_draw_calls: u32,
-    pub median_select_ms: f64,
-    pub median_upload_ms: f64,
-    pub median_render_ms: f64,
-    /// With `--quality`, over the measured frames that draw what the policy asks
-    /// for (nothing wanted): while coarser tiles stand in, the image differs from
-    /// the reference by design, and a coarse silhouette is not a crack.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub quality_frames: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub median_psnr: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub median_mse: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub total_crack_pixels: Option<usize>,
-    /// With `--popping`: per-pixel change between consecutive frames, where the
-    /// selection changed and where it did not.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub popping: Option<crate::report::popping::PoppingSummary>,
-}
-
 impl FlySummary {
     /// `Err` when the whole flight drew nothing (DESIGN §8: the client exits
     /// non-zero then), saying what the streamer could not get.
@@ -161,45 +137,6 @@ impl FlySummary {
             s.written_off,
             self.last_error.as_deref().unwrap_or("none")
         )
-    }
-}
-
-/// The median (0 for no values).
-fn median(v: &[f64]) -> f64 {
-    tessera_charts::stats::median(v).unwrap_or(0.0)
-}
-
-impl RenderSummary {
-    fn from_records(gpu: String, recs: &[(FrameStats, RenderRecord)]) -> Self {
-        let quality: Vec<&RenderRecord> = recs
-            .iter()
-            .filter(|(s, r)| r.mse.is_some() && s.tiles > 0 && r.converged)
-            .map(|(_, r)| r)
-            .collect();
-        let measured = recs.iter().any(|(_, r)| r.mse.is_some());
-        let mut tris: Vec<u64> = recs.iter().map(|(s, _)| s.triangles).collect();
-        tris.sort_unstable();
-        Self {
-            gpu,
-            median_triangles: tris.get(tris.len() / 2).copied().unwrap_or(0),
-            max_draw_calls: recs.iter().map(|(_, r)| r.draw_calls).max().unwrap_or(0),
-            median_select_ms: median(
-                &recs
-                    .iter()
-                    .map(|(s, _)| s.select_us / 1e3)
-                    .collect::<Vec<_>>(),
-            ),
-            median_upload_ms: median(&recs.iter().map(|(_, r)| r.upload_ms).collect::<Vec<_>>()),
-            median_render_ms: median(&recs.iter().map(|(_, r)| r.render_ms).collect::<Vec<_>>()),
-            quality_frames: measured.then_some(quality.len()),
-            median_psnr: measured
-                .then(|| median(&quality.iter().filter_map(|r| r.psnr).collect::<Vec<_>>())),
-            median_mse: measured
-                .then(|| median(&quality.iter().filter_map(|r| r.mse).collect::<Vec<_>>())),
-            total_crack_pixels: measured
-                .then(|| quality.iter().filter_map(|r| r.crack_pixels).sum()),
-            popping: None,
-        }
     }
 }
 
@@ -224,30 +161,10 @@ pub(crate) fn open(opts: &FlyOptions) -> anyhow::Result<(Streamer, DatasetView)>
     Ok((streamer, view))
 }
 
-/// How long a measured frame may wait for its tiles ([`RenderSetup::settle`], the
-/// reference's tiles).
-const SETTLE_TIMEOUT: Duration = Duration::from_secs(120);
-
 /// [`fly`] with its records written to the file `stats` (JSON Lines), if any,
-/// after creating the headless output directory ([`RenderSetup::out_dir`]).
-/// The dataset's imagery feed, when it has imagery and the renderer is to drape it
-/// (not `--no-imagery`), with `renderer` made ready to: one layer per GPU slot, so
-/// the feed's pool holds as many tiles.
-pub fn imagery_feed(
-    renderer: &mut crate::render::Renderer,
-    streamer: &Streamer,
-) -> anyhow::Result<Option<crate::stream::imagery::ImageryFeed>> {
-    if !renderer.opts.imagery {
-        return Ok(None);
-    }
-    let Some(feed) = streamer.imagery_feed(renderer.opts.slots as usize) else {
-        return Ok(None);
-    };
-    renderer.enable_imagery(feed.texels())?;
-    Ok(Some(feed))
-}
-
+/// after creating the headless output directory (`RenderSetup::out_dir`).
 pub fn fly_to_file(opts: &FlyOptions, stats: Option<&Path>) -> anyhow::Result<FlySummary> {
+    #[cfg(feature = "render")]
     if let Some(setup) = &opts.render {
         let dir = &setup.out_dir;
         std::fs::create_dir_all(dir)
@@ -264,6 +181,34 @@ pub fn fly_to_file(opts: &FlyOptions, stats: Option<&Path>) -> anyhow::Result<Fl
         f.flush()?;
     }
     Ok(summary)
+}
+
+/// The flight's renderer: headless rendering when [`FlyOptions::render`] asks
+/// for it (with the dataset's imagery to drape), else none.
+#[cfg(feature = "render")]
+fn drawer(
+    opts: &FlyOptions,
+    world: World,
+    heights: (f64, f64),
+    streamer: &Streamer,
+) -> anyhow::Result<Option<Box<dyn FrameDrawer>>> {
+    let Some(setup) = &opts.render else {
+        return Ok(None);
+    };
+    let headless = super::headless::Headless::for_flight(world, heights, setup.clone(), streamer)?;
+    Ok(Some(Box::new(headless)))
+}
+
+/// Without the `render` feature a flight selects and streams only.
+#[cfg(not(feature = "render"))]
+#[allow(clippy::unnecessary_wraps)]
+fn drawer(
+    _opts: &FlyOptions,
+    _world: World,
+    _heights: (f64, f64),
+    _streamer: &Streamer,
+) -> anyhow::Result<Option<Box<dyn FrameDrawer>>> {
+    Ok(None)
 }
 
 /// Flies the path, writing one [`FrameRecord`] per frame to `stats`.
@@ -292,21 +237,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
     // What the open fetched (the bootstrap's coarsest levels, a static file's root)
     // is resident before the first frame, so frame 0 draws.
     streamer.preload(&mut pool);
-    let mut headless = match &opts.render {
-        Some(setup) => Some(Headless::new(
-            world,
-            (min_height, max_height),
-            setup.clone(),
-        )?),
-        None => None,
-    };
-    // The dataset's imagery, when it has any and frames are drawn: the drawn tiles'
-    // imagery is fetched each frame and uploaded into their slots (Yang §3). Its
-    // pool holds as many tiles as the GPU (a 256² tile is 256 KiB decoded).
-    let mut imagery = match &mut headless {
-        Some(h) => imagery_feed(&mut h.renderer, &streamer)?,
-        None => None,
-    };
+    let mut drawer = drawer(opts, world, (min_height, max_height), &streamer)?;
     let mut rendered: Vec<(FrameStats, RenderRecord)> = Vec::new();
     let mut start = Instant::now();
     let (mut within1, mut within2) = (0u32, 0u32);
@@ -328,24 +259,18 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             (opts.width, opts.height),
         )
     };
-    if let Some(h) = &mut headless {
+    if let Some(d) = &mut drawer {
         // Selection draws only what is on the GPU, and a frame uploads after it
-        // selects; so what the open preloaded goes up now, level by level (each
-        // pass can only want the children of what is already up), with the
-        // bootstrap's decoding, before the flight clock starts. Without this,
-        // frame 0 would select from an empty GPU and draw nothing.
+        // selects; so what the open preloaded goes up now, with the bootstrap's
+        // decoding, before the flight clock starts. Without this, frame 0 would
+        // select from an empty GPU and draw nothing.
         let camera = camera_at(&pool, opts.t_offset, 1.0);
-        let t0 = opts.t_offset;
-        while h.upload_all(
-            &pool,
-            &selector.select_at(&camera, &h.tables(&pool), t0).wanted,
-        ) > 0
-        {}
+        d.upload_preloaded(&mut selector, &camera, &pool, opts.t_offset);
         start = Instant::now();
     }
     for frame in 0..opts.frames {
         let t = opts.t_offset + f64::from(frame) / opts.fps;
-        let settle = headless.as_ref().is_some_and(|h| h.settles(frame));
+        let settle = drawer.as_ref().is_some_and(|d| d.settles(frame));
         if settle {
             // The eye's height from the finest tile under it: the same camera in
             // every run, whatever streaming has delivered so far.
@@ -357,11 +282,11 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         // Flight time, not the wall clock: geomorph transitions are the same in
         // every run, and a settled frame's selections (all at `t`) do not advance
         // them ([`Selector::select_at`]).
-        let mut sel = match &headless {
-            Some(h) => selector.select_at(&camera, &h.tables(&pool), t),
+        let mut sel = match &drawer {
+            Some(d) => d.select(&mut selector, &camera, &pool, t),
             None => selector.select_at(&camera, &pool, t),
         };
-        if settle && let Some(h) = &mut headless {
+        if settle && let Some(d) = &mut drawer {
             let started = Instant::now();
             while !sel.wanted.is_empty() {
                 // A written-off tile never arrives: say so now, not after the timeout.
@@ -382,10 +307,10 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
                     )
                 );
                 streamer.frame(&mut pool, &sel.wanted, &[]);
-                if h.upload_all(&pool, &sel.wanted) == 0 {
+                if d.upload_all(&pool, &sel.wanted) == 0 {
                     std::thread::sleep(Duration::from_millis(2));
                 }
-                sel = selector.select_at(&camera, &h.tables(&pool), t);
+                sel = d.select(&mut selector, &camera, &pool, t);
             }
         }
         pool.touch(&sel.tiles);
@@ -404,27 +329,9 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
             );
         }
         stream_us.push(work.stream_us);
-        let render = match &mut headless {
-            Some(h) => {
-                if h.needs_reference(frame) && !h.has_cached_reference(&camera) {
-                    fetch_reference_tiles(
-                        &world,
-                        (min_height, max_height),
-                        &camera,
-                        &mut pool,
-                        &mut streamer,
-                        SETTLE_TIMEOUT,
-                    )?;
-                }
-                if let Some(feed) = &mut imagery {
-                    if settle {
-                        feed.settle(&sel.tiles, SETTLE_TIMEOUT);
-                    }
-                    feed.frame(&sel.tiles);
-                    h.renderer.upload_imagery_from(feed.pool(), &sel.tiles);
-                }
-                let mut rec = h.frame(frame, &camera, &sel, &pool)?;
-                rec.converged = sel.wanted.is_empty();
+        let render = match &mut drawer {
+            Some(d) => {
+                let rec = d.draw(frame, &camera, &sel, &mut pool, &mut streamer, settle)?;
                 rendered.push((sel.stats, rec));
                 Some(rec)
             }
@@ -492,10 +399,7 @@ pub fn fly(opts: &FlyOptions, mut stats: Option<&mut dyn Write>) -> anyhow::Resu
         open_requests: streamer.open_cost().0,
         open_bytes: streamer.open_cost().1,
         last_error: streamer.last_error.take(),
-        render: headless.as_ref().map(|h| RenderSummary {
-            popping: h.popping(),
-            ..RenderSummary::from_records(h.renderer.gpu.describe(), &rendered)
-        }),
+        render: drawer.as_ref().map(|d| d.summary(&rendered)),
         latencies_ms: std::mem::take(&mut streamer.latencies_ms),
     })
 }

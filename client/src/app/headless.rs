@@ -2,18 +2,20 @@
 //! the per-frame budget, the frame itself, PNGs, and, with `--quality`, the
 //! full-resolution reference and its comparison (MSE, PSNR, crack pixels).
 
+use super::frame_drawer::{FrameDrawer, RenderRecord, RenderSummary};
+use super::settle::{SETTLE_TIMEOUT, fetch_tiles};
 use crate::camera::Camera;
 use crate::render::reference::{finest_tiles_in_view, full_resolution_patches};
 use crate::render::slots::OnGpu;
 use crate::render::{Parallax, RenderOptions, Renderer, png_out, quality};
 use crate::report::popping::{Popping, PoppingSummary, SelectionKey};
-use crate::select::{Selection, Wanted, World};
+use crate::select::{FrameStats, Selection, Selector, Wanted, World};
 use crate::stream::Streamer;
+use crate::stream::imagery::ImageryFeed;
 use crate::stream::pool::TilePool;
 use anyhow::Context;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
-use tessera_shared::TileId;
 
 /// How a flight renders.
 #[derive(Clone, Debug)]
@@ -54,34 +56,6 @@ pub enum Draws {
     Popping,
 }
 
-/// Rendering figures of one frame (flattened into `stats.jsonl`).
-#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
-pub struct RenderRecord {
-    pub draw_calls: u32,
-    /// Tiles uploaded to the GPU this frame, and the time it took.
-    pub uploads: u32,
-    pub upload_ms: f64,
-    pub render_ms: f64,
-    /// Tiles holding a GPU slot.
-    pub gpu_tiles: usize,
-    /// Selection wants nothing it does not have: what is drawn is what the policy
-    /// asks for (not an ancestor standing in).
-    pub converged: bool,
-    /// With `--quality`: against the full-resolution reference.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub mse: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub psnr: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub crack_pixels: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub reference_triangles: Option<u64>,
-    /// With `--popping`: whether the selection differs from the previous frame's
-    /// (tiles or LODs; `null` for the first frame).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub selection_changed: Option<bool>,
-}
-
 #[derive(Debug)]
 pub struct Headless {
     pub renderer: Renderer,
@@ -91,6 +65,9 @@ pub struct Headless {
     /// With [`Draws::Popping`]: the previous frame's patches, drawn again from
     /// this frame's camera (the same-camera figures).
     previous_patches: Option<Vec<crate::select::Patch>>,
+    /// The dataset's imagery, when it has some and frames are drawn
+    /// ([`Headless::for_flight`]).
+    imagery: Option<ImageryFeed>,
 }
 
 impl Headless {
@@ -108,7 +85,23 @@ impl Headless {
             heights,
             popping: Popping::default(),
             previous_patches: None,
+            imagery: None,
         })
+    }
+
+    /// [`Headless::new`] for a flight over `streamer`'s dataset, draping its
+    /// imagery when it has some: the drawn tiles' imagery is fetched each frame and
+    /// uploaded into their slots (Yang §3). Its pool holds as many tiles as the GPU
+    /// (a 256² tile is 256 KiB decoded).
+    pub fn for_flight(
+        world: World,
+        heights: (f64, f64),
+        setup: RenderSetup,
+        streamer: &Streamer,
+    ) -> anyhow::Result<Self> {
+        let mut headless = Self::new(world, heights, setup)?;
+        headless.imagery = imagery_feed(&mut headless.renderer, streamer)?;
+        Ok(headless)
     }
 
     /// Whether frame `frame` needs every finest tile in view (fetched before it).
@@ -330,6 +323,95 @@ impl Headless {
     }
 }
 
+impl FrameDrawer for Headless {
+    fn upload_preloaded(
+        &mut self,
+        selector: &mut Selector,
+        camera: &Camera,
+        pool: &TilePool,
+        t: f64,
+    ) {
+        while self.upload_all(
+            pool,
+            &selector.select_at(camera, &self.tables(pool), t).wanted,
+        ) > 0
+        {}
+    }
+
+    fn settles(&self, frame: u32) -> bool {
+        Headless::settles(self, frame)
+    }
+
+    fn select(
+        &self,
+        selector: &mut Selector,
+        camera: &Camera,
+        pool: &TilePool,
+        t: f64,
+    ) -> Selection {
+        selector.select_at(camera, &self.tables(pool), t)
+    }
+
+    fn upload_all(&mut self, pool: &TilePool, wanted: &[Wanted]) -> u32 {
+        Headless::upload_all(self, pool, wanted)
+    }
+
+    fn draw(
+        &mut self,
+        frame: u32,
+        camera: &Camera,
+        sel: &Selection,
+        pool: &mut TilePool,
+        streamer: &mut Streamer,
+        settle: bool,
+    ) -> anyhow::Result<RenderRecord> {
+        if self.needs_reference(frame) && !self.has_cached_reference(camera) {
+            fetch_reference_tiles(
+                &self.renderer.world,
+                self.heights,
+                camera,
+                pool,
+                streamer,
+                SETTLE_TIMEOUT,
+            )?;
+        }
+        if let Some(feed) = &mut self.imagery {
+            if settle {
+                feed.settle(&sel.tiles, SETTLE_TIMEOUT);
+            }
+            feed.frame(&sel.tiles);
+            self.renderer.upload_imagery_from(feed.pool(), &sel.tiles);
+        }
+        let mut rec = self.frame(frame, camera, sel, pool)?;
+        rec.converged = sel.wanted.is_empty();
+        Ok(rec)
+    }
+
+    fn summary(&self, rendered: &[(FrameStats, RenderRecord)]) -> RenderSummary {
+        RenderSummary {
+            popping: self.popping(),
+            ..RenderSummary::from_records(self.renderer.gpu.describe(), rendered)
+        }
+    }
+}
+
+/// The dataset's imagery feed, when it has imagery and the renderer is to drape it
+/// (not `--no-imagery`), with `renderer` made ready to: one layer per GPU slot, so
+/// the feed's pool holds as many tiles.
+pub fn imagery_feed(
+    renderer: &mut Renderer,
+    streamer: &Streamer,
+) -> anyhow::Result<Option<ImageryFeed>> {
+    if !renderer.opts.imagery {
+        return Ok(None);
+    }
+    let Some(feed) = streamer.imagery_feed(renderer.opts.slots as usize) else {
+        return Ok(None);
+    };
+    renderer.enable_imagery(feed.texels())?;
+    Ok(Some(feed))
+}
+
 /// Writes a frame for people to look at: the sky painted in.
 fn write_frame(path: &std::path::Path, rgba: &[u8], w: u32, h: u32) -> anyhow::Result<()> {
     let mut shown = rgba.to_vec();
@@ -349,50 +431,4 @@ pub fn fetch_reference_tiles(
 ) -> anyhow::Result<()> {
     let tiles = finest_tiles_in_view(world, &world.frustum(camera), heights);
     fetch_tiles(&tiles, pool, streamer, timeout)
-}
-
-/// Fetches `tiles` into the pool, waiting up to `timeout` for all of them but
-/// those the server says are absent (no record: wholly no-data).
-pub fn fetch_tiles(
-    tiles: &[TileId],
-    pool: &mut TilePool,
-    streamer: &mut Streamer,
-    timeout: Duration,
-) -> anyhow::Result<()> {
-    let started = Instant::now();
-    loop {
-        let missing: Vec<Wanted> = tiles
-            .iter()
-            .filter(|t| !pool.contains(**t) && !pool.is_absent(**t))
-            .map(|&tile| Wanted { tile, rho: 1.0 })
-            .collect();
-        if missing.is_empty() {
-            pool.touch(tiles);
-            return Ok(());
-        }
-        if let Some(w) = missing.iter().find(|w| streamer.written_off(w.tile)) {
-            anyhow::bail!(
-                "{} was written off as corrupt{}",
-                w.tile,
-                streamer
-                    .last_error
-                    .as_ref()
-                    .map(|e| format!(" (last error: {e})"))
-                    .unwrap_or_default()
-            );
-        }
-        anyhow::ensure!(
-            started.elapsed() < timeout,
-            "{} tiles still missing after {timeout:?}{}",
-            missing.len(),
-            streamer
-                .last_error
-                .as_ref()
-                .map(|e| format!(" (last error: {e})"))
-                .unwrap_or_default()
-        );
-        streamer.frame(pool, &missing, &[]);
-        pool.touch(tiles);
-        std::thread::sleep(Duration::from_millis(5));
-    }
 }

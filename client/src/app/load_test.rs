@@ -3,17 +3,17 @@
 //! host serving a pyramid file (`--pyramid`).
 //!
 //! With `--record TRACE` the clients' requests are also written as a request trace
-//! ([`crate::load::record`]) for `tessera load --replay`, which sends them again
+//! ([`crate::loadtest::record`]) for `tessera load --replay`, which sends them again
 //! without selection or decoding.
 //!
 //! The clients do the selection and decoding of real clients, so on a small machine
 //! they can use all of it before the server is busy: the report then says the run
-//! was client-bound ([`crate::load::cpu::CpuUse::client_bound`]: the process used at
+//! was client-bound ([`crate::loadtest::cpu::CpuUse::client_bound`]: the process used at
 //! least 80 % of the cores available to it), and its tiles/s measure the generator.
 
 use super::fly::{FlyOptions, fly};
-use crate::load::cpu::CpuMeter;
-use crate::load::record::{RecordHook, Recorder};
+use crate::loadtest::cpu::CpuMeter;
+use crate::loadtest::record::{RecordHook, Recorder};
 use crate::stream::{RequestMode, StreamConfig, TileSource};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -157,7 +157,7 @@ fn recorder_for(opts: &LoadOptions) -> anyhow::Result<Option<(Arc<Recorder>, Pat
 /// connect (each holds one connection at least), before any is started: past it they
 /// fail one by one, and a million of them would be a million threads.
 fn check_clients(clients: u32, fd_limit: Option<u64>) -> anyhow::Result<()> {
-    let max = crate::load::connections::max_connections(fd_limit);
+    let max = crate::loadtest::connections::max_connections(fd_limit);
     anyhow::ensure!(
         clients <= max,
         "--clients {clients}: each client holds a connection at least, and this process may open {max} ({}, less what it keeps for itself, at most {}); raise the limit (`ulimit -n`, up to `ulimit -Hn`) or use fewer clients",
@@ -165,7 +165,7 @@ fn check_clients(clients: u32, fd_limit: Option<u64>) -> anyhow::Result<()> {
             || "no open-file limit".to_string(),
             |l| format!("its open-file limit, RLIMIT_NOFILE, is {l}")
         ),
-        crate::load::connections::MAX_CONNECTIONS
+        crate::loadtest::connections::MAX_CONNECTIONS
     );
     Ok(())
 }
@@ -173,7 +173,10 @@ fn check_clients(clients: u32, fd_limit: Option<u64>) -> anyhow::Result<()> {
 /// Runs the clients (staggered along the built-in paths) and sums their traffic.
 pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
     anyhow::ensure!(opts.clients > 0, "--clients must be at least 1");
-    check_clients(opts.clients, crate::load::connections::open_file_limit())?;
+    check_clients(
+        opts.clients,
+        crate::loadtest::connections::open_file_limit(),
+    )?;
     let recording = recorder_for(opts)?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -191,12 +194,12 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 let t = tiles.load(Ordering::Relaxed);
                 let s = started.elapsed().as_secs_f64();
                 // Best-effort: a closed stderr must not end the run.
-                crate::load::output::progress(format_args!(
+                crate::output::progress(format_args!(
                     "\r{s:6.1} s  {t:>8} tiles  {:>8.0} tiles/s   ",
                     t as f64 / s.max(1e-9)
                 ));
             }
-            crate::load::output::progress('\n');
+            crate::output::progress('\n');
         })
     });
     let paths = ["canyon", "pass", "orbit"];
@@ -228,6 +231,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
                 t_offset: f64::from(i) * 1.7,
                 runtime: Some(rt.handle().clone()),
                 progress: Some(tiles.clone()),
+                #[cfg(feature = "render")]
                 render: None,
                 globe: crate::globe::GlobeMode::Off,
             };
@@ -304,7 +308,7 @@ pub fn load(opts: &LoadOptions) -> anyhow::Result<LoadReport> {
         latency_ms_max: pct(1.0),
         frames_within_2tau: within,
         client_cpu_cores: cpu.map(|c| c.cores_used),
-        client_cores_available: crate::load::cpu::available_cores(),
+        client_cores_available: crate::loadtest::cpu::available_cores(),
         client_bound: cpu.is_some_and(|c| c.client_bound()),
     })
 }

@@ -138,7 +138,7 @@ impl State {
             },
         )?;
         // The dataset's imagery, draped on the drawn tiles as it arrives (Yang §3).
-        let imagery = super::fly::imagery_feed(&mut renderer, &streamer)?;
+        let imagery = super::headless::imagery_feed(&mut renderer, &streamer)?;
         let extent = world.size_m().max_element();
         let camera = Camera {
             position: DVec3::new(0.1 * extent, max_h + extent / 20.0, 0.1 * extent),

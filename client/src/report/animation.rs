@@ -12,9 +12,9 @@
 //!   dithering: dither noise changes every frame and compresses badly.
 
 use super::contact_sheet::area_resample;
-use crate::render::png_out::read_png;
 use anyhow::Context;
 use std::path::{Path, PathBuf};
+use tessera_charts::png::read_png;
 
 /// What the animation is made of.
 #[derive(Clone, Copy, Debug)]
@@ -240,7 +240,7 @@ pub fn write_animation(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::png_out::write_png;
+    use tessera_charts::png::write_png;
 
     /// A frame unlike its neighbours: a diagonal gradient that shifts with `f`,
     /// a sky band, and a bright square whose place is the frame number.

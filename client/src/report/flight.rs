@@ -2,10 +2,10 @@
 //! `contact_sheet.png` and a few lines of summary.
 
 use super::{Series, contact_sheet_labelled, pick_evenly_indices, plot_panels};
-use crate::render::png_out::{read_png, write_png};
 use anyhow::Context;
 use std::fmt::Write as _;
 use std::path::Path;
+use tessera_charts::png::{read_png, write_png};
 
 /// A flight's statistics as read: the frames' records, and the last line if it was
 /// cut short and dropped.
@@ -107,7 +107,7 @@ fn median(v: &[f64]) -> f64 {
 pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::Result<String> {
     let Stats { records, torn } = read_stats(stats)?;
     if let Some(torn) = torn {
-        crate::load::output::progress(format_args!("warning: {}: {torn}\n", stats.display()));
+        crate::output::progress(format_args!("warning: {}: {torn}\n", stats.display()));
     }
     anyhow::ensure!(!records.is_empty(), "{}: no frames", stats.display());
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;

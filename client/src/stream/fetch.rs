@@ -6,8 +6,8 @@
 //! to blame for a failure ([`Blame`]).
 
 use super::source::{StaticFile, Transport, Validators};
-use crate::load::record::RecordHook;
-use crate::load::trace::{RequestKind, StreamDigest};
+use crate::loadtest::record::RecordHook;
+use crate::loadtest::trace::{RequestKind, StreamDigest};
 use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 use tessera_shared::ByteSource;
@@ -130,7 +130,7 @@ fn spawn_decode(
 /// One range request for tiles of `level`: streams the body through the frame
 /// decoder and decodes each record as it completes, off the frame thread. With
 /// `record`, the request is recorded, and completed with the digest of its frames
-/// once the stream has ended well-formed ([`crate::load::record`]).
+/// once the stream has ended well-formed ([`crate::loadtest::record`]).
 #[allow(clippy::too_many_arguments)]
 pub(super) async fn fetch(
     client: reqwest::Client,

@@ -9,8 +9,8 @@
 //! `((u + ½)·T/side, (v + ½)·T/side)` (FORMAT.md "Imagery pyramids"), so the
 //! tile's UV `(i/T, j/T)` samples it at its own sample `(i, j)`.
 
-use crate::load::record::RecordHook;
-use crate::load::trace::{RequestKind, StreamDigest};
+use crate::loadtest::record::RecordHook;
+use crate::loadtest::trace::{RequestKind, StreamDigest};
 use anyhow::{Context, anyhow, bail};
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::mpsc;
@@ -76,7 +76,7 @@ pub async fn fetch(
 
 /// [`fetch`], recording the request with `record` (`tessera load --record`): it is
 /// completed, with the digest of its frames, once its stream has been read in full
-/// and is well-formed ([`crate::load::record`]).
+/// and is well-formed ([`crate::loadtest::record`]).
 async fn fetch_recorded(
     client: &reqwest::Client,
     base: &str,

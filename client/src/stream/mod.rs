@@ -121,7 +121,7 @@ pub struct StreamConfig {
     pub focus: Option<tessera_shared::focus::Focus>,
     /// Record this client's requests to a server (`tessera load --record`); `None`
     /// records nothing and costs nothing.
-    pub record: Option<crate::load::record::RecordHook>,
+    pub record: Option<crate::loadtest::record::RecordHook>,
 }
 
 impl Default for StreamConfig {
@@ -1035,7 +1035,7 @@ async fn bootstrap(
     server: &str,
     dataset: &str,
     focus: Option<tessera_shared::focus::Focus>,
-    record: Option<&crate::load::record::RecordHook>,
+    record: Option<&crate::loadtest::record::RecordHook>,
 ) -> anyhow::Result<Option<(Bootstrap, u64)>> {
     let mut url = format!(
         "{server}{}",
@@ -1044,7 +1044,8 @@ async fn bootstrap(
     if let Some(f) = focus {
         url = format!("{url}?focus={}", f.to_query());
     }
-    let recording = record.map(|r| r.sent(crate::load::trace::RequestKind::Bootstrap, &url, None));
+    let recording =
+        record.map(|r| r.sent(crate::loadtest::trace::RequestKind::Bootstrap, &url, None));
     let mut r = client.get(&url).send().await?;
     let status = r.status();
     if status == reqwest::StatusCode::NOT_FOUND {
@@ -1105,13 +1106,14 @@ async fn describe(
     client: &reqwest::Client,
     server: &str,
     dataset: &str,
-    record: Option<&crate::load::record::RecordHook>,
+    record: Option<&crate::loadtest::record::RecordHook>,
 ) -> anyhow::Result<api::DatasetInfo> {
     let url = format!(
         "{server}{}",
         api::fill(api::routes::DATASET, &[("name", dataset)])
     );
-    let recording = record.map(|r| r.sent(crate::load::trace::RequestKind::Document, &url, None));
+    let recording =
+        record.map(|r| r.sent(crate::loadtest::trace::RequestKind::Document, &url, None));
     let r = client.get(&url).send().await?;
     let status = r.status();
     let bytes = r.bytes().await?;

@@ -252,7 +252,7 @@ pub fn check_body(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::load::trace::body_digest;
+    use crate::loadtest::trace::body_digest;
     use tessera_shared::wire::{decode_all, error_frame, tile_header, trailer_frame};
     use tessera_shared::{Level, Morton};
 

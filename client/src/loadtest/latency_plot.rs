@@ -54,7 +54,7 @@ pub fn write(report: &ReplayReport, path: &Path) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::load::report::{Http, Latency, LatencyFrom, Mode, Second};
+    use crate::loadtest::report::{Http, Latency, LatencyFrom, Mode, Second};
 
     #[test]
     fn the_plot_has_a_point_per_second_and_gaps_where_nothing_completed() {

@@ -9,7 +9,6 @@
 //! - [`latency_plot`]: the latency-over-time plot (`DIR/latency.png`).
 //! - [`record`]: `--record`: the full clients' requests collected into a trace.
 //! - [`cpu`]: the load process's own CPU use (is a run client-bound?).
-//! - [`output`]: standard output that a closed pipe (`| head -1`) ends quietly.
 //!
 //! The full-client mode (many simulated clients flying through the real selection and
 //! streaming code) is [`crate::app::load_test`].
@@ -20,7 +19,6 @@ pub mod cpu;
 pub mod latency;
 pub mod latency_plot;
 pub mod merge;
-pub mod output;
 pub mod record;
 pub mod replay;
 pub mod report;

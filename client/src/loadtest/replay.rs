@@ -459,7 +459,7 @@ async fn run(
             && std::io::IsTerminal::is_terminal(&std::io::stderr())
         {
             // End the progress line.
-            super::output::progress('\n');
+            crate::output::progress('\n');
         }
     }
     let end = Instant::now();
@@ -693,7 +693,7 @@ async fn progress_line(shared: Arc<Shared>) {
             .lock()
             .map_or(0.0, |r| r.corrected.quantile_ms(0.99));
         // Best-effort: a closed stderr must not end the run (eprint! would panic).
-        super::output::progress(format_args!(
+        crate::output::progress(format_args!(
             "{start}{:>5.0} s  sent {}  done {}  {:.0} tiles/s  p99 {:.2} ms  errors {}{end}",
             (now - shared.start).as_secs_f64(),
             shared.sent.load(Relaxed),
@@ -710,7 +710,7 @@ async fn progress_line(shared: Arc<Shared>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::load::trace::{RequestKind, TRACE_VERSION, TraceHeader, TraceRequest};
+    use crate::loadtest::trace::{RequestKind, TRACE_VERSION, TraceHeader, TraceRequest};
 
     fn trace(server: &str) -> Trace {
         Trace {

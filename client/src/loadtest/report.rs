@@ -512,7 +512,7 @@ pub(super) mod tests {
     use super::*;
 
     /// A deterministic spread of latencies (µs), long-tailed.
-    pub(in crate::load) fn values(seed: u64, n: usize) -> Vec<u64> {
+    pub(in crate::loadtest) fn values(seed: u64, n: usize) -> Vec<u64> {
         let mut x = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
         (0..n)
             .map(|_| {
@@ -530,7 +530,7 @@ pub(super) mod tests {
             .collect()
     }
 
-    pub(in crate::load) fn latency(v: &[u64]) -> Latency {
+    pub(in crate::loadtest) fn latency(v: &[u64]) -> Latency {
         let mut l = Latency::new();
         for &x in v {
             l.record_micros(x);
@@ -538,7 +538,12 @@ pub(super) mod tests {
         l
     }
 
-    pub(in crate::load) fn report(shard: &str, seed: u64, n: usize, secs: usize) -> ReplayReport {
+    pub(in crate::loadtest) fn report(
+        shard: &str,
+        seed: u64,
+        n: usize,
+        secs: usize,
+    ) -> ReplayReport {
         let v = values(seed, n);
         let c = latency(&v);
         let u = latency(&v.iter().map(|x| x / 2).collect::<Vec<_>>());

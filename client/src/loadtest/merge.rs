@@ -210,8 +210,8 @@ fn merge_timelines(reports: &[(String, &ReplayReport)]) -> anyhow::Result<Vec<Se
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::load::report::tests::{latency, report, values};
-    use crate::load::report::{Http, MAX_SECONDS, Mode};
+    use crate::loadtest::report::tests::{latency, report, values};
+    use crate::loadtest::report::{Http, MAX_SECONDS, Mode};
 
     #[test]
     fn merged_histograms_equal_one_fed_every_value() {

@@ -251,7 +251,7 @@ mod tests {
         assert_eq!(r0.level, None);
         let e = r0.expect.as_ref().unwrap();
         assert_eq!((e.status, e.tiles, e.bytes), (200, 0, 4));
-        assert_eq!(e.digest, crate::load::trace::body_digest(b"boot"));
+        assert_eq!(e.digest, crate::loadtest::trace::body_digest(b"boot"));
         assert_eq!((r1.client, r1.level), (1, Some(2)));
         assert_eq!(r1.target, "/v1/datasets/moon/levels/2/tiles?ranges=0-3");
         assert!(r1.t_ms >= r0.t_ms + 3.0, "{} then {}", r0.t_ms, r1.t_ms);

@@ -32,7 +32,7 @@ pub enum ConnectionsError {
 }
 
 /// The connections a process with the open-file limit `fd_limit` (`None`: unlimited
-/// or unknown) may open: the limit less [`FD_RESERVE`], at most [`MAX_CONNECTIONS`].
+/// or unknown) may open: the limit less `FD_RESERVE`, at most [`MAX_CONNECTIONS`].
 pub fn max_connections(fd_limit: Option<u64>) -> u32 {
     let by_fds = fd_limit.map_or(u64::MAX, |l| l.saturating_sub(FD_RESERVE));
     u32::try_from(by_fds.min(u64::from(MAX_CONNECTIONS))).unwrap_or(MAX_CONNECTIONS)
