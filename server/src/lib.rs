@@ -1,10 +1,20 @@
-//! The Tessera server: builds tile pyramids from DEMs ([`build`], reading inputs
-//! through [`ingest`]), checks them ([`verify`]), describes them ([`info`]), draws
-//! them ([`preview`]) and serves them over HTTP ([`serve`], API.md). [`fuzzing`]
-//! holds the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
+//! The Tessera server: builds tile pyramids from DEMs, checks, describes and draws
+//! them, and serves them over HTTP (API.md). Its modules:
+//!
+//! - [`builder`]: a `.tess` pyramid from DEM rasters, out of core (`tessera-server
+//!   build`), reading inputs through [`ingest`] and reprojecting with [`crs`] and
+//!   [`approx_transform`]; [`imagery`] builds the imagery pyramid beside it.
+//! - [`verify`], [`info`], [`preview`]: `tessera-server verify`, `info` and
+//!   `preview` of a built pyramid.
+//! - [`serve`]: the API (`tessera-server serve`): datasets, routes, computed-response
+//!   admission, the built-in viewer, on the HTTP plumbing of [`http`], reading
+//!   pyramids from local files or object stores through [`storage`].
+//! - Derived outputs the routes compute: [`web`] (standard web-map tiles),
+//!   [`cesium`] (quantized-mesh terrain) with [`geoid`] heights.
+//! - [`fuzzing`]: the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
 
 pub mod approx_transform;
-pub mod build;
+pub mod builder;
 pub mod cesium;
 pub mod crs;
 pub mod fuzzing;

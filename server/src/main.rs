@@ -4,9 +4,9 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use tessera_server::build::interrupt::{Interrupt, Interrupted};
-use tessera_server::build::parts::{PartSpec, assemble as assemble_parts, build_part};
-use tessera_server::build::{BuildOptions, build_inputs};
+use tessera_server::builder::interrupt::{Interrupt, Interrupted};
+use tessera_server::builder::parts::{PartSpec, assemble as assemble_parts, build_part};
+use tessera_server::builder::{BuildOptions, build_inputs};
 use tessera_server::ingest::assign::Bounds;
 use tessera_server::ingest::reproject::{ReprojectOptions, Resampling, parse_spacing};
 use tessera_server::ingest::{InputSpec, Overlap};
@@ -149,7 +149,7 @@ enum Command {
         /// Most samples (width × height) an input may declare: a larger one is refused
         /// before anything is read, as is one whose spool (4 bytes a sample) does not fit
         /// in the free disk space. The default, 2^40, passes a planet at 1″.
-        #[arg(long, value_name = "N", default_value_t = tessera_server::build::plausible::DEFAULT_MAX_SAMPLES)]
+        #[arg(long, value_name = "N", default_value_t = tessera_server::builder::plausible::DEFAULT_MAX_SAMPLES)]
         max_samples: u64,
         /// Also build the imagery pyramid of this image (GeoTIFF, or PNG/JPEG with a world
         /// file and .prj; any CRS, reprojected onto the DEM's grid) as OUTPUT with the

@@ -9,7 +9,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use tessera_server::build::{BuildOptions, build, build_inputs};
+use tessera_server::builder::{BuildOptions, build, build_inputs};
 use tessera_server::ingest::InputSpec;
 
 /// The system allocator, counting live bytes and their peak.
@@ -135,7 +135,7 @@ fn a_sparse_tile_grid_builds_inside_the_memory_budget() {
 /// build's file.
 #[test]
 fn parts_and_their_assembly_stay_inside_the_memory_budget() {
-    use tessera_server::build::parts::{PartSpec, assemble, build_part};
+    use tessera_server::builder::parts::{PartSpec, assemble, build_part};
     let _one = SERIAL
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);

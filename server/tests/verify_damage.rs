@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_shared::format::{self, FileHeader, HEADER_LEN, INDEX_ENTRY_LEN, IndexEntry};
 use tessera_shared::{Metadata, Pyramid, TileId};
 

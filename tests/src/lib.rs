@@ -9,7 +9,7 @@ pub mod terrain_check;
 use std::collections::HashMap;
 use tessera_client::select::World;
 use tessera_client::stream::pool::TilePool;
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_shared::{CellMask, ErrorTable, FileSource, Pyramid, TileId, testdata};
 
 /// Metres between samples of the moon mosaics (the data README).

@@ -94,11 +94,11 @@ fn level_frames(addr: SocketAddr, name: &str, level: u8, kind: &str) -> Vec<Fram
 /// carries records of the coarsest levels and error tables of the next ones.
 fn coarse_pyramid(dir: &std::path::Path) -> PathBuf {
     let out = dir.join("coarse.tess");
-    let opts = tessera_server::build::BuildOptions {
+    let opts = tessera_server::builder::BuildOptions {
         tile_size: 512,
-        ..tessera_server::build::BuildOptions::default()
+        ..tessera_server::builder::BuildOptions::default()
     };
-    tessera_server::build::build("synthetic:4097:11", &out, &opts).unwrap();
+    tessera_server::builder::build("synthetic:4097:11", &out, &opts).unwrap();
     out
 }
 

@@ -24,7 +24,7 @@ use std::collections::HashMap;
 use tessera_e2e::Rng;
 use tessera_e2e::quantized_mesh::decode;
 use tessera_e2e::terrain_check::SampleGrid;
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_server::cesium::quantized_mesh::{Extensions, TerrainMesh, encode};
 use tessera_server::cesium::terrain::{PyramidLevels, Terrain};
 use tessera_server::cesium::tiling::CesiumTile;

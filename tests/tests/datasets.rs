@@ -3,7 +3,7 @@
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_server::verify::verify;
 use tessera_shared::{Pyramid, testdata};
 

@@ -18,7 +18,7 @@ use tessera_client::render::gpu::Backend;
 use tessera_client::render::{RenderOptions, Renderer, quality, reference};
 use tessera_client::select::{SelectParams, Selector, World};
 use tessera_client::stream::pool::TilePool;
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_shared::api::DatasetInfo;
 use tessera_shared::{ErrorTable, FileSource, Pyramid, TileId, VerticalDatum, testdata};
 

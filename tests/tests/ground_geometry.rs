@@ -33,7 +33,7 @@ use tessera_client::render::{DebugView, RenderOptions, Renderer, png_out, qualit
 use tessera_client::select::World;
 use tessera_client::stream::pool::TilePool;
 use tessera_client::stream::{StreamConfig, Streamer};
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_server::ingest::reproject::{ReprojectOptions, Resampling};
 use tessera_shared::codec::{RecordLayout, TileRecord};
 use tessera_shared::{FileSource, Pyramid, TileId, api, testdata};

@@ -15,7 +15,7 @@
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_server::ingest::{self, Input};
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::triangulation::Cell;

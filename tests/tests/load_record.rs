@@ -16,7 +16,7 @@ use streaming_support::start_server_for;
 use tessera_client::app::load_test::{LoadOptions, load};
 use tessera_client::loadtest::trace::{RequestKind, StreamDigest, Trace, body_digest};
 use tessera_client::stream::TileSource;
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_shared::wire::{Frame, FrameDecoder};
 
 /// The moon 4096² built in `dir` as `moon.tess` (128-cell tiles: many requests); `None` when the

@@ -33,7 +33,7 @@ use tessera_client::loadtest::schedule::{Pacing, Rate};
 use tessera_client::loadtest::trace::{Shard, Trace};
 use tessera_client::stream::TileSource;
 use tessera_proxy::{Damage, Faults, Recurrence, Stall};
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 
 /// The moon 4096² pyramid and a trace of 8 full clients flying over it for 4 s,
 /// recorded once per test binary; `None` when the DEM is not there

@@ -376,7 +376,7 @@ fn gl_renders_what_vulkan_renders() {
 #[test]
 fn golden_image_of_the_synthetic_terrain() {
     use tessera_client::render::{DebugView, png_out};
-    use tessera_server::build::{BuildOptions, build};
+    use tessera_server::builder::{BuildOptions, build};
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("synthetic.tess");
     build("synthetic:1025:7", &file, &BuildOptions::default()).unwrap();

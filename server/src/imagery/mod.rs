@@ -22,8 +22,8 @@ pub mod drape;
 pub mod source;
 pub mod stretch;
 
-use crate::build::interrupt::Interrupt;
-use crate::build::writer::PyramidWriter;
+use crate::builder::interrupt::Interrupt;
+use crate::builder::writer::PyramidWriter;
 use crate::crs::Crs;
 use anyhow::{Context, anyhow, bail};
 use drape::Drape;

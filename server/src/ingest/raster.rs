@@ -34,7 +34,7 @@ pub trait Raster: Sync {
     /// Valid and no-data sample counts by "depth": index `d` counts samples whose
     /// column and row are both multiples of `2^d` but not both of `2^(d+1)`
     /// (`d` capped at 32), so level `L` of `L_max` holds the sum over
-    /// `d ≥ L_max − L` (see [`crate::build::level_counts`]).
+    /// `d ≥ L_max − L` (see [`crate::builder::level_counts`]).
     fn depth_counts(&self) -> DepthCounts;
 }
 

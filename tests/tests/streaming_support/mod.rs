@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 use tessera_client::app::fly::{FlyOptions, FrameRecord, fly};
 use tessera_client::stream::{OpenArgs, StreamConfig, TileSource};
-use tessera_server::build::{BuildOptions, build};
+use tessera_server::builder::{BuildOptions, build};
 use tessera_server::serve::config::Settings;
 
 /// The test pyramid: a synthetic 4097² terrain in 128-cell tiles, named `terrain`.

@@ -253,11 +253,11 @@ mod tests {
     fn tilejson_and_dataset_documents_are_stable() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("snap.tess");
-        let opts = crate::build::BuildOptions {
+        let opts = crate::builder::BuildOptions {
             tile_size: 64,
-            ..crate::build::BuildOptions::default()
+            ..crate::builder::BuildOptions::default()
         };
-        crate::build::build("synthetic:257:3", &file, &opts).unwrap();
+        crate::builder::build("synthetic:257:3", &file, &opts).unwrap();
         let ds = Dataset::open("snap".into(), &file).unwrap();
         let tilejson = tilejson_doc(&ds, "", Encoding::Terrarium, Some("© <test>"));
         insta::assert_snapshot!("tilejson", serde_json::to_string_pretty(&tilejson).unwrap());
