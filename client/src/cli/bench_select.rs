@@ -1,6 +1,6 @@
 //! `tessera bench-select`: the selection alone, timed over a local pyramid.
 
-use super::parse_viewport;
+use super::args::parse_viewport;
 use crate::app::bench_select::{BenchSelect, bench_select};
 use std::path::PathBuf;
 

@@ -1,7 +1,7 @@
 //! `tessera fly`: a flight headless (`--out`), without rendering (`--no-render`), or in a
 //! window; the arguments and their checks.
 
-use super::{SourceArgs, parse_viewport};
+use super::args::{SourceArgs, parse_viewport};
 use crate::app::fly::{self, FlyOptions};
 use crate::app::headless::{Draws, RenderSetup};
 use crate::app::window;

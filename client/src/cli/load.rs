@@ -2,7 +2,7 @@
 //! for both binaries) and its runner: the full clients ([`crate::app::load_test`]),
 //! a trace's replay ([`crate::loadtest::replay`]) and `merge`.
 
-use super::{SourceArgs, parse_duration, parse_viewport};
+use super::args::{SourceArgs, parse_duration, parse_viewport};
 use crate::app::load_test;
 use crate::loadtest::merge::merge_files;
 use crate::loadtest::replay::{self, ReplayOptions};

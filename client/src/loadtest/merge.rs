@@ -211,7 +211,8 @@ fn merge_timelines(reports: &[(String, &ReplayReport)]) -> anyhow::Result<Vec<Se
 mod tests {
     use super::*;
     use crate::loadtest::report::tests::{latency, report, values};
-    use crate::loadtest::report::{Http, MAX_SECONDS, Mode};
+    use crate::loadtest::report::{Http, Mode};
+    use crate::loadtest::report_file::MAX_SECONDS;
 
     #[test]
     fn merged_histograms_equal_one_fed_every_value() {

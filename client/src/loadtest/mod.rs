@@ -5,7 +5,10 @@
 //! - [`schedule`]: when a replay sends each request (as recorded, `--rate`, `--ramp`).
 //! - [`replay`]: the engine: the open model, HDR latency from the scheduled start.
 //! - [`check`]: one answer against its recording (errors by kind).
-//! - [`report`]: the report (`--json`, `DIR/load.json`) and `tessera load merge`.
+//! - [`report`]: the report (`--json`, `DIR/load.json`).
+//! - [`report_file`]: the report read from and written to `load.json`, checked for
+//!   plausibility, and `--out DIR`.
+//! - [`merge`]: `tessera load merge`, the reports of `--shard K/N` processes added up.
 //! - [`latency_plot`]: the latency-over-time plot (`DIR/latency.png`).
 //! - [`record`]: `--record`: the full clients' requests collected into a trace.
 //! - [`cpu`]: the load process's own CPU use (is a run client-bound?).
@@ -22,5 +25,6 @@ pub mod merge;
 pub mod record;
 pub mod replay;
 pub mod report;
+pub mod report_file;
 pub mod schedule;
 pub mod trace;

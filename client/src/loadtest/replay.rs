@@ -28,7 +28,7 @@ use super::connections::{check_connections, open_file_limit};
 use super::report::{
     ErrorCounts, Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
 };
-use super::schedule::{MAX_RUN, Pacing, Schedule};
+use super::schedule::{MAX_RUN, MAX_TIMEOUT, Pacing, Schedule};
 use super::trace::{Expect, RequestKind, Shard, Trace};
 use anyhow::Context;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
@@ -43,10 +43,6 @@ pub const STREAMS_PER_CONNECTION: u32 = 100;
 
 /// HTTP/2 flow-control window per stream (bytes); the connection's is four times it.
 const H2_STREAM_WINDOW: u32 = 8 << 20;
-
-/// The longest `--timeout`: an hour, the longest latency the report's histograms
-/// hold. It also bounds a run: at most [`MAX_RUN`] of schedule and one timeout.
-pub const MAX_TIMEOUT: Duration = Duration::from_secs(3600);
 
 /// The longest URL a request may have: the `http` crate's URI limit (`u16::MAX - 1`
 /// bytes), under reqwest and hyper. A longer one cannot be sent at all.

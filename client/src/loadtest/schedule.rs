@@ -16,6 +16,10 @@ use std::time::Duration;
 /// to merge; longer soak tests are several runs.
 pub const MAX_RUN: Duration = Duration::from_secs(7 * 24 * 3600);
 
+/// The longest `--timeout`: an hour, the longest latency the report's histograms
+/// hold. It also bounds a run: at most [`MAX_RUN`] of schedule and one timeout.
+pub const MAX_TIMEOUT: Duration = Duration::from_secs(3600);
+
 /// The highest rate one load process schedules, requests per second (its share of
 /// `--rate` or a ramp's stage). One scheduling thread hands out one arrival every
 /// microsecond at best, and one core sends far fewer; a higher rate is a typo, or

@@ -2,7 +2,8 @@
 //! over the same WGSL function and read back, for the tests that compare them with
 //! the reference tessellator ([`crate::tessellate`]).
 
-use super::{Renderer, instances::Instance, readback::map_read};
+use super::renderer::Renderer;
+use super::{instances::Instance, readback::map_read};
 use crate::select::Patch;
 use crate::tessellate::Vertex;
 use anyhow::Context;

@@ -6,7 +6,7 @@
 //! (the pass reads them there: on CPU rasterizers a texel fetch costs several
 //! buffer loads; elsewhere it fetches them from the height texture), and queue
 //! the tile; the next flush (the end of
-//! [`Renderer::upload_wanted`], or the next frame drawn) computes, in one compute
+//! [`Renderer::upload_wanted`](super::Renderer::upload_wanted), or the next frame drawn) computes, in one compute
 //! pass, the whole normal map of every queued tile and the border ring of each of
 //! their resident same-level neighbours. A shared border therefore ends up with
 //! the normal computed from both tiles' samples whichever tile arrived first, as
@@ -15,9 +15,10 @@
 //! meantime is skipped, and a slot reused by a later upload is read with its
 //! new contents (queue writes land before the pass).
 
-use super::Renderer;
 use super::gpu::Gpu;
 use super::normals::NormalSource;
+use super::slots::SlotTable;
+use crate::select::World;
 use std::collections::HashSet;
 use tessera_shared::TileId;
 
@@ -246,19 +247,12 @@ fn neighbour(tile: TileId, dx: i64, dy: i64) -> Option<TileId> {
 /// North, east, south, west (the order of [`super::normals::Neighbours`]).
 const SIDES: [(i64, i64); 4] = [(0, -1), (1, 0), (0, 1), (-1, 0)];
 
-impl Renderer {
-    /// Whether normal maps are computed on the GPU (else on the CPU at upload).
-    pub fn normals_on_gpu(&self) -> bool {
-        self.normal_pass.is_some()
-    }
-
-    /// Computes the normal maps of the tiles uploaded since the last flush (and
-    /// the border rings of their resident neighbours) in one submitted compute
-    /// pass, without waiting for it. Nothing to do on the CPU path.
-    pub fn flush_normals(&mut self) {
-        let Some(pass) = self.normal_pass.as_mut() else {
-            return;
-        };
+impl NormalPass {
+    /// Computes the normal maps of the tiles queued since the last flush (and the
+    /// border rings of their resident neighbours, by their `slots`) in one
+    /// submitted compute pass, without waiting for it.
+    pub(super) fn flush(&mut self, gpu: &Gpu, slots: &SlotTable, world: &World) {
+        let pass = self;
         if pass.pending.is_empty() {
             return;
         }
@@ -266,7 +260,7 @@ impl Renderer {
         let whole: Vec<(TileId, u32)> = std::mem::take(&mut pass.pending)
             .into_iter()
             .filter(|&t| seen.insert(t))
-            .filter_map(|t| Some((t, self.slots.get(t)?)))
+            .filter_map(|t| Some((t, slots.get(t)?)))
             .collect();
         let whole_tiles: HashSet<TileId> = whole.iter().map(|&(t, _)| t).collect();
         let mut ring: Vec<(TileId, u32)> = Vec::new();
@@ -275,7 +269,7 @@ impl Renderer {
                 if let Some(n) = neighbour(t, dx, dy)
                     && !whole_tiles.contains(&n)
                     && seen.insert(n)
-                    && let Some(slot) = self.slots.get(n)
+                    && let Some(slot) = slots.get(n)
                 {
                     ring.push((n, slot));
                 }
@@ -284,13 +278,13 @@ impl Renderer {
         if whole.is_empty() {
             return;
         }
-        let g = self.world.geometry;
-        let scale = self.world.quant.scale as f32;
+        let g = world.geometry;
+        let scale = world.quant.scale as f32;
         let job = |(tile, slot): (TileId, u32), ring_only: bool| {
-            let metres = self.world.spacing * g.spacing(tile.level()) as f64;
+            let metres = world.spacing * g.spacing(tile.level()) as f64;
             let neighbours = SIDES.map(|(dx, dy)| {
                 neighbour(tile, dx, dy)
-                    .and_then(|n| self.slots.get(n))
+                    .and_then(|n| slots.get(n))
                     .unwrap_or(NONE)
             });
             Job {
@@ -304,8 +298,8 @@ impl Renderer {
             .map(|&w| job(w, false))
             .chain(ring.iter().map(|&r| job(r, true)))
             .collect();
-        let device = &self.gpu.device;
-        let queue = &self.gpu.queue;
+        let device = &gpu.device;
+        let queue = &gpu.queue;
         let needed = jobs.len() as u64;
         if pass.jobs.as_ref().is_none_or(|(_, cap, _)| *cap < needed) {
             let cap = needed.next_power_of_two().max(16);
@@ -371,18 +365,5 @@ impl Renderer {
             }
         }
         queue.submit([encoder.finish()]);
-    }
-
-    /// The normal map in `slot` as (x, z) signed bytes, row by row (what the
-    /// fragment shader reads), after computing any queued normal maps.
-    pub fn read_normals(&mut self, slot: u32) -> anyhow::Result<Vec<[i8; 2]>> {
-        self.flush_normals();
-        let n = self.world.geometry.tile_samples() as u32;
-        let data = super::readback::read_layer(&self.gpu, &self.normals, slot, (n, n), 4)?;
-        let out = data
-            .chunks_exact(4)
-            .map(|texel| [texel[0] as i8, texel[1] as i8])
-            .collect();
-        Ok(out)
     }
 }

@@ -1,15 +1,8 @@
-//! Readback: copying the offscreen frame, and buffers the GPU wrote, back to the CPU.
+//! Readback: copying textures (the offscreen frame, a slot's layer) and buffers
+//! the GPU wrote back to the CPU.
 
-use super::{Renderer, gpu::Gpu};
+use super::gpu::Gpu;
 use anyhow::Context;
-
-impl Renderer {
-    /// The last frame as tightly packed RGBA8 rows.
-    pub fn read_rgba(&self) -> anyhow::Result<Vec<u8>> {
-        let (w, h) = (self.opts.width, self.opts.height);
-        read_layer(&self.gpu, &self.colour, 0, (w, h), 4)
-    }
-}
 
 /// Layer `layer` of a `w × h` texture of `texel` bytes per texel, as tightly
 /// packed rows (the copy itself pads rows to wgpu's alignment).

@@ -5,8 +5,10 @@
 //! copies, or, with [`NormalSource::Cpu`], built here with the tile's decoded
 //! neighbours ([`normals::normal_map`]).
 
+use super::gpu_normals::NORMAL_FORMAT;
 use super::normals::{self, NormalSource};
-use super::{Renderer, gpu_normals::NORMAL_FORMAT};
+use super::readback::read_layer;
+use super::renderer::Renderer;
 use crate::select::Wanted;
 use crate::stream::pool::TilePool;
 use std::time::{Duration, Instant};
@@ -157,5 +159,34 @@ impl Renderer {
         } else {
             NormalSource::Cpu
         }
+    }
+}
+
+impl Renderer {
+    /// Whether normal maps are computed on the GPU (else on the CPU at upload).
+    pub fn normals_on_gpu(&self) -> bool {
+        self.normal_pass.is_some()
+    }
+
+    /// Computes the normal maps of the tiles uploaded since the last flush (and
+    /// the border rings of their resident neighbours) in one submitted compute
+    /// pass, without waiting for it. Nothing to do on the CPU path.
+    pub fn flush_normals(&mut self) {
+        if let Some(pass) = self.normal_pass.as_mut() {
+            pass.flush(&self.gpu, &self.slots, &self.world);
+        }
+    }
+
+    /// The normal map in `slot` as (x, z) signed bytes, row by row (what the
+    /// fragment shader reads), after computing any queued normal maps.
+    pub fn read_normals(&mut self, slot: u32) -> anyhow::Result<Vec<[i8; 2]>> {
+        self.flush_normals();
+        let n = self.world.geometry.tile_samples() as u32;
+        let data = read_layer(&self.gpu, &self.normals, slot, (n, n), 4)?;
+        let out = data
+            .chunks_exact(4)
+            .map(|texel| [texel[0] as i8, texel[1] as i8])
+            .collect();
+        Ok(out)
     }
 }

@@ -5,8 +5,8 @@
 //! source pixels it covers — no aliasing shimmer on distant terrain, and an
 //! integer reduction gives exactly the block means.
 
-use super::canvas::Canvas;
-use super::font::{ADVANCE, GLYPH_HEIGHT};
+use tessera_charts::canvas::Canvas;
+use tessera_charts::font::{ADVANCE, GLYPH_HEIGHT};
 
 /// Space between thumbnails and around the sheet, in pixels.
 pub const GAP: u32 = 6;
@@ -189,7 +189,7 @@ pub(super) fn area_resample(src: &[u8], sw: u32, sh: u32, dw: u32, dh: u32) -> V
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::report::font;
+    use tessera_charts::font;
 
     /// A `w`×`h` opaque frame whose pixel (x, y) is `f(x, y)` (RGB).
     fn frame(w: u32, h: u32, f: impl Fn(u32, u32) -> [u8; 3]) -> (Vec<u8>, u32, u32) {

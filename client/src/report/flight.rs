@@ -1,10 +1,11 @@
 //! `tessera report`: a flight's `stats.jsonl` (and frames) into `stats.png`,
 //! `contact_sheet.png` and a few lines of summary.
 
-use super::{Series, contact_sheet_labelled, pick_evenly_indices, plot_panels};
+use super::contact_sheet::{contact_sheet_labelled, pick_evenly_indices};
 use anyhow::Context;
 use std::fmt::Write as _;
 use std::path::Path;
+use tessera_charts::plot::{Series, plot_panels};
 use tessera_charts::png::{read_png, write_png};
 
 /// A flight's statistics as read: the frames' records, and the last line if it was

@@ -8,108 +8,14 @@
 //!
 //! `Rgba8Unorm`, not `Srgb`: the colour target is `Rgba8Unorm` and the tint is
 //! written as stored bytes, so the imagery's bytes pass through unchanged.
+//!
+//! The textures and what each slot's layer holds are [`ImageryTextures`]; here are
+//! the renderer's draping methods: making room, uploading, resolving ancestors.
 
-use super::Renderer;
+use super::drape_textures::ImageryTextures;
+use super::renderer::Renderer;
 use crate::stream::imagery::{ImageryPool, Texels};
 use tessera_shared::TileId;
-
-pub(super) const IMAGERY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
-
-/// The imagery textures and which tile each slot's layer holds.
-#[derive(Debug)]
-pub(super) struct ImageryTextures {
-    pub texels: wgpu::Texture,
-    /// `layers × 1`, `Rg32Uint`: where each slot's imagery is (module docs).
-    pub flags: wgpu::Texture,
-    /// Texels per layer side (1 until [`Renderer::enable_imagery`]).
-    pub side: u32,
-    holds: Vec<Option<TileId>>,
-    /// What each slot's flag texel says now.
-    source: Vec<[u32; 2]>,
-}
-
-pub(super) const FLAGS_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Uint;
-
-impl ImageryTextures {
-    /// Textures of `side²` texels for `layers` slots, every flag 0.
-    pub fn new(device: &wgpu::Device, layers: u32, side: u32) -> Self {
-        let texels = super::pipeline::texture_array(
-            device,
-            "imagery",
-            IMAGERY_FORMAT,
-            (side, layers),
-            wgpu::TextureUsages::empty(),
-        );
-        // Zero-initialised by wgpu: no slot has imagery.
-        let flags = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("imagery flags"),
-            size: wgpu::Extent3d {
-                width: layers,
-                height: 1,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: FLAGS_FORMAT,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        Self {
-            texels,
-            flags,
-            side,
-            holds: vec![None; layers as usize],
-            source: vec![[0, 0]; layers as usize],
-        }
-    }
-
-    /// The slot's layer now holds `tile`'s imagery (or nothing).
-    fn set_holds(&mut self, queue: &wgpu::Queue, slot: u32, tile: Option<TileId>) {
-        if let Some(h) = self.holds.get_mut(slot as usize) {
-            *h = tile;
-            let own = if tile.is_some() {
-                [slot + 1, 0]
-            } else {
-                [0, 0]
-            };
-            self.set_source(queue, slot, own);
-        }
-    }
-
-    fn set_source(&mut self, queue: &wgpu::Queue, slot: u32, source: [u32; 2]) {
-        let Some(s) = self.source.get_mut(slot as usize) else {
-            return;
-        };
-        if *s == source {
-            return;
-        }
-        *s = source;
-        queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture: &self.flags,
-                mip_level: 0,
-                origin: wgpu::Origin3d {
-                    x: slot,
-                    y: 0,
-                    z: 0,
-                },
-                aspect: wgpu::TextureAspect::All,
-            },
-            bytemuck::cast_slice(&source),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: None,
-                rows_per_image: None,
-            },
-            wgpu::Extent3d {
-                width: 1,
-                height: 1,
-                depth_or_array_layers: 1,
-            },
-        );
-    }
-}
 
 impl Renderer {
     /// Makes room for imagery of `side × side` texels per tile (the dataset's
@@ -120,7 +26,7 @@ impl Renderer {
             (1..=dim).contains(&side),
             "imagery of {side} texels per tile side does not fit this GPU's {dim}-texel limit"
         );
-        let layers = self.imagery.holds.len() as u32;
+        let layers = self.imagery.layers();
         self.imagery = ImageryTextures::new(&self.gpu.device, layers, side);
         self.rebuild_bind_group();
         Ok(())
@@ -135,7 +41,7 @@ impl Renderer {
     pub fn has_imagery(&self, tile: TileId) -> bool {
         self.slots
             .get(tile)
-            .is_some_and(|s| self.imagery.holds.get(s as usize) == Some(&Some(tile)))
+            .is_some_and(|s| self.imagery.holds(s) == Some(tile))
     }
 
     /// Of `tiles`, those on the GPU without their imagery yet.
@@ -220,7 +126,7 @@ impl Renderer {
     /// A slot now holds `tile`'s heights: its imagery layer is stale until
     /// [`Renderer::upload_imagery`].
     pub(super) fn imagery_slot_taken(&mut self, slot: u32, tile: TileId) {
-        if self.imagery.holds.get(slot as usize) != Some(&Some(tile)) {
+        if self.imagery.holds(slot) != Some(tile) {
             self.imagery.set_holds(&self.gpu.queue, slot, None);
         }
     }

@@ -1,0 +1,214 @@
+//! A replay's report as a file: `load.json` read back (its version and JSON checked,
+//! then whether a run of this program could have written it: [`MAX_SECONDS`],
+//! [`ReplayReport::validate`]) and written through a temporary file, and the
+//! `--out DIR` directory with `latency.png` beside it.
+
+use super::check::ErrorKind;
+use super::latency_plot;
+use super::report::{REPORT_VERSION, ReplayReport};
+use super::schedule::{MAX_RUN, MAX_TIMEOUT};
+use anyhow::{Context, bail};
+use std::path::Path;
+
+impl ReplayReport {
+    /// Reads a report, naming the file and what is wrong with it.
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("report {}: cannot read", path.display()))?;
+        Self::from_json(&text).with_context(|| format!("report {}", path.display()))
+    }
+
+    /// Parses a report: a JSON object with `"tessera_load": 1`.
+    pub fn from_json(text: &str) -> anyhow::Result<Self> {
+        let v: serde_json::Value = serde_json::from_str(text).context("not JSON")?;
+        let Some(version) = v.get("tessera_load") else {
+            bail!("not a tessera load report (no \"tessera_load\" key)");
+        };
+        if version.as_u64() != Some(u64::from(REPORT_VERSION)) {
+            bail!("report version {version} (this build reads version {REPORT_VERSION})");
+        }
+        let r: Self = serde_json::from_value(v).context("not a tessera load report")?;
+        r.histograms.decode()?;
+        r.validate()?;
+        Ok(r)
+    }
+
+    /// Writes `dir/load.json` and `dir/latency.png` (each through a temporary file
+    /// renamed into place), creating `dir`.
+    pub fn write_dir(&self, dir: &Path) -> anyhow::Result<()> {
+        self.write_json(dir)?;
+        latency_plot::write(self, &dir.join("latency.png"))
+    }
+
+    /// Writes `dir/load.json` (temp and rename), creating `dir`.
+    pub fn write_json(&self, dir: &Path) -> anyhow::Result<()> {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+        let path = dir.join("load.json");
+        tessera_charts::png::write_atomically(&path, |w| {
+            serde_json::to_writer_pretty(&mut *w, self)?;
+            std::io::Write::write_all(w, b"\n")?;
+            Ok(())
+        })
+        .with_context(|| format!("{}: cannot write", path.display()))
+    }
+}
+
+/// The longest run a report may describe, seconds: [`MAX_RUN`] of schedule, one
+/// [`MAX_TIMEOUT`] to wait for the last answers, and a minute to close the run. A
+/// larger `seconds` (or a timeline second past it) is not a run of this program,
+/// and would have `merge` build a timeline of billions of seconds.
+pub const MAX_SECONDS: f64 = (MAX_RUN.as_secs() + MAX_TIMEOUT.as_secs() + 60) as f64;
+
+impl ReplayReport {
+    /// Checks that the report describes a run this program could have made: a length
+    /// within [`MAX_SECONDS`], a timeline of increasing seconds within it, and counts
+    /// that fit one another (no more sent than scheduled, answered than sent, errors
+    /// than requests sent). Each error names the field.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.seconds.is_finite() && (0.0..=MAX_SECONDS).contains(&self.seconds),
+            "seconds {:?}: not the length of a run (0 to {MAX_SECONDS} s)",
+            self.seconds
+        );
+        if let Some(t) = self.target_rate {
+            anyhow::ensure!(
+                t.is_finite() && t >= 0.0,
+                "target_rate {t:?}: not a number of requests per second"
+            );
+        }
+        anyhow::ensure!(
+            self.sent <= self.scheduled,
+            "sent {} is more than scheduled ({})",
+            self.sent,
+            self.scheduled
+        );
+        anyhow::ensure!(
+            self.completed <= self.sent,
+            "completed {} is more than sent ({})",
+            self.completed,
+            self.sent
+        );
+        anyhow::ensure!(
+            self.backlog <= self.scheduled,
+            "backlog {} is more than scheduled ({})",
+            self.backlog,
+            self.scheduled
+        );
+        anyhow::ensure!(
+            self.unsent <= self.scheduled - self.sent,
+            "unsent {} is more than scheduled less sent ({})",
+            self.unsent,
+            self.scheduled - self.sent
+        );
+        // One error at most per request sent (those never sent are `unsent`).
+        let mut errors = 0u64;
+        for k in ErrorKind::ALL {
+            errors = errors
+                .checked_add(self.errors.get(k))
+                .filter(|&e| e <= self.sent)
+                .with_context(|| {
+                    format!(
+                        "errors.{k} {}: more errors than requests sent ({})",
+                        self.errors.get(k),
+                        self.sent
+                    )
+                })?;
+        }
+        let mut statuses = 0u64;
+        for (&status, &n) in &self.http_statuses {
+            statuses = statuses
+                .checked_add(n)
+                .filter(|&t| t <= self.errors.http_status)
+                .with_context(|| {
+                    format!(
+                        "http_statuses.{status} {n}: more than the http_status errors ({})",
+                        self.errors.http_status
+                    )
+                })?;
+        }
+        // Second `s` covers [s, s + 1): none lies past the end of the run (one more
+        // for the second in progress when it ended).
+        let last = self.seconds.ceil() as u64 + 1;
+        let mut previous: Option<u64> = None;
+        for (i, s) in self.timeline.iter().enumerate() {
+            anyhow::ensure!(
+                s.second <= last,
+                "timeline[{i}].second {} is past the end of the run ({} s)",
+                s.second,
+                self.seconds
+            );
+            if let Some(p) = previous {
+                anyhow::ensure!(
+                    s.second > p,
+                    "timeline[{i}].second {} does not follow timeline[{}].second {p}",
+                    s.second,
+                    i - 1
+                );
+            }
+            previous = Some(s.second);
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::loadtest::report::tests::report;
+
+    #[test]
+    fn a_report_round_trips_through_json() {
+        let r = report("1/4", 7, 3000, 3);
+        let text = serde_json::to_string_pretty(&r).unwrap();
+        let back = ReplayReport::from_json(&text).unwrap();
+        assert_eq!(back, r);
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["tessera_load"], 1);
+        assert_eq!(v["mode"], "rate");
+        assert_eq!(v["http"], "1.1");
+        assert_eq!(v["errors"]["timeout"], 3);
+        assert_eq!(v["errors"]["http_status"], 0);
+        assert!(v["latency_ms"]["p999"].is_f64());
+        let (c, _) = back.histograms.decode().unwrap();
+        assert_eq!(c.count(), 3000);
+        assert_eq!(c.percentiles(), r.latency_ms);
+    }
+
+    #[test]
+    fn bad_reports_say_what_they_are_not() {
+        let err = |s: &str| format!("{:#}", ReplayReport::from_json(s).unwrap_err());
+        assert!(err("not json").contains("not JSON"));
+        assert!(err("{\"tessera_trace\":1}").contains("not a tessera load report"));
+        let text = serde_json::to_string(&report("0/1", 1, 100, 1)).unwrap();
+        assert!(
+            err(&text.replace("\"tessera_load\":1", "\"tessera_load\":2")).contains("version 2")
+        );
+        let broken = text.replacen("\"corrected\":\"", "\"corrected\":\"!!", 1);
+        assert!(err(&broken).contains("corrected histogram"));
+    }
+
+    #[test]
+    fn out_dir_gets_both_files_and_reads_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("shard-0");
+        let r = report("0/1", 9, 600, 3);
+        r.write_dir(&out).unwrap();
+        // (Through JSON, as any reader sees it: serde_json's float parsing may differ
+        // from the f64 written in the last bit.)
+        let through_json =
+            ReplayReport::from_json(&serde_json::to_string_pretty(&r).unwrap()).unwrap();
+        assert_eq!(
+            ReplayReport::read(&out.join("load.json")).unwrap(),
+            through_json
+        );
+        assert!(out.join("latency.png").is_file());
+        // Only the two files: no temporary left behind.
+        assert_eq!(std::fs::read_dir(&out).unwrap().count(), 2);
+        // A directory that cannot be made is an error naming it.
+        let file = dir.path().join("a-file");
+        std::fs::write(&file, b"x").unwrap();
+        let e = format!("{:#}", r.write_dir(&file).unwrap_err());
+        assert!(e.contains("a-file"), "{e}");
+    }
+}
