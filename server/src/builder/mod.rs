@@ -406,7 +406,7 @@ impl Prepared {
                 let mut digesting;
                 let rows: &mut dyn ingest::RowSource = match digest {
                     Some(hash) => {
-                        digesting = parts::Digesting::new(rows.as_mut(), hash);
+                        digesting = parts::part::Digesting::new(rows.as_mut(), hash);
                         &mut digesting
                     }
                     None => rows.as_mut(),
