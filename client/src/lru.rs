@@ -1,5 +1,5 @@
 //! The recency list the CPU tile pool ([`crate::stream::pool`]) and the GPU slots
-//! ([`crate::render::slots`]) share: tiles with a value each and the frame each was
+//! (`render::slots`, with the `render` feature) share: tiles with a value each and the frame each was
 //! last used in, least recently used out (DESIGN §5).
 //!
 //! Using a tile uses its ancestors too (selection walks through them), and the root

@@ -32,7 +32,7 @@ impl SourceArgs {
 
 /// Parses `30s`, `2m`, `1500ms` or plain seconds (clap's value parser).
 pub(crate) fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
-    crate::loadtest::schedule::parse_duration(s)
+    crate::loadtest::pacing::parse_duration(s)
         .ok_or_else(|| format!("{s:?} is not a positive duration like 30s, 2m or 1500ms"))
 }
 

@@ -2,7 +2,9 @@
 //!
 //! - [`trace`]: the request trace `tessera load --record` writes and `--replay`
 //!   reads, its digest of a tile stream, and `--shard K/N`.
-//! - [`schedule`]: when a replay sends each request (as recorded, `--rate`, `--ramp`).
+//! - [`pacing`]: how a replay is paced (as recorded, `--rate`, `--ramp`, `--rate
+//!   max`), within which limits.
+//! - [`schedule`]: when a replay sends each request.
 //! - [`replay`]: the engine: the open model, HDR latency from the scheduled start.
 //! - [`check`]: one answer against its recording (errors by kind).
 //! - [`report`]: the report (`--json`, `DIR/load.json`).
@@ -22,6 +24,7 @@ pub mod cpu;
 pub mod latency;
 pub mod latency_plot;
 pub mod merge;
+pub mod pacing;
 pub mod record;
 pub mod replay;
 pub mod report;

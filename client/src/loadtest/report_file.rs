@@ -5,8 +5,8 @@
 
 use super::check::ErrorKind;
 use super::latency_plot;
+use super::pacing::{MAX_RUN, MAX_TIMEOUT};
 use super::report::{REPORT_VERSION, ReplayReport};
-use super::schedule::{MAX_RUN, MAX_TIMEOUT};
 use anyhow::{Context, bail};
 use std::path::Path;
 

@@ -205,10 +205,10 @@ impl Trace {
     }
 }
 
-/// The latest `t_ms` a trace may hold: [`MAX_RUN`](super::schedule::MAX_RUN), the
+/// The latest `t_ms` a trace may hold: [`MAX_RUN`](super::pacing::MAX_RUN), the
 /// longest schedule a replay runs, in milliseconds. Without a bound, a time such as
 /// 1e300 ms would reach the schedule as an instant no `Duration` can hold.
-pub const MAX_T_MS: f64 = super::schedule::MAX_RUN.as_secs() as f64 * 1e3;
+pub const MAX_T_MS: f64 = super::pacing::MAX_RUN.as_secs() as f64 * 1e3;
 
 /// Why a request's `t_ms` is not a time in a trace.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]

@@ -17,7 +17,8 @@
 //! corner, and `D` is a multiple of both levels' sample spacings, so both sides
 //! read the same DEM sample there: identical positions, bit for bit (DESIGN §6).
 
-use super::{EAST, NORTH, Patch, SOUTH, WEST, World};
+use super::patch::{EAST, NORTH, Patch, SOUTH, WEST};
+use super::world::World;
 use std::collections::HashMap;
 
 type Key = (u32, u64, u64);

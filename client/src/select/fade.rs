@@ -26,43 +26,12 @@
 //! changes its shading at once, since its shading would have to come from four
 //! slots; and neither happens on a descent.
 
-use super::SelectParams;
-use super::morph::FULL;
+use super::params::SelectParams;
+use super::patch::FULL;
 use std::collections::HashMap;
 use tessera_shared::TileId;
 
-/// How a patch's shading mixes in an ancestor's: `up` levels up (0: none), by
-/// `factor` in `0..=`[`FULL`] (`FULL`: wholly the ancestor's).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub struct Fade {
-    pub up: u8,
-    pub factor: u16,
-}
-
-impl Fade {
-    /// Shaded as itself.
-    pub const NONE: Self = Self { up: 0, factor: 0 };
-
-    /// A fade from the ancestor `up` levels up; `None` unless `1 ≤ up` and the
-    /// factor is in `1..=FULL` (a factor of 0 is [`Fade::NONE`]).
-    pub fn new(up: u8, factor: u16) -> Option<Self> {
-        (up >= 1 && (1..=FULL).contains(&factor)).then_some(Self { up, factor })
-    }
-
-    /// The ancestor whose shading is mixed in, and the tile's offset among its
-    /// `2^up × 2^up` descendants; `None` without a fade.
-    pub fn source(self, tile: TileId) -> Option<(TileId, [u32; 2])> {
-        if self.factor == 0 || self.up == 0 {
-            return None;
-        }
-        let mut a = tile;
-        for _ in 0..self.up {
-            a = a.parent()?;
-        }
-        let up = u32::from(self.up);
-        Some((a, [tile.x() - (a.x() << up), tile.y() - (a.y() << up)]))
-    }
-}
+pub use super::patch::Fade;
 
 /// The fades of one frame's tiles: for each drawn tile, the ancestor (levels up)
 /// its fade started from and when, if it is fading.

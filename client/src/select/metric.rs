@@ -5,7 +5,8 @@
 //! every 8×8 block, max-pooled up the tile's quadtree, so choosing a node's inner
 //! LOD is a handful of lookups. Level `m`'s value bounds every level `≥ m` too.
 
-use super::{Policy, World};
+use super::params::Policy;
+use super::world::World;
 use glam::DVec3;
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{ErrorTable, TileId};

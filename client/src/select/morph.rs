@@ -83,35 +83,15 @@
 //! come from the errors of the surface drawn and the distance, the same surface
 //! gets about the same factor on either side of a refinement.
 
+use super::edge_lod;
 use super::metric::TileRho;
-use super::{Patch, SelectParams, World, edge_lod};
+use super::params::SelectParams;
+use super::patch::Patch;
+use super::world::World;
 use std::collections::{HashMap, HashSet};
 use tessera_shared::TileId;
 
-/// A factor of 1: the surface is the `n/2` surface. Factors are integers in
-/// `0..=FULL`, so that mixing heights is exact integer arithmetic.
-pub const FULL: u16 = 256;
-
-/// How far a patch has morphed: its interior, and each side (north, east, south,
-/// west), in `1/FULL` steps.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub struct Morph {
-    pub inner: u16,
-    pub edges: [u16; 4],
-}
-
-impl Morph {
-    /// No morphing: every vertex at its own LOD's height (`--no-morph`).
-    pub const NONE: Self = Self {
-        inner: 0,
-        edges: [0; 4],
-    };
-
-    /// A morph with every factor in `0..=FULL`; `None` otherwise.
-    pub fn new(inner: u16, edges: [u16; 4]) -> Option<Self> {
-        (inner <= FULL && edges.iter().all(|&e| e <= FULL)).then_some(Self { inner, edges })
-    }
-}
+pub use super::patch::{FULL, Morph};
 
 /// A height mixed from quantized samples: `q` moved by `f/FULL` of the way to the
 /// average of `a` and `b`, in units of `1/(2·FULL)` of a quantization step (so

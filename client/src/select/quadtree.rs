@@ -9,7 +9,9 @@
 //! finer LOD, until the coarser choice is below `τ·(1 − h)`.
 
 use super::metric::{TileRho, node_index};
-use super::{Patch, SelectParams, World};
+use super::params::SelectParams;
+use super::patch::{Fade, Morph, Patch};
+use super::world::World;
 use tessera_shared::TileId;
 
 /// Last frame's decision for every node: bit 7 = split, low bits = `log2(n) + 1`
@@ -80,8 +82,8 @@ pub fn build(
             size,
             inner: 1 << l,
             edges: [1 << l; 4],
-            morph: super::morph::Morph::NONE,
-            fade: crate::select::fade::Fade::NONE,
+            morph: Morph::NONE,
+            fade: Fade::NONE,
         });
     }
     (state, max_rho)

@@ -1,7 +1,10 @@
 //! Pyramid refinement (DESIGN §5) and balancing of the drawn tiles.
 
 use super::metric::{TileRho, tile_box};
-use super::{SelectParams, TileTables, Wanted, World};
+use super::params::SelectParams;
+use super::selection::Wanted;
+use super::tile_tables::TileTables;
+use super::world::World;
 use crate::camera::Frustum;
 use glam::DVec3;
 use std::collections::{HashMap, HashSet};

@@ -58,7 +58,7 @@ pub fn ranges_by_level(tiles: &[TileId]) -> BTreeMap<Level, Vec<MortonRange>> {
 
 /// An HTTP client for [`fetch`], set up as the streamer's (TLS provider, timeout).
 pub fn http_client(timeout: Duration) -> anyhow::Result<reqwest::Client> {
-    super::http_client(timeout, false)
+    super::http::http_client(timeout, false)
 }
 
 /// Fetches and decodes the imagery of `ranges` of `level` from the server at `base`

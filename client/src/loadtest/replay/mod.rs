@@ -22,24 +22,34 @@
 //! **Saturation** (`--rate max`) is a closed loop instead: each of `--connections`
 //! workers sends the next request as soon as its last one finished, for the duration;
 //! latency is then from the send (both histograms are the same).
+//!
+//! The engine's parts: [`ReplayOptions`] (`options`), the requests and connections
+//! the loops share and one request's send and check (`sender`), the tally of
+//! answers and latencies (`tally`), and the open and closed loops (`loops`).
 
-use super::check::{Check, ErrorKind, Outcome};
+mod loops;
+mod options;
+mod sender;
+mod tally;
+
+pub use options::{ReplayOptions, STREAMS_PER_CONNECTION};
+
+use super::check::ErrorKind;
 use super::connections::{check_connections, open_file_limit};
+use super::pacing::{MAX_RUN, MAX_TIMEOUT, Pacing};
 use super::report::{
-    ErrorCounts, Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
+    Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
 };
-use super::schedule::{MAX_RUN, MAX_TIMEOUT, Pacing, Schedule};
-use super::trace::{Expect, RequestKind, Shard, Trace};
+use super::schedule::Schedule;
+use super::trace::RequestKind;
 use anyhow::Context;
+use loops::{closed_loop, open_loop, progress_line};
+use sender::{Prepared, Shared};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use tokio::sync::Semaphore;
+use tally::Tally;
 use tokio::time::Instant;
-
-/// HTTP/2: requests in flight per connection (streams). Servers commonly allow 100–250
-/// concurrent streams; 100 stays under all of them.
-pub const STREAMS_PER_CONNECTION: u32 = 100;
 
 /// HTTP/2 flow-control window per stream (bytes); the connection's is four times it.
 const H2_STREAM_WINDOW: u32 = 8 << 20;
@@ -47,268 +57,6 @@ const H2_STREAM_WINDOW: u32 = 8 << 20;
 /// The longest URL a request may have: the `http` crate's URI limit (`u16::MAX - 1`
 /// bytes), under reqwest and hyper. A longer one cannot be sent at all.
 const MAX_URL_BYTES: usize = u16::MAX as usize - 1;
-
-/// What to replay and how.
-#[derive(Clone, Debug)]
-pub struct ReplayOptions {
-    /// The whole trace; the engine takes `shard`'s part of it.
-    pub trace: Trace,
-    /// Base URL to send to (`http://host:port`); `None`: the trace header's server.
-    pub server: Option<String>,
-    pub pacing: Pacing,
-    /// HTTP/1.1: at most this many requests in flight, on at most this many keep-alive
-    /// connections. HTTP/2: this many connections, each carrying up to
-    /// [`STREAMS_PER_CONNECTION`] requests. At saturation: this many workers.
-    pub connections: u32,
-    /// HTTP/2 (h2c with prior knowledge on `http://`; negotiated on `https://`).
-    pub http2: bool,
-    pub shard: Shard,
-    /// A request's limit, and the wait for requests still in flight when the schedule
-    /// has ended; those still unanswered then count as `timeout` errors.
-    pub timeout: Duration,
-    /// Runtime threads: 1 (the default) is a current-thread runtime.
-    pub threads: usize,
-    /// A live progress line on stderr every second.
-    pub progress: bool,
-}
-
-impl ReplayOptions {
-    /// The trace as recorded, on 64 HTTP/1.1 connections, 10 s timeout, one thread, no
-    /// progress line.
-    pub fn new(trace: Trace) -> Self {
-        Self {
-            trace,
-            server: None,
-            pacing: Pacing::Recorded,
-            connections: 64,
-            http2: false,
-            shard: Shard::ALL,
-            timeout: Duration::from_secs(10),
-            threads: 1,
-            progress: false,
-        }
-    }
-}
-
-/// A request ready to send.
-#[derive(Debug)]
-struct Prepared {
-    url: reqwest::Url,
-    expect: Option<Expect>,
-    frames: bool,
-    /// A single tile's record recorded as a 200 (`--mode single`): one tile when it
-    /// comes back as recorded (its body is not a frame stream, so the check counts
-    /// no frames).
-    one_tile: bool,
-}
-
-/// State shared by the scheduler, the request tasks and the progress line.
-#[derive(Debug)]
-struct Shared {
-    requests: Vec<Prepared>,
-    /// One per connection (see [`clients`]).
-    clients: Vec<reqwest::Client>,
-    /// HTTP/1.1: the connections not carrying a request, least recently used first.
-    /// `None` for HTTP/2, whose connections are used in turn (`next_client`).
-    idle: Option<Mutex<std::collections::VecDeque<usize>>>,
-    next_client: AtomicUsize,
-    start: Instant,
-    sent: AtomicU64,
-    completed: AtomicU64,
-    errors: AtomicU64,
-    tiles: AtomicU64,
-    tally: Mutex<Tally>,
-}
-
-/// The histograms and counts, behind one lock (uncontended on one thread).
-#[derive(Debug)]
-struct Tally {
-    /// Set when the run ends: answers arriving later are not counted.
-    closed: bool,
-    /// Requests that finished (answered or failed).
-    finished: u64,
-    completed: u64,
-    tiles: u64,
-    bytes: u64,
-    errors: ErrorCounts,
-    /// The `http_status` errors by status.
-    statuses: std::collections::BTreeMap<u16, u64>,
-    corrected: Latency,
-    uncorrected: Latency,
-    /// Finished seconds.
-    seconds: Vec<Second>,
-    /// The second being filled, its histograms and counts.
-    current: u64,
-    cur_corrected: Latency,
-    cur_uncorrected: Latency,
-    cur: Second,
-}
-
-impl Tally {
-    fn new() -> Self {
-        Self {
-            closed: false,
-            finished: 0,
-            completed: 0,
-            tiles: 0,
-            bytes: 0,
-            errors: ErrorCounts::default(),
-            statuses: std::collections::BTreeMap::new(),
-            corrected: Latency::new(),
-            uncorrected: Latency::new(),
-            seconds: Vec::new(),
-            current: 0,
-            cur_corrected: Latency::new(),
-            cur_uncorrected: Latency::new(),
-            cur: Second::default(),
-        }
-    }
-
-    /// Closes the seconds before `second`.
-    fn roll_to(&mut self, second: u64) {
-        while self.current < second {
-            let done = Second {
-                completed: self.cur.completed,
-                tiles: self.cur.tiles,
-                errors: self.cur.errors,
-                ..Second::new(self.current, &self.cur_corrected, &self.cur_uncorrected)
-            };
-            self.seconds.push(done);
-            self.cur = Second::default();
-            self.cur_corrected.clear();
-            self.cur_uncorrected.clear();
-            self.current += 1;
-        }
-    }
-
-    /// Counts a finished request: `status` is the answer's, if one came.
-    fn record(
-        &mut self,
-        out: &Outcome,
-        status: Option<u16>,
-        second: u64,
-        corrected: Duration,
-        uncorrected: Duration,
-    ) {
-        if self.closed {
-            return;
-        }
-        self.roll_to(second);
-        self.finished += 1;
-        if out.error.is_none_or(ErrorKind::answered) {
-            self.completed += 1;
-            self.tiles += u64::from(out.tiles);
-            self.bytes += out.bytes;
-            self.corrected.record(corrected);
-            self.uncorrected.record(uncorrected);
-            self.cur_corrected.record(corrected);
-            self.cur_uncorrected.record(uncorrected);
-            self.cur.completed += 1;
-            self.cur.tiles += u64::from(out.tiles);
-        }
-        if let Some(kind) = out.error {
-            self.errors.add(kind, 1);
-            self.cur.errors += 1;
-            if let (ErrorKind::HttpStatus, Some(status)) = (kind, status) {
-                *self.statuses.entry(status).or_insert(0) += 1;
-            }
-        }
-    }
-}
-
-/// What a failed send was: only a socket failure is `connect`. A request the client
-/// could not make was never sent; an error carrying a status (reqwest's
-/// `error_for_status`, not used here, but classified all the same) is an answer.
-fn send_error_kind(e: &reqwest::Error) -> ErrorKind {
-    if e.is_timeout() {
-        ErrorKind::Timeout
-    } else if e.is_builder() {
-        ErrorKind::Request
-    } else if e.status().is_some() {
-        ErrorKind::HttpStatus
-    } else {
-        // Refused, DNS, TLS, or reset or closed before an answer's head.
-        ErrorKind::Connect
-    }
-}
-
-fn bump(per_second: &mut Vec<u64>, second: u64) {
-    let i = second as usize;
-    if per_second.len() <= i {
-        per_second.resize(i + 1, 0);
-    }
-    per_second[i] += 1;
-}
-
-impl Shared {
-    fn second(&self, at: Instant) -> u64 {
-        at.saturating_duration_since(self.start).as_secs()
-    }
-
-    /// Sends request `i`, scheduled at `scheduled`, reads and checks its answer, and
-    /// records it.
-    async fn request(&self, i: usize, scheduled: Instant) {
-        let req = &self.requests[i];
-        // HTTP/1.1: a free connection (the caller holds one of as many permits or
-        // workers as there are connections, so there is one), the least recently
-        // used, so that the load spreads over all of them as wrk's and oha's
-        // connection-per-worker does; HTTP/2: the connections in turn.
-        let slot = match &self.idle {
-            Some(idle) => idle
-                .lock()
-                .expect("idle connections lock")
-                .pop_front()
-                .expect("a permit or worker per connection"),
-            None => self.next_client.fetch_add(1, Relaxed) % self.clients.len(),
-        };
-        let client = &self.clients[slot];
-        let sent = Instant::now();
-        let mut status = None;
-        let outcome = match client.get(req.url.clone()).send().await {
-            Err(e) => Outcome {
-                tiles: 0,
-                bytes: 0,
-                error: Some(send_error_kind(&e)),
-            },
-            Ok(mut resp) => {
-                status = Some(resp.status().as_u16());
-                let mut check = Check::new(req.expect.as_ref(), req.frames, resp.status().as_u16());
-                loop {
-                    match resp.chunk().await {
-                        Ok(Some(chunk)) => check.push(&chunk),
-                        Ok(None) => break check.finish(),
-                        Err(e) => {
-                            break check.broken(if e.is_timeout() {
-                                ErrorKind::Timeout
-                            } else {
-                                ErrorKind::Truncated
-                            });
-                        }
-                    }
-                }
-            }
-        };
-        let mut outcome = outcome;
-        if req.one_tile && outcome.error.is_none() {
-            outcome.tiles = 1;
-        }
-        let done = Instant::now();
-        if let Some(idle) = &self.idle {
-            idle.lock().expect("idle connections lock").push_back(slot);
-        }
-        if outcome.error.is_some() {
-            self.errors.fetch_add(1, Relaxed);
-        }
-        if outcome.error.is_none_or(ErrorKind::answered) {
-            self.completed.fetch_add(1, Relaxed);
-            self.tiles.fetch_add(u64::from(outcome.tiles), Relaxed);
-        }
-        let mut r = self.tally.lock().expect("tally lock");
-        // The second is taken under the lock, so seconds only ever move forward.
-        let second = self.second(Instant::now());
-        r.record(&outcome, status, second, done - scheduled, done - sent);
-    }
-}
 
 /// The HTTP clients, one per connection (`connections` of them, each keeping one
 /// connection alive). One client with a pool of `connections` would hand out its
@@ -521,192 +269,12 @@ async fn run(
     Ok(r)
 }
 
-/// Arrivals the scheduling thread may hand out ahead of the sends (the channel
-/// between them). Bounded, so that a schedule the connections cannot keep up with
-/// waits in the schedule (computed when needed) instead of piling up in memory: an
-/// unbounded queue held every arrival of `--rate 1e18` (2.9 GB after 25 s).
-const ARRIVALS_AHEAD: usize = 1024;
-
-/// The open model: each arrival at its instant, waiting for a free connection when
-/// all are busy, until the schedule has been sent or the run's deadline (the
-/// schedule's end + `--timeout`) has come; arrivals not sent by then are not sent.
-/// Returns the requests sent per second and the backlog when the schedule ended.
-async fn open_loop(
-    opts: &ReplayOptions,
-    shared: &Arc<Shared>,
-    schedule: &Schedule,
-) -> (Vec<u64>, u64) {
-    let permits = if opts.http2 {
-        opts.connections.saturating_mul(STREAMS_PER_CONNECTION)
-    } else {
-        opts.connections
-    };
-    let sem = Arc::new(Semaphore::new(permits as usize));
-    let start = shared.start;
-    let total = schedule.scheduled();
-    // The hard end of the run, whatever the rate: a server that falls behind (or a
-    // rate no connection count keeps up with) makes requests wait, and without it
-    // `--rate 30000 --duration 2s` went on sending for 17.7 s.
-    let deadline = start + schedule.span() + opts.timeout;
-    // The backlog is read when the schedule's last instant has passed (plus a timer
-    // tick), by a task of its own, since the scheduler may be waiting for a connection.
-    let end_of_schedule = start + schedule.span() + Duration::from_millis(2);
-    let watcher = {
-        let shared = shared.clone();
-        tokio::spawn(async move {
-            tokio::time::sleep_until(end_of_schedule).await;
-            total.saturating_sub(shared.sent.load(Relaxed))
-        })
-    };
-    // The instants come from a thread of their own: tokio's timer has a resolution
-    // of 1 ms and rounds up, which would add up to a millisecond to every corrected
-    // latency; a thread's sleep is good to tens of microseconds. It only sleeps and
-    // sends; the sends themselves happen on the runtime, in order.
-    let (tx, mut rx) = tokio::sync::mpsc::channel::<super::schedule::Arrival>(ARRIVALS_AHEAD);
-    let ticker = {
-        let (schedule, start) = (schedule.clone(), start.into_std());
-        std::thread::Builder::new()
-            .name("replay-schedule".into())
-            .spawn(move || {
-                for k in 0..total {
-                    let a = schedule.arrival(k);
-                    let at = start + a.at;
-                    let now = std::time::Instant::now();
-                    if at > now {
-                        std::thread::sleep(at - now);
-                    }
-                    // Fails once the sends have stopped (the deadline): so does this.
-                    if tx.blocking_send(a).is_err() {
-                        break;
-                    }
-                }
-            })
-    };
-    let mut sent_per_s = Vec::new();
-    // `None` when the deadline comes first.
-    while let Ok(Some(a)) = tokio::time::timeout_at(deadline, rx.recv()).await {
-        let at = start + a.at;
-        let Ok(Ok(permit)) = tokio::time::timeout_at(deadline, sem.clone().acquire_owned()).await
-        else {
-            break;
-        };
-        // A connection freed just as the deadline passed (a late timer) sends
-        // nothing either: the run is over.
-        if Instant::now() >= deadline {
-            break;
-        }
-        bump(&mut sent_per_s, shared.second(Instant::now()));
-        shared.sent.fetch_add(1, Relaxed);
-        let sh = shared.clone();
-        tokio::spawn(async move {
-            sh.request(a.request, at).await;
-            drop(permit);
-        });
-    }
-    // The scheduling thread's next hand-out fails, and it ends: it never sleeps past
-    // the deadline, since every instant is within the schedule.
-    drop(rx);
-    if let Ok(t) = ticker {
-        let _ = t.join();
-    }
-    let backlog = if Instant::now() < end_of_schedule {
-        // Every arrival sent before the schedule ended (0), or a deadline before its
-        // end (a `--timeout` under the watcher's tick): what was not sent.
-        watcher.abort();
-        total.saturating_sub(shared.sent.load(Relaxed))
-    } else {
-        watcher.await.unwrap_or(0)
-    };
-    // Wait for the requests in flight: all permits back, or the deadline.
-    let _ = tokio::time::timeout_at(deadline, sem.acquire_many(permits)).await;
-    (sent_per_s, backlog)
-}
-
-/// Saturation: `connections` workers, each sending the next request (in trace order,
-/// cycling) as soon as its last one finished, until `duration` has passed.
-async fn closed_loop(
-    opts: &ReplayOptions,
-    shared: &Arc<Shared>,
-    duration: Duration,
-) -> (Vec<u64>, Vec<u64>, u64) {
-    let end = shared.start + duration;
-    let next = Arc::new(AtomicUsize::new(0));
-    let mut workers = tokio::task::JoinSet::new();
-    for _ in 0..opts.connections {
-        let (sh, next) = (shared.clone(), next.clone());
-        workers.spawn(async move {
-            let mut sent_per_s = Vec::new();
-            loop {
-                let now = Instant::now();
-                if now >= end {
-                    break;
-                }
-                let i = next.fetch_add(1, Relaxed) % sh.requests.len();
-                bump(&mut sent_per_s, sh.second(now));
-                sh.sent.fetch_add(1, Relaxed);
-                sh.request(i, now).await;
-            }
-            sent_per_s
-        });
-    }
-    let mut sent_per_s: Vec<u64> = Vec::new();
-    let _ = tokio::time::timeout_at(end + opts.timeout, async {
-        while let Some(Ok(v)) = workers.join_next().await {
-            if sent_per_s.len() < v.len() {
-                sent_per_s.resize(v.len(), 0);
-            }
-            for (a, b) in sent_per_s.iter_mut().zip(v) {
-                *a += b;
-            }
-        }
-    })
-    .await;
-    // Saturation has no schedule: what was sent is what was asked for.
-    (sent_per_s.clone(), sent_per_s, 0)
-}
-
-/// Every second on stderr: elapsed, sent, completed, tiles/s, corrected p99 so far,
-/// errors.
-async fn progress_line(shared: Arc<Shared>) {
-    let mut tick = tokio::time::interval_at(
-        shared.start + Duration::from_secs(1),
-        Duration::from_secs(1),
-    );
-    let mut last_tiles = 0u64;
-    let mut last_at = shared.start;
-    // On a terminal the line is rewritten in place; in a log, one line per second.
-    let (start, end) = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
-        ("\r", "   ")
-    } else {
-        ("", "\n")
-    };
-    loop {
-        let now = tick.tick().await;
-        let tiles = shared.tiles.load(Relaxed);
-        let dt = (now - last_at).as_secs_f64().max(1e-3);
-        let p99 = shared
-            .tally
-            .lock()
-            .map_or(0.0, |r| r.corrected.quantile_ms(0.99));
-        // Best-effort: a closed stderr must not end the run (eprint! would panic).
-        crate::output::progress(format_args!(
-            "{start}{:>5.0} s  sent {}  done {}  {:.0} tiles/s  p99 {:.2} ms  errors {}{end}",
-            (now - shared.start).as_secs_f64(),
-            shared.sent.load(Relaxed),
-            shared.completed.load(Relaxed),
-            (tiles - last_tiles) as f64 / dt,
-            p99,
-            shared.errors.load(Relaxed),
-        ));
-        last_tiles = tiles;
-        last_at = now;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::loadtest::trace::{RequestKind, TRACE_VERSION, TraceHeader, TraceRequest};
+    use crate::loadtest::trace::{
+        RequestKind, Shard, TRACE_VERSION, Trace, TraceHeader, TraceRequest,
+    };
 
     fn trace(server: &str) -> Trace {
         Trace {
@@ -760,7 +328,7 @@ mod tests {
         let port = silent.local_addr().unwrap().port();
         let mut opts = ReplayOptions::new(trace(&format!("http://127.0.0.1:{port}")));
         opts.pacing = Pacing::Constant {
-            rate: super::super::schedule::Rate::new(rate).unwrap(),
+            rate: super::super::pacing::Rate::new(rate).unwrap(),
             duration: Duration::from_millis(ms),
         };
         opts.connections = connections;
@@ -852,7 +420,7 @@ mod tests {
         let e = format!("{:#}", replay(&opts).unwrap_err());
         assert!(e.contains("--duration") && e.contains("7 days"), "{e}");
         opts.pacing = Pacing::Constant {
-            rate: super::super::schedule::Rate::new(1e18).unwrap(),
+            rate: super::super::pacing::Rate::new(1e18).unwrap(),
             duration: Duration::from_secs(1),
         };
         let e = format!("{:#}", replay(&opts).unwrap_err());
