@@ -3,7 +3,8 @@
 //! by AND-pooling (FORMAT.md "Validity mask").
 
 use super::mesh_error::BlockErrors;
-use super::{Encoded, Node, Sink, encode};
+use super::node::{Encoded, Node, encode};
+use super::sink::Sink;
 use indicatif::ProgressBar;
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{CellMask, Level, Morton, Quantization, TileGeometry};

@@ -1,8 +1,8 @@
 //! Finest tiles: read from the raster (the padding beyond the DEM repeats its edge),
 //! measured against the coarse cells above them (DESIGN §3, Kang §4.1), masked.
 
-use super::Node;
 use super::mesh_error::{self, CoarseCorners};
+use super::node::Node;
 use crate::ingest::raster::Raster;
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{CellMask, TileGeometry, TileId};

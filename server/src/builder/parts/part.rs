@@ -4,8 +4,10 @@
 use super::layout::{Section, Trailer};
 use super::split::{PartSpec, Split, share};
 use super::writer::PartWriter;
-use crate::builder::{BuildOptions, Loaded, Tiling, bar, meta_reserve};
-use crate::ingest::{self, RowSource, SourceInfo};
+use crate::builder::prepare::Loaded;
+use crate::builder::tiling::Tiling;
+use crate::builder::{BuildOptions, bar, meta_reserve};
+use crate::ingest;
 use anyhow::{Context, ensure};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -13,53 +15,6 @@ use std::time::Instant;
 use tessera_shared::format;
 use tessera_shared::{Level, Morton, TileGeometry, TileId};
 use xxhash_rust::xxh3::Xxh3;
-
-/// A row source that hashes every raw sample it hands on (its bits, little-endian):
-/// a part's fingerprint of its input's content.
-pub(in crate::builder) struct Digesting<'a> {
-    inner: &'a mut dyn RowSource,
-    hash: &'a mut Xxh3,
-}
-
-impl<'a> Digesting<'a> {
-    pub(in crate::builder) fn new(inner: &'a mut dyn RowSource, hash: &'a mut Xxh3) -> Self {
-        Self { inner, hash }
-    }
-}
-
-impl std::fmt::Debug for Digesting<'_> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Digesting")
-            .field("inner", &self.inner)
-            .finish_non_exhaustive()
-    }
-}
-
-impl RowSource for Digesting<'_> {
-    fn info(&self) -> &SourceInfo {
-        self.inner.info()
-    }
-
-    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
-        self.inner.read_rows(out)?;
-        let mut bytes = [0u8; 4 << 12];
-        for chunk in out.chunks(1 << 12) {
-            for (b, v) in bytes.chunks_exact_mut(4).zip(chunk) {
-                b.copy_from_slice(&v.to_bits().to_le_bytes());
-            }
-            self.hash.update(&bytes[..4 * chunk.len()]);
-        }
-        Ok(())
-    }
-
-    fn buffer_bytes(&self) -> u64 {
-        self.inner.buffer_bytes()
-    }
-
-    fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
-        self.inner.vertical_datum()
-    }
-}
 
 /// What a part build did.
 #[derive(Clone, Debug)]
@@ -212,4 +167,50 @@ pub(super) fn fingerprint(
     h.update(&opts.nodata.map_or(u64::MAX, f64::to_bits).to_le_bytes());
     h.update(format!("{:?}", opts.overlap).as_bytes());
     h.digest128().to_le_bytes()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::builder::parts::{FRAME_LEN, HEADER_LEN, PartFile};
+
+    #[test]
+    fn a_part_file_round_trips_and_damage_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = BuildOptions {
+            tile_size: 64,
+            ..BuildOptions::default()
+        };
+        let spec = PartSpec { k: 1, n: 4 };
+        let r = build_part(
+            &ingest::InputSpec::one("synthetic:257:5"),
+            dir.path(),
+            spec,
+            &opts,
+        )
+        .unwrap();
+        assert_eq!(r.path, dir.path().join("part-0001-of-0004.tesspart"));
+        let p = PartFile::open(&r.path).unwrap();
+        assert_eq!(p.spec(), spec);
+        p.check(&opts.interrupt).unwrap();
+        assert!(r.records > 0);
+        // Flip one byte of the first record: the part opens (header and trailer are
+        // intact) but reading it names the tile.
+        let mut bytes = std::fs::read(&r.path).unwrap();
+        bytes[HEADER_LEN + FRAME_LEN + 10] ^= 0xff;
+        let damaged = dir.path().join("damaged.tesspart");
+        std::fs::write(&damaged, &bytes).unwrap();
+        let e = format!(
+            "{:#}",
+            PartFile::open(&damaged)
+                .unwrap()
+                .check(&opts.interrupt)
+                .unwrap_err()
+        );
+        assert!(e.contains("checksum does not match"), "{e}");
+        // Cut short: refused when opened.
+        std::fs::write(&damaged, &bytes[..bytes.len() - 3]).unwrap();
+        let e = format!("{:#}", PartFile::open(&damaged).unwrap_err());
+        assert!(e.contains("truncated"), "{e}");
+    }
 }

@@ -4,8 +4,8 @@
 use super::layout::{Frame, Header, Section, Trailer, root_fixed_len};
 use super::split::PartSpec;
 use super::{FRAME_LEN, HEADER_LEN, MAX_TRAILER};
-use crate::builder::Node;
 use crate::builder::mesh_error::BlockErrors;
+use crate::builder::node::Node;
 use crate::builder::writer::SINK_BUFFER;
 use anyhow::{Context, bail, ensure};
 use std::fs::File;
@@ -316,55 +316,5 @@ impl Roots {
             .with_context(|| format!("reading split-level tile {m}"))?;
         self.remaining -= buf.len() as u64;
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::builder::BuildOptions;
-    use crate::builder::parts::part::build_part;
-    use crate::builder::parts::split::PartSpec;
-    use crate::builder::parts::{FRAME_LEN, HEADER_LEN};
-    use crate::ingest;
-
-    #[test]
-    fn a_part_file_round_trips_and_damage_is_named() {
-        let dir = tempfile::tempdir().unwrap();
-        let opts = BuildOptions {
-            tile_size: 64,
-            ..BuildOptions::default()
-        };
-        let spec = PartSpec { k: 1, n: 4 };
-        let r = build_part(
-            &ingest::InputSpec::one("synthetic:257:5"),
-            dir.path(),
-            spec,
-            &opts,
-        )
-        .unwrap();
-        assert_eq!(r.path, dir.path().join("part-0001-of-0004.tesspart"));
-        let p = PartFile::open(&r.path).unwrap();
-        assert_eq!(p.spec(), spec);
-        p.check(&opts.interrupt).unwrap();
-        assert!(r.records > 0);
-        // Flip one byte of the first record: the part opens (header and trailer are
-        // intact) but reading it names the tile.
-        let mut bytes = std::fs::read(&r.path).unwrap();
-        bytes[HEADER_LEN + FRAME_LEN + 10] ^= 0xff;
-        let damaged = dir.path().join("damaged.tesspart");
-        std::fs::write(&damaged, &bytes).unwrap();
-        let e = format!(
-            "{:#}",
-            PartFile::open(&damaged)
-                .unwrap()
-                .check(&opts.interrupt)
-                .unwrap_err()
-        );
-        assert!(e.contains("checksum does not match"), "{e}");
-        // Cut short: refused when opened.
-        std::fs::write(&damaged, &bytes[..bytes.len() - 3]).unwrap();
-        let e = format!("{:#}", PartFile::open(&damaged).unwrap_err());
-        assert!(e.contains("truncated"), "{e}");
     }
 }

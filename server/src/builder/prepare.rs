@@ -1,0 +1,356 @@
+//! An input opened, checked and sized before any sample is read (`--crs`, `--bounds`,
+//! `--to`, the memory plan, the plausibility checks), then read: spooled, or
+//! generated on demand for synthetic terrain.
+
+use super::{BuildOptions, bar, datum, memory, plausible, spool};
+use crate::ingest::raster::Raster;
+use crate::ingest::{self, Input, RowSource, SourceInfo};
+use anyhow::Context;
+use std::path::Path;
+use std::time::Instant;
+use tessera_shared::{Metadata, Quantization, TileGeometry};
+use xxhash_rust::xxh3::Xxh3;
+
+/// An input opened and sized, before any sample is read: its geometry, the memory
+/// plan and the metadata but for what reading it tells (quantization, counts).
+/// What a whole build and a part of a distributed build ([`parts`]) both start from.
+pub(super) struct Prepared {
+    source: Input,
+    /// The no-data value the spool recognises (none after reprojection, which marks
+    /// no-data as NaN itself).
+    spool_nodata: Option<f64>,
+    pub(super) label: String,
+    pub(super) geometry: TileGeometry,
+    plan: memory::Plan,
+    pub(super) meta: Metadata,
+    /// For [`BuildReport::warnings`].
+    pub(super) warnings: Vec<String>,
+}
+
+/// The DEM as the tiler reads it.
+pub(super) enum Dem {
+    Spooled(Box<spool::SpooledRaster>),
+    Synthetic(ingest::synthetic::Synthetic),
+}
+
+impl Dem {
+    pub(super) fn raster(&self) -> &dyn Raster {
+        match self {
+            Dem::Spooled(s) => s.as_ref(),
+            Dem::Synthetic(s) => s,
+        }
+    }
+}
+
+/// A [`Prepared`] input after reading: what the tiler reads, and the metadata with
+/// its quantization (and, for a whole build, its no-data count) known.
+pub(super) struct Loaded {
+    pub(super) dem: Dem,
+    pub(super) geometry: TileGeometry,
+    pub(super) plan: memory::Plan,
+    pub(super) meta: Metadata,
+}
+
+/// Opens the inputs, applies `--crs`/`--bounds`/`--to`, and sizes the pyramid; refuses
+/// a raster larger than `--max-samples` or than the free disk space takes
+/// ([`plausible`]) before any sample is read. `folders.spool` holds temporary files
+/// (reprojection's, then the spool); `folders.output` gets `1/share` of the pyramid.
+pub(super) fn prepare(
+    inputs: &ingest::InputSpec,
+    folders: &plausible::Folders,
+    share: u32,
+    opts: &BuildOptions,
+) -> anyhow::Result<Prepared> {
+    let dir = folders.spool.as_path();
+    anyhow::ensure!(
+        opts.scale.is_finite() && opts.scale > 0.0 && opts.offset.is_finite(),
+        "--scale must be a positive number and --offset a finite number"
+    );
+    // Flag errors before any input is read.
+    let assigned_crs = opts
+        .crs
+        .as_deref()
+        .map(|s| crate::crs::Crs::parse(s).context("--crs"))
+        .transpose()?;
+    if opts.bounds.is_some()
+        && let ingest::inputs::Expanded::Files(files) = ingest::inputs::expand(inputs)?
+        && files.len() > 1
+    {
+        anyhow::bail!(
+            "{} and {} more: --bounds places one raster, not a mosaic of {} inputs; give \
+             each input its own georeferencing (GeoTIFFs, or a VRT)",
+            files[0].display(),
+            files.len() - 1,
+            files.len()
+        );
+    }
+    let ingest::Opened {
+        input: source,
+        label,
+        source_name,
+    } = ingest::open_inputs(inputs, opts.nodata, opts.overlap)?;
+    let source = match source {
+        Input::Rows(rows) => Input::Rows(
+            ingest::assign::assign(rows, assigned_crs.as_ref(), opts.bounds, &label)
+                .with_context(|| label.clone())?,
+        ),
+        Input::Synthetic(_) if assigned_crs.is_some() || opts.bounds.is_some() => {
+            anyhow::bail!(
+                "{label}: --crs and --bounds need a file input; synthetic terrain has no grid \
+                 to georeference"
+            )
+        }
+        source @ Input::Synthetic(_) => source,
+    };
+    // Decided on the input as read (georeferenced by --crs/--bounds if given), before
+    // --to resamples it: reprojection moves the samples, not the heights' reference.
+    let datum = datum::decide(opts.vertical_datum, &source, &label);
+    // What the inputs declare, checked before a sample is read: the source a `--to`
+    // spools whole first, then the raster the pyramid is built from.
+    let declared = match &source {
+        Input::Rows(r) => Some(plausible::Declared {
+            width: r.info().width,
+            height: r.info().height,
+        }),
+        Input::Synthetic(_) => None,
+    };
+    let reproject_spool = match (declared, &opts.reproject) {
+        (Some(size), Some(_)) => {
+            plausible::check_samples(&label, "declares", size, opts.max_samples)?;
+            let need = plausible::reproject_need(size);
+            plausible::check_disk(
+                &label,
+                &format!("declares {}", size.describe()),
+                folders,
+                need,
+                plausible::DiskNeed::default(),
+            )?;
+            need
+        }
+        _ => plausible::DiskNeed::default(),
+    };
+    // Reprojection reads the source whole first; its output marks no-data as NaN,
+    // so the spool below needs no no-data value of its own.
+    let (source, spool_nodata) = match (source, &opts.reproject) {
+        (Input::Rows(rows), Some(r)) => (
+            Input::Rows(Box::new(
+                ingest::reproject::Reprojected::new(rows, r, opts.nodata, dir)
+                    .with_context(|| label.clone())?,
+            )),
+            None,
+        ),
+        (Input::Synthetic(_), Some(_)) => {
+            anyhow::bail!("{label}: --to needs a georeferenced input; synthetic terrain has no CRS")
+        }
+        (source, None) => (source, opts.nodata),
+    };
+    let input = label.as_str();
+    let (width, height) = match &source {
+        Input::Rows(r) => (r.info().width, r.info().height),
+        Input::Synthetic(s) => (s.width(), s.height()),
+    };
+    let size = plausible::Declared { width, height };
+    let what = if opts.reproject.is_some() {
+        "--to makes"
+    } else {
+        "declares"
+    };
+    plausible::check_samples(input, what, size, opts.max_samples)?;
+    let geometry =
+        TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
+    let spool = match &source {
+        Input::Rows(_) => plausible::spool_need(size),
+        Input::Synthetic(_) => plausible::DiskNeed::default(),
+    };
+    plausible::check_disk(
+        input,
+        &format!("{what} {}", size.describe()),
+        folders,
+        reproject_spool + spool,
+        plausible::output_need(&geometry, share),
+    )?;
+    let input_bytes = match &source {
+        Input::Rows(r) => r.buffer_bytes(),
+        Input::Synthetic(s) => s.memory_bytes(),
+    };
+    let plan = memory::Plan::new(&geometry, input_bytes, opts.memory_budget)
+        .with_context(|| input.to_string())?;
+    let (description, mut georef) = match &source {
+        Input::Rows(r) => (r.info().description.clone(), r.info().georef.clone()),
+        Input::Synthetic(s) => (s.description(), None),
+    };
+    let ground_spacing = georef
+        .as_mut()
+        .and_then(|g| ground_geometry(g, width, height, input));
+    let meta = Metadata {
+        width,
+        height,
+        tile_size: opts.tile_size,
+        levels: geometry.level_count(),
+        quantization: Quantization {
+            offset: 0.0,
+            scale: 1.0,
+            max_error: 0.0,
+        },
+        min_height: 0.0,
+        max_height: 0.0,
+        nodata_count: 0,
+        nodata_fill: "nearest valid sample".into(),
+        ground_spacing,
+        vertical_datum: datum.datum,
+        level_counts: Vec::new(),
+        georef,
+        source: format!("{description} ({source_name})"),
+        generator: format!("tessera-server {}", env!("CARGO_PKG_VERSION")),
+        content_hash: String::new(),
+    };
+    Ok(Prepared {
+        source,
+        spool_nodata,
+        label,
+        geometry,
+        plan,
+        meta,
+        warnings: datum.warning.into_iter().collect(),
+    })
+}
+
+impl Prepared {
+    /// Reads the input: a file is spooled into `dir` (its quantization and no-data
+    /// count then known), synthetic terrain needs nothing. With `digest`, every raw
+    /// sample read is hashed into it too (a part's fingerprint of its input).
+    pub(super) fn load(
+        self,
+        dir: &Path,
+        opts: &BuildOptions,
+        started: Instant,
+        digest: Option<&mut Xxh3>,
+    ) -> anyhow::Result<Loaded> {
+        let Prepared {
+            source,
+            spool_nodata,
+            label,
+            geometry,
+            plan,
+            mut meta,
+            warnings: _,
+        } = self;
+        let dem = match source {
+            Input::Rows(mut rows) => {
+                let spool_bar = bar(opts.progress, u64::from(geometry.height()), "reading");
+                let mut digesting;
+                let rows: &mut dyn RowSource = match digest {
+                    Some(hash) => {
+                        digesting = Digesting::new(rows.as_mut(), hash);
+                        &mut digesting
+                    }
+                    None => rows.as_mut(),
+                };
+                let spooled =
+                    spool::SpooledRaster::spool(rows, dir, spool_nodata, plan.band_bytes, |r| {
+                        spool_bar.set_position(u64::from(r));
+                        opts.interrupt.check()
+                    })
+                    .with_context(|| label.clone())?;
+                spool_bar.finish_and_clear();
+                tracing::debug!(seconds = started.elapsed().as_secs_f64(), "input spooled");
+                meta.quantization = spooled.quantizer.to_metres(
+                    opts.scale,
+                    opts.offset,
+                    spooled.sample_type.is_integer(),
+                );
+                meta.nodata_count = spooled.nodata_count;
+                Dem::Spooled(Box::new(spooled))
+            }
+            Input::Synthetic(synth) => {
+                meta.quantization = Quantization {
+                    offset: ingest::synthetic::OFFSET,
+                    scale: ingest::synthetic::SCALE,
+                    max_error: 0.0,
+                };
+                meta.nodata_fill = "none (synthetic)".into();
+                Dem::Synthetic(synth)
+            }
+        };
+        Ok(Loaded {
+            dem,
+            geometry,
+            plan,
+            meta,
+        })
+    }
+}
+
+/// The CRS's PROJ string and WKT, and the ground spacing at the DEM's centre
+/// (DESIGN §9), from the projection library. A CRS it does not know leaves both
+/// out, with a warning: the pyramid is still right, clients fall back to a spacing.
+fn ground_geometry(
+    georef: &mut tessera_shared::GeoRef,
+    width: u32,
+    height: u32,
+    input: &str,
+) -> Option<tessera_shared::GroundSpacing> {
+    let Some(crs) = crate::crs::Crs::of(georef) else {
+        tracing::warn!(
+            input,
+            crs = georef.crs_name.as_deref().unwrap_or("unnamed"),
+            "the CRS has no EPSG code the projection library knows: no ground spacing recorded"
+        );
+        return None;
+    };
+    crs.describe(georef);
+    match crate::crs::ground_spacing(georef, width, height) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            tracing::warn!(input, "no ground spacing: {e:#}");
+            None
+        }
+    }
+}
+
+/// A row source that hashes every raw sample it hands on (its bits, little-endian):
+/// a part's fingerprint of its input's content.
+struct Digesting<'a> {
+    inner: &'a mut dyn RowSource,
+    hash: &'a mut Xxh3,
+}
+
+impl<'a> Digesting<'a> {
+    fn new(inner: &'a mut dyn RowSource, hash: &'a mut Xxh3) -> Self {
+        Self { inner, hash }
+    }
+}
+
+impl std::fmt::Debug for Digesting<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Digesting")
+            .field("inner", &self.inner)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RowSource for Digesting<'_> {
+    fn info(&self) -> &SourceInfo {
+        self.inner.info()
+    }
+
+    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
+        self.inner.read_rows(out)?;
+        let mut bytes = [0u8; 4 << 12];
+        for chunk in out.chunks(1 << 12) {
+            for (b, v) in bytes.chunks_exact_mut(4).zip(chunk) {
+                b.copy_from_slice(&v.to_bits().to_le_bytes());
+            }
+            self.hash.update(&bytes[..4 * chunk.len()]);
+        }
+        Ok(())
+    }
+
+    fn buffer_bytes(&self) -> u64 {
+        self.inner.buffer_bytes()
+    }
+
+    fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
+        self.inner.vertical_datum()
+    }
+}
