@@ -11,7 +11,8 @@
 //! - [`lru`]: the recency list behind the tile pool and the GPU slots;
 //! - `render`: the wgpu renderer (emulated tessellation, ≤ 7 terrain draws), with
 //!   the default feature `render` only;
-//! - [`report`]: contact sheets and plots of a flight;
+//! - [`flight_report`]: contact sheets, plots and animations of a flight, and its
+//!   popping metric;
 //! - [`loadtest`]: load testing: request traces, their replay on a schedule, the
 //!   reports and their merge;
 //! - [`app`]: the run modes — flights ([`app::fly`]), headless rendering
@@ -27,6 +28,7 @@
 pub mod app;
 pub mod camera;
 pub mod cli;
+pub mod flight_report;
 pub mod globe;
 pub mod loadtest;
 pub mod lru;
@@ -34,7 +36,6 @@ pub mod output;
 pub mod paths;
 #[cfg(feature = "render")]
 pub mod render;
-pub mod report;
 pub mod select;
 pub mod stream;
 pub mod tessellate;

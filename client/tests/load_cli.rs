@@ -8,7 +8,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
-use tessera_client::loadtest::report::{Http, LatencyFrom, Mode, ReplayReport};
+use tessera_client::loadtest::replay_report::{Http, LatencyFrom, Mode, ReplayReport};
 
 /// A small report of shard `shard`, written as `dir/NAME/load.json`.
 fn shard(dir: &Path, name: &str, shard: &str, edit: impl FnOnce(&mut ReplayReport)) -> PathBuf {
@@ -61,7 +61,7 @@ fn merge_refuses_a_shard_given_twice_and_implausible_fields() {
     assert!(twice.stdout.is_empty());
     // A timeline second of 4·10⁹ aborted on a 1.4 TB allocation.
     let far = shard(dir.path(), "far", "1/2", |r| {
-        r.timeline = vec![tessera_client::loadtest::report::Second {
+        r.timeline = vec![tessera_client::loadtest::replay_report::Second {
             second: 4_000_000_000,
             ..Default::default()
         }];

@@ -30,7 +30,7 @@ use tessera_client::camera::Camera;
 use tessera_client::render::slots::OnGpu;
 use tessera_client::render::{RenderOptions, Renderer};
 use tessera_client::select::{SelectParams, Selector, World};
-use tessera_client::stream::imagery::{self, Texels};
+use tessera_client::stream::imagery_tiles::{self as imagery, Texels};
 use tessera_client::stream::pool::TilePool;
 use tessera_client::stream::{StreamConfig, Streamer, TileSource};
 use tessera_shared::{FileSource, Pyramid, TileId};

@@ -1,12 +1,12 @@
 //! Imagery pyramids (DECISIONS.md "Imagery pyramids"), the client side as far as it goes:
-//! the client's imagery fetch (`tessera_client::stream::imagery`) against a real server
+//! the client's imagery fetch (`tessera_client::stream::imagery_tiles`) against a real server
 //! (in process, real sockets) serving the real Olinda DEM with its Landsat imagery. Every
 //! tile the DEM has comes back decoded, exactly the texels of the file's own record, and
 //! nothing for tiles the DEM lacks.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
-use tessera_client::stream::imagery::{self, ImageryPool};
+use tessera_client::stream::imagery_tiles::{self as imagery, ImageryPool};
 use tessera_shared::{FileSource, Pyramid};
 
 #[allow(dead_code)] // each test binary uses some of the shared fixtures

@@ -28,7 +28,7 @@ use tessera_client::app::load_test::{LoadOptions, load};
 use tessera_client::loadtest::check::ErrorKind;
 use tessera_client::loadtest::merge::merge;
 use tessera_client::loadtest::replay::{ReplayOptions, replay};
-use tessera_client::loadtest::report::ReplayReport;
+use tessera_client::loadtest::replay_report::ReplayReport;
 use tessera_client::loadtest::pacing::{Pacing, Rate};
 use tessera_client::loadtest::trace::{Shard, Trace};
 use tessera_client::stream::TileSource;

@@ -110,7 +110,7 @@ pub struct RenderSummary {
     /// With `--popping`: per-pixel change between consecutive frames, where the
     /// selection changed and where it did not.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub popping: Option<crate::report::popping::PoppingSummary>,
+    pub popping: Option<crate::flight_report::popping::PoppingSummary>,
 }
 
 /// The median (0 for no values).

@@ -5,13 +5,13 @@
 use super::frame_drawer::{FrameDrawer, RenderRecord, RenderSummary};
 use super::settle::{SETTLE_TIMEOUT, fetch_tiles};
 use crate::camera::Camera;
+use crate::flight_report::popping::{Popping, PoppingSummary, SelectionKey};
 use crate::render::reference::{finest_tiles_in_view, full_resolution_patches};
 use crate::render::slots::OnGpu;
 use crate::render::{Parallax, RenderOptions, Renderer, png_out, quality};
-use crate::report::popping::{Popping, PoppingSummary, SelectionKey};
 use crate::select::{FrameStats, Selection, Selector, Wanted, World};
 use crate::stream::Streamer;
-use crate::stream::imagery::ImageryFeed;
+use crate::stream::imagery_tiles::ImageryFeed;
 use crate::stream::pool::TilePool;
 use anyhow::Context;
 use std::path::PathBuf;
@@ -52,7 +52,7 @@ pub enum Draws {
     /// Both; they are compared per frame, and references go to `out_dir/reference/`.
     Quality,
     /// The selection, settled at every frame (everything it asks for resident),
-    /// and the popping metric over consecutive frames ([`crate::report::popping`]).
+    /// and the popping metric over consecutive frames ([`crate::flight_report::popping`]).
     Popping,
 }
 

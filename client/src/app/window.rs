@@ -60,7 +60,7 @@ struct State {
     renderer: Renderer,
     presenter: Presenter,
     streamer: Streamer,
-    imagery: Option<crate::stream::imagery::ImageryFeed>,
+    imagery: Option<crate::stream::imagery_tiles::ImageryFeed>,
     pool: TilePool,
     selector: Selector,
     camera: Camera,

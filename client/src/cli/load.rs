@@ -7,7 +7,7 @@ use crate::app::load_test;
 use crate::loadtest::merge::merge_files;
 use crate::loadtest::pacing::{Pacing, RampStages, RateArg};
 use crate::loadtest::replay::{self, ReplayOptions};
-use crate::loadtest::report::ReplayReport;
+use crate::loadtest::replay_report::ReplayReport;
 use crate::loadtest::trace::{Shard, Trace};
 use crate::output;
 use crate::stream::{OpenArgs, RequestMode, TileSource};

@@ -6,11 +6,11 @@
 
 mod args;
 pub mod bench_select;
+pub mod flight_report;
 #[cfg(feature = "render")]
 pub mod fly;
 pub mod inspect;
 pub mod load;
-pub mod report;
 
 use crate::output;
 use clap::{Parser, Subcommand};
@@ -56,7 +56,7 @@ enum Command {
     /// Pictures of a headless flight: stats.png (plots over time), and with --frames
     /// contact_sheet.png (12 frames) and flight.png (an animated PNG of the frames,
     /// 480 px wide), plus a short summary.
-    Report(report::ReportArgs),
+    Report(flight_report::ReportArgs),
     /// Print the size, levels and height range of a local pyramid file.
     Inspect(inspect::InspectArgs),
 }
@@ -68,7 +68,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         #[cfg(feature = "render")]
         Command::Fly(args) => fly::run(args),
         Command::BenchSelect(args) => bench_select::run(args),
-        Command::Report(args) => report::run(args),
+        Command::Report(args) => flight_report::run(args),
         Command::Inspect(args) => inspect::run(args),
     }
 }

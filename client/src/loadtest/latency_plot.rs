@@ -1,7 +1,7 @@
 //! `DIR/latency.png` of a replay (issue 18): latency and rate over the run, one panel
 //! per series over a shared axis of seconds, drawn by the charts crate.
 
-use super::report::ReplayReport;
+use super::replay_report::ReplayReport;
 use std::path::Path;
 use tessera_charts::plot::{Series, plot_panels};
 
@@ -10,12 +10,13 @@ use tessera_charts::plot::{Series, plot_panels};
 /// completed are gaps in the latency lines.
 pub fn series(report: &ReplayReport) -> Vec<Series> {
     let t = &report.timeline;
-    let ms = |f: fn(&super::report::Second) -> Option<f64>| {
+    let ms = |f: fn(&super::replay_report::Second) -> Option<f64>| {
         t.iter()
             .map(|s| f(s).unwrap_or(f64::NAN))
             .collect::<Vec<f64>>()
     };
-    let count = |f: fn(&super::report::Second) -> u64| t.iter().map(|s| f(s) as f64).collect();
+    let count =
+        |f: fn(&super::replay_report::Second) -> u64| t.iter().map(|s| f(s) as f64).collect();
     let mut out = vec![
         Series::new(
             "corrected p50 (from the scheduled start)",
@@ -54,7 +55,7 @@ pub fn write(report: &ReplayReport, path: &Path) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::loadtest::report::{Http, Latency, LatencyFrom, Mode, Second};
+    use crate::loadtest::replay_report::{Http, Latency, LatencyFrom, Mode, Second};
 
     #[test]
     fn the_plot_has_a_point_per_second_and_gaps_where_nothing_completed() {

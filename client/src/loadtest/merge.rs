@@ -4,7 +4,7 @@
 //! that implausible or repeated shards are refused with the file and field named.
 
 use super::check::ErrorKind;
-use super::report::{Histograms, Latency, REPORT_VERSION, ReplayReport, Second};
+use super::replay_report::{Histograms, Latency, REPORT_VERSION, ReplayReport, Second};
 use anyhow::{Context, bail};
 
 /// `a + b`, or an error naming the field and the report that overflowed it.
@@ -210,9 +210,9 @@ fn merge_timelines(reports: &[(String, &ReplayReport)]) -> anyhow::Result<Vec<Se
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::loadtest::report::tests::{latency, report, values};
-    use crate::loadtest::report::{Http, Mode};
-    use crate::loadtest::report_file::MAX_SECONDS;
+    use crate::loadtest::replay_report::tests::{latency, report, values};
+    use crate::loadtest::replay_report::{Http, Mode};
+    use crate::loadtest::replay_report_file::MAX_SECONDS;
 
     #[test]
     fn merged_histograms_equal_one_fed_every_value() {

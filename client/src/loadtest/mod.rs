@@ -7,13 +7,16 @@
 //! - [`schedule`]: when a replay sends each request.
 //! - [`replay`]: the engine: the open model, HDR latency from the scheduled start.
 //! - [`check`]: one answer against its recording (errors by kind).
-//! - [`report`]: the report (`--json`, `DIR/load.json`).
-//! - [`report_file`]: the report read from and written to `load.json`, checked for
-//!   plausibility, and `--out DIR`.
+//! - [`replay_report`]: a replay's report (`--json`, `DIR/load.json`).
+//! - [`replay_report_file`]: the report read from and written to `load.json`,
+//!   checked for plausibility, and `--out DIR`.
 //! - [`merge`]: `tessera load merge`, the reports of `--shard K/N` processes added up.
 //! - [`latency_plot`]: the latency-over-time plot (`DIR/latency.png`).
 //! - [`record`]: `--record`: the full clients' requests collected into a trace.
 //! - [`cpu`]: the load process's own CPU use (is a run client-bound?).
+//! - [`connections`]: how many connections the open-file limit lets one process hold.
+//! - [`latency`]: HDR latency histograms, their percentiles and their encoding in a
+//!   report.
 //!
 //! The full-client mode (many simulated clients flying through the real selection and
 //! streaming code) is [`crate::app::load_test`].
@@ -27,7 +30,7 @@ pub mod merge;
 pub mod pacing;
 pub mod record;
 pub mod replay;
-pub mod report;
-pub mod report_file;
+pub mod replay_report;
+pub mod replay_report_file;
 pub mod schedule;
 pub mod trace;

@@ -14,7 +14,7 @@
 
 use super::drape_textures::ImageryTextures;
 use super::renderer::Renderer;
-use crate::stream::imagery::{ImageryPool, Texels};
+use crate::stream::imagery_tiles::{ImageryPool, Texels};
 use tessera_shared::TileId;
 
 impl Renderer {

@@ -15,6 +15,11 @@
 //!    the next coarser LOD (CDLOD's morph, run over time from what the last frame
 //!    drew), so that LOD changes do not pop; [`fade`]: a refined tile's shading
 //!    mixed with its parent's while it comes in.
+//!
+//! [`selector`] runs these steps with memory from frame to frame; [`world`] is the
+//! terrain in world units, [`tile_tables`] what selection knows of the tiles,
+//! [`params`] its settings, [`metric`] the screen-space error, [`patch`] a patch to
+//! draw and [`selection`] what a frame's selection gives.
 
 pub mod edge_lod;
 pub mod fade;

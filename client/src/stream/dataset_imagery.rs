@@ -1,23 +1,23 @@
 //! The dataset's imagery beside its tiles: the feed a streamer opens for it, from a
 //! server's imagery routes or the `.tessimg` file beside a static pyramid.
 
-use super::imagery;
-use super::source::{self, StaticFile};
+use super::imagery_tiles;
+use super::static_file::{self, StaticFile};
 use super::streamer::{Backend, Streamer};
 use std::sync::Arc;
 
 impl Streamer {
     /// The dataset's imagery, fetched beside the tiles on this streamer's runtime and
-    /// connection ([`imagery::ImageryFeed`]): `None` when the dataset has none. A
+    /// connection ([`imagery_tiles::ImageryFeed`]): `None` when the dataset has none. A
     /// static pyramid file's imagery is the file beside it with `.tess` replaced by
     /// `.tessimg` (none for a presigned URL, which names one object); one that
     /// does not open is skipped with a warning, and the tint is drawn instead.
-    pub fn imagery_feed(&self, capacity: usize) -> Option<imagery::ImageryFeed> {
+    pub fn imagery_feed(&self, capacity: usize) -> Option<imagery_tiles::ImageryFeed> {
         let url = match &self.backend {
             Backend::Server { url, .. } => url,
             Backend::Static(file) => {
                 let (img, info) = self.open_imagery_beside(file)?;
-                return Some(imagery::ImageryFeed::from_file(
+                return Some(imagery_tiles::ImageryFeed::from_file(
                     self.rt.clone(),
                     self.client.clone(),
                     img,
@@ -28,7 +28,7 @@ impl Streamer {
         };
         let info = self.imagery.clone()?;
         Some(
-            imagery::ImageryFeed::new(
+            imagery_tiles::ImageryFeed::new(
                 self.rt.clone(),
                 self.client.clone(),
                 url.clone(),
@@ -64,7 +64,7 @@ impl Streamer {
         let img = match opened {
             Ok(img) => img,
             Err(e) => {
-                if e.downcast_ref::<source::NoSuchFile>().is_some() {
+                if e.downcast_ref::<static_file::NoSuchFile>().is_some() {
                     tracing::debug!("{url}: no imagery beside the pyramid");
                 } else {
                     tracing::warn!("{url}: imagery not used: {e:#}");

@@ -5,7 +5,7 @@
 //! tiles the server has no record of (absent), and how the request ended, with whom
 //! to blame for a failure ([`Blame`]).
 
-use super::source::{StaticFile, Transport, Validators};
+use super::static_file::{StaticFile, Transport, Validators};
 use crate::loadtest::record::RecordHook;
 use crate::loadtest::trace::{RequestKind, StreamDigest};
 use std::sync::{Arc, OnceLock, mpsc};
@@ -380,7 +380,7 @@ impl Splitter {
 }
 
 /// One Range request for a run of records contiguous in a static pyramid file
-/// (serverless reads, [`super::source`]): the body is split into records at the
+/// (serverless reads, [`super::static_file`]): the body is split into records at the
 /// index's boundaries as it arrives, and each is checked against its index checksum
 /// and decoded off the frame thread, as [`fetch`] does with a server's frames.
 ///
@@ -424,7 +424,7 @@ pub(super) async fn fetch_range(
                     .send()
                     .await
                     .map_err(|e| whole(&e))?;
-                let range = super::source::content_range(resp.headers());
+                let range = super::static_file::content_range(resp.headers());
                 let now = Validators::of_response(resp.headers(), range.and_then(|r| r.2));
                 if let Some(what) = validators.changed(&now) {
                     return Err(whole(&format!(

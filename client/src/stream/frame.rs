@@ -5,7 +5,7 @@
 use super::config::RequestMode;
 use super::fetch::{Blame, Decoded, Event, fetch, fetch_one, fetch_range};
 use super::pool::TilePool;
-use super::source::{self, StaticFile};
+use super::static_file::{self, StaticFile};
 use super::stats::FrameWork;
 use super::streamer::{Backend, Flight, Streamer};
 use crate::select::Wanted;
@@ -294,7 +294,7 @@ impl Streamer {
         }
         present.sort_by_key(|(_, e)| e.offset);
         let mut issued = 0;
-        for run in source::byte_runs(&present) {
+        for run in static_file::byte_runs(&present) {
             if self.flights.len() >= self.config.max_in_flight {
                 return (issued, true);
             }

@@ -49,22 +49,29 @@
 //!
 //! Two backends feed the same streamer ([`TileSource`]): a Tessera server (one
 //! request per batch of Morton ranges, `?ranges=`), and a pyramid file read
-//! serverlessly with HTTP Range ([`source`]): its index is local, so tiles with no
+//! serverlessly with HTTP Range ([`static_file`]): its index is local, so tiles with no
 //! record are absent without a request, and each run of wanted records contiguous in
 //! the file (a Morton range, gaps of absent tiles included) is one Range request.
 //! A record that fails its index checksum is reported corrupt, as a server's error
 //! frame is. Selection, budget, prefetch, retries, cancellation and statistics are
 //! the same.
+//!
+//! The parts: [`Streamer`] (`streamer`), opened by `open` and driven each frame by
+//! `frame`; its settings ([`StreamConfig`], `config`) and statistics (`stats`); the
+//! requests themselves (`fetch`) over the HTTP client of `http`; [`TileSource`]
+//! (`tile_source`) and the static pyramid file ([`static_file`]); the decoded tiles
+//! ([`pool`]); and the dataset's imagery ([`imagery_tiles`], opened beside the tiles
+//! by `dataset_imagery`).
 
 mod config;
 mod dataset_imagery;
 mod fetch;
 mod frame;
 mod http;
-pub mod imagery;
+pub mod imagery_tiles;
 mod open;
 pub mod pool;
-pub mod source;
+pub mod static_file;
 mod stats;
 mod streamer;
 mod tile_source;

@@ -5,7 +5,7 @@
 use super::config::StreamConfig;
 use super::fetch::{Decoded, Event, fetch_range};
 use super::http::{http_client, own_runtime};
-use super::source::{self, StaticFile};
+use super::static_file::{self, StaticFile};
 use super::stats::StreamStats;
 use super::streamer::{Backend, Streamer};
 use super::tile_source::TileSource;
@@ -222,7 +222,7 @@ impl Streamer {
             return;
         }
         let (tx, rx) = mpsc::channel();
-        for run in source::byte_runs(&records) {
+        for run in static_file::byte_runs(&records) {
             // Tile requests like a frame's (counted as they are), made before the first.
             self.stats.requests += 1;
             self.stats.ranges += 1;

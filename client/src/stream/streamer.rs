@@ -5,7 +5,7 @@
 use super::config::StreamConfig;
 use super::fetch::{Decoded, Event};
 use super::pool::TilePool;
-use super::source::StaticFile;
+use super::static_file::StaticFile;
 use super::stats::StreamStats;
 use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, mpsc};

@@ -37,7 +37,7 @@ pub use options::{ReplayOptions, STREAMS_PER_CONNECTION};
 use super::check::ErrorKind;
 use super::connections::{check_connections, open_file_limit};
 use super::pacing::{MAX_RUN, MAX_TIMEOUT, Pacing};
-use super::report::{
+use super::replay_report::{
     Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
 };
 use super::schedule::Schedule;
@@ -362,7 +362,10 @@ mod tests {
         assert!(r.backlog >= r.unsent);
         assert_eq!(r.rate_held, Some(false));
         assert_eq!(r.target_rate, Some(20.0));
-        assert_eq!(r.latency_ms, super::super::report::Percentiles::default());
+        assert_eq!(
+            r.latency_ms,
+            super::super::replay_report::Percentiles::default()
+        );
         // Every scheduled request is in the timeline, sent or not.
         assert_eq!(r.timeline.iter().map(|s| s.scheduled).sum::<u64>(), 10);
         assert_eq!(r.timeline.iter().map(|s| s.sent).sum::<u64>(), r.sent);

@@ -3,7 +3,7 @@
 //! run and per second of it.
 
 use crate::loadtest::check::{ErrorKind, Outcome};
-use crate::loadtest::report::{ErrorCounts, Latency, Second};
+use crate::loadtest::replay_report::{ErrorCounts, Latency, Second};
 use std::time::Duration;
 
 /// The histograms and counts, behind one lock (uncontended on one thread).

@@ -152,7 +152,7 @@ enum Origin {
     Server(String),
     /// A `.tessimg` file read serverlessly (HTTP Range, `file://`), beside the
     /// pyramid file the heights come from.
-    File(std::sync::Arc<super::source::StaticFile>),
+    File(std::sync::Arc<super::static_file::StaticFile>),
 }
 
 /// A flight's imagery: each frame, the drawn tiles without imagery are asked for
@@ -194,7 +194,7 @@ impl ImageryFeed {
     pub(crate) fn from_file(
         rt: tokio::runtime::Handle,
         client: reqwest::Client,
-        file: std::sync::Arc<super::source::StaticFile>,
+        file: std::sync::Arc<super::static_file::StaticFile>,
         info: ImageryInfo,
         capacity: usize,
     ) -> Self {
@@ -330,12 +330,12 @@ impl ImageryFeed {
 
 /// Reads and decodes the imagery records of `ranges` of `level` from an imagery
 /// pyramid file (serverless): the tiles' index entries grouped into runs contiguous
-/// in the file, one read per run ([`super::source::byte_runs`]), each record checked
+/// in the file, one read per run ([`super::static_file::byte_runs`]), each record checked
 /// against its index checksum before it is decoded off the I/O threads. Tiles
 /// without a record are not returned, as with [`fetch`].
 async fn fetch_from_file(
     client: &reqwest::Client,
-    file: &super::source::StaticFile,
+    file: &super::static_file::StaticFile,
     side: u32,
     level: Level,
     ranges: &[MortonRange],
@@ -354,7 +354,7 @@ async fn fetch_from_file(
     }
     entries.sort_by_key(|(_, e)| e.offset);
     let mut out = Vec::with_capacity(entries.len());
-    for run in super::source::byte_runs(&entries) {
+    for run in super::static_file::byte_runs(&entries) {
         let (start, end) = (run[0].1.offset, run[run.len() - 1].1.end());
         let bytes = file.read_range(client, start, end).await?;
         let run = run.to_vec();

@@ -1,7 +1,7 @@
 //! `tessera report`: the pictures and summary of a headless flight.
 
+use crate::flight_report::animation;
 use crate::output;
-use crate::report::animation;
 use std::path::PathBuf;
 
 /// `tessera report`'s arguments (its help text is on the `Command` it is a variant of).
@@ -29,7 +29,7 @@ pub fn run(args: ReportArgs) -> anyhow::Result<()> {
         out,
         fps,
     } = args;
-    let summary = crate::report::flight::write_report(&stats, frames.as_deref(), &out)?;
+    let summary = crate::flight_report::flight::write_report(&stats, frames.as_deref(), &out)?;
     // A reader gone away (`| head -1`) stops the printing, not the report's files.
     let mut printed = output::print_line(&summary);
     if let Some(dir) = &frames {

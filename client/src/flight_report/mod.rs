@@ -17,7 +17,7 @@
 //! ```no_run
 //! use std::path::Path;
 //! use tessera_charts::png::write_png;
-//! use tessera_client::report::{Series, contact_sheet_labelled, pick_evenly_indices, plot_panels};
+//! use tessera_client::flight_report::{Series, contact_sheet_labelled, pick_evenly_indices, plot_panels};
 //!
 //! # fn main() -> anyhow::Result<()> {
 //! # let (triangles, draw_calls, frame_ms) = (vec![0.0], vec![0.0], vec![0.0]);

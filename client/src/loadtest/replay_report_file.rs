@@ -6,7 +6,7 @@
 use super::check::ErrorKind;
 use super::latency_plot;
 use super::pacing::{MAX_RUN, MAX_TIMEOUT};
-use super::report::{REPORT_VERSION, ReplayReport};
+use super::replay_report::{REPORT_VERSION, ReplayReport};
 use anyhow::{Context, bail};
 use std::path::Path;
 
@@ -155,7 +155,7 @@ impl ReplayReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::loadtest::report::tests::report;
+    use crate::loadtest::replay_report::tests::report;
 
     #[test]
     fn a_report_round_trips_through_json() {
