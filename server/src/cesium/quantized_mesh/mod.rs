@@ -1,0 +1,275 @@
+//! The quantized-mesh-1.0 tile format (issue 15, DESIGN §9): a mesh from
+//! [`super::mesh`] becomes the bytes CesiumJS's `CesiumTerrainProvider` reads, as
+//! the spec (CesiumGS/quantized-mesh, README) lays them out, little-endian:
+//!
+//! 1. the header: centre, height range, bounding sphere, horizon-occlusion point
+//!    (88 bytes);
+//! 2. the vertex data: count, then u, v and height arrays, each delta- then
+//!    zig-zag-coded;
+//! 3. the index data, padded to its element size: triangle count, then
+//!    high-water-mark-coded indices, 16-bit unless there are more than 65536 vertices;
+//! 4. the west, south, east and north edge lists (plain indices, same width);
+//! 5. extensions, each an id byte and a 32-bit length: oct-encoded vertex normals
+//!    (id 1) and metadata (id 4) when asked for.
+//!
+//! The tile is built uncompressed; the server gzips it. Every number in the header is
+//! computed from the values a client decodes (quantized positions and heights), not
+//! from the mesher's, so the bounds it states hold for what is drawn.
+//!
+//! [`encode`] is here; what it checks and derives from its input (the rectangle,
+//! the mesh, the height range) is in [`input`], the spec's codes (zig-zag deltas,
+//! high-water-mark indices, edge lists, normals, the index width) in [`codes`].
+
+pub mod codes;
+pub mod input;
+
+#[cfg(test)]
+mod tests;
+
+use crate::cesium::ellipsoid::{self, Ellipsoid};
+use codes::{IndexWidth, Writer, edge_lists, high_water_mark, vertex_normals, zig_zag};
+use input::{HeightRange, Rect, check_mesh, check_metadata};
+
+/// One vertex: its quantized tile position (0..=32767 across the tile, west→east /
+/// south→north) and its height in metres above the ellipsoid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshVertex {
+    pub u: u16,
+    pub v: u16,
+    pub height: f64,
+}
+
+/// A tile's mesh: vertices, and triangles indexing them, counter-clockwise seen from
+/// above (u east, v north).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TerrainMesh {
+    pub vertices: Vec<MeshVertex>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// What to append after the mesh (spec, "Extensions").
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Extensions {
+    /// Oct-encoded per-vertex normals (id 1, `octvertexnormals`).
+    pub normals: bool,
+    /// A JSON object for the metadata extension (id 4, `metadata`), e.g. child
+    /// availability.
+    pub metadata: Option<String>,
+    // The water mask (id 2) is not produced: it would be one more field here and one
+    // more extension between the normals and the metadata in `encode`.
+}
+
+/// The largest quantized coordinate: u, v and heights run over 0..=32767 (spec,
+/// "VertexData").
+pub const QUANTIZED_MAX: u16 = 32767;
+
+/// The header's size: ten f64 and two f32.
+pub const HEADER_BYTES: usize = 88;
+
+/// The most vertices a tile may have and keep 16-bit indices (spec: tiles with more
+/// than 65536 vertices use `IndexData32`; CesiumJS tests `vertexCount > 64 * 1024`).
+pub const MAX_VERTICES_16_BIT: usize = 65_536;
+
+/// Extension ids (spec, "Extensions").
+pub const EXTENSION_OCT_NORMALS: u8 = 1;
+pub const EXTENSION_WATER_MASK: u8 = 2;
+pub const EXTENSION_METADATA: u8 = 4;
+
+/// Where the header's occlusion point goes, in scaled space along the tile's
+/// direction, when no finite point bounds the tile (a hemisphere, level 0 of the
+/// EPSG:4326 grid): so far out that the region it is hidden from is, to 1 part in
+/// 1000 as far as 1000 radii out, the unit cylinder behind the body, from where none of
+/// a hemisphere's surface can be seen (only vertices raised above its rim, at grazing
+/// angles). CesiumJS, finding no point for such a tile of its own, skips the horizon
+/// test for it; the header has no way to say "none".
+pub const UNBOUNDED_HORIZON_DISTANCE: f64 = 1e6;
+
+/// The order the tile stores the mesh's vertices in: tile vertex `k` is
+/// `mesh.vertices[order[k]]`. High-water-mark coding (spec, "IndexData") needs each
+/// vertex to first appear in the triangle list right after those before it, so
+/// vertices go in order of first use; any that no triangle uses follow, in their
+/// own order. Indices out of range are skipped here ([`encode`] rejects them).
+pub fn vertex_order(mesh: &TerrainMesh) -> Vec<u32> {
+    let n = mesh.vertices.len();
+    let mut placed = vec![false; n];
+    let mut order = Vec::with_capacity(n);
+    let used = mesh.triangles.iter().flatten().copied();
+    for i in used.chain(0..n as u32) {
+        if let Some(seen) = placed.get_mut(i as usize)
+            && !*seen
+        {
+            *seen = true;
+            order.push(i);
+        }
+    }
+    order
+}
+
+/// The tile's bytes, uncompressed, for `mesh` over `rect_deg` = [west, south, east,
+/// north] (degrees) on `ellipsoid`, with the extensions `ext` asks for.
+///
+/// The header:
+/// - centre: the ECEF position of the rectangle's centre at the middle of the
+///   header's height range. Clients draw vertices relative to it (CesiumJS keeps
+///   them as offsets from it), so it must be near the tile, and taking it from the
+///   rectangle rather than the vertices' centroid makes it depend on the tile alone,
+///   not on where the mesher put its vertices; it is also the direction the
+///   occlusion point is sought along.
+/// - minimum/maximum height: the vertices' least and greatest heights, as f32 rounded
+///   down and up so that they contain every vertex.
+/// - bounding sphere: of the vertices' decoded ECEF positions
+///   ([`ellipsoid::bounding_sphere`]).
+/// - horizon-occlusion point: of the same positions
+///   ([`ellipsoid::horizon_occlusion_point`]), against the ellipsoid shrunk by a
+///   negative minimum height as CesiumJS tests it ([`Ellipsoid::possibly_shrunk`]);
+///   for a tile no point bounds, [`UNBOUNDED_HORIZON_DISTANCE`].
+///
+/// Heights are quantized to 0..=32767 between the header's f32 minimum and maximum,
+/// to nearest; a flat tile (maximum = minimum) stores 0 everywhere. Vertices are
+/// reordered for the index coding ([`vertex_order`]). Edge lists hold the vertices
+/// with u = 0, v = 0, u = 32767 and v = 32767, sorted south→north or west→east.
+/// Normals (extension 1) are the area-weighted average of the ECEF face normals of
+/// the triangles around each vertex, at the decoded positions; a vertex no
+/// triangle with area touches takes the ellipsoid's normal.
+///
+/// Errors: no vertices; u or v above 32767; a height that is not finite or has no
+/// finite f32 bounds; a triangle index past the vertices; a rectangle with a
+/// non-finite edge, west ≥ east, south ≥ north, more than 360° wide, or a latitude
+/// beyond ±90°; metadata that is not a JSON object; exactly 65536 vertices with an
+/// index code past 16 bits (the one layout the spec cannot store).
+pub fn encode(
+    mesh: &TerrainMesh,
+    rect_deg: [f64; 4],
+    ellipsoid: &Ellipsoid,
+    ext: &Extensions,
+) -> Result<Vec<u8>, String> {
+    let rect = Rect::new(rect_deg)?;
+    check_mesh(mesh)?;
+    if let Some(json) = &ext.metadata {
+        check_metadata(json)?;
+    }
+
+    // Put the vertices in first-use order and renumber the triangles to match.
+    let order = vertex_order(mesh);
+    let mut renumber = vec![0u32; order.len()];
+    for (k, &old) in order.iter().enumerate() {
+        renumber[old as usize] = k as u32;
+    }
+    let vertices: Vec<MeshVertex> = order.iter().map(|&i| mesh.vertices[i as usize]).collect();
+    let triangles: Vec<[u32; 3]> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.map(|i| renumber[i as usize]))
+        .collect();
+
+    let range = HeightRange::of(&vertices)?;
+    let quantized: Vec<u16> = vertices.iter().map(|v| range.quantize(v.height)).collect();
+    let positions: Vec<[f64; 3]> = vertices
+        .iter()
+        .zip(&quantized)
+        .map(|(v, &q)| {
+            let (lon, lat) = rect.lon_lat(v.u, v.v);
+            ellipsoid.to_ecef(lon, lat, range.decode(q))
+        })
+        .collect();
+
+    let (centre_lon, centre_lat) = rect.centre();
+    let centre = ellipsoid.to_ecef(centre_lon, centre_lat, range.middle());
+    let (sphere_centre, sphere_radius) = ellipsoid::bounding_sphere(&positions);
+    let occluder = ellipsoid.possibly_shrunk(f64::from(range.min));
+    let horizon =
+        ellipsoid::horizon_occlusion_point(&occluder, centre, &positions).unwrap_or_else(|| {
+            let s = occluder.to_scaled_space(ellipsoid.to_ecef(centre_lon, centre_lat, 0.0));
+            let len = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+            s.map(|c| c / len * UNBOUNDED_HORIZON_DISTANCE)
+        });
+
+    let width = if vertices.len() > MAX_VERTICES_16_BIT {
+        IndexWidth::U32
+    } else {
+        IndexWidth::U16
+    };
+    let edges = edge_lists(&vertices);
+    let edge_count: usize = edges.iter().map(Vec::len).sum();
+    let mut out = Writer(Vec::with_capacity(
+        HEADER_BYTES
+            + 4
+            + 6 * vertices.len()
+            + 4
+            + 4
+            + width.bytes() * (3 * triangles.len() + edge_count)
+            + 16
+            + if ext.normals {
+                5 + 2 * vertices.len()
+            } else {
+                0
+            }
+            + ext.metadata.as_ref().map_or(0, |m| 9 + m.len()),
+    ));
+
+    // Header (spec, "QuantizedMeshHeader").
+    out.f64s(&centre);
+    out.f32(range.min);
+    out.f32(range.max);
+    out.f64s(&sphere_centre);
+    out.f64s(&[sphere_radius]);
+    out.f64s(&horizon);
+
+    // Vertex data (spec, "VertexData"): count, then u, v, height arrays of zig-zagged
+    // deltas from the previous vertex's value (from 0 for the first).
+    out.u32(vertices.len() as u32);
+    for values in [
+        vertices.iter().map(|v| v.u).collect::<Vec<_>>(),
+        vertices.iter().map(|v| v.v).collect(),
+        quantized,
+    ] {
+        let mut previous = 0i32;
+        for value in values {
+            let delta = i32::from(value) - previous;
+            previous = i32::from(value);
+            out.u16(zig_zag(delta));
+        }
+    }
+
+    // Index data (spec, "IndexData16/32"), aligned to its element size.
+    out.align(width.bytes());
+    out.u32(triangles.len() as u32);
+    for code in high_water_mark(triangles.iter().flatten().copied()) {
+        width.write(&mut out, code).map_err(|()| {
+            format!(
+                "{} vertices take 16-bit indices, but the triangle list has an index \
+                 code of {code}, past 16 bits; the mesh must use one vertex more or fewer",
+                vertices.len()
+            )
+        })?;
+    }
+
+    // Edge lists (spec, "EdgeIndices16/32"): west, south, east, north.
+    for list in &edges {
+        out.u32(list.len() as u32);
+        for &i in list {
+            // Edge indices are vertex numbers, which fit the width by its choice.
+            width
+                .write(&mut out, i)
+                .map_err(|()| "edge index past its width".to_string())?;
+        }
+    }
+
+    // Extensions (spec, "Extensions"), each an id byte and a 32-bit length.
+    if ext.normals {
+        let normals = vertex_normals(&vertices, &triangles, &positions, &rect, ellipsoid);
+        out.u8(EXTENSION_OCT_NORMALS);
+        out.u32(2 * vertices.len() as u32);
+        for n in normals {
+            out.0.extend_from_slice(&ellipsoid::oct_encode(n));
+        }
+    }
+    if let Some(json) = &ext.metadata {
+        // The extension's data is itself a length and the JSON (spec, "Metadata").
+        out.u8(EXTENSION_METADATA);
+        out.u32(4 + json.len() as u32);
+        out.u32(json.len() as u32);
+        out.0.extend_from_slice(json.as_bytes());
+    }
+    Ok(out.0)
+}
