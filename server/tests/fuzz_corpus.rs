@@ -4,7 +4,7 @@
 //! named `seed-*`, a valid input) must be accepted. So `cargo test` checks the
 //! corpus without a fuzzer; `./run fuzz` grows it.
 //!
-//! The seeds other than the GeoTIFF ones (written by a test in `ingest/geotiff.rs`)
+//! The seeds other than the GeoTIFF ones (written by a test in `ingest/geotiff/`)
 //! come from [`write_fuzz_seeds`], run by hand:
 //! `cargo test -p tessera-server --test fuzz_corpus -- --ignored`.
 

@@ -8,7 +8,7 @@ use axum::response::{IntoResponse, Response};
 pub struct ApiError {
     pub status: StatusCode,
     pub message: String,
-    /// Seconds for a `Retry-After` header (503s of a busy server: serve/compute.rs).
+    /// Seconds for a `Retry-After` header (503s of a busy server: serve/compute/).
     pub retry_after: Option<u32>,
 }
 

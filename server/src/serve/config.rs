@@ -194,7 +194,7 @@ pub struct Settings {
     pub max_query_bytes: usize,
     pub timeout: Duration,
     pub concurrency: usize,
-    /// Bounds on computed responses (serve/compute.rs).
+    /// Bounds on computed responses (serve/compute/).
     pub compute: ComputeLimits,
     pub cache_max_age: u64,
     pub header_timeout: Duration,

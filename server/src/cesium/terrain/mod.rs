@@ -61,7 +61,7 @@ pub trait LevelData {
     fn tile(&self, tile: TileId) -> Result<Option<Arc<SourceTile>>, Self::Error>;
     /// The largest full-resolution error (metres) of any tile of `level`.
     fn level_error(&self, level: Level) -> Result<f64, Self::Error>;
-    /// `Err` when the work should stop (its requester is gone: serve/compute.rs);
+    /// `Err` when the work should stop (its requester is gone: serve/compute/);
     /// called between rows of squares.
     fn check(&self) -> Result<(), Self::Error> {
         Ok(())

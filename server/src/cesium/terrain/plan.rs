@@ -70,7 +70,7 @@ impl Terrain {
         Ok(e)
     }
 
-    /// The largest half-twist of any cell of `level` (mesh.rs: the leaves' error).
+    /// The largest half-twist of any cell of `level` (`cesium/mesh.rs`: the leaves' error).
     fn level_twist<D: LevelData>(&self, level: Level, data: &D) -> Result<f64, D::Error> {
         if let Some((_, Some(t))) = self.lock().get(&level.get()) {
             return Ok(*t);

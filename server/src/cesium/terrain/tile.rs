@@ -73,7 +73,7 @@ impl Terrain {
 
     /// An upper estimate of the memory [`Terrain::mesh_with`] uses for `tile`: its
     /// window of samples and the source tiles it holds (admission control reserves
-    /// it before meshing: serve/compute.rs).
+    /// it before meshing: serve/compute/).
     pub fn mesh_bytes(&self, tile: CesiumTile, plan: &ZoomPlan) -> u64 {
         let (stride, cells, data_box) = self.level_frame(plan.level);
         let Some(sq) = self.squares(tile.rect(), plan, stride, cells, data_box) else {

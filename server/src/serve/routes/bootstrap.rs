@@ -10,7 +10,7 @@
 //! [`bootstrap::RECORD_BUDGET`] plus the root level plus [`bootstrap::TABLE_BUDGET`]
 //! (and, with `?focus=U,V`, the records around a point, [`tessera_shared::focus`],
 //! within [`bootstrap::FOCUS_BUDGET`]), so it is built in memory: admitted like any
-//! computed response (serve/compute.rs: one build per distinct body at a time, its
+//! computed response (serve/compute/: one build per distinct body at a time, its
 //! size reserved on the memory budget, up front from the index, for as long as a
 //! response holds it), and the last few kept (`KEPT_BYTES`), since a body is the
 //! same for every client of a dataset version and focus.

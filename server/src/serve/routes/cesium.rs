@@ -1,5 +1,5 @@
 //! Cesium terrain (issue 15, DESIGN §9): quantized-mesh-1.0 tiles, meshed per
-//! request from the pyramid (cesium/terrain.rs), and their `layer.json`.
+//! request from the pyramid (cesium/terrain/), and their `layer.json`.
 //!
 //! - `GET /v1/datasets/{name}/cesium/layer.json`
 //! - `GET /v1/datasets/{name}/cesium/{z}/{x}/{y}.terrain` — extensions as CesiumJS

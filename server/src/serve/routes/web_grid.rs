@@ -110,7 +110,7 @@ pub enum Failure {
     Undecodable(TileId, codec::CodecError),
     Unavailable(String),
     Encode(String),
-    /// Its requesters are gone, or no memory came free in time (serve/compute.rs).
+    /// Its requesters are gone, or no memory came free in time (serve/compute/).
     Stopped(Stop),
 }
 
