@@ -105,7 +105,7 @@ pub struct BuildReport {
     pub file_bytes: u64,
     pub seconds: f64,
     /// What the command prints after its summary, also under `--quiet`: the heights'
-    /// vertical datum is unknown ([`datum`]).
+    /// vertical datum is unknown (`datum`).
     pub warnings: Vec<String>,
 }
 

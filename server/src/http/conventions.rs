@@ -126,7 +126,7 @@ fn compressible(content_type: &str) -> bool {
         || t == "application/vnd.quantized-mesh"
 }
 
-/// Compress only text (see [`compressible`]), and only above a few hundred bytes.
+/// Compress only text (see `compressible`), and only above a few hundred bytes.
 #[derive(Debug, Clone, Copy)]
 pub struct TextOnly;
 

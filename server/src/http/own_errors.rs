@@ -1,9 +1,9 @@
 //! The HTTP layer's own answers made like ours: hyper answers a request head it
 //! cannot parse itself, before any of our code runs (414 for a request target over
 //! [`MAX_TARGET_BYTES`], 431 for a head over its read buffer, 400 for a malformed
-//! one), with an empty body; [`OwnErrors`] puts the same status with a JSON reason
+//! one), with an empty body; `OwnErrors` puts the same status with a JSON reason
 //! and the CORS headers ([`OwnCors`]) in its place. The connection cap's 503
-//! (`http/conn.rs`) is written with the same [`own_response`].
+//! (`http/conn.rs`) is written with the same `own_response`.
 
 use crate::http::conventions::CorsOrigins;
 use std::io;

@@ -18,7 +18,7 @@
 //!
 //! Octaves halve in wavelength (and turn by 36.87° so no axis is favoured) from
 //! the landform scale down to two samples, so the terrain has relief at every
-//! scale. The landform scale is the terrain's size up to [`MAX_WAVELENGTH`]
+//! scale. The landform scale is the terrain's size up to `MAX_WAVELENGTH`
 //! samples: a small terrain is one massif, a large one many ranges.
 //!
 //! Since nothing is stored, any window can be generated independently, in any

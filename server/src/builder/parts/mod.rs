@@ -14,9 +14,9 @@
 //! - **Same numbers everywhere.** Every part reads (spools) the whole input, so its
 //!   quantization and no-data fill are the single build's: the input is read `N`
 //!   times, the known cost of this design. It then cuts and encodes only its own
-//!   finest tiles, through the same code as a whole build ([`super::Tiling`]).
+//!   finest tiles, through the same code as a whole build (the builder's `Tiling`).
 //! - **Counts.** A part records its share of the DEM-wide numbers: the samples its
-//!   level-`S` tiles own, by depth, valid and filled ([`share`]), and the range of
+//!   level-`S` tiles own, by depth, valid and filled (`split::share`), and the range of
 //!   its finest records' heights. Assembling adds and bounds them exactly as the
 //!   whole build counts them.
 //! - **Safety.** A part file is written beside its final name and renamed into
@@ -28,7 +28,7 @@
 //!
 //! Modules: [`split`] (`--part K/N` and how the parts divide the pyramid), [`part`]
 //! (building one part), [`layout`] (a part file's header, trailer and frames),
-//! [`writer`] and [`reader`] (writing and reading a part file), [`assemble`] (the
+//! [`writer`] and [`reader`] (writing and reading a part file), [`assemble`](mod@assemble) (the
 //! pyramid from its parts).
 
 pub mod assemble;

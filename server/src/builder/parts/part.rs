@@ -28,7 +28,7 @@ pub struct PartReport {
     pub records: u64,
     pub file_bytes: u64,
     pub seconds: f64,
-    /// As [`BuildReport::warnings`].
+    /// As [`crate::builder::BuildReport::warnings`].
     pub warnings: Vec<String>,
 }
 

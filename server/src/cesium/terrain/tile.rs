@@ -1,5 +1,5 @@
 //! One tile's mesh: the squares it draws, the window of samples it reads, and their
-//! triangles, clipped into a [`super::tile_builder::Builder`].
+//! triangles, clipped into the tile's `tile_builder::Builder`.
 
 use super::clip::Pt;
 use super::mapping::Mapping;

@@ -18,7 +18,7 @@
 //!
 //! The `GDAL_NODATA` tag is reported as [`SourceInfo::nodata`]; samples are returned
 //! unchanged. The heights' vertical datum comes from the vertical GeoKeys, GDAL's
-//! DTED metadata or a known product's file name ([`vertical`]).
+//! DTED metadata or a known product's file name (`vertical`).
 
 mod georef;
 mod layout;
@@ -181,7 +181,7 @@ fn tag_u16(decoder: &mut Decoder<Reader>, tag: Tag, name: &str) -> anyhow::Resul
 impl GeoTiff {
     /// Opens a GeoTIFF and checks that it can be read, without decoding any samples.
     /// A file that states no vertical datum gets the one its name implies, if it is
-    /// the name of a product whose datum is documented ([`product_name`]).
+    /// the name of a product whose datum is documented (`product_name`).
     pub fn open(path: &Path) -> anyhow::Result<Self> {
         let (file, _) = super::open_regular(path)?;
         let mut tiff = Self::from_reader(BufReader::with_capacity(1 << 16, file))?;

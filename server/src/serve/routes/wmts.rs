@@ -10,7 +10,7 @@
 //! ranges that hold the dataset per zoom, and a `ResourceURL` template pointing at
 //! the 256-pixel PNG tiles, pinned to the content hash. WMTS clients need absolute
 //! URLs: they come from `--public-url` (or trusted forwarded headers), else from the
-//! request's `Host`, and then the document is marked private (see [`absolute_base`]).
+//! request's `Host`, and then the document is marked private (see `absolute_base`).
 
 use super::base_url;
 use super::web_grid::footprint;
