@@ -29,6 +29,17 @@ pub struct Focus {
     v: f64,
 }
 
+/// Why a `?focus=` value is refused ([`Focus::parse`]); each names the query as sent.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum FocusError {
+    #[error("focus {query:?} is not two numbers U,V")]
+    NotTwoNumbers { query: String },
+    #[error("focus {query:?}: {part:?} is not a number")]
+    NotANumber { query: String, part: String },
+    #[error("focus {query:?} is outside the dataset (U and V run from 0 to 1)")]
+    Outside { query: String },
+}
+
 impl Focus {
     /// A focus at `(u, v)`; `None` unless both are finite and within `0..=1`.
     ///
@@ -52,23 +63,22 @@ impl Focus {
     /// use tessera_shared::focus::Focus;
     /// assert_eq!(Focus::parse("0.5,0.25"), Ok(Focus::new(0.5, 0.25).unwrap()));
     /// assert_eq!(Focus::parse("0.12346,0.5"), Ok(Focus::new(0.1235, 0.5).unwrap()));
-    /// assert!(Focus::parse("0.5").unwrap_err().contains("two numbers"));
-    /// assert!(Focus::parse("2,0").unwrap_err().contains("0 to 1"));
+    /// assert!(Focus::parse("0.5").unwrap_err().to_string().contains("two numbers"));
+    /// assert!(Focus::parse("2,0").unwrap_err().to_string().contains("0 to 1"));
     /// ```
-    pub fn parse(s: &str) -> Result<Self, String> {
+    pub fn parse(s: &str) -> Result<Self, FocusError> {
         let mut parts = s.split(',');
         let (Some(a), Some(b), None) = (parts.next(), parts.next(), parts.next()) else {
-            return Err(format!("focus {s:?} is not two numbers U,V"));
+            return Err(FocusError::NotTwoNumbers { query: s.into() });
         };
         let num = |p: &str| {
-            p.trim()
-                .parse::<f64>()
-                .map_err(|_| format!("focus {s:?}: {p:?} is not a number"))
+            p.trim().parse::<f64>().map_err(|_| FocusError::NotANumber {
+                query: s.into(),
+                part: p.into(),
+            })
         };
         let (u, v) = (num(a)?, num(b)?);
-        let f = Self::new(u, v).ok_or_else(|| {
-            format!("focus {s:?} is outside the dataset (U and V run from 0 to 1)")
-        })?;
+        let f = Self::new(u, v).ok_or_else(|| FocusError::Outside { query: s.into() })?;
         // Within 0..=1 still: rounding moves neither past an end.
         let round = |x: f64| (x * 1e4).round() / 1e4;
         Ok(Self {
@@ -207,15 +217,27 @@ mod tests {
         assert!(
             Focus::parse("0.1,0.2,0.3")
                 .unwrap_err()
+                .to_string()
                 .contains("two numbers")
         );
         assert!(
             Focus::parse("0.1,x")
                 .unwrap_err()
+                .to_string()
                 .contains("\"x\" is not a number")
         );
-        assert!(Focus::parse("-0.1,0.5").unwrap_err().contains("outside"));
-        assert!(Focus::parse("NaN,0.5").unwrap_err().contains("outside"));
+        assert!(
+            Focus::parse("-0.1,0.5")
+                .unwrap_err()
+                .to_string()
+                .contains("outside")
+        );
+        assert!(
+            Focus::parse("NaN,0.5")
+                .unwrap_err()
+                .to_string()
+                .contains("outside")
+        );
         assert_eq!(
             Focus::parse(" 0.1, 0.2").unwrap().to_query(),
             "0.1000,0.2000"

@@ -9,7 +9,7 @@
 //! Because every level's records are contiguous and in Morton order, a Morton range
 //! of one level is one byte range of the file (docs/ARCHITECTURE.md#the-file).
 
-use crate::imagery::ImageryMetadata;
+use crate::imagery::{ImageryMetadata, ImageryMetadataError};
 use crate::metadata::Metadata;
 use xxhash_rust::xxh3::Xxh3;
 
@@ -56,13 +56,31 @@ pub fn encode_metadata(meta: &Metadata) -> Vec<u8> {
         .expect("metadata always serializes: it has no maps or unsized types")
 }
 
+/// Why a metadata record does not decode.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum MetadataError {
+    #[error("metadata is truncated ({additional} more bytes expected)")]
+    Truncated { additional: usize },
+    #[error("metadata claims more than {METADATA_LIMIT} bytes")]
+    TooLong,
+    #[error("a metadata text field is not valid UTF-8")]
+    Utf8,
+    #[error("the metadata bytes are not a valid metadata record")]
+    Invalid,
+    #[error("metadata has {count} trailing bytes")]
+    TrailingBytes { count: usize },
+    /// An imagery pyramid's metadata decoded, but its numbers are refused.
+    #[error(transparent)]
+    Imagery(#[from] ImageryMetadataError),
+}
+
 /// Metadata as the current version writes it.
-pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, String> {
+pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, MetadataError> {
     decode_metadata_of(bytes, VERSION)
 }
 
 /// Metadata of a `version` file (version 1 has fewer fields).
-pub fn decode_metadata_of(bytes: &[u8], version: u32) -> Result<Metadata, String> {
+pub fn decode_metadata_of(bytes: &[u8], version: u32) -> Result<Metadata, MetadataError> {
     if version == 1 {
         return decode_exact::<crate::metadata::v1::Metadata>(bytes).map(Metadata::from);
     }
@@ -76,30 +94,25 @@ pub fn encode_imagery_metadata(meta: &ImageryMetadata) -> Vec<u8> {
 }
 
 /// An imagery pyramid's metadata, checked ([`ImageryMetadata::check`]).
-pub fn decode_imagery_metadata(bytes: &[u8]) -> Result<ImageryMetadata, String> {
+pub fn decode_imagery_metadata(bytes: &[u8]) -> Result<ImageryMetadata, MetadataError> {
     let meta: ImageryMetadata = decode_exact(bytes)?;
     meta.check()?;
     Ok(meta)
 }
 
-fn decode_exact<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
+fn decode_exact<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, MetadataError> {
     use bincode::error::DecodeError;
     let (meta, used): (T, usize) = bincode::serde::decode_from_slice(bytes, bincode_config())
         .map_err(|e| match e {
-            DecodeError::UnexpectedEnd { additional } => {
-                format!("metadata is truncated ({additional} more bytes expected)")
-            }
-            DecodeError::LimitExceeded => {
-                format!("metadata claims more than {METADATA_LIMIT} bytes")
-            }
-            DecodeError::Utf8 { .. } => "a metadata text field is not valid UTF-8".into(),
-            _ => "the metadata bytes are not a valid metadata record".into(),
+            DecodeError::UnexpectedEnd { additional } => MetadataError::Truncated { additional },
+            DecodeError::LimitExceeded => MetadataError::TooLong,
+            DecodeError::Utf8 { .. } => MetadataError::Utf8,
+            _ => MetadataError::Invalid,
         })?;
     if used != bytes.len() {
-        return Err(format!(
-            "metadata has {} trailing bytes",
-            bytes.len() - used
-        ));
+        return Err(MetadataError::TrailingBytes {
+            count: bytes.len() - used,
+        });
     }
     Ok(meta)
 }
@@ -218,27 +231,22 @@ impl FileHeader {
     }
 
     /// Parses the fixed header; checks magic and version (not yet the checksum).
-    pub fn parse(b: &[u8]) -> Result<Self, String> {
+    pub fn parse(b: &[u8]) -> Result<Self, HeaderError> {
         if b.len() < HEADER_LEN {
-            return Err(format!(
-                "file is {} bytes, shorter than the {HEADER_LEN}-byte header",
-                b.len()
-            ));
+            return Err(HeaderError::Short { len: b.len() });
         }
         let imagery = match &b[0..8] {
             m if *m == MAGIC => false,
             m if *m == IMAGERY_MAGIC => true,
-            _ => return Err("not a Tessera pyramid (bad magic)".into()),
+            _ => return Err(HeaderError::BadMagic),
         };
         // The magic and the flag say the same thing: a file that disagrees is damaged.
         if imagery != (u32_at(b, 12) & FILE_IMAGERY != 0) {
-            return Err("header flags contradict the magic (damaged header)".into());
+            return Err(HeaderError::FlagsContradictMagic);
         }
         let version = u32_at(b, 8);
         if !(OLDEST_READABLE..=VERSION).contains(&version) {
-            return Err(format!(
-                "format version {version} is not supported (this build reads versions {OLDEST_READABLE} to {VERSION})"
-            ));
+            return Err(HeaderError::UnsupportedVersion { version });
         }
         Ok(Self {
             version,
@@ -260,6 +268,21 @@ impl FileHeader {
         h.update(region);
         h.digest()
     }
+}
+
+/// Why a file's fixed header is refused.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum HeaderError {
+    #[error("file is {len} bytes, shorter than the {HEADER_LEN}-byte header")]
+    Short { len: usize },
+    #[error("not a Tessera pyramid (bad magic)")]
+    BadMagic,
+    #[error("header flags contradict the magic (damaged header)")]
+    FlagsContradictMagic,
+    #[error(
+        "format version {version} is not supported (this build reads versions {OLDEST_READABLE} to {VERSION})"
+    )]
+    UnsupportedVersion { version: u32 },
 }
 
 /// Where one level's index and records are.
@@ -393,7 +416,9 @@ mod tests {
     fn damaged_metadata_says_what_is_wrong_in_words() {
         let meta = crate::fixtures::metadata(600, 600, 64);
         let bytes = encode_metadata(&meta);
-        let err = decode_metadata(&bytes[..bytes.len() - 3]).unwrap_err();
+        let err = decode_metadata(&bytes[..bytes.len() - 3])
+            .unwrap_err()
+            .to_string();
         assert!(err.starts_with("metadata is truncated"), "{err}");
         assert!(
             !err.contains('{') && !err.contains("UnexpectedEnd"),
@@ -404,17 +429,33 @@ mod tests {
         assert!(
             decode_metadata(&long)
                 .unwrap_err()
+                .to_string()
                 .contains("1 trailing bytes")
         );
     }
 
     #[test]
     fn bad_headers_say_why() {
-        assert!(FileHeader::parse(b"short").unwrap_err().contains("shorter"));
+        assert!(
+            FileHeader::parse(b"short")
+                .unwrap_err()
+                .to_string()
+                .contains("shorter")
+        );
         let mut b = [0u8; 64];
-        assert!(FileHeader::parse(&b).unwrap_err().contains("bad magic"));
+        assert!(
+            FileHeader::parse(&b)
+                .unwrap_err()
+                .to_string()
+                .contains("bad magic")
+        );
         b[0..8].copy_from_slice(&MAGIC);
         b[8] = 9;
-        assert!(FileHeader::parse(&b).unwrap_err().contains("version 9"));
+        assert!(
+            FileHeader::parse(&b)
+                .unwrap_err()
+                .to_string()
+                .contains("version 9")
+        );
     }
 }

@@ -11,7 +11,7 @@
 //! as the DEM tile's `T × T` cells, so a client fetches, pools and draws a tile's
 //! imagery with its geometry. Records are baseline JPEG.
 
-use crate::metadata::Metadata;
+use crate::metadata::{ContentHashError, Metadata};
 use serde::{Deserialize, Serialize};
 
 /// How imagery records are encoded.
@@ -64,22 +64,34 @@ pub struct ImageryMetadata {
 
 impl ImageryMetadata {
     /// Checks the numbers a reader relies on.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ImageryMetadataError> {
         if !(MIN_TEXELS..=MAX_TEXELS).contains(&self.texels) {
-            return Err(format!(
-                "imagery texels per tile {} outside {MIN_TEXELS}..={MAX_TEXELS}",
-                self.texels
-            ));
+            return Err(ImageryMetadataError::Texels {
+                texels: self.texels,
+            });
         }
         self.dem
             .check_content_hash()
-            .map_err(|e| format!("the DEM's {e}"))?;
+            .map_err(ImageryMetadataError::DemContentHash)?;
         let own = Metadata {
             content_hash: self.content_hash.clone(),
             ..self.dem.clone()
         };
-        own.check_content_hash()
+        Ok(own.check_content_hash()?)
     }
+}
+
+/// Why an imagery pyramid's metadata is refused ([`ImageryMetadata::check`]).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ImageryMetadataError {
+    #[error("imagery texels per tile {texels} outside {MIN_TEXELS}..={MAX_TEXELS}")]
+    Texels { texels: u32 },
+    /// The DEM's metadata inside carries a bad hash.
+    #[error("the DEM's {0}")]
+    DemContentHash(ContentHashError),
+    /// The imagery's own hash is bad.
+    #[error(transparent)]
+    ContentHash(#[from] ContentHashError),
 }
 
 /// What the dataset document (`GET /v1/datasets/{name}`, [`crate::api::DatasetInfo`])
@@ -145,10 +157,10 @@ mod tests {
         assert!(meta().check().is_ok());
         let mut m = meta();
         m.texels = 4;
-        assert!(m.check().unwrap_err().contains("texels"));
+        assert!(m.check().unwrap_err().to_string().contains("texels"));
         let mut m = meta();
         m.dem.content_hash = "x\"".into();
-        assert!(m.check().unwrap_err().contains("DEM"));
+        assert!(m.check().unwrap_err().to_string().contains("DEM"));
         let mut m = meta();
         m.content_hash.clear();
         assert!(m.check().is_err());
@@ -174,7 +186,12 @@ mod tests {
         assert_eq!(b[..8], IMAGERY_MAGIC);
         assert_eq!(FileHeader::parse(&b).unwrap(), h);
         b[..8].copy_from_slice(&MAGIC);
-        assert!(FileHeader::parse(&b).unwrap_err().contains("contradict"));
+        assert!(
+            FileHeader::parse(&b)
+                .unwrap_err()
+                .to_string()
+                .contains("contradict")
+        );
         let dem = FileHeader { flags: 0, ..h };
         let mut b = dem.to_bytes();
         assert_eq!(b[..8], MAGIC);

@@ -175,17 +175,26 @@ impl Metadata {
     /// else (a control character, a quote, CRLF) must be refused when a file is read,
     /// not discovered when a header is built. Says what is wrong, without echoing the
     /// raw bytes.
-    pub fn check_content_hash(&self) -> Result<(), String> {
+    pub fn check_content_hash(&self) -> Result<(), ContentHashError> {
         let h = &self.content_hash;
         if h.len() == 16 && h.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')) {
             return Ok(());
         }
-        Err(format!(
-            "content_hash \"{}\" is not 16 lowercase hex digits ({} bytes)",
-            h.escape_default(),
-            h.len()
-        ))
+        Err(ContentHashError {
+            escaped: h.escape_default().to_string(),
+            len: h.len(),
+        })
     }
+}
+
+/// A `content_hash` that is not 16 lowercase hex digits ([`Metadata::check_content_hash`]).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("content_hash \"{escaped}\" is not 16 lowercase hex digits ({len} bytes)")]
+pub struct ContentHashError {
+    /// The hash with anything but printable ASCII escaped (never the raw bytes).
+    pub escaped: String,
+    /// Its length in bytes.
+    pub len: usize,
 }
 
 /// The metadata of format version 1 files, field for field as they were written
@@ -312,7 +321,7 @@ mod tests {
             "0123456789abcdeg",
         ] {
             m.content_hash = bad.into();
-            let e = m.check_content_hash().unwrap_err();
+            let e = m.check_content_hash().unwrap_err().to_string();
             assert!(e.contains("16 lowercase hex digits"), "{bad:?}: {e}");
             assert!(!e.contains('\r') && !e.contains('\u{7}'), "{e}");
         }

@@ -5,7 +5,8 @@
 use crate::codec::{self, CodecError, TileRecord};
 use crate::error_table::ErrorTable;
 use crate::format::{
-    self, FileHeader, HEADER_LEN, INDEX_ENTRY_LEN, IndexEntry, LEVEL_ENTRY_LEN, LevelEntry,
+    self, FileHeader, HEADER_LEN, HeaderError, INDEX_ENTRY_LEN, IndexEntry, LEVEL_ENTRY_LEN,
+    LevelEntry, MetadataError,
 };
 use crate::imagery::ImageryMetadata;
 use crate::metadata::Metadata;
@@ -89,12 +90,12 @@ impl ByteSource for Vec<u8> {
 pub enum ReadError {
     #[error("I/O error: {0}")]
     Io(#[from] io::Error),
-    #[error("{0}")]
-    Header(String),
+    #[error(transparent)]
+    Header(#[from] HeaderError),
     #[error("header checksum mismatch: the header, metadata or index is damaged")]
     HeaderChecksum,
     #[error("metadata does not decode: {0}")]
-    Metadata(String),
+    Metadata(#[from] MetadataError),
     #[error("bad geometry: {0}")]
     Geometry(#[from] GeometryError),
     #[error("bad structure: {0}")]

@@ -173,7 +173,7 @@ fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
         ));
     }
     if let Err(e) = meta.check_content_hash() {
-        out.push(e);
+        out.push(e.to_string());
     } else {
         let checksums: Vec<u64> = g
             .levels()

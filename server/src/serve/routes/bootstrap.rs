@@ -231,7 +231,7 @@ pub async fn get(
     // body and the tiles all follow the same point.
     let focus = query
         .get("focus")
-        .map(|f| Focus::parse(f).map_err(|e| ApiError::bad_request(requoted(&e, f))))
+        .map(|f| Focus::parse(f).map_err(|e| ApiError::bad_request(requoted(&e.to_string(), f))))
         .transpose()?;
     // The document inside names the viewer unless it is off (datasets.rs).
     let variant = super::datasets::document_variant(
