@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Prepares the built-in viewer's third-party files (DECISIONS.md "Real clients (issue 33)"):
+# Prepares the built-in viewer's third-party files (DECISIONS.md "Real clients"):
 # MapLibre GL JS and CesiumJS at exactly the versions the browser tests pin
 # (tests/browser/package-lock.json), copied (hard-linked where the file system allows) out of
 # tests/browser/node_modules into a directory `tessera-server serve` serves under

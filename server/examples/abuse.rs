@@ -1,6 +1,6 @@
-//! The heavy-and-hostile campaign against computed responses (issue 32), repeatable:
-//! `./run abuse` builds the pyramids and runs this against the release server
-//! (figures in RELIABILITY.md "Expensive work").
+//! The heavy-and-hostile campaign against computed responses
+//! (DECISIONS.md "Expensive work"), repeatable: `./run abuse` builds the pyramids and
+//! runs this against the release server (figures in RELIABILITY.md "Expensive work").
 //!
 //! ```text
 //! cargo run --release -p tessera-server --example abuse -- SERVER_BIN N46E008.tess moon.tess [SERVE FLAGS...]

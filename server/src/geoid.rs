@@ -1,7 +1,7 @@
-//! Geoid undulations for Cesium terrain (issue 15): Cesium wants heights above the
-//! WGS84 ellipsoid, SRTM gives them above the EGM96 geoid, so each vertex gets the
-//! undulation N added (h = H + N, the convention PROJ's `vgridshift` applies from
-//! orthometric to ellipsoidal heights).
+//! Geoid undulations for Cesium terrain (DECISIONS.md "Heights for Cesium"): Cesium wants
+//! heights above the WGS84 ellipsoid, SRTM gives them above the EGM96 geoid, so each
+//! vertex gets the undulation N added (h = H + N, the convention PROJ's `vgridshift`
+//! applies from orthometric to ellipsoidal heights).
 //!
 //! N comes from a grid in NOAA VDatum's GTX format, as PROJ reads it: Debian's
 //! `proj-data` ships EGM96 at 15′ as `/usr/share/proj/egm96_15.gtx` (721 × 1440 nodes,

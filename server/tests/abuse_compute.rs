@@ -1,9 +1,10 @@
-//! Issue 32: computed responses (Cesium meshes, grid and PNG tiles, bootstrap bodies)
-//! under heavy and hostile requests, against a real `tessera-server serve` of the
-//! SRTM tile N46E008 over real sockets (RELIABILITY.md "Expensive work"):
-//! identical requests share one computation, a client that stops reading pins no
-//! more than the memory budget, a busy server answers 503 with `Retry-After`, cheap
-//! routes keep answering, and a request that goes away takes its work with it.
+//! Expensive work (DECISIONS.md "Expensive work"): computed responses (Cesium meshes,
+//! grid and PNG tiles, bootstrap bodies) under heavy and hostile requests, against a real
+//! `tessera-server serve` of the SRTM tile N46E008 over real sockets (RELIABILITY.md
+//! "Expensive work"): identical requests share one computation, a client that stops
+//! reading pins no more than the memory budget, a busy server answers 503 with
+//! `Retry-After`, cheap routes keep answering, and a request that goes away takes its
+//! work with it.
 //!
 //! No test measures time: each waits for a state that `/metrics` reports, within
 //! generous bounds on "eventually".

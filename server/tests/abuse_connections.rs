@@ -1,7 +1,8 @@
-//! Issue 11, serving: what hostile or careless clients do to a real `tessera-server
-//! serve` over real sockets with their connections — slowloris, idle keep-alive
-//! sockets, idle sockets past the fd limit, a thousand keep-alive connections at
-//! once, SIGTERM with requests in flight — and what must survive.
+//! Serving under abuse (DECISIONS.md "Reliability", RELIABILITY.md): what hostile or
+//! careless clients do to a real `tessera-server serve` over real sockets with their
+//! connections — slowloris, idle keep-alive sockets, idle sockets past the fd limit, a
+//! thousand keep-alive connections at once, SIGTERM with requests in flight — and what
+//! must survive.
 //!
 //! No test measures time: deadlines are generous bounds on "eventually", many times
 //! the configured timeout.

@@ -1,6 +1,7 @@
-//! Issue 11, serving: what a careless operator does to the files under a real
-//! `tessera-server serve` — files truncated or replaced while served (then SIGHUP),
-//! bad content hashes at start-up — and what must survive.
+//! Serving under abuse (DECISIONS.md "Reliability", RELIABILITY.md): what a careless
+//! operator does to the files under a real `tessera-server serve` — files truncated or
+//! replaced while served (then SIGHUP), bad content hashes at start-up — and what must
+//! survive.
 //!
 //! No test measures time: deadlines are generous bounds on "eventually", many times
 //! the configured timeout.

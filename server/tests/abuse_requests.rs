@@ -1,7 +1,8 @@
-//! Issue 11, serving: what a hostile or careless client or operator asks of a real
-//! `tessera-server serve` — range amplification, reflected Host headers, bytes that
-//! are not UTF-8, sloppy queries, corrupt records read again and again, zero limits,
-//! logs off a terminal — and what must survive.
+//! Serving under abuse (DECISIONS.md "Reliability", RELIABILITY.md): what a hostile or
+//! careless client or operator asks of a real `tessera-server serve` — range
+//! amplification, reflected Host headers, bytes that are not UTF-8, sloppy queries,
+//! corrupt records read again and again, zero limits, logs off a terminal — and what must
+//! survive.
 //!
 //! No test measures time: deadlines are generous bounds on "eventually", many times
 //! the configured timeout.

@@ -1,4 +1,4 @@
-//! The distributed build (issue 16 item 6) with the real binary: `build INPUT --part
+//! The distributed build (DECISIONS.md "Distributed build") with the real binary:
 //! K/N -o PARTS/` for every K, then `build --assemble PARTS/ -o OUT.tess`, must give
 //! the very bytes (and content hash) of a single `build INPUT -o OUT.tess`, for N = 1,
 //! 4 and 16, on synthetic terrain and on real DEMs, whatever order or parallelism the

@@ -1,7 +1,7 @@
-//! Issue 32 item 5: implausible builds are refused up front — more samples than
-//! `--max-samples`, a spool larger than the free disk, inputs that are not regular
-//! files (a FIFO named `*.vrt` used to block forever) — each with one line naming the
-//! input and the figure, and nothing left behind.
+//! Build plausibility (DECISIONS.md "Build plausibility"): implausible builds are refused
+//! up front — more samples than `--max-samples`, a spool larger than the free disk,
+//! inputs that are not regular files (a FIFO named `*.vrt` used to block forever) — each
+//! with one line naming the input and the figure, and nothing left behind.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 

@@ -402,4 +402,5 @@ fn preview_writes_an_ordinary_file() {
 }
 
 // ---------------------------------------------------------------------------
-// Issue 32 item 5: implausible inputs are refused before anything is read
+// Build plausibility (DECISIONS.md "Build plausibility"): implausible inputs are refused
+// before anything is read

@@ -1,6 +1,6 @@
-//! `build DEM --imagery IMAGE --bands 3,2,1` (issue 17 item 5) on the real Olinda
-//! data: Landsat 7 (28.5 m, EPSG:31985) over its 90 m DEM. The imagery tiles are
-//! compared with GDAL's own resampling of the source onto exactly the tile's texel
+//! `build DEM --imagery IMAGE --bands 3,2,1` (DECISIONS.md "Imagery pyramids") on the
+//! real Olinda data: Landsat 7 (28.5 m, EPSG:31985) over its 90 m DEM. The imagery tiles
+//! are compared with GDAL's own resampling of the source onto exactly the tile's texel
 //! grid (`gdalwarp -te … -ts n n -r bilinear`), which is independent of our code; the
 //! imagery pyramid's tiles are the DEM's; bad inputs name the file and leave nothing.
 

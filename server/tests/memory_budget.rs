@@ -1,5 +1,6 @@
-//! `--memory` bounds every allocation of a build (DESIGN §8), measured by counting
-//! every byte this test process allocates while a build runs.
+//! `--memory` bounds every allocation of a build
+//! (docs/ARCHITECTURE.md#bad-input-is-an-error), measured by counting every byte this
+//! test process allocates while a build runs.
 //!
 //! Each test holds `SERIAL` so only one build is counted at a time.
 

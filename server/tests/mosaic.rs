@@ -1,9 +1,9 @@
-//! Mosaics (issue 13) with the real binary on real data: N46E008.tif (1201², int16,
-//! EPSG:4326, PixelIsPoint, real voids) cut by GDAL into 16 GeoTIFFs of 301² that share
-//! their border rows and columns, as SRTM tiles do. Built as 16 files, a directory, a
-//! glob, a list and a `gdalbuildvrt` VRT, the pyramid must equal the single-file build
-//! sample for sample; inputs that do not fit together must fail with one line naming
-//! both files and leave no output.
+//! Mosaics (DECISIONS.md "Mosaics") with the real binary on real data: N46E008.tif
+//! (1201², int16, EPSG:4326, PixelIsPoint, real voids) cut by GDAL into 16 GeoTIFFs of
+//! 301² that share their border rows and columns, as SRTM tiles do. Built as 16 files, a
+//! directory, a glob, a list and a `gdalbuildvrt` VRT, the pyramid must equal the
+//! single-file build sample for sample; inputs that do not fit together must fail with
+//! one line naming both files and leave no output.
 //!
 //! Needs GDAL's command-line tools (`gdal_translate`, `gdalbuildvrt`; Debian's
 //! `gdal-bin`, which `./run test` installs): without them these tests print `SKIPPED`,

@@ -1,9 +1,9 @@
-//! `build --to` (issue 13, item 3) against GDAL on real DEMs: aletsch (EPSG:2056)
-//! and bigtujunga (EPSG:32611) to EPSG:4326, and back from GDAL's geographic copies
-//! to their own CRSs. Coordinates must agree with `gdaltransform` (PROJ) within
-//! 1e-6°, and heights with `gdalwarp -r bilinear -et 0` (exact transforms) resampled
-//! onto the very same grid, within the quantization error plus what our interpolated
-//! positions (≤ `MAX_ERROR_PX` off) can change.
+//! `build --to` (DECISIONS.md "Coordinate systems, masks and reprojection") against GDAL
+//! on real DEMs: aletsch (EPSG:2056) and bigtujunga (EPSG:32611) to EPSG:4326, and back
+//! from GDAL's geographic copies to their own CRSs. Coordinates must agree with
+//! `gdaltransform` (PROJ) within 1e-6°, and heights with `gdalwarp -r bilinear -et 0`
+//! (exact transforms) resampled onto the very same grid, within the quantization error
+//! plus what our interpolated positions (≤ `MAX_ERROR_PX` off) can change.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 

@@ -1,8 +1,8 @@
-//! Cesium terrain over HTTP (issue 15): a real `tessera-server serve` of N46E008
-//! (SRTM, EGM96), `layer.json` as CesiumJS reads it, and `.terrain` tiles byte for
-//! byte what the mesher and encoder make in-process — with the extensions the
-//! `Accept` header asks for, gzipped when the client accepts it, cacheable and
-//! revalidated like every other tile. Heights and errors are checked by
+//! Cesium terrain over HTTP (DECISIONS.md "Cesium terrain"): a real
+//! `tessera-server serve` of N46E008 (SRTM, EGM96), `layer.json` as CesiumJS reads it,
+//! and `.terrain` tiles byte for byte what the mesher and encoder make in-process — with
+//! the extensions the `Accept` header asks for, gzipped when the client accepts it,
+//! cacheable and revalidated like every other tile. Heights and errors are checked by
 //! tests/tests/cesium_terrain.rs; CesiumJS itself in tests/browser/.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test

@@ -228,8 +228,9 @@ fn tilejson_parameters_and_empty_tiles() {
 /// Web Mercator zoom 0 of N46E008 was a 404 although the TileJSON says `minzoom` 0:
 /// a 1° tile is 0.7 of a zoom-0 pixel, and no pixel centre fell inside it. Now the
 /// pixels the DEM covers show it (the DEM's heights), with the apron around them;
-/// every other pixel is the dataset's lowest height (issue 33: never −32768 m),
-/// opaque by default and transparent with `nodata=transparent`.
+/// every other pixel is the dataset's lowest height (never −32768 m:
+/// DECISIONS.md "Real clients"), opaque by default and transparent with
+/// `nodata=transparent`.
 #[test]
 fn zoom_0_shows_a_dem_smaller_than_a_pixel() {
     let Some(b) = built() else { return };
@@ -310,9 +311,9 @@ fn zoom_0_shows_a_dem_smaller_than_a_pixel() {
 }
 
 /// Every tile within the TileJSON's `bounds` answers 200 with plausible heights
-/// (issue 33): web maps ask for each of them, and a 404 is an error in their
-/// console. aletsch is EPSG:2056, a rotated rectangle in Web Mercator, so some tiles
-/// at the corners of its bounds hold no data: those are the flat fill, the
+/// (DECISIONS.md "Real clients"): web maps ask for each of them, and a 404 is an error in
+/// their console. aletsch is EPSG:2056, a rotated rectangle in Web Mercator, so some
+/// tiles at the corners of its bounds hold no data: those are the flat fill, the
 /// dataset's lowest height, opaque (wholly transparent with `nodata=transparent`).
 #[test]
 fn every_tile_within_the_bounds_is_served_and_plausible() {

@@ -1,8 +1,8 @@
-//! Standard-grid web tiles end to end (issue 14): real pyramids built from real DEMs
-//! (N46E008, EPSG:4326; aletsch, EPSG:2056), a real `tessera-server serve`, and every
-//! pixel of a tile checked against the source DEM sampled independently: pixel
-//! centres carried by GDAL's `gdaltransform` (PROJ, not our proj4rs) to the DEM's
-//! CRS, then bilinear on the DEM's own samples as GDAL reads them.
+//! Standard-grid web tiles end to end (DECISIONS.md "Standard-grid web tiles"): real
+//! pyramids built from real DEMs (N46E008, EPSG:4326; aletsch, EPSG:2056), a real
+//! `tessera-server serve`, and every pixel of a tile checked against the source DEM
+//! sampled independently: pixel centres carried by GDAL's `gdaltransform` (PROJ, not our
+//! proj4rs) to the DEM's CRS, then bilinear on the DEM's own samples as GDAL reads them.
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
 mod gdal;

@@ -1,8 +1,8 @@
-//! `serve` with imagery (issue 17 item 5): `NAME.tessimg` beside `NAME.tess` is served
-//! as `/v1/datasets/NAME/imagery/levels/{level}/tiles?ranges=…`, framed as the height
-//! stream, its records byte for byte the file's; the dataset document says so; ETags
-//! come from the imagery's own content hash; a dataset without imagery (or with a
-//! stale one, built for another DEM) answers 404. Real Olinda data.
+//! `serve` with imagery (DECISIONS.md "Imagery pyramids"): `NAME.tessimg` beside
+//! `NAME.tess` is served as `/v1/datasets/NAME/imagery/levels/{level}/tiles?ranges=…`,
+//! framed as the height stream, its records byte for byte the file's; the dataset
+//! document says so; ETags come from the imagery's own content hash; a dataset without
+//! imagery (or with a stale one, built for another DEM) answers 404. Real Olinda data.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 

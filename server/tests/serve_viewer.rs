@@ -1,8 +1,8 @@
-//! `tessera-server serve` end to end: the built-in viewer (issue 33 item 4): the landing
-//! page `/`, `/viewer/{name}`, its assets under `/viewer/assets/…`, `--no-viewer`,
-//! `--viewer-assets`, the preview picture and the dataset document's links (API.md
-//! "The built-in viewer"). The browser side (MapLibre and CesiumJS really drawing) is
-//! tests/browser/viewer.test.mjs.
+//! `tessera-server serve` end to end: the built-in viewer (DECISIONS.md "Real clients"):
+//! the landing page `/`, `/viewer/{name}`, its assets under `/viewer/assets/…`,
+//! `--no-viewer`, `--viewer-assets`, the preview picture and the dataset document's links
+//! (API.md "The built-in viewer"). The browser side (MapLibre and CesiumJS really
+//! drawing) is tests/browser/viewer.test.mjs.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 

@@ -1,5 +1,6 @@
-//! No-data and padding as a mask (issue 13, item 4; FORMAT.md "Validity mask"):
-//! built from real files, the pyramid's masks must say exactly which cells are
+//! No-data and padding as a mask
+//! (DECISIONS.md "Coordinate systems, masks and reprojection"; FORMAT.md "Validity
+//! mask"): built from real files, the pyramid's masks must say exactly which cells are
 //! terrain at every level, wholly no-data tiles must be absent, and the per-level
 //! counts must match the input sample for sample.
 

@@ -1,6 +1,6 @@
-//! `verify` checks every byte that can be checked (DESIGN §8): damage made to look
-//! consistent — checksums recomputed after the change, as a careless tool or an
-//! attacker would — must still be named, and `verify` must exit 1.
+//! `verify` checks every byte that can be checked (docs/ARCHITECTURE.md#nothing-partial):
+//! damage made to look consistent — checksums recomputed after the change, as a careless
+//! tool or an attacker would — must still be named, and `verify` must exit 1.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 

@@ -1,8 +1,8 @@
-//! Issue 33 item 3: a GeoTIFF's heights get the vertical datum the file (or its
-//! product's file name) states, and the build says so; a build whose datum stays
-//! unknown warns, also under `--quiet`, how far Cesium terrain will misplace the
-//! terrain (the EGM96 undulation, checked against PROJ's `cs2cs` when installed) and
-//! which flag fixes it; `--vertical-datum` still overrides.
+//! The vertical datum (DECISIONS.md "Real clients"): a GeoTIFF's heights get the vertical
+//! datum the file (or its product's file name) states, and the build says so; a build
+//! whose datum stays unknown warns, also under `--quiet`, how far Cesium terrain will
+//! misplace the terrain (the EGM96 undulation, checked against PROJ's `cs2cs` when
+//! installed) and which flag fixes it; `--vertical-datum` still overrides.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 

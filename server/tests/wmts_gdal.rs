@@ -1,7 +1,7 @@
-//! WMTS capabilities and OGC API – Tiles against GDAL (issue 14, item 3): what GDAL's
-//! WMTS and OGCAPI drivers (Debian's gdal-bin) make of a real server on the real
-//! N46E008 pyramid, and whether the heights they read back match GDAL's own
-//! bilinear resampling of the source DEM onto exactly the same grid.
+//! WMTS capabilities and OGC API – Tiles against GDAL (DECISIONS.md "WMTS capabilities"):
+//! what GDAL's WMTS and OGCAPI drivers (Debian's gdal-bin) make of a real server on the
+//! real N46E008 pyramid, and whether the heights they read back match GDAL's own bilinear
+//! resampling of the source DEM onto exactly the same grid.
 //!
 //! Tolerances: Terrarium rounds down to 1/256 m, Terrain-RGB to the nearest 0.1 m;
 //! both sides interpolate the same integer heights bilinearly at the same pixel

@@ -1,9 +1,9 @@
-//! The vertical datum a build records (issue 33): `--vertical-datum` if given, else
-//! what the input states ([`ingest::RowSource::datum_clue`]), else `unknown`. The build
-//! says what it decided: an info line naming the datum and where the input states
-//! it; and, for unknown heights on Earth, a warning that Cesium terrain will serve
-//! them as ellipsoidal, with the size of that error (the EGM96 geoid undulation over
-//! the dataset, from the grid the server uses, [`crate::geoid`]) and the flag that
+//! The vertical datum a build records (DECISIONS.md "Real clients"): `--vertical-datum`
+//! if given, else what the input states ([`ingest::RowSource::datum_clue`]), else
+//! `unknown`. The build says what it decided: an info line naming the datum and where the
+//! input states it; and, for unknown heights on Earth, a warning that Cesium terrain will
+//! serve them as ellipsoidal, with the size of that error (the EGM96 geoid undulation
+//! over the dataset, from the grid the server uses, [`crate::geoid`]) and the flag that
 //! fixes it. The warning is returned, not logged: the command prints it once the
 //! build has succeeded, also under `--quiet` (a failed build prints only its error).
 

@@ -1,5 +1,6 @@
 //! Finest tiles: read from the raster (the padding beyond the DEM repeats its edge),
-//! measured against the coarse cells above them (DESIGN §3, Kang §4.1), masked.
+//! measured against the coarse cells above them (docs/ARCHITECTURE.md#error-tables, Kang
+//! §4.1), masked.
 
 use super::mesh_error::{self, CoarseCorners};
 use super::node::Node;

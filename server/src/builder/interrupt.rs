@@ -1,6 +1,6 @@
 //! SIGINT/SIGTERM during a build: stop at the next band or batch, remove the partial
 //! file (by unwinding through the writer's `NamedTempFile`) and exit non-zero
-//! (DESIGN §8: nothing partial). A second signal ends the process at once; the
+//! (docs/ARCHITECTURE.md#nothing-partial). A second signal ends the process at once; the
 //! next build then removes the partial file it left.
 
 use std::sync::Arc;

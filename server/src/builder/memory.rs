@@ -1,5 +1,5 @@
-//! How a build divides its `--memory` budget (DESIGN §8: `--memory` bounds every
-//! allocation of a build).
+//! How a build divides its `--memory` budget (`--memory` bounds every allocation of a
+//! build: docs/ARCHITECTURE.md#bad-input-is-an-error).
 //!
 //! A build runs in two phases that never overlap: spooling the input (one band of
 //! rows) and tiling (finest tiles in flight, waiting siblings per level, write

@@ -6,8 +6,8 @@
 //! every `k` from 0 up to the root's coarsest mesh, the largest vertical distance
 //! between the `2^k` mesh and its own samples in each of its 8×8 blocks; a coarse
 //! tile's table is then the maximum over the blocks of its finest descendants.
-//! That makes the tables exact maxima against the finest data (tight, DESIGN §6
-//! invariant 2) while every finest sample is read once.
+//! That makes the tables exact maxima against the finest data (tight,
+//! docs/ARCHITECTURE.md#exact-error-tables) while every finest sample is read once.
 //!
 //! Errors are kept in quantization steps as `f64`: `|s·z − s·q| / s` with integer
 //! numerator and power-of-two `s` is exact.
@@ -55,8 +55,8 @@ impl BlockErrors {
 /// finest tile: `cells[k − t − 1]` is `[top-left, top-right, bottom-left, bottom-right]`.
 ///
 /// Read per tile from the raster rather than kept as a grid over the whole DEM, so
-/// the build's memory does not grow with the DEM's area (DESIGN §8: `--memory`
-/// bounds every allocation).
+/// the build's memory does not grow with the DEM's area (`--memory` bounds every
+/// allocation: docs/ARCHITECTURE.md#bad-input-is-an-error).
 #[derive(Clone, Debug, Default)]
 pub struct CoarseCorners {
     pub cells: Vec<[u16; 4]>,

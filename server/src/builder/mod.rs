@@ -1,4 +1,5 @@
-//! Building a pyramid from a DEM, out of core (DESIGN §3).
+//! Building a pyramid from a DEM, out of core
+//! (docs/ARCHITECTURE.md#building-out-of-core).
 //!
 //! 1. File inputs are spooled row by row into a temporary raw file ([`spool`]);
 //!    the synthetic terrain is generated on demand instead.

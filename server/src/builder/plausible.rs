@@ -1,4 +1,5 @@
-//! Whether a build can finish, decided before any sample is read (issue 32 item 5).
+//! Whether a build can finish, decided before any sample is read
+//! (DECISIONS.md "Build plausibility").
 //!
 //! A header is cheap to write and expensive to believe: a 374-byte VRT declaring
 //! 1201 × 20 000 000 samples over one small source used to spool no-data for hours

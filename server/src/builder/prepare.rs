@@ -282,8 +282,9 @@ impl Prepared {
 }
 
 /// The CRS's PROJ string and WKT, and the ground spacing at the DEM's centre
-/// (DESIGN §9), from the projection library. A CRS it does not know leaves both
-/// out, with a warning: the pyramid is still right, clients fall back to a spacing.
+/// (docs/ARCHITECTURE.md#coordinate-systems), from the projection library. A CRS it does
+/// not know leaves both out, with a warning: the pyramid is still right, clients fall
+/// back to a spacing.
 fn ground_geometry(
     georef: &mut tessera_shared::GeoRef,
     width: u32,

@@ -1,11 +1,12 @@
 //! Spooling a row-streamed input into a temporary file of raw `f32` samples, so the
-//! tile builder can read any window while memory stays bounded (DESIGN §3).
+//! tile builder can read any window while memory stays bounded
+//! (docs/ARCHITECTURE.md#building-out-of-core).
 //!
-//! While spooling, no-data samples are counted and filled (DESIGN §3: never
-//! ±32768 spikes): each takes the value of its nearest valid sample, found by a
-//! two-pass chamfer distance transform over the band of rows in memory plus the
-//! already-filled row above it. Rows that precede the first valid sample copy the
-//! first filled row (their nearest valid samples lie straight below).
+//! While spooling, no-data samples are counted and filled (never ±32768 spikes,
+//! docs/ARCHITECTURE.md#heights-and-no-data): each takes the value of its nearest valid
+//! sample, found by a two-pass chamfer distance transform over the band of rows in memory
+//! plus the already-filled row above it. Rows that precede the first valid sample copy
+//! the first filled row (their nearest valid samples lie straight below).
 
 use crate::ingest::raster::{DepthCounts, Raster, depth};
 use crate::ingest::{RowSource, SampleType};

@@ -1,6 +1,6 @@
 //! Writing a pyramid file: records level by level, each level contiguous in
 //! Morton order, into a temporary file beside the output that is renamed into
-//! place only when complete and verified (DESIGN §3).
+//! place only when complete and verified (docs/ARCHITECTURE.md#building-out-of-core).
 //!
 //! Records arrive in post-order of the Morton quadtree (a coarse tile right
 //! after its four children), so the finest level streams straight into the
@@ -80,7 +80,7 @@ impl LevelSink {
 /// Nothing here grows with the number of tiles: record bytes stream to files and
 /// index entries are written into the partial file's index region as they come,
 /// so a DEM whose tile grid is mostly empty (or a header that lies about its size)
-/// costs disk, proven by data, not memory (DESIGN §8).
+/// costs disk, proven by data, not memory (docs/ARCHITECTURE.md#bad-input-is-an-error).
 pub struct PyramidWriter {
     geometry: TileGeometry,
     target: PathBuf,

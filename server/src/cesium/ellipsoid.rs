@@ -1,5 +1,5 @@
 //! The body's reference ellipsoid and the geometry a quantized-mesh-1.0 tile header
-//! needs (issue 15, DESIGN §9): geodetic → Earth-centred, Earth-fixed (ECEF)
+//! needs (DECISIONS.md "Cesium terrain"): geodetic → Earth-centred, Earth-fixed (ECEF)
 //! positions, a bounding sphere, the horizon-occlusion point, and the oct encoding of
 //! unit normals (the spec's extension 1).
 //!

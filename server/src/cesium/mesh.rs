@@ -1,7 +1,7 @@
 //! An adaptive triangulation of one pyramid level's samples with a guaranteed error
 //! bound, whose choices near any line between two squares depend only on the samples
 //! around that line — so two Cesium tiles that both hold the line choose the same
-//! vertices on it (issue 15).
+//! vertices on it (DECISIONS.md "Cesium terrain").
 //!
 //! The mesh is a right-triangulated irregular network (RTIN, the "4-8" longest-edge
 //! bisection of Evans et al., as Martini builds it) over the level's global sample

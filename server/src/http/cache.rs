@@ -1,7 +1,7 @@
 //! Standard HTTP caching: strong ETags from the dataset's content hash (and what
 //! the request asked for), `Last-Modified` from the pyramid file's modification time,
 //! `304 Not Modified` (`If-None-Match`, else `If-Modified-Since`: RFC 9110 §13.1.3),
-//! and `Cache-Control` that lets CDNs keep immutable data (DESIGN §4).
+//! and `Cache-Control` that lets CDNs keep immutable data (docs/ARCHITECTURE.md#serving).
 //!
 //! Every cacheable response goes through [`set_headers`] and every 304 through
 //! [`not_modified`] and [`not_modified_response`]; each takes the dataset's

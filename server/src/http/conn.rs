@@ -1,6 +1,7 @@
 //! Connections: our own accept loop around hyper's connection driver (HTTP/1.1 and
 //! HTTP/2 on one port: h2c with prior knowledge in the clear, h2 or http/1.1 by ALPN
-//! under TLS), so that no client can hold the server's resources for free (DESIGN §8).
+//! under TLS), so that no client can hold the server's resources for free
+//! (docs/ARCHITECTURE.md#the-service-stays-up).
 //!
 //! - **Header timeout**: a connection must deliver a complete request head within
 //!   this time of opening, or of its previous response ending; otherwise it is

@@ -1,4 +1,4 @@
-//! Imagery pyramids (issue 17 item 5; Yang §3: "grid LOD and texture LOD
+//! Imagery pyramids (DECISIONS.md "Imagery pyramids"; Yang §3: "grid LOD and texture LOD
 //! corresponding each other"): `build DEM --imagery IMAGE [--bands 3,2,1]` writes,
 //! beside the DEM's pyramid `NAME.tess`, `NAME.tessimg` — the same levels, tiles,
 //! Morton layout and presence, each record the JPEG of one tile's ground

@@ -1,8 +1,8 @@
-//! Georeferencing given on the command line (`build --crs`, `--bounds`; DESIGN: "16-bit
-//! PNG with a sidecar or flags"): a [`RowSource`] whose rows are its input's and whose
-//! [`GeoRef`] is the one the flags assign. Nothing is resampled: `--crs` relabels the
-//! coordinates, `--bounds` places the pixels (reprojection is `--to`, which then starts
-//! from this georeferencing).
+//! Georeferencing given on the command line (`build --crs`, `--bounds`: a 16-bit PNG has
+//! no georeferencing of its own, so a sidecar or these flags give it): a [`RowSource`]
+//! whose rows are its input's and whose [`GeoRef`] is the one the flags assign. Nothing
+//! is resampled: `--crs` relabels the coordinates, `--bounds` places the pixels
+//! (reprojection is `--to`, which then starts from this georeferencing).
 
 use super::{RowSource, SourceInfo};
 use crate::crs::Crs;

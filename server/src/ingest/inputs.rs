@@ -1,8 +1,8 @@
 //! The `INPUT...` arguments of `build` and `--inputs LIST.txt`, expanded into the
-//! list of files to read, in order (issue 13): a file stays itself, a directory
-//! gives its DEM files sorted by name, a glob pattern (quoted, so the shell leaves it
-//! alone: `'tiles/*.hgt'`) gives its matches sorted, and a list file gives one entry
-//! per line, each resolved against the list's folder and expanded the same way.
+//! list of files to read, in order (DECISIONS.md "Mosaics"): a file stays itself, a
+//! directory gives its DEM files sorted by name, a glob pattern (quoted, so the shell
+//! leaves it alone: `'tiles/*.hgt'`) gives its matches sorted, and a list file gives one
+//! entry per line, each resolved against the list's folder and expanded the same way.
 
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};

@@ -1,6 +1,6 @@
 //! DEM inputs. Every file format is read as a stream of rows, top to bottom, so
-//! a DEM never has to fit in memory (DESIGN §2); the synthetic terrain is instead
-//! generated on demand for any window.
+//! a DEM never has to fit in memory (docs/ARCHITECTURE.md#building-out-of-core); the
+//! synthetic terrain is instead generated on demand for any window.
 
 pub mod assign;
 pub mod geotiff;

@@ -46,7 +46,8 @@ impl Png16 {
         // Keep samples as stored: no expansion, no stripping to 8 bits.
         decoder.set_transformations(png::Transformations::IDENTITY);
         // Chunk CRCs and the zlib Adler-32 are both checked: a flipped bit is an error,
-        // never a pyramid (DESIGN §8). The png crate skips Adler-32 by default.
+        // never a pyramid (docs/ARCHITECTURE.md#nothing-partial). The png crate skips
+        // Adler-32 by default.
         decoder.ignore_checksums(false);
         let reader = decoder
             .read_info()
@@ -122,7 +123,7 @@ impl RowSource for Png16 {
 const DEFLATE_MAX_RATIO: u64 = 1032;
 
 /// Refuses a header whose claimed size the file cannot possibly hold, before anything
-/// is allocated or spooled for it (DESIGN §8).
+/// is allocated or spooled for it (docs/ARCHITECTURE.md#bad-input-is-an-error).
 fn check_plausible(width: u32, height: u32, file_len: u64) -> anyhow::Result<()> {
     // Each row is a filter byte and two bytes per sample.
     let claimed = u64::from(height) * (u64::from(width) * 2 + 1);

@@ -1,5 +1,6 @@
-//! Reprojection at build time (`build --to EPSG:CODE`, issue 13 item 3): a
-//! [`RowSource`] that resamples another one onto a north-up grid in a new CRS.
+//! Reprojection at build time (`build --to EPSG:CODE`;
+//! DECISIONS.md "Coordinate systems, masks and reprojection"): a [`RowSource`] that
+//! resamples another one onto a north-up grid in a new CRS.
 //!
 //! 1. The source is spooled once into a temporary file of raw `f32` samples, its
 //!    no-data as NaN, so any source row can be read back.

@@ -1,10 +1,10 @@
-//! GDAL virtual rasters (`.vrt`), the subset `gdalbuildvrt` writes (issue 13): one
-//! `VRTRasterBand` of `SimpleSource`s and `ComplexSource`s, each copying a window of a
-//! source file's band 1 (`SrcRect`) to a window of the same size in the VRT
-//! (`DstRect`). Anything that would resample, rescale or look values up (a `DstRect`
-//! of another size, fractional offsets, `ScaleRatio`, `LUT`, warped or derived
-//! datasets, other source kinds) is refused with the element it found, rather than
-//! read as something it is not.
+//! GDAL virtual rasters (`.vrt`), the subset `gdalbuildvrt` writes
+//! (DECISIONS.md "Mosaics"): one `VRTRasterBand` of `SimpleSource`s and `ComplexSource`s,
+//! each copying a window of a source file's band 1 (`SrcRect`) to a window of the same
+//! size in the VRT (`DstRect`). Anything that would resample, rescale or look values up
+//! (a `DstRect` of another size, fractional offsets, `ScaleRatio`, `LUT`, warped or
+//! derived datasets, other source kinds) is refused with the element it found, rather
+//! than read as something it is not.
 //!
 //! Parsing only describes the sources; [`super::mosaic`] opens them (lazily) and
 //! places them.

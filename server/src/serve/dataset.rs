@@ -31,8 +31,9 @@ pub struct Dataset {
     /// Per level and Morton code: whether the record's checksum has been checked.
     /// Records are immutable, so each is hashed once, on first use.
     checked: Vec<Vec<AtomicU8>>,
-    /// The imagery pyramid beside this DEM's (`NAME.tessimg`, issue 17 item 5), itself
-    /// a dataset whose [`Dataset::pyramid`] is opened with `Pyramid::open_imagery`.
+    /// The imagery pyramid beside this DEM's (`NAME.tessimg`,
+    /// DECISIONS.md "Imagery pyramids"), itself a dataset whose [`Dataset::pyramid`] is
+    /// opened with `Pyramid::open_imagery`.
     pub imagery: Option<Arc<Dataset>>,
 }
 

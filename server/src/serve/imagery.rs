@@ -1,5 +1,6 @@
-//! A dataset's imagery (issue 17 item 5): the `NAME.tessimg` beside `NAME.tess`,
-//! attached when it was built for exactly that DEM (FORMAT.md "Imagery pyramids").
+//! A dataset's imagery (DECISIONS.md "Imagery pyramids"): the `NAME.tessimg` beside
+//! `NAME.tess`, attached when it was built for exactly that DEM (FORMAT.md "Imagery
+//! pyramids").
 
 use super::dataset::Dataset;
 use std::path::Path;

@@ -1,4 +1,4 @@
-//! `tessera-server serve`: pyramids over HTTP (DESIGN §4, API.md).
+//! `tessera-server serve`: pyramids over HTTP (docs/ARCHITECTURE.md#serving, API.md).
 
 pub mod compute;
 pub mod config;

@@ -1,8 +1,8 @@
-//! What the standard-grid web tiles share across requests (issue 14): each
-//! dataset's [`Footprint`], a bounded LRU of decoded pyramid tiles — so a map's
-//! burst of neighbouring requests decodes each source tile once — and a bounded
-//! LRU of made tiles. Both caches are weighed in bytes; their sizes, hits and misses
-//! are in `/metrics`.
+//! What the standard-grid web tiles share across requests
+//! (DECISIONS.md "Standard-grid web tiles"): each dataset's [`Footprint`], a bounded LRU
+//! of decoded pyramid tiles — so a map's burst of neighbouring requests decodes each
+//! source tile once — and a bounded LRU of made tiles. Both caches are weighed in bytes;
+//! their sizes, hits and misses are in `/metrics`.
 
 use crate::cesium::terrain::Terrain;
 use crate::cesium::tiling::CesiumTile;

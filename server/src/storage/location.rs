@@ -1,5 +1,5 @@
-//! Where a pyramid lives (DESIGN §4, §9): a local path or an object URL, and the
-//! store that answers it.
+//! Where a pyramid lives (docs/ARCHITECTURE.md#storage, docs/ARCHITECTURE.md#scale-out):
+//! a local path or an object URL, and the store that answers it.
 //!
 //! A location is a local path or a URL: `s3://`, `gs://`, `az://`/`abfs://`,
 //! `file://`, or `http(s)://` to any server that answers `Range`. Stores come from

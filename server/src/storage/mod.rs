@@ -1,5 +1,5 @@
 //! Where pyramid bytes come from, behind one small trait so the routes read a local
-//! file and an object in a store alike (DESIGN §4).
+//! file and an object in a store alike (docs/ARCHITECTURE.md#storage).
 //!
 //! - [`Storage`]: a pyramid's bytes, answered by range; [`StorageSource`] adapts it to
 //!   the shared pyramid reader.

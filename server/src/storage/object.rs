@@ -1,4 +1,5 @@
-//! A pyramid in object storage behind the [`Storage`] trait (DESIGN §4, §9).
+//! A pyramid in object storage behind the [`Storage`] trait
+//! (docs/ARCHITECTURE.md#storage, docs/ARCHITECTURE.md#scale-out).
 //!
 //! Opened with one HEAD (size, ETag, modification time); the header and the level
 //! indices are then read once by the pyramid reader. Every read goes through the

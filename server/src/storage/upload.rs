@@ -1,6 +1,7 @@
 //! `build … -o s3://…`: a finished, verified local pyramid goes to its object with a
 //! multipart upload that is completed only when every part is in, and aborted
-//! otherwise, so the key never names a partial pyramid (DESIGN §8).
+//! otherwise, so the key never names a partial pyramid
+//! (docs/ARCHITECTURE.md#nothing-partial).
 
 use super::location::{self, ObjectLocation};
 use object_store::{ObjectStoreExt, WriteMultipart};

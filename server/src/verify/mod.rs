@@ -1,5 +1,6 @@
-//! `tessera-server verify`: structure and every record's checksum (DESIGN §6 invariant 6).
-//! A DEM pyramid is checked here; an imagery pyramid by [`imagery`].
+//! `tessera-server verify`: structure and every record's checksum
+//! (docs/ARCHITECTURE.md#corrupt-records-are-detected). A DEM pyramid is checked here; an
+//! imagery pyramid by [`imagery`].
 
 pub mod imagery;
 
@@ -31,11 +32,12 @@ impl VerifyReport {
 }
 
 /// Opens `path` (checking the header checksum, metadata and index structure), then
-/// checks every byte that can be checked (DESIGN §8): each record's checksum and
-/// decoding, every stored value's range (finite, non-negative errors; min ≤ max; the
-/// index's summary equal to its record's), the reserved flags, and the metadata
-/// against the records (content hash recomputed, heights equal to the quantized
-/// extremes). Structural damage is an `Err`; everything else is listed in the report.
+/// checks every byte that can be checked (docs/ARCHITECTURE.md#nothing-partial): each
+/// record's checksum and decoding, every stored value's range (finite, non-negative
+/// errors; min ≤ max; the index's summary equal to its record's), the reserved flags, and
+/// the metadata against the records (content hash recomputed, heights equal to the
+/// quantized extremes). Structural damage is an `Err`; everything else is listed in the
+/// report.
 pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
     // An imagery pyramid (`.tessimg`) has its own record checks.
     if imagery::is_imagery(path)? {

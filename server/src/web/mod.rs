@@ -1,6 +1,7 @@
-//! Standard web-map tiles derived on the fly from a pyramid (DESIGN §9, issue 14):
-//! the OGC grids ([`tile_matrix`]), where a dataset lies in them ([`footprint`]),
-//! one output tile's heights ([`resample`]) and their colours ([`encoding`]).
+//! Standard web-map tiles derived on the fly from a pyramid
+//! (docs/ARCHITECTURE.md#derived-outputs, DECISIONS.md "Standard-grid web tiles"): the
+//! OGC grids ([`tile_matrix`]), where a dataset lies in them ([`footprint`]), one output
+//! tile's heights ([`resample`]) and their colours ([`encoding`]).
 
 pub mod encoding;
 pub mod footprint;

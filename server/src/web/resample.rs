@@ -1,6 +1,7 @@
-//! One standard-grid tile's heights, resampled on the fly from the pyramid (DESIGN
-//! §9, issue 14): the pyramid stays in the dataset's own grid, and each output pixel
-//! is read from the level whose sample spacing best matches the pixel's.
+//! One standard-grid tile's heights, resampled on the fly from the pyramid
+//! (docs/ARCHITECTURE.md#derived-outputs, DECISIONS.md "Standard-grid web tiles"): the
+//! pyramid stays in the dataset's own grid, and each output pixel is read from the level
+//! whose sample spacing best matches the pixel's.
 //!
 //! 1. **Window.** Only pixels inside the dataset's bounding box in the grid's CRS
 //!    (and [`APRON`] pixels around it) are computed; the rest are no-data.
@@ -32,10 +33,10 @@
 //!    point): without the apron, a lookup at the edge of the data would mix in the
 //!    fill beyond it.
 //! 6. **No-data.** Every other pixel still carries a plausible height, never
-//!    −32768 m (DESIGN §9): a void inside the DEM's extent its fill (the nearest
-//!    valid sample's height, stored by the build), anything beyond the DEM the
-//!    dataset's lowest height, flat ([`crate::web::encoding::NoData`]). Flat, so
-//!    hillshading draws nothing beyond the data; the lowest height, so 3D terrain
+//!    −32768 m (docs/ARCHITECTURE.md#heights-and-no-data): a void inside the DEM's extent
+//!    its fill (the nearest valid sample's height, stored by the build), anything beyond
+//!    the DEM the dataset's lowest height, flat ([`crate::web::encoding::NoData`]). Flat,
+//!    so hillshading draws nothing beyond the data; the lowest height, so 3D terrain
 //!    stands on a plinth no deeper than the dataset's own relief instead of on
 //!    walls 32 km deep. Alpha marks it only when asked (`nodata=transparent`):
 //!    browsers read tiles through a premultiplied canvas, where a transparent

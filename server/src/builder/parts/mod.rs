@@ -1,9 +1,9 @@
-//! The distributed build (issue 16, DESIGN §9): `build INPUT --part K/N -o PARTS/`
-//! builds the subtrees of one slice of the split level's Morton codes into a part
-//! file, and `build --assemble PARTS/ -o OUT.tess` writes the levels above the split
-//! from the parts' roots and then the pyramid, byte for byte the file a single
-//! `build` of the same input and options writes (FORMAT.md "Part files",
-//! DECISIONS "Distributed build").
+//! The distributed build (docs/ARCHITECTURE.md#scale-out):
+//! `build INPUT --part K/N -o PARTS/` builds the subtrees of one slice of the split
+//! level's Morton codes into a part file, and `build --assemble PARTS/ -o OUT.tess`
+//! writes the levels above the split from the parts' roots and then the pyramid, byte for
+//! byte the file a single `build` of the same input and options writes (FORMAT.md "Part
+//! files", DECISIONS "Distributed build").
 //!
 //! - **Split.** The split level `S` is the smallest with `4^S ≥ 4N` (four subtrees
 //!   a part at least, so the slices can be balanced), at least 1 and at most the

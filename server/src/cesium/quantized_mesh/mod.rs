@@ -1,4 +1,4 @@
-//! The quantized-mesh-1.0 tile format (issue 15, DESIGN §9): a mesh from
+//! The quantized-mesh-1.0 tile format (DECISIONS.md "Cesium terrain"): a mesh from
 //! [`super::mesh`] becomes the bytes CesiumJS's `CesiumTerrainProvider` reads, as
 //! the spec (CesiumGS/quantized-mesh, README) lays them out, little-endian:
 //!

@@ -1,6 +1,6 @@
-//! One dataset as Cesium terrain (issue 15): which pyramid level and threshold each
-//! zoom meshes with, and one tile's mesh — the level's RTIN ([`super::mesh`]) cut
-//! to the tile, the rest of the tile filled down to sea level.
+//! One dataset as Cesium terrain (DECISIONS.md "Cesium terrain"): which pyramid level and
+//! threshold each zoom meshes with, and one tile's mesh — the level's RTIN
+//! ([`super::mesh`]) cut to the tile, the rest of the tile filled down to sea level.
 //!
 //! **The bound.** CesiumJS refines assuming zoom `z` is within
 //! `ε_z = ε_0 / 2^z` of the truth ([`super::tiling::level_zero_error`]). A tile's

@@ -1,6 +1,6 @@
 //! The vertical datum a GeoTIFF's file name implies, for the global DEM products
 //! whose tiles keep their distributor's names and whose datum is documented
-//! (DECISIONS.md "Real clients (issue 33)"): SRTM in its USGS, CGIAR-CSI and NASA
+//! (DECISIONS.md "Real clients"): SRTM in its USGS, CGIAR-CSI and NASA
 //! forms, NASADEM, ASTER GDEM and ALOS AW3D30 are heights above the EGM96 geoid;
 //! the Copernicus DEM is above EGM2008. Such files mostly carry no vertical GeoKey.
 //!

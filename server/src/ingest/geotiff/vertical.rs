@@ -1,10 +1,11 @@
-//! What a GeoTIFF itself says about its heights' vertical datum (issue 33), in this
-//! order: the vertical GeoKeys (`VerticalCSTypeGeoKey` 4096, then
-//! `VerticalDatumGeoKey` 4098), then GDAL's metadata tag (42112), where DTED-derived
-//! files keep `DTED_VerticalDatum`. The first statement found is final, even one
-//! naming a datum the metadata cannot record (NAVD88, DTED's "MSL"): such heights
-//! stay `unknown`, and the statement is passed on for the build's warning. Only a
-//! file that states nothing falls back to its name ([`super::product_name`]).
+//! What a GeoTIFF itself says about its heights' vertical datum
+//! (DECISIONS.md "Real clients"), in this order: the vertical GeoKeys
+//! (`VerticalCSTypeGeoKey` 4096, then `VerticalDatumGeoKey` 4098), then GDAL's metadata
+//! tag (42112), where DTED-derived files keep `DTED_VerticalDatum`. The first statement
+//! found is final, even one naming a datum the metadata cannot record (NAVD88, DTED's
+//! "MSL"): such heights stay `unknown`, and the statement is passed on for the build's
+//! warning. Only a file that states nothing falls back to its name
+//! ([`super::product_name`]).
 
 use super::{Reader, text_tag};
 use crate::ingest::DatumClue;

@@ -1,5 +1,5 @@
-//! Many same-grid inputs read as one raster (issue 13): a [`RowSource`] over files
-//! and GDAL VRTs ([`super::vrt`]) placed on one lattice.
+//! Many same-grid inputs read as one raster (DECISIONS.md "Mosaics"): a [`RowSource`]
+//! over files and GDAL VRTs ([`super::vrt`]) placed on one lattice.
 //!
 //! Every input's header is read once, up front, to check that it shares the first
 //! input's CRS and grid and to place it; then it is closed. While rows are read, an

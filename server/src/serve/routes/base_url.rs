@@ -1,6 +1,6 @@
 //! Where the absolute URLs in documents (TileJSON, WMTS capabilities) point: the
 //! scheme and authority clients must use to reach this server (API.md "Absolute
-//! URLs", DECISIONS "Real clients (issue 33)").
+//! URLs", DECISIONS.md "Real clients").
 //!
 //! In order:
 //! 1. `--public-url`, when configured (what deployments behind a CDN set);

@@ -1,7 +1,8 @@
 //! `GET /v1/datasets/{name}/bootstrap`: the dataset's document, the records of its
 //! coarsest levels and the error tables of the next ones in one response, so that a
-//! client draws its first frame after one round trip (issue 17 item 1; the layout
-//! is [`tessera_shared::bootstrap`]'s, API.md).
+//! client draws its first frame after one round trip
+//! (DECISIONS.md "The first view in one round trip"; the layout is
+//! [`tessera_shared::bootstrap`]'s, API.md).
 //!
 //! The records are read and checked as the Morton-range stream reads them
 //! ([`Dataset::records`]: one read per level, each record checked against its

@@ -1,5 +1,6 @@
-//! Cesium terrain (issue 15, DESIGN §9): quantized-mesh-1.0 tiles, meshed per
-//! request from the pyramid (cesium/terrain/), and their `layer.json`.
+//! Cesium terrain (DECISIONS.md "Cesium terrain", docs/ARCHITECTURE.md#derived-outputs):
+//! quantized-mesh-1.0 tiles, meshed per request from the pyramid (cesium/terrain/), and
+//! their `layer.json`.
 //!
 //! - `GET /v1/datasets/{name}/cesium/layer.json`
 //! - `GET /v1/datasets/{name}/cesium/{z}/{x}/{y}.terrain` — extensions as CesiumJS

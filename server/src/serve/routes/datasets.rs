@@ -28,8 +28,9 @@ pub fn describe(ds: &Dataset) -> DatasetInfo {
             i.storage.size(),
         ))
     });
-    // The body from the projection library where it knows the CRS (issue 17 item 4);
-    // otherwise what `DatasetInfo::new` read from the georeferencing stays.
+    // The body from the projection library where it knows the CRS
+    // (DECISIONS.md "The globe"); otherwise what `DatasetInfo::new` read from the
+    // georeferencing stays.
     if let Some(crs) = ds
         .pyramid
         .metadata()

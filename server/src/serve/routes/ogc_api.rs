@@ -1,7 +1,8 @@
 //! OGC API – Tiles (OGC 20-057) over the standard-grid tiles of web_grid.rs: a
 //! landing page, conformance, the two tile matrix sets as OGC TMS 2.0 JSON, one
 //! collection per dataset with a place on a map, its coverage tilesets (one per
-//! grid) and their tiles (issue 14, DESIGN §9).
+//! grid) and their tiles (DECISIONS.md "WMTS capabilities and OGC API",
+//! docs/ARCHITECTURE.md#derived-outputs).
 //!
 //! Links are relative to the server unless `--public-url` (or trusted forwarded
 //! headers) give a base, as for TileJSON: JSON clients resolve them against the

@@ -1,8 +1,9 @@
-//! Standard-grid web tiles (issue 14, DESIGN §9): `WebMercatorQuad` (`webmercator`,
-//! the XYZ scheme of MapLibre, Leaflet, OpenLayers, QGIS) and `WorldCRS84Quad`
-//! (`crs84`), resampled per request from the pyramid whatever the dataset's CRS
-//! (web/resample.rs), as Terrarium or Terrain-RGB PNG or lossless WebP, with a
-//! TileJSON 3.0.0 document per grid and encoding.
+//! Standard-grid web tiles (DECISIONS.md "Standard-grid web tiles",
+//! docs/ARCHITECTURE.md#derived-outputs): `WebMercatorQuad` (`webmercator`, the XYZ
+//! scheme of MapLibre, Leaflet, OpenLayers, QGIS) and `WorldCRS84Quad` (`crs84`),
+//! resampled per request from the pyramid whatever the dataset's CRS (web/resample.rs),
+//! as Terrarium or Terrain-RGB PNG or lossless WebP, with a TileJSON 3.0.0 document per
+//! grid and encoding.
 //!
 //! - `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.png|.webp?encoding=&size=`
 //! - `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`

@@ -1,6 +1,6 @@
 //! Web-map views of a dataset: height tiles as Terrarium or Terrain-RGB PNGs, and a
 //! TileJSON document pointing at them, so MapLibre-style clients and GIS tools can
-//! read the same pyramid (DESIGN §4).
+//! read the same pyramid (docs/ARCHITECTURE.md#derived-outputs).
 //!
 //! A PNG tile is one pyramid tile in the dataset's own grid (`z` is the pyramid
 //! level, `x` east, `y` south, both from 0): `T × T` pixels, pixel `(i, j)` being

@@ -1,6 +1,7 @@
 //! OGC WMTS 1.0.0 capabilities (RESTful binding) for the standard-grid tiles of
 //! web_grid.rs, so GIS desktops (QGIS) and GDAL's WMTS driver open the datasets from
-//! one URL, with no hand-written XML (issue 14, DESIGN §9).
+//! one URL, with no hand-written XML (DECISIONS.md "WMTS capabilities",
+//! docs/ARCHITECTURE.md#derived-outputs).
 //!
 //! - `GET /wmts/1.0.0/WMTSCapabilities.xml`: every dataset that has a place on a map;
 //! - `GET /v1/datasets/{name}/wmts/1.0.0/WMTSCapabilities.xml`: one dataset.

@@ -4,7 +4,7 @@
 //! - `maplibre/` and `cesium/`: MapLibre GL JS and CesiumJS, exactly the npm versions
 //!   the browser tests pin (tests/browser/package-lock.json), from a directory that
 //!   `server/viewer-assets.sh` prepares. They are not in the binary (CesiumJS's build
-//!   is 23 MB; DECISIONS "Real clients (issue 33)").
+//!   is 23 MB; DECISIONS.md "Real clients").
 //!
 //! A request path can never leave the directory: `..`, `.`, empty and hidden
 //! segments, backslashes and NUL are refused before the file system is asked, and the

@@ -1,5 +1,5 @@
-//! The built-in viewer (issue 33 item 4): a landing page at `/` listing every dataset
-//! with a preview and links to each interface it offers, and `/viewer/{name}`, a
+//! The built-in viewer (DECISIONS.md "Real clients"): a landing page at `/` listing every
+//! dataset with a preview and links to each interface it offers, and `/viewer/{name}`, a
 //! page that shows one dataset in MapLibre GL JS (3D terrain, hillshade) and, at the
 //! press of a button, in CesiumJS over its quantized-mesh terrain.
 //!
@@ -9,7 +9,7 @@
 //! - [`preview`]: `GET /v1/datasets/{name}/preview.png`, a computed picture.
 //! - [`assets`]: the viewer's static files: its own (`viewer.js`, `viewer.css`, in
 //!   the binary) and the third-party libraries from a directory the project's script
-//!   prepares (`server/viewer-assets.sh`; DECISIONS "Real clients (issue 33)").
+//!   prepares (`server/viewer-assets.sh`; DECISIONS.md "Real clients").
 //!
 //! Nothing on the pages comes from another host: the libraries are served by this
 //! server, and every URL is relative to the page.
