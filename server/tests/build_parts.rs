@@ -1,10 +1,10 @@
 //! The distributed build (DECISIONS.md "Distributed build") with the real binary:
-//! K/N -o PARTS/` for every K, then `build --assemble PARTS/ -o OUT.tess`, must give
-//! the very bytes (and content hash) of a single `build INPUT -o OUT.tess`, for N = 1,
-//! 4 and 16, on synthetic terrain and on real DEMs, whatever order or parallelism the
-//! parts ran in. A part that died leaves nothing under its name and is rerun alone; a
-//! missing, foreign, duplicate, truncated or corrupt part makes assembling fail with a
-//! line naming the part file, and no output.
+//! `build INPUT --part K/N -o PARTS/` for every K, then
+//! `build --assemble PARTS/ -o OUT.tess`, must give the very bytes (and content hash) of
+//! a single `build INPUT -o OUT.tess`, for N = 1, 4 and 16, on synthetic terrain and on
+//! real DEMs, whatever order or parallelism the parts ran in. A part that died leaves
+//! nothing under its name and is rerun alone; a missing, foreign, duplicate, truncated or
+//! corrupt part makes assembling fail with a line naming the part file, and no output.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
