@@ -1,9 +1,9 @@
-//! What checking an answer costs the replay (issue 18: one core must drive the server
-//! as hard as `wrk`): `loadtest::check::Check` over a frame stream of 16 tile frames of
-//! 20 kB records (a batch of the moon 4096² at 128-cell tiles is of this order), fed
-//! in chunks of 16, 64 and 256 KiB as a socket delivers them. Each sample checks one
-//! whole stream: the shared decoder's checksum of every record, the stream digest,
-//! the trailer. Throughput is in bytes of body.
+//! What checking an answer costs the replay (one core must drive the server as hard as
+//! `wrk`: DECISIONS.md "Load testing: replay"): `loadtest::check::Check` over a frame
+//! stream of 16 tile frames of 20 kB records (a batch of the moon 4096² at 128-cell tiles
+//! is of this order), fed in chunks of 16, 64 and 256 KiB as a socket delivers them. Each
+//! sample checks one whole stream: the shared decoder's checksum of every record, the
+//! stream digest, the trailer. Throughput is in bytes of body.
 //!
 //! ```sh
 //! cargo bench -p tessera-client --bench replay_check

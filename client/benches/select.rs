@@ -1,8 +1,8 @@
-//! Selection time per frame (issue 4 acceptance, DESIGN §7): `Selector::select` at
-//! 1920×1080, τ = 1 px, with every tile resident, one selection per frame along a
-//! built-in path at 60 fps (`pass`, the high fast traverse; and `canyon`, low and
-//! fast, the harder case), the selector's state (quadtrees, refinements) carried
-//! from frame to frame as in a real flight.
+//! Selection time per frame (BENCHMARKS.md "Selection time",
+//! docs/ARCHITECTURE.md#measuring): `Selector::select` at 1920×1080, τ = 1 px, with every
+//! tile resident, one selection per frame along a built-in path at 60 fps (`pass`, the
+//! high fast traverse; and `canyon`, low and fast, the harder case), the selector's state
+//! (quadtrees, refinements) carried from frame to frame as in a real flight.
 //!
 //! ```sh
 //! cargo bench -p tessera-client --bench select

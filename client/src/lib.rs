@@ -1,5 +1,5 @@
-//! The Tessera client (DESIGN §5): view-dependent selection, streaming, the wgpu
-//! renderer, and the run modes built on them.
+//! The Tessera client (docs/ARCHITECTURE.md#the-client): view-dependent selection,
+//! streaming, the wgpu renderer, and the run modes built on them.
 //!
 //! - [`camera`]: a perspective camera and its frustum;
 //! - [`globe`]: datasets drawn on their body's ellipsoid (ECEF, horizon culling);

@@ -1,6 +1,6 @@
 //! The recency list the CPU tile pool ([`crate::stream::pool`]) and the GPU slots
 //! (`render::slots`, with the `render` feature) share: tiles with a value each and the frame each was
-//! last used in, least recently used out (DESIGN §5).
+//! last used in, least recently used out (docs/ARCHITECTURE.md#streaming).
 //!
 //! Using a tile uses its ancestors too (selection walks through them), and the root
 //! level is pinned: it is never a victim, so there is always an ancestor to draw.

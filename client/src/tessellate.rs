@@ -1,5 +1,6 @@
 //! The reference tessellator: the exact vertices the renderer's vertex shader must
-//! produce for a patch (DESIGN §5–6), in integer global sample coordinates.
+//! produce for a patch (docs/ARCHITECTURE.md#rendering,
+//! docs/ARCHITECTURE.md#crack-free-edges), in integer global sample coordinates.
 //!
 //! Vertex `(i, j)` of an inner-LOD-`n` patch sits at tile sample
 //! `origin + (i, j)·size/n`. On an edge whose LOD `e < n`, the along-edge index is

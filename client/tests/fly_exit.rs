@@ -1,8 +1,9 @@
-//! `tessera fly` exits non-zero when a whole flight drew nothing (DESIGN §8, issue
-//! 11), run as the real binary. The server here is a stand-in that knows one
-//! dataset and answers every tile request with a 503, as a server whose storage has
-//! gone away would: the client cannot depend on the real server (which needs axum),
-//! and the end-to-end tests in `tests/` check the same verdict against it.
+//! `tessera fly` exits non-zero when a whole flight drew nothing
+//! (docs/ARCHITECTURE.md#the-client-never-goes-blind, DECISIONS.md "Reliability"), run as
+//! the real binary. The server here is a stand-in that knows one dataset and answers
+//! every tile request with a 503, as a server whose storage has gone away would: the
+//! client cannot depend on the real server (which needs axum), and the end-to-end tests
+//! in `tests/` check the same verdict against it.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
@@ -131,7 +132,8 @@ fn fly_exits_non_zero_when_the_whole_flight_drew_nothing() {
 
 /// `tessera fly` run directly, headless, without `./run` (which exports
 /// `NODEVICE_SELECT=1`): Mesa's device-select layer must not print "XDG_RUNTIME_DIR
-/// is invalid" (issue 33 item 6). The flight draws through lavapipe (or any GPU).
+/// is invalid" (DECISIONS.md "Rendering", backend choice). The flight draws through
+/// lavapipe (or any GPU).
 #[test]
 fn fly_run_directly_headless_prints_no_display_noise() {
     let (url, _) = failing_server();

@@ -1,8 +1,8 @@
 //! `tessera load merge` and `tessera report` run as the real binary against hostile
-//! input (issue 32 item 6): shards given twice and implausible fields are refused
-//! with one line naming the file, and output to a reader that has gone away (`|
-//! head -1`) ends the command quietly, never in a panic. `tessera-load` is `tessera
-//! load` alone: the same arguments, output and exit statuses.
+//! input (DECISIONS.md "Load tester limits"): shards given twice and implausible fields
+//! are refused with one line naming the file, and output to a reader that has gone away
+//! (`| head -1`) ends the command quietly, never in a panic. `tessera-load` is
+//! `tessera load` alone: the same arguments, output and exit statuses.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 

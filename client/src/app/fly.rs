@@ -49,7 +49,7 @@ pub struct FlyOptions {
     /// Render headless (`--out`); `None` for selection and streaming only.
     #[cfg(feature = "render")]
     pub render: Option<super::headless::RenderSetup>,
-    /// Draw on the globe (`--globe`, issue 17 item 4).
+    /// Draw on the globe (`--globe`, DECISIONS.md "The globe").
     pub globe: crate::globe::GlobeMode,
 }
 
@@ -121,8 +121,9 @@ pub struct FlySummary {
 }
 
 impl FlySummary {
-    /// `Err` when the whole flight drew nothing (DESIGN §8: the client exits
-    /// non-zero then), saying what the streamer could not get.
+    /// `Err` when the whole flight drew nothing (the client exits non-zero then:
+    /// docs/ARCHITECTURE.md#the-client-never-goes-blind), saying what the streamer could
+    /// not get.
     pub fn verdict(&self) -> anyhow::Result<()> {
         if self.frames == 0 || self.frames_drawn > 0 {
             return Ok(());

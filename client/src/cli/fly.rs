@@ -293,6 +293,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let summary = fly::fly_to_file(&opts, stats.as_deref())?;
     println!("{}", serde_json::to_string_pretty(&summary)?);
     // A flight that drew nothing at all is a failure, whatever it fetched
-    // (DESIGN §8): the summary above says what, this says why.
+    // (docs/ARCHITECTURE.md#the-client-never-goes-blind): the summary above says what,
+    // this says why.
     summary.verdict()
 }

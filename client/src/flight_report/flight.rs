@@ -190,8 +190,8 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
         .into_iter()
         .filter(|v| v.is_finite())
         .fold(0f64, f64::max);
-    // DESIGN §8: what the client could not get is reported as missing, never as a
-    // huge deficit, with the error that explains it.
+    // What the client could not get is reported as missing, never as a huge deficit, with
+    // the error that explains it (docs/ARCHITECTURE.md#the-client-never-goes-blind).
     let missing = records
         .iter()
         .filter(|r| r.get("max_rho").is_some_and(serde_json::Value::is_null))

@@ -1,5 +1,5 @@
-//! The popping metric (issue 17 item 3): how much the picture jumps when the
-//! selection changes, against how much it moves anyway.
+//! The popping metric (DECISIONS.md "Geomorphing over time"): how much the picture jumps
+//! when the selection changes, against how much it moves anyway.
 //!
 //! Along a slow, settled flight (everything the selection asks for is resident, so
 //! only the level of detail changes the picture), each pair of consecutive frames

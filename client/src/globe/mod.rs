@@ -1,5 +1,5 @@
-//! The globe (issue 17 item 4): a geographic dataset (longitude/latitude grid on a
-//! known body, [`tessera_shared::body::Body`]) drawn on its ellipsoid instead of as a
+//! The globe (DECISIONS.md "The globe"): a geographic dataset (longitude/latitude grid on
+//! a known body, [`tessera_shared::body::Body`]) drawn on its ellipsoid instead of as a
 //! flat sheet.
 //!
 //! Poses stay on the map: the camera's world position `(x, y, z)` is read as finest

@@ -16,8 +16,9 @@
 //! f32's relative error (6·10⁻⁸) makes an absolute error proportional to that
 //! distance: micrometres a metre from the eye, a metre 10 000 km away. No emulated
 //! double arithmetic is needed, and a vertex's position depends only on its global
-//! column, row and height (the same floats on both sides of a shared edge, DESIGN §6
-//! invariant 3). The result is rotated into the eye's local frame ([`super::frame`]).
+//! column, row and height (the same floats on both sides of a shared edge,
+//! docs/ARCHITECTURE.md#crack-free-edges). The result is rotated into the eye's local
+//! frame ([`super::frame`]).
 
 use super::Globe;
 use super::frame::EyeFrame;

@@ -1,9 +1,9 @@
-//! Checking one replayed answer against what was recorded (issue 18), as the body
-//! arrives, without decoding a tile: frame streams go through the shared
-//! [`FrameScanner`] (which verifies every frame's checksum as the bytes stream past,
-//! refusing exactly what the shared `FrameDecoder` refuses, without copying a record)
-//! and a [`StreamDigest`]; other bodies through an incremental XXH3 equal to
-//! [`body_digest`](super::trace::body_digest).
+//! Checking one replayed answer against what was recorded
+//! (DECISIONS.md "Load testing: replay"), as the body arrives, without decoding a tile:
+//! frame streams go through the shared [`FrameScanner`] (which verifies every frame's
+//! checksum as the bytes stream past, refusing exactly what the shared `FrameDecoder`
+//! refuses, without copying a record) and a [`StreamDigest`]; other bodies through an
+//! incremental XXH3 equal to [`body_digest`](super::trace::body_digest).
 
 use super::trace::{Expect, StreamDigest};
 use serde::{Deserialize, Serialize};

@@ -1,6 +1,6 @@
 //! The load process's own CPU time, to tell when a load test measured the load
-//! generator rather than the server (issue 18: "the full-client mode's figures are
-//! labelled as client-bound where they are").
+//! generator rather than the server, so that the full-client mode's figures are labelled
+//! as client-bound where they are (DECISIONS.md "Load testing: replay").
 //!
 //! Read from `/proc/self/stat` (fields 14 and 15, `utime` and `stime`: the whole
 //! process, every thread, in clock ticks; proc(5)), so Linux only: elsewhere the

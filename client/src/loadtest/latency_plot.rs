@@ -1,5 +1,6 @@
-//! `DIR/latency.png` of a replay (issue 18): latency and rate over the run, one panel
-//! per series over a shared axis of seconds, drawn by the charts crate.
+//! `DIR/latency.png` of a replay (DECISIONS.md "Load testing: replay"): latency and rate
+//! over the run, one panel per series over a shared axis of seconds, drawn by the charts
+//! crate.
 
 use super::replay_report::ReplayReport;
 use std::path::Path;

@@ -1,4 +1,5 @@
-//! Load testing that measures the server, not the load generator (issue 18).
+//! Load testing that measures the server, not the load generator
+//! (DECISIONS.md "Load testing: replay, open model, merge").
 //!
 //! - [`trace`]: the request trace `tessera load --record` writes and `--replay`
 //!   reads, its digest of a tile stream, and `--shard K/N`.

@@ -1,5 +1,5 @@
-//! `tessera load --record TRACE` (issue 18): the requests the full clients send,
-//! collected as they go into a [`Trace`] for `--replay`.
+//! `tessera load --record TRACE` (DECISIONS.md "Load testing: replay"): the requests the
+//! full clients send, collected as they go into a [`Trace`] for `--replay`.
 //!
 //! One [`Recorder`] is shared by every simulated client of a load run; each client's
 //! streamer carries it in a [`RecordHook`] (its [`crate::stream::StreamConfig::record`],

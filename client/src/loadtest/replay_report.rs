@@ -1,6 +1,6 @@
-//! The report of a replay (issue 18): what `--json` prints and `--out DIR` writes as
-//! `DIR/load.json`; how the reports of many load processes (`--shard K/N`) add up
-//! into one (`tessera load merge`) is in `merge.rs`.
+//! The report of a replay (DECISIONS.md "Load testing: replay"): what `--json` prints and
+//! `--out DIR` writes as `DIR/load.json`; how the reports of many load processes
+//! (`--shard K/N`) add up into one (`tessera load merge`) is in `merge.rs`.
 //!
 //! Latencies are HDR histograms written into the report V2-encoded (`latency.rs`), so
 //! that merging adds the histograms themselves.

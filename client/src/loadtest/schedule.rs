@@ -1,6 +1,6 @@
-//! When a replay sends each request (issue 18): the arrival schedules of `tessera load
-//! --replay` — as recorded, at a constant rate (`--rate N`), in ramping stages
-//! (`--ramp`) — and saturation (`--rate max`), which has no schedule.
+//! When a replay sends each request (DECISIONS.md "Load testing: replay"): the arrival
+//! schedules of `tessera load --replay` — as recorded, at a constant rate (`--rate N`),
+//! in ramping stages (`--ramp`) — and saturation (`--rate max`), which has no schedule.
 //!
 //! A schedule is a list of instants measured from the start of the run, each with the
 //! trace request to send then. The instants are computed from the start (`k / rate`,

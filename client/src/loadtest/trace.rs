@@ -1,5 +1,6 @@
-//! Request traces (issue 18): `tessera load --record TRACE` writes one, `tessera load
-//! --replay TRACE` sends its requests again without selection or decoding.
+//! Request traces (DECISIONS.md "Load testing: replay"): `tessera load --record TRACE`
+//! writes one, `tessera load --replay TRACE` sends its requests again without selection
+//! or decoding.
 //!
 //! A trace is JSON Lines: a [`TraceHeader`] on the first line, then one
 //! [`TraceRequest`] per line in the order the requests were sent. JSON Lines so that a

@@ -1,5 +1,5 @@
-//! Imagery draped over the terrain (issue 17 item 5; Yang §3: texture LOD follows
-//! grid LOD): one `Rgba8Unorm` texture-array layer per GPU slot, the same slot as
+//! Imagery draped over the terrain (DECISIONS.md "Imagery pyramids"; Yang §3: texture LOD
+//! follows grid LOD): one `Rgba8Unorm` texture-array layer per GPU slot, the same slot as
 //! the tile's heights, and a one-row `Rg32Uint` texture saying, per slot, where its
 //! tile's imagery is: its own layer, or — until that arrives — the layer of its
 //! nearest ancestor that has its imagery, with the ancestor level's offset of the

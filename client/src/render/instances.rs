@@ -1,5 +1,6 @@
 //! Per-instance data for the terrain draws: one record per patch, grouped by inner
-//! LOD so that each LOD is one instanced draw (at most 7 per frame, DESIGN §5).
+//! LOD so that each LOD is one instanced draw (at most 7 per frame,
+//! docs/ARCHITECTURE.md#rendering).
 
 use crate::select::Patch;
 use tessera_shared::{TileGeometry, TileId};

@@ -1,5 +1,5 @@
-//! The wgpu renderer (DESIGN §5): emulated tessellation with at most 7 instanced
-//! terrain draws per frame.
+//! The wgpu renderer (docs/ARCHITECTURE.md#rendering): emulated tessellation with at most
+//! 7 instanced terrain draws per frame.
 //!
 //! - Heights live in an `R16Unorm` 2-D texture array, one layer ("slot") per
 //!   resident tile ([`slots`]), with a normal map ([`normals`]) and the tile's

@@ -1,6 +1,7 @@
-//! The full-resolution reference (issue 5, DESIGN §7): every finest sample a
-//! vertex. Finest tiles are cut into 64-cell patches drawn at inner LOD 64 with all
-//! edges at 64, so no vertex is snapped and nothing is simplified.
+//! The full-resolution reference (DECISIONS.md "Rendering",
+//! docs/ARCHITECTURE.md#measuring): every finest sample a vertex. Finest tiles are cut
+//! into 64-cell patches drawn at inner LOD 64 with all edges at 64, so no vertex is
+//! snapped and nothing is simplified.
 
 use crate::camera::Frustum;
 use crate::select::metric::tile_box;

@@ -1,5 +1,6 @@
 //! GPU slots: a fixed number of texture-array layers holding resident tiles,
-//! least-recently-used out, the root level pinned (DESIGN §5, [`crate::lru`]).
+//! least-recently-used out, the root level pinned (docs/ARCHITECTURE.md#rendering,
+//! [`crate::lru`]).
 //!
 //! Selection only draws tiles that have a slot ([`OnGpu`]), so a tile that has
 //! been decoded but not yet uploaded is drawn through its ancestor, never as a hole.

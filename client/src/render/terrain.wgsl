@@ -1,4 +1,4 @@
-// Terrain with emulated tessellation (DESIGN §5; Kang §3–4).
+// Terrain with emulated tessellation (docs/ARCHITECTURE.md#rendering; Kang §3–4).
 //
 // There is no vertex buffer: vertex `vid` of an inner-LOD-n patch is grid point
 // (vid % (n+1), vid / (n+1)), and the per-instance data says which tile slot, which
@@ -26,8 +26,9 @@ struct Globals {
     // (sx, sy, unused, unused): metres per finest sample east–west (x) and
     // north–south (z); they differ where cells are not square (geographic DEMs).
     spacing: vec4<f32>,
-    // The globe (issue 17 item 4, `client/src/globe/tables.rs`): (1 on, K, unused,
-    // unused), and the rotation from ECEF to the eye's (east, up, south) frame, rows.
+    // The globe (DECISIONS.md "The globe", `client/src/globe/tables.rs`): (1 on, K,
+    // unused, unused), and the rotation from ECEF to the eye's (east, up, south) frame,
+    // rows.
     globe: vec4<f32>,
     to_local0: vec4<f32>,
     to_local1: vec4<f32>,
@@ -49,9 +50,10 @@ struct Globals {
 // unused entry each on flat datasets.
 @group(0) @binding(5) var<storage, read> globe_rows: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> globe_cols: array<vec4<f32>>;
-// Draped imagery (issue 17 item 5): a layer per slot, and per slot where its tile's
-// imagery is (render/imagery.rs): r = 1 + the layer (0: none yet, the hypsometric
-// tint), g = levels up to the layer's tile | x offset << 8 | y offset << 20 there.
+// Draped imagery (DECISIONS.md "Imagery pyramids"): a layer per slot, and per slot where
+// its tile's imagery is (render/drape.rs): r = 1 + the layer (0: none yet, the
+// hypsometric tint), g = levels up to the layer's tile | x offset << 8 | y offset << 20
+// there.
 @group(0) @binding(7) var imagery: texture_2d_array<f32>;
 @group(0) @binding(8) var imagery_source: texture_2d<u32>;
 
@@ -103,7 +105,8 @@ fn terrain_vertex(a: vec4<u32>, b: vec4<u32>, c: vec4<u32>, vid: u32) -> Terrain
     let east = (b.x >> 8u) & 0xffu;
     let south = (b.x >> 16u) & 0xffu;
     let west = b.x >> 24u;
-    // Edge snapping (DESIGN §5): the along-edge index goes down to a multiple of n/e.
+    // Edge snapping (docs/ARCHITECTURE.md#rendering): the along-edge index goes down to a
+    // multiple of n/e.
     var ia = i;
     if (j == 0u) {
         ia = snap(i, n, north);

@@ -15,7 +15,8 @@
 //!
 //! Every vertex on a shared side then sits at a multiple of `D` from a common
 //! corner, and `D` is a multiple of both levels' sample spacings, so both sides
-//! read the same DEM sample there: identical positions, bit for bit (DESIGN §6).
+//! read the same DEM sample there: identical positions, bit for bit
+//! (docs/ARCHITECTURE.md#crack-free-edges).
 
 use super::patch::{EAST, NORTH, Patch, SOUTH, WEST};
 use super::world::World;

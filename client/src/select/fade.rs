@@ -1,4 +1,5 @@
-//! Shading fades (issue 17 item 3): a refined tile's shading comes in over time.
+//! Shading fades (DECISIONS.md "Geomorphing over time"): a refined tile's shading comes
+//! in over time.
 //!
 //! Geomorphing ([`super::morph`]) makes a tile refinement continuous in geometry:
 //! the children start exactly at the surface their parent drew. Their *shading*

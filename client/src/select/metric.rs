@@ -1,5 +1,6 @@
-//! Screen-space error (DESIGN §5, Yang §4.2): `ρ = ε·λ/d`, with `d` the distance
-//! from the eye to the block's cuboid (its min/max height box, widened by `ε`).
+//! Screen-space error (docs/ARCHITECTURE.md#selection, Yang §4.2): `ρ = ε·λ/d`, with `d`
+//! the distance from the eye to the block's cuboid (its min/max height box, widened by
+//! `ε`).
 //!
 //! For one tile and one frame, [`TileRho`] holds `ρ` for every within-tile level and
 //! every 8×8 block, max-pooled up the tile's quadtree, so choosing a node's inner
@@ -96,8 +97,9 @@ impl TileRho {
                     min.z + bsz.y,
                 );
                 // With the eye inside the box, `ε·λ/d` has no bound: infinite, not the
-                // 1e12-odd a clamped distance would make of it (DESIGN §8: reported as
-                // missing, not as a huge number). Comparisons with τ are unchanged.
+                // 1e12-odd a clamped distance would make of it (reported as missing, not
+                // as a huge number: docs/ARCHITECTURE.md#the-client-never-goes-blind).
+                // Comparisons with τ are unchanged.
                 let d = distance.to(min, max);
                 inv_d[i] = if d > 0.0 { 1.0 / d } else { f64::INFINITY };
             }

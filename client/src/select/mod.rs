@@ -1,4 +1,5 @@
-//! View-dependent selection (DESIGN §5): which tiles, which patches, which LODs.
+//! View-dependent selection (docs/ARCHITECTURE.md#selection): which tiles, which patches,
+//! which LODs.
 //!
 //! Each frame:
 //! 1. [`tiles`]: walk the pyramid from the root; refine a tile into its children

@@ -34,8 +34,8 @@
 //! where a patch coming closer switches), and the band is narrow, crossed in a
 //! few frames: LOD `n` is short-lived there whatever is drawn.
 //!
-//! **Edges** (DESIGN §6 invariant 3 at every factor): a vertex on a patch side is
-//! shared with the patches across it, so its factor must be something both sides
+//! **Edges** (docs/ARCHITECTURE.md#crack-free-edges at every factor): a vertex on a patch
+//! side is shared with the patches across it, so its factor must be something both sides
 //! hold. Each shared side (a group of [`super::edge_lod`], spacing `D`) gets one
 //! factor, written into every member's side: the largest interior factor among
 //! the members whose own spacing is `D` (those that set the edge LOD: when one of

@@ -4,7 +4,7 @@
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Policy {
-    /// Screen-space error from the error tables: `ρ = ε·λ/d ≤ τ` (DESIGN §5).
+    /// Screen-space error from the error tables: `ρ = ε·λ/d ≤ τ`.
     #[default]
     ScreenError,
     /// Distance only (the brute-force policy Kang compares against): a cell's own

@@ -12,8 +12,10 @@ pub struct Wanted {
     pub rho: f64,
 }
 
-/// Per-frame statistics (DESIGN §6 invariant 4: the deficit is reported, never hidden;
-/// §8: what could not be had is reported as missing, not as a huge number).
+/// Per-frame statistics: the deficit is reported, never hidden
+/// (docs/ARCHITECTURE.md#screen-space-error-met-or-reported), and what could not be had
+/// is reported as missing, not as a huge number
+/// (docs/ARCHITECTURE.md#the-client-never-goes-blind).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameStats {
     pub tiles: usize,
@@ -32,10 +34,11 @@ pub struct FrameStats {
     /// `max_rho`.
     pub deficit: Option<f64>,
     /// [`FrameStats::max_rho`] of the surface as drawn, geomorph transitions
-    /// included (DESIGN §6 invariant 4: the deficit is never hidden): while a
-    /// patch's transition runs it is drawn part-way to the next coarser grid, and
-    /// its bound is the mix of the two grids' ([`super::morph::drawn_rho`]). Equal to
-    /// `max_rho` when no transition is in flight; `None` with it.
+    /// included (the deficit is never hidden:
+    /// docs/ARCHITECTURE.md#screen-space-error-met-or-reported): while a patch's
+    /// transition runs it is drawn part-way to the next coarser grid, and its bound is
+    /// the mix of the two grids' ([`super::morph::drawn_rho`]). Equal to `max_rho` when
+    /// no transition is in flight; `None` with it.
     #[serde(default)]
     pub drawn_max_rho: Option<f64>,
     /// `drawn_max_rho / τ`.

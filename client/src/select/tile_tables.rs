@@ -12,8 +12,8 @@ pub trait TileTables {
     /// Whether a tile that is not resident cannot be had for now: its last fetch
     /// failed (it is backing off) or its record was written off as corrupt. The
     /// selection then draws that tile's resident children in its place, so that
-    /// a bad root does not blind the client (DESIGN §8: the client draws the
-    /// healthiest level it has).
+    /// a bad root does not blind the client (the client draws the healthiest level it
+    /// has: docs/ARCHITECTURE.md#the-client-never-goes-blind).
     fn unavailable(&self, _tile: TileId) -> bool {
         false
     }

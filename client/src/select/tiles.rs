@@ -1,4 +1,4 @@
-//! Pyramid refinement (DESIGN §5) and balancing of the drawn tiles.
+//! Pyramid refinement (docs/ARCHITECTURE.md#selection) and balancing of the drawn tiles.
 
 use super::metric::{TileRho, tile_box};
 use super::params::SelectParams;
@@ -96,9 +96,10 @@ fn may_be_in_view(world: &World, frustum: &Frustum, tile: TileId) -> bool {
 /// wanted, and when it cannot be had (its fetch failed, or its record was written
 /// off as corrupt) its children stand in for it, and theirs for any of them that
 /// cannot be had either, down to [`MAX_FALLBACK`] tiles: the client draws the
-/// healthiest level it has instead of nothing (DESIGN §8). Tiles in view with no
-/// resident stand-in are counted as missing; missing ones are wanted with the
-/// highest priority, since nothing is drawn there.
+/// healthiest level it has instead of nothing
+/// (docs/ARCHITECTURE.md#the-client-never-goes-blind). Tiles in view with no resident
+/// stand-in are counted as missing; missing ones are wanted with the highest priority,
+/// since nothing is drawn there.
 fn tops(
     world: &World,
     frustum: &Frustum,

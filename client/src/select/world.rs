@@ -20,8 +20,9 @@ pub struct World {
     /// Metres between neighbouring finest samples: `x` east–west (between columns),
     /// `y` north–south (between rows, along world `z`).
     pub spacing: DVec2,
-    /// The body and grid when the dataset is drawn on the globe (issue 17 item 4):
-    /// boxes are then curved shells ([`crate::globe::volume`]).
+    /// The body and grid when the dataset is drawn on the globe
+    /// (DECISIONS.md "The globe"): boxes are then curved shells
+    /// ([`crate::globe::volume`]).
     pub globe: Option<crate::globe::Globe>,
 }
 

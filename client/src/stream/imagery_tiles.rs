@@ -1,6 +1,6 @@
-//! A dataset's imagery on the client (issue 17 item 5; Yang §3: texture LOD follows
-//! grid LOD): the imagery of exactly the tiles the geometry has, fetched in the same
-//! Morton-range requests as the heights (API.md, `/imagery/levels/{l}/tiles`),
+//! A dataset's imagery on the client (DECISIONS.md "Imagery pyramids"; Yang §3: texture
+//! LOD follows grid LOD): the imagery of exactly the tiles the geometry has, fetched in
+//! the same Morton-range requests as the heights (API.md, `/imagery/levels/{l}/tiles`),
 //! decoded from JPEG to RGBA off the render thread (a blocking task per response),
 //! and pooled by tile id beside the height pool, LRU, with the same capacity.
 //!

@@ -1,5 +1,6 @@
 //! Streaming tiles from a Tessera server, or straight from a pyramid file on a
-//! static host (DESIGN §5, §9, Kang §6.1).
+//! static host (docs/ARCHITECTURE.md#streaming, docs/ARCHITECTURE.md#scale-out, Kang
+//! §6.1).
 //!
 //! The frame thread never waits on the network. Each frame it calls
 //! [`Streamer::frame`], which
@@ -23,8 +24,9 @@
 //! is retried with the same backoff, since a reload or another replica may serve it
 //! whole, and written off only after [`StreamConfig::corrupt_attempts`] reports.
 //! Tiles that fail or are written off are marked unavailable in the pool, so that
-//! the selection draws their children in their place (DESIGN §8: the client never
-//! goes blind); [`Streamer::last_error`] says what happened.
+//! the selection draws their children in their place
+//! (docs/ARCHITECTURE.md#the-client-never-goes-blind); [`Streamer::last_error`] says what
+//! happened.
 //!
 //! Requested tiles the server has no record of — the trailer's outside ranges, or a
 //! 404 for a single tile: outside the DEM or, in format v2, wholly no-data — are

@@ -368,7 +368,8 @@ async fn bootstrap(
     if status.is_server_error() {
         // The bootstrap only saves round trips: a server in trouble (its storage
         // away, a 503) is opened the old way, whose tile requests retry with
-        // backoff and report what they could not get (DESIGN §8: never blind).
+        // backoff and report what they could not get
+        // (docs/ARCHITECTURE.md#the-client-never-goes-blind).
         let body = r.text().await.unwrap_or_default();
         tracing::warn!(
             "{url}: HTTP {status}: {}; opening with the dataset's document",

@@ -1,11 +1,11 @@
 //! The CPU tile pool: a fixed number of decoded tiles, least-recently-used out,
-//! the root level pinned so there is always an ancestor to draw (DESIGN §5,
-//! [`crate::lru`]).
+//! the root level pinned so there is always an ancestor to draw
+//! (docs/ARCHITECTURE.md#streaming, [`crate::lru`]).
 //!
 //! It also knows which tiles cannot be had for now (their fetch failed, or their
 //! record was written off as corrupt; the streamer says so): the selection draws
 //! their children instead, and those children are pinned as the root is, since
-//! they stand in for it (DESIGN §8).
+//! they stand in for it (docs/ARCHITECTURE.md#the-client-never-goes-blind).
 //!
 //! And it remembers which tiles are absent: inside the DEM by the geometry but
 //! without a record, because they hold no terrain cell (format v2; the tile stream's

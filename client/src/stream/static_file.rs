@@ -1,6 +1,6 @@
-//! A pyramid file read straight from a static host with HTTP Range (serverless
-//! reads, DESIGN §9; issue 16 item 3), the other [`super::TileSource`] beside a
-//! Tessera server.
+//! A pyramid file read straight from a static host with HTTP Range (serverless reads:
+//! DECISIONS.md "Serverless reads", docs/ARCHITECTURE.md#scale-out), the other
+//! [`super::TileSource`] beside a Tessera server.
 //!
 //! A static file is opened with as few requests as the format allows (FORMAT.md
 //! "Layout": the header, level table, every level's index and the metadata lie

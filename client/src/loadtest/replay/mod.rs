@@ -1,6 +1,6 @@
-//! The replay engine of `tessera load --replay` (issue 18): sends a trace's requests
-//! on an arrival schedule, checks each answer as it streams in, and reports latency
-//! in HDR histograms.
+//! The replay engine of `tessera load --replay` (DECISIONS.md "Load testing: replay"):
+//! sends a trace's requests on an arrival schedule, checks each answer as it streams in,
+//! and reports latency in HDR histograms.
 //!
 //! **The open model.** Each request starts at its scheduled instant (an absolute
 //! schedule computed from the start, see `schedule`), whether or not earlier requests
