@@ -19,7 +19,9 @@
 //!   (`app::headless`), the interactive window (`app::window`), load tests
 //!   ([`app::load_test`]) and the selection benchmark ([`app::bench_select`]);
 //! - [`cli`]: the command line of `tessera` and `tessera-load`;
-//! - [`output`]: standard output that a closed pipe (`| head -1`) ends quietly.
+//! - [`output`]: standard output that a closed pipe (`| head -1`) ends quietly;
+//! - [`errors`]: an error shown with its causes, for log lines, and the charts
+//!   crate's PNG errors.
 //!
 //! Without the default feature `render` the crate links no wgpu, winit or naga: the
 //! load tester (`tessera-load`) is built that way (DECISIONS.md "Load tester and
@@ -28,6 +30,7 @@
 pub mod app;
 pub mod camera;
 pub mod cli;
+pub mod errors;
 pub mod flight_report;
 pub mod globe;
 pub mod loadtest;

@@ -18,25 +18,42 @@ pub const STDOUT_CLOSED_EXIT: u8 = 141;
 #[error("standard output was closed (its reader, such as `head`, went away)")]
 pub struct StdoutClosed;
 
+/// Standard output could not take a line: its reader went away ([`StdoutClosed`]),
+/// or writing failed otherwise.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    #[error(transparent)]
+    Closed(#[from] StdoutClosed),
+    #[error("cannot write to standard output")]
+    Write(#[source] std::io::Error),
+}
+
 /// Writes `text` and a newline to `out` and flushes it: a broken pipe is
 /// [`StdoutClosed`], any other failure an error saying what could not be written.
-pub fn write_line(mut out: impl Write, text: impl Display) -> anyhow::Result<()> {
+pub fn write_line(mut out: impl Write, text: impl Display) -> Result<(), OutputError> {
     match writeln!(out, "{text}").and_then(|()| out.flush()) {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(StdoutClosed.into()),
-        Err(e) => Err(anyhow::Error::new(e).context("cannot write to standard output")),
+        Err(e) => Err(OutputError::Write(e)),
     }
 }
 
 /// [`write_line`] to standard output (locked for the whole line).
-pub fn print_line(text: impl Display) -> anyhow::Result<()> {
+pub fn print_line(text: impl Display) -> Result<(), OutputError> {
     write_line(std::io::stdout().lock(), text)
 }
 
-/// Whether `e` is standard output closing under the command (the command should
-/// end quietly with [`STDOUT_CLOSED_EXIT`]).
-pub fn is_stdout_closed(e: &anyhow::Error) -> bool {
-    e.chain().any(<dyn std::error::Error>::is::<StdoutClosed>)
+/// Whether `e`, or an error it was caused by, is standard output closing under the
+/// command (the command should end quietly with [`STDOUT_CLOSED_EXIT`]).
+pub fn is_stdout_closed(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        if c.is::<StdoutClosed>() || matches!(c.downcast_ref(), Some(OutputError::Closed(_))) {
+            return true;
+        }
+        cause = c.source();
+    }
+    false
 }
 
 /// Writes a progress or diagnostic text to stderr, ignoring failure: a closed or full
@@ -85,9 +102,10 @@ mod tests {
         let e = write_line(Closed, "a line").unwrap_err();
         assert!(is_stdout_closed(&e));
         // Through the callers' context too.
-        assert!(is_stdout_closed(&e.context("printing the report")));
-        let e = write_line(Full, "a line").unwrap_err();
-        assert!(!is_stdout_closed(&e));
+        let e = anyhow::Error::from(e).context("printing the report");
+        assert!(is_stdout_closed(e.as_ref()));
+        let e = anyhow::Error::from(write_line(Full, "a line").unwrap_err());
+        assert!(!is_stdout_closed(e.as_ref()));
         assert!(
             format!("{e:#}").contains("cannot write to standard output"),
             "{e:#}"

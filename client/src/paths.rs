@@ -26,5 +26,5 @@
 mod cameras;
 mod fly_path;
 
-pub use cameras::{eye, path_cameras, pose_camera};
-pub use fly_path::{DESCENT_END_AGL_M, DESCENT_S, FlyPath, Pose};
+pub use cameras::{CamerasError, eye, path_cameras, pose_camera};
+pub use fly_path::{BadPath, DESCENT_END_AGL_M, DESCENT_S, FlyPath, PathError, Pose};

@@ -51,5 +51,5 @@ pub fn run(args: ReportArgs) -> anyhow::Result<()> {
             ));
         }
     }
-    printed
+    Ok(printed?)
 }

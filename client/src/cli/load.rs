@@ -184,7 +184,7 @@ fn emit_replay(r: &ReplayReport, json: bool, out: Option<&std::path::Path>) -> a
     if let Some(dir) = out {
         r.write_dir(dir)?;
     }
-    printed
+    Ok(printed?)
 }
 
 /// `tessera load --replay TRACE …`.
@@ -296,8 +296,9 @@ pub fn run(args: LoadArgs) -> anyhow::Result<()> {
     };
     let r = load_test::load(&opts)?;
     if json {
-        output::print_line(serde_json::to_string_pretty(&r)?)
+        output::print_line(serde_json::to_string_pretty(&r)?)?;
     } else {
-        output::print_line(&r)
+        output::print_line(&r)?;
     }
+    Ok(())
 }

@@ -78,7 +78,7 @@ pub fn exit_code(result: anyhow::Result<()>) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         // The reader of our output went away (`| head -1`): not an error to report.
-        Err(e) if output::is_stdout_closed(&e) => {
+        Err(e) if output::is_stdout_closed(e.as_ref()) => {
             std::process::ExitCode::from(output::STDOUT_CLOSED_EXIT)
         }
         Err(e) => {

@@ -12,7 +12,7 @@
 //!   dithering: dither noise changes every frame and compresses badly.
 
 use super::contact_sheet::area_resample;
-use anyhow::Context;
+use crate::errors::PngError;
 use std::path::{Path, PathBuf};
 use tessera_charts::png::read_png;
 
@@ -138,17 +138,53 @@ fn nearest(palette: &[[u8; 3]], c: [u8; 3]) -> u8 {
         .unwrap_or(0) as u8
 }
 
+/// Why an animation could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum AnimationError {
+    #[error("{}: cannot list frames", dir.display())]
+    List {
+        dir: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: no frame PNGs", dir.display())]
+    NoFrames { dir: PathBuf },
+    #[error("no frames to animate")]
+    Nothing,
+    #[error("Condition failed: `opts.fps > 0 && opts.max_width > 0 && opts.max_frames > 0`")]
+    Options,
+    #[error(transparent)]
+    Png(#[from] PngError),
+    #[error("{}: {}×{}, but the first frame is {}×{}", path.display(), size.0, size.1, first.0, first.1)]
+    Size {
+        path: PathBuf,
+        size: (u32, u32),
+        first: (u32, u32),
+    },
+    #[error("{}: cannot write the animation", out.display())]
+    Write {
+        out: PathBuf,
+        #[source]
+        source: PngError,
+    },
+}
+
 /// The frame PNGs of a directory (`frame_NNNNN.png` from `tessera fly --out`), in
 /// name order.
-pub fn frame_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, AnimationError> {
     let mut names: Vec<_> = std::fs::read_dir(dir)
-        .with_context(|| format!("{}: cannot list frames", dir.display()))?
+        .map_err(|source| AnimationError::List {
+            dir: dir.into(),
+            source,
+        })?
         .filter_map(Result::ok)
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|e| e == "png"))
         .collect();
     names.sort();
-    anyhow::ensure!(!names.is_empty(), "{}: no frame PNGs", dir.display());
+    if names.is_empty() {
+        return Err(AnimationError::NoFrames { dir: dir.into() });
+    }
     Ok(names)
 }
 
@@ -168,22 +204,26 @@ pub fn write_animation(
     frames: &[PathBuf],
     out: &Path,
     opts: AnimationOptions,
-) -> anyhow::Result<Animation> {
-    anyhow::ensure!(!frames.is_empty(), "no frames to animate");
-    anyhow::ensure!(opts.fps > 0 && opts.max_width > 0 && opts.max_frames > 0);
+) -> Result<Animation, AnimationError> {
+    if frames.is_empty() {
+        return Err(AnimationError::Nothing);
+    }
+    if !(opts.fps > 0 && opts.max_width > 0 && opts.max_frames > 0) {
+        return Err(AnimationError::Options);
+    }
     let step = frames.len().div_ceil(opts.max_frames);
     let mut size = None;
     let mut small = Vec::new();
     for path in frames.iter().step_by(step) {
-        let (rgba, w, h) = read_png(path)?;
+        let (rgba, w, h) = read_png(path).map_err(PngError::from)?;
         let first = *size.get_or_insert((w, h));
-        anyhow::ensure!(
-            (w, h) == first,
-            "{}: {w}×{h}, but the first frame is {}×{}",
-            path.display(),
-            first.0,
-            first.1
-        );
+        if (w, h) != first {
+            return Err(AnimationError::Size {
+                path: path.clone(),
+                size: (w, h),
+                first,
+            });
+        }
         let (dw, dh) = animation_size(w, h, opts.max_width);
         small.push(area_resample(&rgba, w, h, dw, dh));
     }
@@ -226,7 +266,10 @@ pub fn write_animation(
         writer.finish()?;
         Ok(())
     })
-    .with_context(|| format!("{}: cannot write the animation", out.display()))?;
+    .map_err(|e| AnimationError::Write {
+        out: out.into(),
+        source: e.into(),
+    })?;
     let bytes = std::fs::metadata(out).map_or(0, |m| m.len());
     Ok(Animation {
         frames: small.len() as u32,

@@ -1,10 +1,12 @@
 //! `tessera report`: a flight's `stats.jsonl` (and frames) into `stats.png`,
 //! `contact_sheet.png` and a few lines of summary.
 
+use super::animation::AnimationError;
 use super::contact_sheet::{contact_sheet_labelled, pick_evenly_indices};
-use anyhow::Context;
+use crate::errors::PngError;
 use std::fmt::Write as _;
 use std::path::Path;
+use std::path::PathBuf;
 use tessera_charts::plot::{Series, plot_panels};
 use tessera_charts::png::{read_png, write_png};
 
@@ -36,18 +38,76 @@ impl std::fmt::Display for TornLine {
     }
 }
 
+/// A `stats.jsonl` that could not be read: the file, or a line that is not JSON.
+#[derive(Debug, thiserror::Error)]
+pub enum StatsError {
+    #[error("{}: cannot read", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// What was wrong in the file at `path`.
+    #[error("{}", path.display())]
+    File {
+        path: PathBuf,
+        #[source]
+        source: Box<StatsError>,
+    },
+    #[error("line {line} is not JSON")]
+    Line {
+        line: usize,
+        #[source]
+        source: LineError,
+    },
+}
+
+/// Why a line of `stats.jsonl` is not JSON.
+#[derive(Debug, thiserror::Error)]
+pub enum LineError {
+    #[error(transparent)]
+    Utf8(#[from] std::str::Utf8Error),
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+}
+
+/// Why a flight's report could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum FlightReportError {
+    #[error(transparent)]
+    Stats(#[from] StatsError),
+    #[error("{}: no frames", path.display())]
+    NoFrames { path: PathBuf },
+    #[error("{}: cannot create", dir.display())]
+    Create {
+        dir: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Png(#[from] PngError),
+    #[error(transparent)]
+    Animation(#[from] AnimationError),
+}
+
 /// Reads `stats.jsonl`: one JSON object per frame. A flight killed while writing
 /// leaves its last line cut short: that line (not ending in a newline, or ending
 /// mid-JSON) is dropped and said in [`Stats::torn`], since every frame before it is
 /// whole. Any other line that is not JSON is an error naming it: that is a damaged
 /// file, not a cut one.
-pub fn read_stats(path: &Path) -> anyhow::Result<Stats> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    parse_stats(&bytes).with_context(|| path.display().to_string())
+pub fn read_stats(path: &Path) -> Result<Stats, StatsError> {
+    let bytes = std::fs::read(path).map_err(|source| StatsError::Read {
+        path: path.into(),
+        source,
+    })?;
+    parse_stats(&bytes).map_err(|e| StatsError::File {
+        path: path.into(),
+        source: Box::new(e),
+    })
 }
 
 /// [`read_stats`] on the file's bytes.
-pub fn parse_stats(bytes: &[u8]) -> anyhow::Result<Stats> {
+pub fn parse_stats(bytes: &[u8]) -> Result<Stats, StatsError> {
     // Bytes (not a String): a cut can split a UTF-8 character, which only the torn
     // line may hold.
     let complete = bytes.ends_with(b"\n");
@@ -67,7 +127,7 @@ pub fn parse_stats(bytes: &[u8]) -> anyhow::Result<Stats> {
         }
         let n = i + 1;
         let parsed = std::str::from_utf8(line)
-            .map_err(anyhow::Error::new)
+            .map_err(LineError::from)
             .and_then(|t| serde_json::from_str::<serde_json::Value>(t).map_err(Into::into));
         match parsed {
             Ok(v) => stats.records.push(v),
@@ -77,7 +137,7 @@ pub fn parse_stats(bytes: &[u8]) -> anyhow::Result<Stats> {
                     bytes: line.len(),
                 });
             }
-            Err(e) => return Err(e.context(format!("line {n} is not JSON"))),
+            Err(source) => return Err(StatsError::Line { line: n, source }),
         }
     }
     Ok(stats)
@@ -85,9 +145,8 @@ pub fn parse_stats(bytes: &[u8]) -> anyhow::Result<Stats> {
 
 /// Whether a parse failed because the text ended inside a JSON value (what a cut
 /// leaves), not on bad syntax.
-fn ends_mid_json(e: &anyhow::Error) -> bool {
-    e.downcast_ref::<serde_json::Error>()
-        .is_some_and(|e| e.classify() == serde_json::error::Category::Eof)
+fn ends_mid_json(e: &LineError) -> bool {
+    matches!(e, LineError::Json(e) if e.classify() == serde_json::error::Category::Eof)
 }
 
 fn column(records: &[serde_json::Value], key: &str, scale: f64) -> Vec<f64> {
@@ -105,13 +164,22 @@ fn median(v: &[f64]) -> f64 {
 
 /// Writes `out/stats.png` and, with `frames`, `out/contact_sheet.png` (12 frames
 /// spread over the flight). Returns a short summary for people.
-pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::Result<String> {
+pub fn write_report(
+    stats: &Path,
+    frames: Option<&Path>,
+    out: &Path,
+) -> Result<String, FlightReportError> {
     let Stats { records, torn } = read_stats(stats)?;
     if let Some(torn) = torn {
         crate::output::progress(format_args!("warning: {}: {torn}\n", stats.display()));
     }
-    anyhow::ensure!(!records.is_empty(), "{}: no frames", stats.display());
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    if records.is_empty() {
+        return Err(FlightReportError::NoFrames { path: stats.into() });
+    }
+    std::fs::create_dir_all(out).map_err(|source| FlightReportError::Create {
+        dir: out.into(),
+        source,
+    })?;
     let series = [
         Series::new("triangles", "", column(&records, "triangles", 1.0)),
         Series::new("draw calls", "", column(&records, "draw_calls", 1.0)),
@@ -140,14 +208,14 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
         }),
     ];
     let (rgba, w, h) = plot_panels(&series, "frame", 1200, 180);
-    write_png(&out.join("stats.png"), &rgba, w, h)?;
+    write_png(&out.join("stats.png"), &rgba, w, h).map_err(PngError::from)?;
     if let Some(dir) = frames {
         let names = super::animation::frame_files(dir)?;
         let picked = pick_evenly_indices(names.len(), 12);
         let mut thumbs = Vec::new();
         let mut labels = Vec::new();
         for &i in &picked {
-            thumbs.push(read_png(&names[i])?);
+            thumbs.push(read_png(&names[i]).map_err(PngError::from)?);
             labels.push(format!(
                 "#{}",
                 names[i]
@@ -159,7 +227,7 @@ pub fn write_report(stats: &Path, frames: Option<&Path>, out: &Path) -> anyhow::
             ));
         }
         let (rgba, w, h) = contact_sheet_labelled(&thumbs, &labels, 4, 320);
-        write_png(&out.join("contact_sheet.png"), &rgba, w, h)?;
+        write_png(&out.join("contact_sheet.png"), &rgba, w, h).map_err(PngError::from)?;
     }
     let n = records.len();
     let within_by = |field: &str, limit: f64| {
@@ -299,7 +367,8 @@ mod tests {
         assert!(summary.contains("last error: level 0 tile (0, 0) morton 0: corrupt"));
         std::fs::write(&stats, "{\"frame\":0}\nnot json\n").unwrap();
         let e = write_report(&stats, None, &out).unwrap_err();
-        assert!(format!("{e:#}").contains("line 2 is not JSON"), "{e:#}");
+        let e = crate::errors::Chain(&e).to_string();
+        assert!(e.contains("line 2 is not JSON"), "{e}");
     }
 
     const FRAME: &str = r#"{"frame":0,"tiles":3,"triangles":10,"last_error":"a é"}"#;
@@ -351,7 +420,9 @@ mod tests {
 
     #[test]
     fn a_bad_line_before_the_last_is_still_an_error_naming_it() {
-        let err = |text: String| format!("{:#}", parse_stats(text.as_bytes()).unwrap_err());
+        let err = |text: String| {
+            crate::errors::Chain(&parse_stats(text.as_bytes()).unwrap_err()).to_string()
+        };
         // Cut short in the middle: not what a killed writer leaves.
         let e = err(format!("{FRAME}\n{}\n{FRAME}\n", &FRAME[..20]));
         assert!(e.contains("line 2 is not JSON"), "{e}");
@@ -362,13 +433,13 @@ mod tests {
         let mut bad = format!("{FRAME}\n").into_bytes();
         bad.extend_from_slice(&[0xFF, 0xFE, b'\n']);
         bad.extend_from_slice(FRAME.as_bytes());
-        let e = format!("{:#}", parse_stats(&bad).unwrap_err());
+        let e = crate::errors::Chain(&parse_stats(&bad).unwrap_err()).to_string();
         assert!(e.contains("line 2 is not JSON"), "{e}");
         // Through the file, naming it.
         let dir = tempfile::tempdir().unwrap();
         let stats = dir.path().join("stats.jsonl");
         std::fs::write(&stats, format!("{FRAME}\nnot json\n{FRAME}\n")).unwrap();
-        let e = format!("{:#}", read_stats(&stats).unwrap_err());
+        let e = crate::errors::Chain(&read_stats(&stats).unwrap_err()).to_string();
         assert!(
             e.contains("stats.jsonl") && e.contains("line 2 is not JSON"),
             "{e}"

@@ -81,15 +81,23 @@ impl Default for ChangeHistogram {
     }
 }
 
+/// Two frames compared pixel by pixel that are not the same size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("frames differ in size ({before} and {after} bytes)")]
+pub struct FramesDiffer {
+    pub before: usize,
+    pub after: usize,
+}
+
 impl ChangeHistogram {
     /// Adds the per-pixel changes between two RGBA8 frames of the same size.
-    pub fn add(&mut self, before: &[u8], after: &[u8]) -> anyhow::Result<()> {
-        anyhow::ensure!(
-            before.len() == after.len() && before.len().is_multiple_of(4),
-            "frames differ in size ({} and {} bytes)",
-            before.len(),
-            after.len()
-        );
+    pub fn add(&mut self, before: &[u8], after: &[u8]) -> Result<(), FramesDiffer> {
+        if !(before.len() == after.len() && before.len().is_multiple_of(4)) {
+            return Err(FramesDiffer {
+                before: before.len(),
+                after: after.len(),
+            });
+        }
         for (p, q) in before.chunks_exact(4).zip(after.chunks_exact(4)) {
             let d: usize = (0..3).map(|c| usize::from(p[c].abs_diff(q[c]))).sum();
             self.counts[d] += 1;
@@ -180,7 +188,7 @@ impl Popping {
     /// Adds the next frame (RGBA8, the same size every frame) and what it drew.
     /// Returns whether its selection differs from the previous frame's (`None` for
     /// the first frame).
-    pub fn add(&mut self, rgba: Vec<u8>, key: SelectionKey) -> anyhow::Result<Option<bool>> {
+    pub fn add(&mut self, rgba: Vec<u8>, key: SelectionKey) -> Result<Option<bool>, FramesDiffer> {
         let changed = match &self.last {
             Some((before, prev)) => {
                 let changed = *prev != key;
@@ -207,7 +215,7 @@ impl Popping {
         current: &[u8],
         previous: &[u8],
         changed: bool,
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), FramesDiffer> {
         if changed && self.last_lod_only {
             self.same_lod_only.add(previous, current)?;
         }

@@ -50,6 +50,16 @@ pub struct Globe {
     pub min_height: f64,
 }
 
+/// `--globe on` for a dataset that is not a longitude/latitude grid on a known body.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "--globe on: dataset {name:?} is not a longitude/latitude grid on a known body (its CRS: {crs})"
+)]
+pub struct NotAGlobe {
+    pub name: String,
+    pub crs: String,
+}
+
 impl Globe {
     /// The globe of a dataset document, `None` when it is not geographic on a known
     /// body or its geotransform is rotated.
@@ -66,22 +76,19 @@ impl Globe {
         })
     }
 
-    /// What `mode` asks for on this dataset: `Ok(None)` flat.
+    /// What `mode` asks for on this dataset: `Ok(None)` flat; an error when `mode`
+    /// is [`GlobeMode::On`] and the dataset cannot be drawn on the globe.
     pub fn choose(
         mode: GlobeMode,
         info: &DatasetInfo,
         spacing: DVec2,
-    ) -> anyhow::Result<Option<Self>> {
+    ) -> Result<Option<Self>, NotAGlobe> {
         match mode {
             GlobeMode::Off => Ok(None),
             GlobeMode::Auto => Ok(Self::of(info, spacing)),
-            GlobeMode::On => Self::of(info, spacing).map(Some).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "--globe on: dataset {:?} is not a longitude/latitude grid on a known body \
-                     (its CRS: {})",
-                    info.name,
-                    info.crs.as_deref().unwrap_or("none")
-                )
+            GlobeMode::On => Self::of(info, spacing).map(Some).ok_or_else(|| NotAGlobe {
+                name: info.name.clone(),
+                crs: info.crs.clone().unwrap_or_else(|| "none".into()),
             }),
         }
     }

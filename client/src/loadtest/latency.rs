@@ -3,12 +3,26 @@
 //! merging shards adds the histograms themselves and merged percentiles are those of
 //! all the requests, not an average of percentiles.
 
-use anyhow::Context;
 use base64::Engine;
 use hdrhistogram::Histogram;
 use hdrhistogram::serialization::{Deserializer, Serializer, V2Serializer};
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
+
+/// A report's histogram that does not read back.
+#[derive(Debug, thiserror::Error)]
+pub enum HistogramError {
+    #[error("histogram is not base64")]
+    NotBase64(#[source] base64::DecodeError),
+    #[error("histogram is not an HdrHistogram V2 encoding: {0:?}")]
+    NotV2(hdrhistogram::serialization::DeserializeError),
+    #[error("histogram does not fit 1 µs .. 1 h at {SIGNIFICANT_DIGITS} digits: {0:?}")]
+    DoesNotFit(hdrhistogram::AdditionError),
+    #[error("corrected histogram")]
+    Corrected(#[source] Box<HistogramError>),
+    #[error("uncorrected histogram")]
+    Uncorrected(#[source] Box<HistogramError>),
+}
 
 /// Largest latency a histogram holds: one hour, in microseconds (longer ones are
 /// recorded as one hour).
@@ -99,19 +113,15 @@ impl Latency {
     }
 
     /// Reads [`Latency::to_base64`]'s encoding.
-    pub fn from_base64(s: &str) -> anyhow::Result<Self> {
+    pub fn from_base64(s: &str) -> Result<Self, HistogramError> {
         let bytes = base64::engine::general_purpose::STANDARD
             .decode(s)
-            .context("histogram is not base64")?;
+            .map_err(HistogramError::NotBase64)?;
         let h: Histogram<u64> = Deserializer::new()
             .deserialize(&mut &bytes[..])
-            .map_err(|e| anyhow::anyhow!("histogram is not an HdrHistogram V2 encoding: {e:?}"))?;
+            .map_err(HistogramError::NotV2)?;
         let mut l = Self::new();
-        l.0.add(&h).map_err(|e| {
-            anyhow::anyhow!(
-                "histogram does not fit 1 µs .. 1 h at {SIGNIFICANT_DIGITS} digits: {e:?}"
-            )
-        })?;
+        l.0.add(&h).map_err(HistogramError::DoesNotFit)?;
         Ok(l)
     }
 }
@@ -143,10 +153,12 @@ impl Histograms {
         }
     }
 
-    pub fn decode(&self) -> anyhow::Result<(Latency, Latency)> {
+    pub fn decode(&self) -> Result<(Latency, Latency), HistogramError> {
         Ok((
-            Latency::from_base64(&self.corrected).context("corrected histogram")?,
-            Latency::from_base64(&self.uncorrected).context("uncorrected histogram")?,
+            Latency::from_base64(&self.corrected)
+                .map_err(|e| HistogramError::Corrected(Box::new(e)))?,
+            Latency::from_base64(&self.uncorrected)
+                .map_err(|e| HistogramError::Uncorrected(Box::new(e)))?,
         ))
     }
 }

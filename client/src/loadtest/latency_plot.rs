@@ -3,6 +3,7 @@
 //! crate.
 
 use super::replay_report::ReplayReport;
+use crate::errors::PngError;
 use std::path::Path;
 use tessera_charts::plot::{Series, plot_panels};
 
@@ -48,9 +49,9 @@ pub fn series(report: &ReplayReport) -> Vec<Series> {
 }
 
 /// Writes the plot to `path` (temp and rename: never a partial PNG).
-pub fn write(report: &ReplayReport, path: &Path) -> anyhow::Result<()> {
+pub fn write(report: &ReplayReport, path: &Path) -> Result<(), PngError> {
     let (rgba, w, h) = plot_panels(&series(report), "second", 1200, 170);
-    tessera_charts::png::write_png(path, &rgba, w, h)
+    Ok(tessera_charts::png::write_png(path, &rgba, w, h)?)
 }
 
 #[cfg(test)]

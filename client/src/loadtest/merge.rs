@@ -4,8 +4,99 @@
 //! that implausible or repeated shards are refused with the file and field named.
 
 use super::check::ErrorKind;
+use super::latency::HistogramError;
 use super::replay_report::{Histograms, Latency, REPORT_VERSION, ReplayReport, Second};
-use anyhow::{Context, bail};
+use super::replay_report_file::{Implausible, ReportError};
+
+/// Why reports could not be merged: each names the report (by its place, or its
+/// file with [`merge_files`]) and what was wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum MergeError {
+    #[error("{label}: {field} {value}: the sum over the reports does not fit ({before} before it)")]
+    Overflow {
+        label: String,
+        field: String,
+        value: String,
+        before: String,
+    },
+    #[error("{label}: cannot open")]
+    Open {
+        label: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{label} is {first} again: the same shard twice would count its requests twice")]
+    SamePath { label: String, first: String },
+    #[error("{label}: cannot read")]
+    Read {
+        label: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(
+        "{label} has the same content as {first}: the same shard twice would count its requests twice"
+    )]
+    SameContent { label: String, first: String },
+    #[error("{label}: not UTF-8 text")]
+    NotUtf8 {
+        label: String,
+        #[source]
+        source: std::string::FromUtf8Error,
+    },
+    #[error("{label}")]
+    Report {
+        label: String,
+        #[source]
+        source: ReportError,
+    },
+    #[error("nothing to merge: no reports")]
+    Nothing,
+    #[error("{label}: version {version} (this build merges version {REPORT_VERSION})")]
+    Version { label: String, version: u32 },
+    #[error(
+        "{label}: mode {mode} but {first_label}'s is {first_mode}; merge the shards of one run"
+    )]
+    Mode {
+        label: String,
+        mode: &'static str,
+        first_label: String,
+        first_mode: &'static str,
+    },
+    #[error("{label}: HTTP/{http} but {first_label} spoke HTTP/{first_http}")]
+    Http {
+        label: String,
+        http: &'static str,
+        first_label: String,
+        first_http: &'static str,
+    },
+    #[error("{label}")]
+    Implausible {
+        label: String,
+        #[source]
+        source: Implausible,
+    },
+    #[error(
+        "{label}: shard {shard} is in {other} too: the same shard twice would count its requests twice"
+    )]
+    SameShard {
+        label: String,
+        shard: String,
+        other: String,
+    },
+    #[error("{label}")]
+    Histogram {
+        label: String,
+        #[source]
+        source: HistogramError,
+    },
+    #[error("{label}, second {second}")]
+    SecondHistogram {
+        label: String,
+        second: u64,
+        #[source]
+        source: HistogramError,
+    },
+}
 
 /// `a + b`, or an error naming the field and the report that overflowed it.
 fn sum<T: Copy + std::fmt::Display>(
@@ -14,9 +105,12 @@ fn sum<T: Copy + std::fmt::Display>(
     add: fn(T, T) -> Option<T>,
     label: &str,
     field: &str,
-) -> anyhow::Result<T> {
-    add(a, b).with_context(|| {
-        format!("{label}: {field} {b}: the sum over the reports does not fit ({a} before it)")
+) -> Result<T, MergeError> {
+    add(a, b).ok_or_else(|| MergeError::Overflow {
+        label: label.into(),
+        field: field.into(),
+        value: b.to_string(),
+        before: a.to_string(),
     })
 }
 
@@ -27,7 +121,7 @@ fn sum<T: Copy + std::fmt::Display>(
 /// held its share (null if any is null). The reports must agree on mode and HTTP
 /// version, name no shard twice, and each pass [`ReplayReport::validate`]; errors
 /// name a report by its place (`report 2`): [`merge_files`] names the files.
-pub fn merge(reports: &[ReplayReport]) -> anyhow::Result<ReplayReport> {
+pub fn merge(reports: &[ReplayReport]) -> Result<ReplayReport, MergeError> {
     let labelled: Vec<(String, &ReplayReport)> = reports
         .iter()
         .enumerate()
@@ -40,7 +134,7 @@ pub fn merge(reports: &[ReplayReport]) -> anyhow::Result<ReplayReport> {
 /// `load.json`), as [`merge`] does, refusing a file given twice or two files with
 /// the same content: the same shard counted twice would double its requests. Errors
 /// name the file.
-pub fn merge_files(paths: &[std::path::PathBuf]) -> anyhow::Result<ReplayReport> {
+pub fn merge_files(paths: &[std::path::PathBuf]) -> Result<ReplayReport, MergeError> {
     let mut seen_paths: Vec<(std::path::PathBuf, String)> = Vec::new();
     let mut seen_content: Vec<(u64, String)> = Vec::new();
     let mut reports = Vec::with_capacity(paths.len());
@@ -51,20 +145,35 @@ pub fn merge_files(paths: &[std::path::PathBuf]) -> anyhow::Result<ReplayReport>
             p.clone()
         };
         let label = format!("report {}", file.display());
-        let canonical =
-            std::fs::canonicalize(&file).with_context(|| format!("{label}: cannot open"))?;
+        let canonical = std::fs::canonicalize(&file).map_err(|source| MergeError::Open {
+            label: label.clone(),
+            source,
+        })?;
         if let Some((_, first)) = seen_paths.iter().find(|(c, _)| *c == canonical) {
-            bail!("{label} is {first} again: the same shard twice would count its requests twice");
+            return Err(MergeError::SamePath {
+                label,
+                first: first.clone(),
+            });
         }
-        let bytes = std::fs::read(&file).with_context(|| format!("{label}: cannot read"))?;
+        let bytes = std::fs::read(&file).map_err(|source| MergeError::Read {
+            label: label.clone(),
+            source,
+        })?;
         let hash = xxhash_rust::xxh3::xxh3_64(&bytes);
         if let Some((_, first)) = seen_content.iter().find(|(h, _)| *h == hash) {
-            bail!(
-                "{label} has the same content as {first}: the same shard twice would count its requests twice"
-            );
+            return Err(MergeError::SameContent {
+                label,
+                first: first.clone(),
+            });
         }
-        let text = String::from_utf8(bytes).with_context(|| format!("{label}: not UTF-8 text"))?;
-        let r = ReplayReport::from_json(&text).with_context(|| label.clone())?;
+        let text = String::from_utf8(bytes).map_err(|source| MergeError::NotUtf8 {
+            label: label.clone(),
+            source,
+        })?;
+        let r = ReplayReport::from_json(&text).map_err(|source| MergeError::Report {
+            label: label.clone(),
+            source,
+        })?;
         seen_paths.push((canonical, label.clone()));
         seen_content.push((hash, label.clone()));
         reports.push((label, r));
@@ -74,9 +183,9 @@ pub fn merge_files(paths: &[std::path::PathBuf]) -> anyhow::Result<ReplayReport>
     merge_labelled(&labelled)
 }
 
-fn merge_labelled(reports: &[(String, &ReplayReport)]) -> anyhow::Result<ReplayReport> {
+fn merge_labelled(reports: &[(String, &ReplayReport)]) -> Result<ReplayReport, MergeError> {
     let Some(&(ref first_label, first)) = reports.first() else {
-        bail!("nothing to merge: no reports");
+        return Err(MergeError::Nothing);
     };
     let mut corrected = Latency::new();
     let mut uncorrected = Latency::new();
@@ -89,33 +198,49 @@ fn merge_labelled(reports: &[(String, &ReplayReport)]) -> anyhow::Result<ReplayR
     let mut shards: Vec<(&str, &str)> = Vec::new();
     for (label, r) in reports {
         let label = label.as_str();
-        anyhow::ensure!(
-            r.tessera_load == REPORT_VERSION,
-            "{label}: version {} (this build merges version {REPORT_VERSION})",
-            r.tessera_load
-        );
-        anyhow::ensure!(
-            r.mode == first.mode,
-            "{label}: mode {} but {first_label}'s is {}; merge the shards of one run",
-            r.mode.name(),
-            first.mode.name()
-        );
-        anyhow::ensure!(
-            r.http == first.http,
-            "{label}: HTTP/{} but {first_label} spoke HTTP/{}",
-            r.http.name(),
-            first.http.name()
-        );
-        r.validate().with_context(|| label.to_string())?;
+        if r.tessera_load != REPORT_VERSION {
+            return Err(MergeError::Version {
+                label: label.into(),
+                version: r.tessera_load,
+            });
+        }
+        if r.mode != first.mode {
+            return Err(MergeError::Mode {
+                label: label.into(),
+                mode: r.mode.name(),
+                first_label: first_label.clone(),
+                first_mode: first.mode.name(),
+            });
+        }
+        if r.http != first.http {
+            return Err(MergeError::Http {
+                label: label.into(),
+                http: r.http.name(),
+                first_label: first_label.clone(),
+                first_http: first.http.name(),
+            });
+        }
+        r.validate().map_err(|source| MergeError::Implausible {
+            label: label.into(),
+            source,
+        })?;
         for shard in r.shard.split(',').map(str::trim) {
             if let Some((_, other)) = shards.iter().find(|(s, _)| *s == shard) {
-                bail!(
-                    "{label}: shard {shard} is in {other} too: the same shard twice would count its requests twice"
-                );
+                return Err(MergeError::SameShard {
+                    label: label.into(),
+                    shard: shard.into(),
+                    other: (*other).into(),
+                });
             }
             shards.push((shard, label));
         }
-        let (c, u) = r.histograms.decode().with_context(|| label.to_string())?;
+        let (c, u) = r
+            .histograms
+            .decode()
+            .map_err(|source| MergeError::Histogram {
+                label: label.into(),
+                source,
+            })?;
         corrected.add(&c);
         uncorrected.add(&u);
         let add64 = |a: u64, b: u64, field: &str| sum(a, b, u64::checked_add, label, field);
@@ -154,7 +279,7 @@ fn merge_labelled(reports: &[(String, &ReplayReport)]) -> anyhow::Result<ReplayR
 /// (`validate`), so one pass with a cursor per report does it, holding one second's
 /// histograms at a time: keeping every second's (two 188 KB histograms each) was
 /// 1.4 TB for a timeline claiming second 4·10⁹.
-fn merge_timelines(reports: &[(String, &ReplayReport)]) -> anyhow::Result<Vec<Second>> {
+fn merge_timelines(reports: &[(String, &ReplayReport)]) -> Result<Vec<Second>, MergeError> {
     let Some(end) = reports
         .iter()
         .filter_map(|(_, r)| r.timeline.last().map(|s| s.second))
@@ -180,10 +305,14 @@ fn merge_timelines(reports: &[(String, &ReplayReport)]) -> anyhow::Result<Vec<Se
             let what = |field: &str| format!("timeline second {second} {field}");
             // Most seconds of a long run that did little have nothing to add.
             if s.histograms.corrected != empty || s.histograms.uncorrected != empty {
-                let (sc, su) = s
-                    .histograms
-                    .decode()
-                    .with_context(|| format!("{label}, second {second}"))?;
+                let (sc, su) =
+                    s.histograms
+                        .decode()
+                        .map_err(|source| MergeError::SecondHistogram {
+                            label: label.clone(),
+                            second,
+                            source,
+                        })?;
                 c.add(&sc);
                 u.add(&su);
             }
@@ -276,15 +405,23 @@ mod tests {
         let a = report("0/2", 3, 100, 1);
         let mut b = report("1/2", 4, 100, 1);
         b.mode = Mode::Saturation;
-        assert!(format!("{:#}", merge(&[a.clone(), b]).unwrap_err()).contains("mode saturation"));
+        assert!(
+            crate::errors::Chain(&merge(&[a.clone(), b]).unwrap_err())
+                .to_string()
+                .contains("mode saturation")
+        );
         let mut c = report("1/2", 4, 100, 1);
         c.http = Http::Http2;
-        assert!(format!("{:#}", merge(&[a, c]).unwrap_err()).contains("HTTP/2"));
+        assert!(
+            crate::errors::Chain(&merge(&[a, c]).unwrap_err())
+                .to_string()
+                .contains("HTTP/2")
+        );
         assert!(merge(&[]).is_err());
     }
 
     fn merge_err(reports: &[ReplayReport]) -> String {
-        format!("{:#}", merge(reports).unwrap_err())
+        crate::errors::Chain(&merge(reports).unwrap_err()).to_string()
     }
 
     #[test]
@@ -382,8 +519,10 @@ mod tests {
         assert_eq!(merged.shards, 2);
         // The same file, as a directory and as its load.json.
         let e = format!(
-            "{:#}",
-            merge_files(&[a.clone(), b.clone(), a.join("load.json")]).unwrap_err()
+            "{}",
+            crate::errors::Chain(
+                &merge_files(&[a.clone(), b.clone(), a.join("load.json")]).unwrap_err()
+            )
         );
         assert!(
             e.contains("a/load.json is report") && e.contains("again"),
@@ -392,16 +531,17 @@ mod tests {
         // A copy of it.
         let copy = dir.path().join("copy.json");
         std::fs::copy(a.join("load.json"), &copy).unwrap();
-        let e = format!("{:#}", merge_files(&[a.clone(), copy]).unwrap_err());
+        let e = crate::errors::Chain(&merge_files(&[a.clone(), copy]).unwrap_err()).to_string();
         assert!(e.contains("copy.json has the same content as"), "{e}");
         // A file's implausible field is named with the file.
         let mut bad = report("1/2", 4, 400, 4);
         bad.completed = u64::MAX;
         let c = dir.path().join("c");
         bad.write_json(&c).unwrap();
-        let e = format!("{:#}", merge_files(&[a, c]).unwrap_err());
+        let e = crate::errors::Chain(&merge_files(&[a, c]).unwrap_err()).to_string();
         assert!(e.contains("c/load.json") && e.contains("completed"), "{e}");
-        let e = format!("{:#}", merge_files(&[dir.path().join("none")]).unwrap_err());
+        let e =
+            crate::errors::Chain(&merge_files(&[dir.path().join("none")]).unwrap_err()).to_string();
         assert!(e.contains("none") && e.contains("cannot open"), "{e}");
     }
 

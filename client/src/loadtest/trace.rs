@@ -101,61 +101,64 @@ pub struct Trace {
 
 impl Trace {
     /// Reads a trace, naming the file and line of anything wrong with it.
-    pub fn read(path: &Path) -> anyhow::Result<Self> {
-        use anyhow::Context;
-        let file = std::fs::File::open(path)
-            .with_context(|| format!("trace {}: cannot open", path.display()))?;
-        Self::from_reader(std::io::BufReader::new(file))
-            .with_context(|| format!("trace {}", path.display()))
+    pub fn read(path: &Path) -> Result<Self, TraceError> {
+        let file = std::fs::File::open(path).map_err(|source| TraceError::Open {
+            path: path.into(),
+            source,
+        })?;
+        Self::from_reader(std::io::BufReader::new(file)).map_err(|e| TraceError::File {
+            path: path.into(),
+            source: Box::new(e),
+        })
     }
 
     /// Reads a trace from JSON Lines.
-    pub fn from_reader(reader: impl BufRead) -> anyhow::Result<Self> {
-        use anyhow::Context;
+    pub fn from_reader(reader: impl BufRead) -> Result<Self, TraceError> {
         let mut lines = reader.lines().enumerate();
-        let (_, first) = lines
-            .next()
-            .ok_or_else(|| anyhow::anyhow!("empty file: not a Tessera request trace"))?;
-        let first = first.context("line 1: cannot read")?;
-        let header: TraceHeader =
-            serde_json::from_str(&first).context("line 1: not a Tessera request trace header")?;
-        anyhow::ensure!(
-            header.tessera_trace == TRACE_VERSION,
-            "line 1: trace version {} (this build reads version {TRACE_VERSION})",
-            header.tessera_trace
-        );
-        anyhow::ensure!(
-            header.seconds.is_finite() && header.seconds >= 0.0,
-            "line 1: seconds {} is not a duration",
-            header.seconds
-        );
+        let (_, first) = lines.next().ok_or(TraceError::Empty)?;
+        let first = first.map_err(|source| TraceError::Read { line: 1, source })?;
+        let header: TraceHeader = serde_json::from_str(&first).map_err(TraceError::Header)?;
+        if header.tessera_trace != TRACE_VERSION {
+            return Err(TraceError::Version {
+                version: header.tessera_trace,
+            });
+        }
+        if !(header.seconds.is_finite() && header.seconds >= 0.0) {
+            return Err(TraceError::Seconds {
+                seconds: header.seconds,
+            });
+        }
         let mut requests = Vec::new();
         let mut last_t = 0.0f64;
         for (i, line) in lines {
             let n = i + 1;
-            let line = line.with_context(|| format!("line {n}: cannot read"))?;
+            let line = line.map_err(|source| TraceError::Read { line: n, source })?;
             if line.trim().is_empty() {
                 continue;
             }
-            let r: TraceRequest =
-                serde_json::from_str(&line).with_context(|| format!("line {n}: not a request"))?;
-            anyhow::ensure!(
-                r.client < header.clients,
-                "line {n}: client {} but the header says {} clients",
-                r.client,
-                header.clients
-            );
-            check_time(r.t_ms).with_context(|| format!("line {n}: t_ms"))?;
-            anyhow::ensure!(
-                r.t_ms >= last_t,
-                "line {n}: t_ms {} is before the previous request's ({last_t} ms): requests are in the order they were sent",
-                r.t_ms
-            );
-            anyhow::ensure!(
-                r.target.starts_with('/') && !r.target.contains(char::is_whitespace),
-                "line {n}: target {:?} is not a path and query",
-                r.target
-            );
+            let r: TraceRequest = serde_json::from_str(&line)
+                .map_err(|source| TraceError::Request { line: n, source })?;
+            if r.client >= header.clients {
+                return Err(TraceError::Client {
+                    line: n,
+                    client: r.client,
+                    clients: header.clients,
+                });
+            }
+            check_time(r.t_ms).map_err(|source| TraceError::Time { line: n, source })?;
+            if r.t_ms < last_t {
+                return Err(TraceError::OutOfOrder {
+                    line: n,
+                    t_ms: r.t_ms,
+                    last_t,
+                });
+            }
+            if !r.target.starts_with('/') || r.target.contains(char::is_whitespace) {
+                return Err(TraceError::Target {
+                    line: n,
+                    target: r.target,
+                });
+            }
             last_t = r.t_ms;
             requests.push(r);
         }
@@ -163,7 +166,7 @@ impl Trace {
     }
 
     /// Writes the trace as JSON Lines.
-    pub fn write_to(&self, mut w: impl Write) -> anyhow::Result<()> {
+    pub fn write_to(&self, mut w: impl Write) -> Result<(), TraceError> {
         serde_json::to_writer(&mut w, &self.header)?;
         w.write_all(b"\n")?;
         for r in &self.requests {
@@ -176,19 +179,25 @@ impl Trace {
 
     /// Writes the trace to `path` through a temporary file renamed into place, so a
     /// failed recording leaves no partial trace.
-    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
-        use anyhow::Context;
+    pub fn write(&self, path: &Path) -> Result<(), TraceError> {
         let dir = path
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
-        let mut tmp = tempfile_in(dir)
-            .with_context(|| format!("trace {}: cannot create a file beside it", path.display()))?;
+        let mut tmp = tempfile_in(dir).map_err(|source| TraceError::CreateBeside {
+            path: path.into(),
+            source,
+        })?;
         self.write_to(std::io::BufWriter::new(&mut tmp.1))
-            .with_context(|| format!("trace {}: cannot write", path.display()))?;
+            .map_err(|e| TraceError::Write {
+                path: path.into(),
+                source: Box::new(e),
+            })?;
         tmp.1.sync_all()?;
-        std::fs::rename(&tmp.0, path)
-            .with_context(|| format!("trace {}: cannot rename into place", path.display()))?;
+        std::fs::rename(&tmp.0, path).map_err(|source| TraceError::Rename {
+            path: path.into(),
+            source,
+        })?;
         Ok(())
     }
 
@@ -204,6 +213,85 @@ impl Trace {
                 .collect(),
         }
     }
+}
+
+/// A trace that could not be read or written: each names the file or the line,
+/// and what was wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum TraceError {
+    #[error("trace {}: cannot open", path.display())]
+    Open {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// What was wrong in the file at `path`.
+    #[error("trace {}", path.display())]
+    File {
+        path: std::path::PathBuf,
+        #[source]
+        source: Box<TraceError>,
+    },
+    #[error("empty file: not a Tessera request trace")]
+    Empty,
+    #[error("line {line}: cannot read")]
+    Read {
+        line: usize,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("line 1: not a Tessera request trace header")]
+    Header(#[source] serde_json::Error),
+    #[error("line 1: trace version {version} (this build reads version {TRACE_VERSION})")]
+    Version { version: u32 },
+    #[error("line 1: seconds {seconds} is not a duration")]
+    Seconds { seconds: f64 },
+    #[error("line {line}: not a request")]
+    Request {
+        line: usize,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error("line {line}: client {client} but the header says {clients} clients")]
+    Client {
+        line: usize,
+        client: u32,
+        clients: u32,
+    },
+    #[error("line {line}: t_ms")]
+    Time {
+        line: usize,
+        #[source]
+        source: TimeError,
+    },
+    #[error(
+        "line {line}: t_ms {t_ms} is before the previous request's ({last_t} ms): requests are in the order they were sent"
+    )]
+    OutOfOrder { line: usize, t_ms: f64, last_t: f64 },
+    #[error("line {line}: target {target:?} is not a path and query")]
+    Target { line: usize, target: String },
+    #[error("trace {}: cannot create a file beside it", path.display())]
+    CreateBeside {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("trace {}: cannot write", path.display())]
+    Write {
+        path: std::path::PathBuf,
+        #[source]
+        source: Box<TraceError>,
+    },
+    #[error("trace {}: cannot rename into place", path.display())]
+    Rename {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
 }
 
 /// The latest `t_ms` a trace may hold: [`MAX_RUN`](super::pacing::MAX_RUN), the
@@ -414,7 +502,9 @@ mod tests {
         let mut buf = Vec::new();
         t.write_to(&mut buf).unwrap();
         let text = String::from_utf8(buf).unwrap();
-        let err = |s: &str| format!("{:#}", Trace::from_reader(s.as_bytes()).unwrap_err());
+        let err = |s: &str| {
+            crate::errors::Chain(&Trace::from_reader(s.as_bytes()).unwrap_err()).to_string()
+        };
         assert!(err("").contains("empty file"));
         assert!(err("{\"x\":1}\n").contains("line 1"));
         let v2 = text.replacen("\"tessera_trace\":1", "\"tessera_trace\":2", 1);
@@ -437,7 +527,9 @@ mod tests {
         let text = String::from_utf8(buf).unwrap();
         // The request on line 3 (t_ms 10) given another time.
         let with = |t_ms: &str| text.replacen("\"t_ms\":10.0", &format!("\"t_ms\":{t_ms}"), 1);
-        let err = |s: &str| format!("{:#}", Trace::from_reader(s.as_bytes()).unwrap_err());
+        let err = |s: &str| {
+            crate::errors::Chain(&Trace::from_reader(s.as_bytes()).unwrap_err()).to_string()
+        };
         // 1e300 ms used to reach the schedule and panic converting it to a Duration.
         let e = err(&with("1e300"));
         assert!(e.contains("line 3: t_ms") && e.contains("7 days"), "{e}");
@@ -479,7 +571,7 @@ mod tests {
         let last = lines.len() - 1;
         lines[last] = lines[last].replace("\"t_ms\":80.0", "\"t_ms\":1e300");
         std::fs::write(&path, lines.join("\n")).unwrap();
-        let e = format!("{:#}", Trace::read(&path).unwrap_err());
+        let e = crate::errors::Chain(&Trace::read(&path).unwrap_err()).to_string();
         assert!(
             e.contains("late.jsonl") && e.contains("line 10: t_ms"),
             "{e}"

@@ -1,12 +1,28 @@
 //! The cameras of a path: the eye of a pose over the ground, its camera, and every
 //! frame's camera over a local pyramid (benchmarks, tests).
 
-use super::fly_path::{FlyPath, Pose};
+use super::fly_path::{FlyPath, PathError, Pose};
 use crate::camera::Camera;
 use crate::select::World;
 use crate::stream::pool::TilePool;
 use glam::DVec3;
+use tessera_shared::reader::ReadError;
 use tessera_shared::{ByteSource, Pyramid};
+
+/// Why a path's cameras could not be placed.
+#[derive(Debug, thiserror::Error)]
+pub enum CamerasError {
+    #[error("frames per second must be positive")]
+    Fps,
+    #[error("the world's geometry is not the pyramid's")]
+    Geometry,
+    #[error("{path}: {frames} frames at {fps} fps is too many")]
+    TooMany { path: String, frames: f64, fps: f64 },
+    #[error(transparent)]
+    Path(#[from] PathError),
+    #[error(transparent)]
+    Read(#[from] ReadError),
+}
 
 /// World position of a pose over ground at height `ground_m`.
 pub fn eye(pose: &Pose, ground_m: f64) -> DVec3 {
@@ -57,23 +73,24 @@ pub fn path_cameras<S: ByteSource>(
     fps: f64,
     width: u32,
     height: u32,
-) -> anyhow::Result<Vec<Camera>> {
-    anyhow::ensure!(
-        fps.is_finite() && fps > 0.0,
-        "frames per second must be positive"
-    );
+) -> Result<Vec<Camera>, CamerasError> {
+    if !(fps.is_finite() && fps > 0.0) {
+        return Err(CamerasError::Fps);
+    }
     let g = &world.geometry;
-    anyhow::ensure!(
-        g == pyramid.geometry(),
-        "the world's geometry is not the pyramid's"
-    );
+    if g != pyramid.geometry() {
+        return Err(CamerasError::Geometry);
+    }
     let size = world.size_m();
     let fly_path = FlyPath::load(path, size.max_element())?;
     let frames = (fly_path.duration_s(size) * fps).ceil() + 1.0;
-    anyhow::ensure!(
-        frames <= 1e7,
-        "{path}: {frames} frames at {fps} fps is too many"
-    );
+    if frames > 1e7 {
+        return Err(CamerasError::TooMany {
+            path: path.into(),
+            frames,
+            fps,
+        });
+    }
     let max_height = pyramid.metadata().max_height;
     let mut ground = TilePool::new(64);
     let mut cameras = Vec::with_capacity(frames as usize);

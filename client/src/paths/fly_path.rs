@@ -2,10 +2,66 @@
 //! waypoints and pace, the built-in paths, loading and checking a path file, and
 //! the pose at a time.
 
-use anyhow::{Context, bail};
 use glam::DVec2;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+
+/// A path that could not be loaded: not a built-in one nor a readable file, not
+/// the JSON of a path, or a path that does not hold together ([`BadPath`]).
+#[derive(Debug, thiserror::Error)]
+pub enum PathError {
+    #[error("{spec}: not a built-in path (canyon, pass, orbit, descent) nor a readable file")]
+    NotAPath {
+        spec: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{spec}: bad path JSON")]
+    Json {
+        spec: String,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error("{spec}")]
+    Invalid {
+        spec: String,
+        #[source]
+        source: BadPath,
+    },
+}
+
+/// What is wrong with a path's fields.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum BadPath {
+    #[error("a path needs at least two waypoints")]
+    TooFewWaypoints,
+    #[error("waypoints must be finite numbers")]
+    NonFiniteWaypoints,
+    #[error("{name} has {got} values for {n} waypoints")]
+    Count {
+        name: &'static str,
+        got: usize,
+        n: usize,
+    },
+    #[error("{name} must be finite numbers")]
+    NonFinite { name: &'static str },
+    #[error("give speed_mps or times_s, not both")]
+    SpeedAndTimes,
+    #[error("a path needs speed_mps or times_s")]
+    NoPace,
+    #[error("speed_mps must be a positive number")]
+    Speed,
+    #[error("times_s must start at 0 and increase")]
+    Times,
+    #[error("give altitude_agl_m or altitudes_agl_m, not both")]
+    AltitudeTwice,
+    #[error("a path needs altitude_agl_m or altitudes_agl_m")]
+    NoAltitude,
+    #[error("altitude_agl_m must be a finite number")]
+    Altitude,
+    #[error("pitch_deg must be a finite number")]
+    Pitch,
+}
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -174,28 +230,33 @@ impl FlyPath {
     }
 
     /// A built-in name or a JSON file.
-    pub fn load(spec: &str, extent_m: f64) -> anyhow::Result<Self> {
+    pub fn load(spec: &str, extent_m: f64) -> Result<Self, PathError> {
         if let Some(p) = Self::builtin(spec, extent_m) {
             return Ok(p);
         }
-        let text = std::fs::read_to_string(Path::new(spec)).with_context(|| {
-            format!(
-                "{spec}: not a built-in path (canyon, pass, orbit, descent) nor a readable file"
-            )
+        let text =
+            std::fs::read_to_string(Path::new(spec)).map_err(|source| PathError::NotAPath {
+                spec: spec.into(),
+                source,
+            })?;
+        let p: Self = serde_json::from_str(&text).map_err(|source| PathError::Json {
+            spec: spec.into(),
+            source,
         })?;
-        let p: Self =
-            serde_json::from_str(&text).with_context(|| format!("{spec}: bad path JSON"))?;
-        p.check().with_context(|| spec.to_string())?;
+        p.check().map_err(|source| PathError::Invalid {
+            spec: spec.into(),
+            source,
+        })?;
         Ok(p)
     }
 
-    pub(super) fn check(&self) -> anyhow::Result<()> {
+    pub(super) fn check(&self) -> Result<(), BadPath> {
         let n = self.waypoints.len();
         if n < 2 {
-            bail!("a path needs at least two waypoints");
+            return Err(BadPath::TooFewWaypoints);
         }
         if self.waypoints.iter().flatten().any(|v| !v.is_finite()) {
-            bail!("waypoints must be finite numbers");
+            return Err(BadPath::NonFiniteWaypoints);
         }
         let per_waypoint = [
             ("times_s", &self.times_s),
@@ -206,32 +267,36 @@ impl FlyPath {
         for (name, values) in per_waypoint {
             if let Some(v) = values {
                 if v.len() != n {
-                    bail!("{name} has {} values for {n} waypoints", v.len());
+                    return Err(BadPath::Count {
+                        name,
+                        got: v.len(),
+                        n,
+                    });
                 }
                 if v.iter().any(|x| !x.is_finite()) {
-                    bail!("{name} must be finite numbers");
+                    return Err(BadPath::NonFinite { name });
                 }
             }
         }
         match (&self.times_s, self.speed_mps) {
-            (Some(_), Some(_)) => bail!("give speed_mps or times_s, not both"),
-            (None, None) => bail!("a path needs speed_mps or times_s"),
+            (Some(_), Some(_)) => return Err(BadPath::SpeedAndTimes),
+            (None, None) => return Err(BadPath::NoPace),
             (None, Some(v)) if !(v.is_finite() && v > 0.0) => {
-                bail!("speed_mps must be a positive number")
+                return Err(BadPath::Speed);
             }
             (Some(t), None) if t[0] != 0.0 || t.windows(2).any(|w| w[1] <= w[0]) => {
-                bail!("times_s must start at 0 and increase")
+                return Err(BadPath::Times);
             }
             _ => {}
         }
         match (&self.altitudes_agl_m, self.altitude_agl_m) {
-            (Some(_), Some(_)) => bail!("give altitude_agl_m or altitudes_agl_m, not both"),
-            (None, None) => bail!("a path needs altitude_agl_m or altitudes_agl_m"),
-            (None, Some(a)) if !a.is_finite() => bail!("altitude_agl_m must be a finite number"),
+            (Some(_), Some(_)) => return Err(BadPath::AltitudeTwice),
+            (None, None) => return Err(BadPath::NoAltitude),
+            (None, Some(a)) if !a.is_finite() => return Err(BadPath::Altitude),
             _ => {}
         }
         if !self.pitch_deg.is_finite() {
-            bail!("pitch_deg must be a finite number");
+            return Err(BadPath::Pitch);
         }
         Ok(())
     }
@@ -423,7 +488,8 @@ mod tests {
         ] {
             std::fs::write(&file, json).unwrap();
             let e = FlyPath::load(file.to_str().unwrap(), 1.0).unwrap_err();
-            assert!(format!("{e:#}").contains(want), "{json}: {e:#}");
+            let e = crate::errors::Chain(&e).to_string();
+            assert!(e.contains(want), "{json}: {e}");
         }
     }
 }

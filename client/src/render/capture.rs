@@ -2,11 +2,11 @@
 //! over the same WGSL function and read back, for the tests that compare them with
 //! the reference tessellator ([`crate::tessellate`]).
 
+use super::error::RenderError;
 use super::renderer::Renderer;
 use super::{instances::Instance, readback::map_read};
 use crate::select::Patch;
 use crate::tessellate::Vertex;
-use anyhow::Context;
 use wgpu::util::DeviceExt;
 
 /// The capture pass's own bind group (group 1): the jobs (instances with the
@@ -32,14 +32,14 @@ impl Renderer {
     /// Runs the vertex shader's own `terrain_vertex` over every vertex of every
     /// patch (a compute pass over the same WGSL function) and returns what it
     /// produced, patch by patch, in the reference tessellator's order.
-    pub fn capture_vertices(&self, patches: &[Patch]) -> anyhow::Result<Vec<Vec<Vertex>>> {
+    pub fn capture_vertices(&self, patches: &[Patch]) -> Result<Vec<Vec<Vertex>>, RenderError> {
         let g = self.world.geometry;
         let mut jobs: Vec<Instance> = Vec::new();
         for p in patches {
             let slot = self
                 .slots
                 .get(p.tile)
-                .with_context(|| format!("tile {} has no GPU slot", p.tile))?;
+                .ok_or(RenderError::NoSlot { tile: p.tile })?;
             let inst = Instance::new(&g, p, slot, None);
             for vid in 0..(p.inner + 1) * (p.inner + 1) {
                 let mut job = inst;
@@ -47,7 +47,9 @@ impl Renderer {
                 jobs.push(job);
             }
         }
-        anyhow::ensure!(!jobs.is_empty(), "no vertices to capture");
+        if jobs.is_empty() {
+            return Err(RenderError::NothingToCapture);
+        }
         let device = &self.gpu.device;
         let init = |label, contents: &[u8], usage| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -115,11 +117,11 @@ impl Renderer {
             let groups = (jobs.len() as u32).div_ceil(64);
             // Spread over two dimensions past the 65535-workgroup limit.
             let (x, y) = (groups.min(65_535), groups.div_ceil(65_535));
-            anyhow::ensure!(
-                y == 1,
-                "too many vertices to capture at once ({})",
-                jobs.len()
-            );
+            if y != 1 {
+                return Err(RenderError::TooManyVertices {
+                    vertices: jobs.len(),
+                });
+            }
             pass.dispatch_workgroups(x, 1, 1);
         }
         encoder.copy_buffer_to_buffer(&out, 0, &read, 0, size);

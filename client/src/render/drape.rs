@@ -13,6 +13,7 @@
 //! the renderer's draping methods: making room, uploading, resolving ancestors.
 
 use super::drape_textures::ImageryTextures;
+use super::error::RenderError;
 use super::renderer::Renderer;
 use crate::stream::imagery_tiles::{ImageryPool, Texels};
 use tessera_shared::TileId;
@@ -20,12 +21,11 @@ use tessera_shared::TileId;
 impl Renderer {
     /// Makes room for imagery of `side × side` texels per tile (the dataset's
     /// `imagery.texels`); every slot starts without.
-    pub fn enable_imagery(&mut self, side: u32) -> anyhow::Result<()> {
+    pub fn enable_imagery(&mut self, side: u32) -> Result<(), RenderError> {
         let dim = self.gpu.limits.max_texture_dimension_2d;
-        anyhow::ensure!(
-            (1..=dim).contains(&side),
-            "imagery of {side} texels per tile side does not fit this GPU's {dim}-texel limit"
-        );
+        if !(1..=dim).contains(&side) {
+            return Err(RenderError::ImageryTooLarge { side, dim });
+        }
         let layers = self.imagery.layers();
         self.imagery = ImageryTextures::new(&self.gpu.device, layers, side);
         self.rebuild_bind_group();

@@ -2,13 +2,13 @@
 //! frame), the terrain draws, one per inner LOD present, into the offscreen
 //! targets, and the frame read back.
 
+use super::error::RenderError;
 use super::instances::{Batches, Instance};
 use super::options::{DrawStats, HAZE_COLOUR};
 use super::readback::read_layer;
 use super::renderer::Renderer;
 use crate::camera::Camera;
 use crate::select::Patch;
-use anyhow::Context;
 use glam::DVec3;
 use std::time::Instant;
 
@@ -111,7 +111,7 @@ impl Renderer {
 
     /// Draws `patches` seen from `camera` into the offscreen target and waits for
     /// the GPU.
-    pub fn draw(&mut self, camera: &Camera, patches: &[Patch]) -> anyhow::Result<DrawStats> {
+    pub fn draw(&mut self, camera: &Camera, patches: &[Patch]) -> Result<DrawStats, RenderError> {
         let started = Instant::now();
         // Normal maps of tiles uploaded one by one since the last frame.
         self.flush_normals();
@@ -189,7 +189,9 @@ impl Renderer {
             }
         }
         self.gpu.queue.submit([encoder.finish()]);
-        self.gpu.wait().context("rendering a frame")?;
+        self.gpu
+            .wait()
+            .map_err(|e| RenderError::Frame(Box::new(e)))?;
         Ok(DrawStats {
             draw_calls: draws.len() as u32,
             instances: batches.instances.len() as u32,
@@ -201,7 +203,7 @@ impl Renderer {
 
 impl Renderer {
     /// The last frame as tightly packed RGBA8 rows.
-    pub fn read_rgba(&self) -> anyhow::Result<Vec<u8>> {
+    pub fn read_rgba(&self) -> Result<Vec<u8>, RenderError> {
         let (w, h) = (self.opts.width, self.opts.height);
         read_layer(&self.gpu, &self.colour, 0, (w, h), 4)
     }

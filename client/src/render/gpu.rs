@@ -1,7 +1,7 @@
 //! The wgpu device: adapter choice (honouring `WGPU_BACKEND`), and errors collected
 //! from the device so that a failing or lost GPU becomes an error message, not a panic.
 
-use anyhow::Context;
+use super::error::RenderError;
 use std::sync::{Arc, Mutex};
 
 /// Which graphics API to use.
@@ -26,7 +26,7 @@ pub struct Gpu {
 }
 
 impl Gpu {
-    pub fn new(backend: Backend) -> anyhow::Result<Self> {
+    pub fn new(backend: Backend) -> Result<Self, RenderError> {
         // Auto without WGPU_BACKEND: Vulkan first, GL only if there is no Vulkan
         // adapter (probing EGL prints noise on machines without a display).
         let tries: Vec<wgpu::Backends> = match backend {
@@ -64,24 +64,21 @@ impl Gpu {
                 break;
             }
         }
-        let adapter = adapter.with_context(|| {
-            format!(
-                "no GPU adapter for {tries:?}; on Debian/Ubuntu install a software one with \
-                 `apt-get install --no-install-recommends mesa-vulkan-drivers libegl1 libegl-mesa0 libgl1-mesa-dri`"
-            )
+        let adapter = adapter.ok_or_else(|| RenderError::NoAdapter {
+            tries: format!("{tries:?}"),
         })?;
         Self::from_adapter(&adapter)
     }
 
     /// Opens the device on a chosen adapter (the windowed client picks one that
     /// can present to its window).
-    pub fn from_adapter(adapter: &wgpu::Adapter) -> anyhow::Result<Self> {
+    pub fn from_adapter(adapter: &wgpu::Adapter) -> Result<Self, RenderError> {
         let features = wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
-        anyhow::ensure!(
-            adapter.features().contains(features),
-            "GPU adapter {:?} lacks 16-bit normalized textures (R16Unorm)",
-            adapter.get_info().name
-        );
+        if !adapter.features().contains(features) {
+            return Err(RenderError::No16BitTextures {
+                name: adapter.get_info().name,
+            });
+        }
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("tessera"),
@@ -96,7 +93,7 @@ impl Gpu {
             },
             ..Default::default()
         }))
-        .context("cannot open the GPU device")?;
+        .map_err(RenderError::Device)?;
         let errors = Arc::new(Mutex::new(Vec::new()));
         let sink = errors.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
@@ -121,22 +118,25 @@ impl Gpu {
     }
 
     /// The first error the device reported since the last check, as an `Err`.
-    pub fn check(&self) -> anyhow::Result<()> {
-        let mut v = self
-            .errors
-            .lock()
-            .map_err(|_| anyhow::anyhow!("GPU error log poisoned"))?;
+    pub fn check(&self) -> Result<(), RenderError> {
+        let mut v = self.errors.lock().map_err(|_| RenderError::LogPoisoned)?;
         match v.drain(..).next() {
-            Some(e) => Err(anyhow::anyhow!("GPU error on {}: {e}", self.adapter.name)),
+            Some(error) => Err(RenderError::Reported {
+                adapter: self.adapter.name.clone(),
+                error,
+            }),
             None => Ok(()),
         }
     }
 
     /// Waits for submitted work, turning a timeout or loss into an error.
-    pub fn wait(&self) -> anyhow::Result<()> {
+    pub fn wait(&self) -> Result<(), RenderError> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| anyhow::anyhow!("GPU wait failed on {}: {e}", self.adapter.name))?;
+            .map_err(|e| RenderError::Wait {
+                adapter: self.adapter.name.clone(),
+                error: e.to_string(),
+            })?;
         self.check()
     }
 

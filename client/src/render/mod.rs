@@ -26,13 +26,15 @@
 //! into their GPU slots), `drape` (imagery draped on them, its textures in
 //! `drape_textures`), `capture` (the vertex
 //! shader's vertices read back for comparison with the reference tessellator) and
-//! `readback` (frames and buffers copied back to the CPU).
+//! `readback` (frames and buffers copied back to the CPU); its errors are
+//! [`RenderError`] (`error`).
 
 mod bind_group;
 mod capture;
 mod drape;
 mod drape_textures;
 mod draw;
+mod error;
 pub mod gpu;
 mod gpu_normals;
 pub mod instances;
@@ -48,6 +50,7 @@ pub mod slots;
 mod textures;
 mod upload;
 
+pub use error::RenderError;
 pub use options::{DebugView, DrawStats, HAZE_COLOUR, Parallax, RenderOptions};
 pub use renderer::Renderer;
 /// PNG files (the charts crate writes them for the reports too).

@@ -5,6 +5,7 @@
 use super::bind_group::{BindParts, bind_group};
 use super::drape_textures::ImageryTextures;
 use super::draw::Globals;
+use super::error::RenderError;
 use super::instances::{self, Instance};
 use super::options::RenderOptions;
 use super::renderer::Renderer;
@@ -12,7 +13,6 @@ use super::slots::SlotTable;
 use super::textures::{COLOUR_FORMAT, DEPTH_FORMAT, layer_count, targets, texture_array};
 use super::{capture, gpu::Gpu, gpu_normals};
 use crate::select::World;
-use anyhow::Context;
 use wgpu::util::DeviceExt;
 
 impl Renderer {
@@ -21,7 +21,7 @@ impl Renderer {
         world: World,
         height_range: (f64, f64),
         opts: RenderOptions,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, RenderError> {
         Self::with_gpu(Gpu::new(opts.backend)?, world, height_range, opts)
     }
 
@@ -31,27 +31,27 @@ impl Renderer {
         world: World,
         height_range: (f64, f64),
         opts: RenderOptions,
-    ) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            opts.width > 0 && opts.height > 0,
-            "viewport {}x{} is empty",
-            opts.width,
-            opts.height
-        );
+    ) -> Result<Self, RenderError> {
+        if !(opts.width > 0 && opts.height > 0) {
+            return Err(RenderError::EmptyViewport {
+                width: opts.width,
+                height: opts.height,
+            });
+        }
         let dim = gpu.limits.max_texture_dimension_2d;
-        anyhow::ensure!(
-            opts.width <= dim && opts.height <= dim,
-            "viewport {}x{} exceeds this GPU's {dim}-pixel limit",
-            opts.width,
-            opts.height
-        );
+        if !(opts.width <= dim && opts.height <= dim) {
+            return Err(RenderError::ViewportTooLarge {
+                width: opts.width,
+                height: opts.height,
+                dim,
+            });
+        }
         let samples = world.geometry.tile_samples() as u32;
         let cells = world.geometry.tile_size();
         let layers = layer_count(opts.slots).min(gpu.limits.max_texture_array_layers);
-        anyhow::ensure!(
-            samples <= dim,
-            "{samples}-sample tiles exceed this GPU's {dim}-texel limit"
-        );
+        if samples > dim {
+            return Err(RenderError::TilesTooLarge { samples, dim });
+        }
         let device = &gpu.device;
         let array = |label, format, side, extra| {
             texture_array(device, label, format, (side, layers), extra)
@@ -233,7 +233,8 @@ impl Renderer {
             usage: wgpu::BufferUsages::INDEX,
         });
         let (colour, depth) = targets(device, opts.width, opts.height);
-        gpu.check().context("creating the renderer")?;
+        gpu.check()
+            .map_err(|e| RenderError::Creating(Box::new(e)))?;
         Ok(Self {
             slots: SlotTable::new(layers),
             gpu,

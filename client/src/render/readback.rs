@@ -1,8 +1,8 @@
 //! Readback: copying textures (the offscreen frame, a slot's layer) and buffers
 //! the GPU wrote back to the CPU.
 
+use super::error::RenderError;
 use super::gpu::Gpu;
-use anyhow::Context;
 
 /// Layer `layer` of a `w × h` texture of `texel` bytes per texel, as tightly
 /// packed rows (the copy itself pads rows to wgpu's alignment).
@@ -12,7 +12,7 @@ pub(super) fn read_layer(
     layer: u32,
     (w, h): (u32, u32),
     texel: u32,
-) -> anyhow::Result<Vec<u8>> {
+) -> Result<Vec<u8>, RenderError> {
     let row = w * texel;
     let padded =
         row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
@@ -62,18 +62,22 @@ pub(super) fn read_layer(
 }
 
 /// Maps a buffer for reading after the submitted work, and copies it out.
-pub(super) fn map_read(gpu: &Gpu, buffer: &wgpu::Buffer) -> anyhow::Result<Vec<u8>> {
+pub(super) fn map_read(gpu: &Gpu, buffer: &wgpu::Buffer) -> Result<Vec<u8>, RenderError> {
     let (tx, rx) = std::sync::mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, .., move |r| {
         let _ = tx.send(r);
     });
     gpu.wait()?;
     rx.recv()
-        .context("GPU readback was dropped")?
-        .map_err(|e| anyhow::anyhow!("GPU readback failed: {e}"))?;
+        .map_err(RenderError::ReadbackDropped)?
+        .map_err(|e| RenderError::Readback {
+            error: e.to_string(),
+        })?;
     let data = buffer
         .get_mapped_range(..)
-        .map_err(|e| anyhow::anyhow!("GPU readback failed: {e}"))?
+        .map_err(|e| RenderError::Readback {
+            error: e.to_string(),
+        })?
         .to_vec();
     buffer.unmap();
     Ok(data)

@@ -5,6 +5,7 @@
 //! copies, or, with [`NormalSource::Cpu`], built here with the tile's decoded
 //! neighbours ([`normals::normal_map`]).
 
+use super::error::RenderError;
 use super::gpu_normals::NORMAL_FORMAT;
 use super::normals::{self, NormalSource};
 use super::readback::read_layer;
@@ -179,7 +180,7 @@ impl Renderer {
 
     /// The normal map in `slot` as (x, z) signed bytes, row by row (what the
     /// fragment shader reads), after computing any queued normal maps.
-    pub fn read_normals(&mut self, slot: u32) -> anyhow::Result<Vec<[i8; 2]>> {
+    pub fn read_normals(&mut self, slot: u32) -> Result<Vec<[i8; 2]>, RenderError> {
         self.flush_normals();
         let n = self.world.geometry.tile_samples() as u32;
         let data = read_layer(&self.gpu, &self.normals, slot, (n, n), 4)?;

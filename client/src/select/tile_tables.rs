@@ -1,9 +1,18 @@
 //! What selection knows of the tiles: the error tables of the resident ones, and
 //! which of the others cannot be had for now or have no record.
 
-use anyhow::Context;
 use std::collections::HashMap;
+use tessera_shared::reader::ReadError;
 use tessera_shared::{ByteSource, ErrorTable, Pyramid, TileId};
+
+/// An error table of a local pyramid that could not be read.
+#[derive(Debug, thiserror::Error)]
+#[error("reading the error table of {tile}")]
+pub struct TableError {
+    pub tile: TileId,
+    #[source]
+    pub source: ReadError,
+}
 
 /// Error tables of the tiles that are resident (decoded and available).
 pub trait TileTables {
@@ -33,14 +42,14 @@ pub trait TileTables {
 /// record (wholly no-data, format v2) are left out: the map calls them absent.
 pub fn all_tables<S: ByteSource>(
     pyramid: &Pyramid<S>,
-) -> anyhow::Result<HashMap<TileId, ErrorTable>> {
+) -> Result<HashMap<TileId, ErrorTable>, TableError> {
     let g = *pyramid.geometry();
     let mut tables = HashMap::new();
     for level in g.levels() {
         for tile in g.present_tiles(level) {
             if let Some(t) = pyramid
                 .read_error_table(tile)
-                .with_context(|| format!("reading the error table of {tile}"))?
+                .map_err(|source| TableError { tile, source })?
             {
                 tables.insert(tile, t);
             }

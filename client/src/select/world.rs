@@ -3,8 +3,10 @@
 //! are from an eye.
 
 use crate::camera::Camera;
+use crate::globe::NotAGlobe;
 use glam::DVec2;
 use tessera_shared::api::DatasetInfo;
+use tessera_shared::tile::GeometryError;
 use tessera_shared::{GroundSpacing, Quantization, TileGeometry, TileId};
 
 /// The terrain in world units.
@@ -49,7 +51,7 @@ pub const FALLBACK_SPACING: f64 = 100.0;
 impl World {
     /// The world of a dataset document (API.md): its geometry and quantization,
     /// and the spacing from [`World::spacing_from`].
-    pub fn from_dataset(info: &DatasetInfo, stated: Option<f64>) -> anyhow::Result<Self> {
+    pub fn from_dataset(info: &DatasetInfo, stated: Option<f64>) -> Result<Self, GeometryError> {
         Ok(Self {
             geometry: TileGeometry::new(info.width, info.height, info.tile_size)?,
             quant: info.quantization,
@@ -63,7 +65,7 @@ impl World {
         self,
         mode: crate::globe::GlobeMode,
         info: &DatasetInfo,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, NotAGlobe> {
         Ok(Self {
             globe: crate::globe::Globe::choose(mode, info, self.spacing)?,
             ..self

@@ -2,8 +2,9 @@
 //! server's imagery routes or the `.tessimg` file beside a static pyramid.
 
 use super::imagery_tiles;
-use super::static_file::{self, StaticFile};
+use super::static_file::{StaticFile, StaticFileError};
 use super::streamer::{Backend, Streamer};
+use crate::errors::Chain;
 use std::sync::Arc;
 
 impl Streamer {
@@ -64,10 +65,10 @@ impl Streamer {
         let img = match opened {
             Ok(img) => img,
             Err(e) => {
-                if e.downcast_ref::<static_file::NoSuchFile>().is_some() {
+                if matches!(e, StaticFileError::NoSuchFile(_)) {
                     tracing::debug!("{url}: no imagery beside the pyramid");
                 } else {
-                    tracing::warn!("{url}: imagery not used: {e:#}");
+                    tracing::warn!("{url}: imagery not used: {}", Chain(&e));
                 }
                 return None;
             }

@@ -9,13 +9,15 @@
 //! `((u + ½)·T/side, (v + ½)·T/side)` (FORMAT.md "Imagery pyramids"), so the
 //! tile's UV `(i/T, j/T)` samples it at its own sample `(i, j)`.
 
+use super::static_file::StaticFileError;
+use crate::errors::Chain;
 use crate::loadtest::record::RecordHook;
 use crate::loadtest::trace::{RequestKind, StreamDigest};
-use anyhow::{Context, anyhow, bail};
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use tessera_shared::imagery::ImageryInfo;
+use tessera_shared::wire::WireError;
 use tessera_shared::wire::{self, Frame};
 use tessera_shared::{Level, MortonRange, TileId, morton, range_query};
 
@@ -27,16 +29,76 @@ pub struct Texels {
     pub rgba: Vec<u8>,
 }
 
+/// Why imagery could not be had: a request, its answer, or a record in it.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageryError {
+    #[error("imagery record does not decode as JPEG: {0}")]
+    Jpeg(image::ImageError),
+    #[error("imagery record is {width}×{height}, the dataset says {side}²")]
+    Size { width: u32, height: u32, side: u32 },
+    #[error("GET {url}")]
+    Request {
+        url: String,
+        #[source]
+        source: reqwest::Error,
+    },
+    #[error("GET {url}: {status}")]
+    Status {
+        url: String,
+        status: reqwest::StatusCode,
+    },
+    #[error("the imagery decode task failed")]
+    Task(#[source] tokio::task::JoinError),
+    /// What was wrong in the answer to `GET url`.
+    #[error("GET {url}")]
+    Answer {
+        url: String,
+        #[source]
+        source: Box<ImageryError>,
+    },
+    #[error("{0}")]
+    Wire(WireError),
+    #[error("frame for a code outside level {level}")]
+    OutsideLevel { level: Level },
+    /// A tile's record that does not decode.
+    #[error("{tile}")]
+    Tile {
+        tile: TileId,
+        #[source]
+        source: Box<ImageryError>,
+    },
+    #[error("server: {message}")]
+    Server { message: String },
+    #[error(transparent)]
+    StaticFile(#[from] StaticFileError),
+    #[error(transparent)]
+    Join(#[from] tokio::task::JoinError),
+    #[error("{url}: {tile}: record outside the read")]
+    OutsideRead { url: String, tile: TileId },
+    #[error(
+        "{url}: {tile}: imagery record fails its checksum in the index (corrupt in the file, or damaged on the way)"
+    )]
+    Checksum { url: String, tile: TileId },
+    /// A record of a static imagery file that does not decode.
+    #[error("{url}: {tile}")]
+    FileTile {
+        url: String,
+        tile: TileId,
+        #[source]
+        source: Box<ImageryError>,
+    },
+}
+
 /// Decodes one imagery record (a JPEG of `side × side`, the dataset's `texels`).
-pub fn decode(record: &[u8], side: u32) -> anyhow::Result<Texels> {
+pub fn decode(record: &[u8], side: u32) -> Result<Texels, ImageryError> {
     let img = image::load_from_memory_with_format(record, image::ImageFormat::Jpeg)
-        .map_err(|e| anyhow!("imagery record does not decode as JPEG: {e}"))?;
+        .map_err(ImageryError::Jpeg)?;
     if (img.width(), img.height()) != (side, side) {
-        bail!(
-            "imagery record is {}×{}, the dataset says {side}²",
-            img.width(),
-            img.height()
-        );
+        return Err(ImageryError::Size {
+            width: img.width(),
+            height: img.height(),
+            side,
+        });
     }
     Ok(Texels {
         side,
@@ -57,7 +119,7 @@ pub fn ranges_by_level(tiles: &[TileId]) -> BTreeMap<Level, Vec<MortonRange>> {
 }
 
 /// An HTTP client for [`fetch`], set up as the streamer's (TLS provider, timeout).
-pub fn http_client(timeout: Duration) -> anyhow::Result<reqwest::Client> {
+pub fn http_client(timeout: Duration) -> reqwest::Result<reqwest::Client> {
     super::http::http_client(timeout, false)
 }
 
@@ -70,7 +132,7 @@ pub async fn fetch(
     info: &ImageryInfo,
     level: Level,
     ranges: &[MortonRange],
-) -> anyhow::Result<Vec<(TileId, Texels)>> {
+) -> Result<Vec<(TileId, Texels)>, ImageryError> {
     fetch_recorded(client, base, info, level, ranges, None).await
 }
 
@@ -84,7 +146,7 @@ async fn fetch_recorded(
     level: Level,
     ranges: &[MortonRange],
     record: Option<RecordHook>,
-) -> anyhow::Result<Vec<(TileId, Texels)>> {
+) -> Result<Vec<(TileId, Texels)>, ImageryError> {
     let url = format!(
         "{base}{}",
         info.tiles
@@ -96,16 +158,22 @@ async fn fetch_recorded(
         .get(&url)
         .send()
         .await
-        .with_context(|| format!("GET {url}"))?;
+        .map_err(|source| ImageryError::Request {
+            url: url.clone(),
+            source,
+        })?;
     let status = resp.status();
     if !status.is_success() {
-        bail!("GET {url}: {status}");
+        return Err(ImageryError::Status { url, status });
     }
-    let body = resp.bytes().await.with_context(|| format!("GET {url}"))?;
+    let body = resp.bytes().await.map_err(|source| ImageryError::Request {
+        url: url.clone(),
+        source,
+    })?;
     let side = info.texels;
     tokio::task::spawn_blocking(move || {
         let mut out = Vec::new();
-        let frames = wire::decode_all(&body).map_err(|e| anyhow!("{e}"))?;
+        let frames = wire::decode_all(&body).map_err(ImageryError::Wire)?;
         if let Some(r) = recording {
             let mut digest = StreamDigest::new();
             for f in &frames {
@@ -122,28 +190,32 @@ async fn fetch_recorded(
                     ..
                 } => {
                     let tile = TileId::from_morton(l, morton)
-                        .ok_or_else(|| anyhow!("frame for a code outside level {l}"))?;
-                    out.push((
+                        .ok_or(ImageryError::OutsideLevel { level: l })?;
+                    let texels = decode(&record, side).map_err(|e| ImageryError::Tile {
                         tile,
-                        decode(&record, side).with_context(|| tile.to_string())?,
-                    ));
+                        source: Box::new(e),
+                    })?;
+                    out.push((tile, texels));
                 }
-                Frame::Error { message, .. } => bail!("server: {message}"),
+                Frame::Error { message, .. } => return Err(ImageryError::Server { message }),
                 _ => {}
             }
         }
         Ok(out)
     })
     .await
-    .context("the imagery decode task failed")?
-    .with_context(|| format!("GET {url}"))
+    .map_err(ImageryError::Task)?
+    .map_err(|e| ImageryError::Answer {
+        url,
+        source: Box::new(e),
+    })
 }
 
 /// How long a tile whose imagery request failed waits before it is asked for again.
 const RETRY_AFTER: Duration = Duration::from_secs(1);
 
 /// One finished imagery request: the tiles it asked for, and what came back.
-type Answer = (Vec<TileId>, anyhow::Result<Vec<(TileId, Texels)>>);
+type Answer = (Vec<TileId>, Result<Vec<(TileId, Texels)>, ImageryError>);
 
 /// Where a feed's imagery comes from.
 #[derive(Clone, Debug)]
@@ -261,8 +333,8 @@ impl ImageryFeed {
                         .extend(asked.into_iter().filter(|t| !have.contains(t)));
                 }
                 Err(e) => {
-                    tracing::warn!("imagery: {e:#}");
-                    self.last_error = Some(format!("{e:#}"));
+                    tracing::warn!("imagery: {}", Chain(&e));
+                    self.last_error = Some(Chain(&e).to_string());
                     let at = Instant::now() + RETRY_AFTER;
                     self.retry_at.extend(asked.into_iter().map(|t| (t, at)));
                 }
@@ -339,7 +411,7 @@ async fn fetch_from_file(
     side: u32,
     level: Level,
     ranges: &[MortonRange],
-) -> anyhow::Result<Vec<(TileId, Texels)>> {
+) -> Result<Vec<(TileId, Texels)>, ImageryError> {
     let mut entries = Vec::new();
     for r in ranges {
         for code in r.start().get()..=r.end().get() {
@@ -365,16 +437,24 @@ async fn fetch_from_file(
                     let at = usize::try_from(e.offset - start).unwrap_or(usize::MAX);
                     let record = bytes
                         .get(at..at.saturating_add(e.length as usize))
-                        .ok_or_else(|| anyhow!("{url}: {tile}: record outside the read"))?;
+                        .ok_or_else(|| ImageryError::OutsideRead {
+                            url: url.clone(),
+                            tile,
+                        })?;
                     if tessera_shared::format::checksum(record) != e.checksum {
-                        bail!(
-                            "{url}: {tile}: imagery record fails its checksum in the index (corrupt in the file, or damaged on the way)"
-                        );
+                        return Err(ImageryError::Checksum {
+                            url: url.clone(),
+                            tile,
+                        });
                     }
-                    let texels = decode(record, side).with_context(|| format!("{url}: {tile}"))?;
+                    let texels = decode(record, side).map_err(|e| ImageryError::FileTile {
+                        url: url.clone(),
+                        tile,
+                        source: Box::new(e),
+                    })?;
                     Ok((tile, texels))
                 })
-                .collect::<anyhow::Result<Vec<_>>>()
+                .collect::<Result<Vec<_>, ImageryError>>()
         })
         .await??;
         out.extend(decoded);

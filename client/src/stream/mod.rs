@@ -79,7 +79,7 @@ mod streamer;
 mod tile_source;
 
 pub use config::{OpenArgs, RequestMode, StreamConfig};
-pub use open::ROOT_PRELOAD;
+pub use open::{OpenError, ROOT_PRELOAD};
 pub use stats::{FrameWork, StreamStats};
 pub use streamer::Streamer;
 pub use tile_source::TileSource;

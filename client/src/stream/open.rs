@@ -5,17 +5,48 @@
 use super::config::StreamConfig;
 use super::fetch::{Decoded, Event, fetch_range};
 use super::http::{http_client, own_runtime};
-use super::static_file::{self, StaticFile};
+use super::static_file::{self, StaticFile, StaticFileError};
 use super::stats::StreamStats;
 use super::streamer::{Backend, Streamer};
 use super::tile_source::TileSource;
-use anyhow::Context;
+use crate::errors::Chain;
 use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, mpsc};
 use tessera_shared::bootstrap::Bootstrap;
 use tessera_shared::codec::RecordLayout;
+use tessera_shared::tile::GeometryError;
 use tessera_shared::wire::Frame;
 use tessera_shared::{ErrorTable, Level, TileGeometry, TileId, api, codec};
+
+/// Why a streamer could not be opened: its runtime or HTTP client, its source
+/// (a server's bootstrap or document, a static file), or the document's geometry.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    #[error(transparent)]
+    Runtime(#[from] std::io::Error),
+    #[error(transparent)]
+    Http(#[from] reqwest::Error),
+    #[error(transparent)]
+    StaticFile(#[from] StaticFileError),
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    #[error("{url}: HTTP {status}: {body}")]
+    Status {
+        url: String,
+        status: reqwest::StatusCode,
+        body: String,
+    },
+    #[error("{url}: more than {MAX_BOOTSTRAP} bytes")]
+    TooBig { url: String },
+    #[error("{url}: the bootstrap describes dataset {name:?}")]
+    OtherDataset { url: String, name: String },
+    #[error("{url}: not the dataset description of API.md")]
+    NotDocument {
+        url: String,
+        #[source]
+        source: serde_json::Error,
+    },
+}
 
 /// A static file's root level is fetched during the open (one Range request more,
 /// before the first frame) when its records add up to at most this.
@@ -28,7 +59,7 @@ impl Streamer {
         name: &str,
         layout: RecordLayout,
         config: StreamConfig,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, OpenError> {
         let rt = own_runtime()?;
         let handle = rt.handle().clone();
         Self::with_runtime(Some(rt), handle, server, name, layout, config)
@@ -42,7 +73,7 @@ impl Streamer {
         source: &TileSource,
         config: StreamConfig,
         runtime: Option<tokio::runtime::Handle>,
-    ) -> anyhow::Result<(Self, api::DatasetInfo)> {
+    ) -> Result<(Self, api::DatasetInfo), OpenError> {
         let (owned, rt) = if let Some(h) = runtime {
             (None, h)
         } else {
@@ -55,14 +86,16 @@ impl Streamer {
                 let url = url.trim_end_matches('/').to_string();
                 let h2c = config.http2 && url.starts_with("http://");
                 match Self::open_server(owned, rt.clone(), &url, dataset, &config, h2c) {
-                    Err((e, owned)) if h2c => {
+                    Err(failed) if h2c => {
+                        let (e, owned) = *failed;
                         tracing::warn!(
-                            "{url}: cannot open over HTTP/2 with prior knowledge ({e:#}); opening over HTTP/1.1"
+                            "{url}: cannot open over HTTP/2 with prior knowledge ({}); opening over HTTP/1.1",
+                            Chain(&e)
                         );
                         Self::open_server(owned, rt, &url, dataset, &config, false)
-                            .map_err(|(e, _)| e)
+                            .map_err(|failed| failed.0)
                     }
-                    r => r.map_err(|(e, _)| e),
+                    r => r.map_err(|failed| failed.0),
                 }
             }
             TileSource::StaticFile { url } => {
@@ -105,7 +138,7 @@ impl Streamer {
         dataset: &str,
         config: &StreamConfig,
         h2c: bool,
-    ) -> Result<(Self, api::DatasetInfo), (anyhow::Error, Option<tokio::runtime::Runtime>)> {
+    ) -> Result<(Self, api::DatasetInfo), Box<(OpenError, Option<tokio::runtime::Runtime>)>> {
         let built = (|| {
             let client = http_client(config.request_timeout, h2c)?;
             // The open on a connection of its own (as the probe streamer of old
@@ -132,11 +165,11 @@ impl Streamer {
                 ),
             };
             let layout = layout_of(&info)?;
-            Ok::<_, anyhow::Error>((client, info, boot, layout))
+            Ok::<_, OpenError>((client, info, boot, layout))
         })();
         let (client, info, boot, layout) = match built {
             Ok(b) => b,
-            Err(e) => return Err((e, owned)),
+            Err(e) => return Err(Box::new((e, owned))),
         };
         let backend = Backend::Server {
             url: url.to_string(),
@@ -265,7 +298,7 @@ impl Streamer {
         name: &str,
         layout: RecordLayout,
         config: StreamConfig,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, OpenError> {
         Self::with_runtime(None, handle, server, name, layout, config)
     }
 
@@ -276,7 +309,7 @@ impl Streamer {
         name: &str,
         layout: RecordLayout,
         config: StreamConfig,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, OpenError> {
         let h2c = config.http2 && server.starts_with("http://");
         let client = http_client(config.request_timeout, h2c)?;
         let backend = Backend::Server {
@@ -322,7 +355,7 @@ impl Streamer {
 }
 
 /// The record layout a dataset's document announces.
-fn layout_of(info: &api::DatasetInfo) -> anyhow::Result<RecordLayout> {
+fn layout_of(info: &api::DatasetInfo) -> Result<RecordLayout, GeometryError> {
     let geometry = TileGeometry::new(info.width, info.height, info.tile_size)?;
     Ok(RecordLayout::new(geometry.tile_log2(), info.format_version))
 }
@@ -343,7 +376,7 @@ async fn bootstrap(
     dataset: &str,
     focus: Option<tessera_shared::focus::Focus>,
     record: Option<&crate::loadtest::record::RecordHook>,
-) -> anyhow::Result<Option<(Bootstrap, u64)>> {
+) -> Result<Option<(Bootstrap, u64)>, OpenError> {
     let mut url = format!(
         "{server}{}",
         api::fill(api::routes::BOOTSTRAP, &[("name", dataset)])
@@ -379,26 +412,30 @@ async fn bootstrap(
     }
     if !status.is_success() {
         let body = r.text().await.unwrap_or_default();
-        anyhow::bail!("{url}: HTTP {status}: {}", body.trim());
+        return Err(OpenError::Status {
+            url,
+            status,
+            body: body.trim().to_string(),
+        });
     }
     let mut body = Vec::new();
     while let Some(chunk) = r.chunk().await? {
         body.extend_from_slice(&chunk);
-        anyhow::ensure!(
-            body.len() <= MAX_BOOTSTRAP,
-            "{url}: more than {MAX_BOOTSTRAP} bytes"
-        );
+        if body.len() > MAX_BOOTSTRAP {
+            return Err(OpenError::TooBig { url });
+        }
     }
     if let Some(rec) = recording {
         rec.complete_body(status.as_u16(), &body);
     }
     match Bootstrap::decode(&body) {
         Ok(b) => {
-            anyhow::ensure!(
-                b.info.name == dataset,
-                "{url}: the bootstrap describes dataset {:?}",
-                b.info.name
-            );
+            if b.info.name != dataset {
+                return Err(OpenError::OtherDataset {
+                    url,
+                    name: b.info.name,
+                });
+            }
             Ok(Some((b, body.len() as u64)))
         }
         Err(e) => {
@@ -415,7 +452,7 @@ async fn describe(
     server: &str,
     dataset: &str,
     record: Option<&crate::loadtest::record::RecordHook>,
-) -> anyhow::Result<api::DatasetInfo> {
+) -> Result<api::DatasetInfo, OpenError> {
     let url = format!(
         "{server}{}",
         api::fill(api::routes::DATASET, &[("name", dataset)])
@@ -426,10 +463,15 @@ async fn describe(
     let status = r.status();
     let bytes = r.bytes().await?;
     let body = String::from_utf8_lossy(&bytes);
-    anyhow::ensure!(status.is_success(), "{url}: HTTP {status}: {body}");
+    if !status.is_success() {
+        return Err(OpenError::Status {
+            url,
+            status,
+            body: body.into_owned(),
+        });
+    }
     if let Some(rec) = recording {
         rec.complete_body(status.as_u16(), &bytes);
     }
-    serde_json::from_str(&body)
-        .with_context(|| format!("{url}: not the dataset description of API.md"))
+    serde_json::from_str(&body).map_err(|source| OpenError::NotDocument { url, source })
 }

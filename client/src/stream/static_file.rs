@@ -22,7 +22,6 @@
 //! `If-Range` the answer is the range of the new file, a few records at most, and its
 //! headers say it changed just the same.
 
-use anyhow::Context;
 use reqwest::StatusCode;
 use reqwest::header::{self, HeaderMap};
 use std::io;
@@ -122,18 +121,109 @@ pub(crate) enum Transport {
     File(std::sync::Arc<FileSource>),
 }
 
-/// The file is not there (HTTP 404 or 410, or no such local file): for optional
-/// files, such as the imagery beside a pyramid, to be told from broken ones.
-#[derive(Debug)]
-pub(crate) struct NoSuchFile(pub String);
-
-impl std::fmt::Display for NoSuchFile {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}: no such file (HTTP 404)", self.0)
-    }
+/// Why a static pyramid file could not be opened or read: each names the URL (and,
+/// for a read, the byte range) and what was wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum StaticFileError {
+    /// The file is not there (HTTP 404 or 410, or no such local file): for optional
+    /// files, such as the imagery beside a pyramid, to be told from broken ones.
+    #[error("{0}: no such file (HTTP 404)")]
+    NoSuchFile(String),
+    #[error("{url}: a pyramid URL is http://…, https://… or file://…")]
+    Scheme { url: String },
+    #[error("{url}: cannot fetch the pyramid's header")]
+    FetchHeader {
+        url: String,
+        #[source]
+        source: reqwest::Error,
+    },
+    #[error("{url}: 416 Range Not Satisfiable: the file is empty")]
+    Empty { url: String },
+    #[error("{url}: HTTP {status}")]
+    Status { url: String, status: StatusCode },
+    #[error("{url}: 206 without a valid Content-Range")]
+    NoContentRange { url: String },
+    #[error("{url}: asked for bytes from 0, got them from {start}")]
+    RangeStart { url: String, start: u64 },
+    #[error("{url}: reading the pyramid's header")]
+    ReadHeader {
+        url: String,
+        #[source]
+        source: reqwest::Error,
+    },
+    /// The header or the header region does not parse, or fails its checks.
+    #[error("{url}: {error}")]
+    Pyramid { url: String, error: String },
+    #[error(
+        "{url}: the header region (header, indices, metadata) is {region} bytes, more than the {MAX_HEADER_REGION} a serverless read fetches; serve this pyramid with tessera-server"
+    )]
+    RegionTooLarge { url: String, region: u64 },
+    #[error("{url}: cannot fetch the pyramid's indices")]
+    FetchIndices {
+        url: String,
+        #[source]
+        source: reqwest::Error,
+    },
+    #[error("{url}: the pyramid changed under the client ({what})")]
+    PyramidChanged { url: String, what: String },
+    #[error("{url}: HTTP {status} to the Range request for the indices")]
+    IndicesStatus { url: String, status: StatusCode },
+    #[error("{url}: the answer for the indices is not the range asked for")]
+    IndicesRange { url: String },
+    #[error("{url}: the file ends inside its header region ({have} of {region} bytes)")]
+    EndsInRegion {
+        url: String,
+        have: usize,
+        region: u64,
+    },
+    #[error("{url}: the file ends inside its header region")]
+    EndsInWholeRegion { url: String },
+    #[error(
+        "{url}: the host ignores HTTP Range (it answered 200 with the whole {size}-byte file); serverless reads need Range support (nginx, S3 and CDNs have it), and a file over {MAX_WHOLE_BODY} bytes is not downloaded whole"
+    )]
+    IgnoresRange { url: String, size: String },
+    #[error("{url}: cannot open")]
+    LocalOpen {
+        url: String,
+        #[source]
+        source: io::Error,
+    },
+    #[error("{url}: cannot read")]
+    LocalRead {
+        url: String,
+        #[source]
+        source: io::Error,
+    },
+    #[error("{url}: the header region of {region} bytes does not fit the file or the limit")]
+    LocalRegion { url: String, region: u64 },
+    #[error("{from}: an empty range")]
+    EmptyRange { from: String },
+    /// A Range request that failed on its way, or a local read that failed.
+    #[error("{from}")]
+    Range {
+        from: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    #[error("{from}: the file changed under the client ({what})")]
+    FileChanged { from: String, what: String },
+    #[error("{from}: HTTP {status} to a Range request")]
+    RangeStatus { from: String, status: StatusCode },
+    #[error("{from}: the host answered another range")]
+    OtherRange { from: String },
+    #[error("{from}: {got} bytes in the answer, {len} asked for")]
+    RangeLength { from: String, got: usize, len: u64 },
+    #[error("{from}: the file is shorter than its index says")]
+    Short { from: String },
+    #[error("range too long")]
+    RangeTooLong(#[source] std::num::TryFromIntError),
+    #[error(transparent)]
+    Http(#[from] reqwest::Error),
+    #[error(transparent)]
+    Io(#[from] io::Error),
+    #[error(transparent)]
+    Task(#[from] tokio::task::JoinError),
 }
-
-impl std::error::Error for NoSuchFile {}
 
 /// Which kind of pyramid a static file must be: a DEM's (`.tess`) or its imagery's
 /// (`.tessimg`, FORMAT.md "Imagery pyramids"); the container is the same, the magic
@@ -194,12 +284,15 @@ impl StaticFile {
     }
 
     /// Opens `url` (`http://…` or `file://…`), reading its header region.
-    pub async fn open(client: &reqwest::Client, url: &str) -> anyhow::Result<Self> {
+    pub async fn open(client: &reqwest::Client, url: &str) -> Result<Self, StaticFileError> {
         Self::open_as(client, url, PyramidKind::Dem).await
     }
 
     /// Opens the imagery pyramid at `url` as [`StaticFile::open`] opens a DEM's.
-    pub async fn open_imagery(client: &reqwest::Client, url: &str) -> anyhow::Result<Self> {
+    pub async fn open_imagery(
+        client: &reqwest::Client,
+        url: &str,
+    ) -> Result<Self, StaticFileError> {
         Self::open_as(client, url, PyramidKind::Imagery).await
     }
 
@@ -207,31 +300,36 @@ impl StaticFile {
         client: &reqwest::Client,
         url: &str,
         kind: PyramidKind,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, StaticFileError> {
         if let Some(path) = url.strip_prefix("file://") {
             if !Path::new(path).exists() {
-                return Err(NoSuchFile(url.to_string()).into());
+                return Err(StaticFileError::NoSuchFile(url.to_string()));
             }
             return Self::open_local(url, Path::new(path), kind);
         }
-        anyhow::ensure!(
-            url.starts_with("http://") || url.starts_with("https://"),
-            "{url}: a pyramid URL is http://…, https://… or file://…"
-        );
+        if !(url.starts_with("http://") || url.starts_with("https://")) {
+            return Err(StaticFileError::Scheme { url: url.into() });
+        }
         let first = client
             .get(url)
             .header(header::RANGE, format!("bytes=0-{}", FIRST_RANGE - 1))
             .send()
             .await
-            .with_context(|| format!("{url}: cannot fetch the pyramid's header"))?;
+            .map_err(|source| StaticFileError::FetchHeader {
+                url: url.into(),
+                source,
+            })?;
         match first.status() {
             StatusCode::PARTIAL_CONTENT => Self::open_ranged(client, url, first, kind).await,
             StatusCode::OK => Self::open_whole(url, first, kind).await,
-            StatusCode::RANGE_NOT_SATISFIABLE => {
-                anyhow::bail!("{url}: 416 Range Not Satisfiable: the file is empty")
+            StatusCode::RANGE_NOT_SATISFIABLE => Err(StaticFileError::Empty { url: url.into() }),
+            StatusCode::NOT_FOUND | StatusCode::GONE => {
+                Err(StaticFileError::NoSuchFile(url.to_string()))
             }
-            StatusCode::NOT_FOUND | StatusCode::GONE => Err(NoSuchFile(url.to_string()).into()),
-            status => anyhow::bail!("{url}: HTTP {status}"),
+            status => Err(StaticFileError::Status {
+                url: url.into(),
+                status,
+            }),
         }
     }
 
@@ -241,23 +339,31 @@ impl StaticFile {
         url: &str,
         first: reqwest::Response,
         kind: PyramidKind,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, StaticFileError> {
         let (start, _, total) = content_range(first.headers())
-            .with_context(|| format!("{url}: 206 without a valid Content-Range"))?;
-        anyhow::ensure!(
-            start == 0,
-            "{url}: asked for bytes from 0, got them from {start}"
-        );
+            .ok_or_else(|| StaticFileError::NoContentRange { url: url.into() })?;
+        if start != 0 {
+            return Err(StaticFileError::RangeStart {
+                url: url.into(),
+                start,
+            });
+        }
         let validators = Validators::of_response(first.headers(), total);
-        let mut bytes = read_body(first, FIRST_RANGE)
-            .await
-            .with_context(|| format!("{url}: reading the pyramid's header"))?;
-        let header = FileHeader::parse(&bytes).map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        let mut bytes =
+            read_body(first, FIRST_RANGE)
+                .await
+                .map_err(|source| StaticFileError::ReadHeader {
+                    url: url.into(),
+                    source,
+                })?;
+        let header = FileHeader::parse(&bytes).map_err(|e| pyramid_error(url, &e))?;
         let region = header.records_offset;
-        anyhow::ensure!(
-            region <= MAX_HEADER_REGION,
-            "{url}: the header region (header, indices, metadata) is {region} bytes, more than the {MAX_HEADER_REGION} a serverless read fetches; serve this pyramid with tessera-server"
-        );
+        if region > MAX_HEADER_REGION {
+            return Err(StaticFileError::RegionTooLarge {
+                url: url.into(),
+                region,
+            });
+        }
         let mut requests = 1;
         let have = bytes.len() as u64;
         if region > have {
@@ -267,31 +373,39 @@ impl StaticFile {
                 .header(header::RANGE, format!("bytes={have}-{}", region - 1))
                 .send()
                 .await
-                .with_context(|| format!("{url}: cannot fetch the pyramid's indices"))?;
+                .map_err(|source| StaticFileError::FetchIndices {
+                    url: url.into(),
+                    source,
+                })?;
             requests += 1;
             let now = Validators::of_response(
                 rest.headers(),
                 content_range(rest.headers()).and_then(|r| r.2),
             );
             if let Some(what) = validators.changed(&now) {
-                anyhow::bail!("{url}: the pyramid changed under the client ({what})");
+                return Err(StaticFileError::PyramidChanged {
+                    url: url.into(),
+                    what,
+                });
             }
-            anyhow::ensure!(
-                rest.status() == StatusCode::PARTIAL_CONTENT,
-                "{url}: HTTP {} to the Range request for the indices",
-                rest.status()
-            );
-            anyhow::ensure!(
-                content_range(rest.headers()).map(|r| (r.0, r.1)) == Some((have, region - 1)),
-                "{url}: the answer for the indices is not the range asked for"
-            );
+            if rest.status() != StatusCode::PARTIAL_CONTENT {
+                return Err(StaticFileError::IndicesStatus {
+                    url: url.into(),
+                    status: rest.status(),
+                });
+            }
+            if content_range(rest.headers()).map(|r| (r.0, r.1)) != Some((have, region - 1)) {
+                return Err(StaticFileError::IndicesRange { url: url.into() });
+            }
             bytes.extend(read_body(rest, region - have).await?);
         }
-        anyhow::ensure!(
-            bytes.len() as u64 >= region,
-            "{url}: the file ends inside its header region ({} of {region} bytes)",
-            bytes.len()
-        );
+        if (bytes.len() as u64) < region {
+            return Err(StaticFileError::EndsInRegion {
+                url: url.into(),
+                have: bytes.len(),
+                region,
+            });
+        }
         let open_bytes = bytes.len() as u64;
         bytes.truncate(region as usize);
         let pyramid = kind
@@ -299,7 +413,7 @@ impl StaticFile {
                 bytes,
                 total: total.unwrap_or(u64::MAX),
             })
-            .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+            .map_err(|e| pyramid_error(url, &e))?;
         Ok(Self {
             url: url.to_string(),
             pyramid,
@@ -315,11 +429,10 @@ impl StaticFile {
         url: &str,
         resp: reqwest::Response,
         kind: PyramidKind,
-    ) -> anyhow::Result<Self> {
-        let refuse = |n: &dyn std::fmt::Display| {
-            anyhow::anyhow!(
-                "{url}: the host ignores HTTP Range (it answered 200 with the whole {n}-byte file); serverless reads need Range support (nginx, S3 and CDNs have it), and a file over {MAX_WHOLE_BODY} bytes is not downloaded whole"
-            )
+    ) -> Result<Self, StaticFileError> {
+        let refuse = |n: &dyn std::fmt::Display| StaticFileError::IgnoresRange {
+            url: url.into(),
+            size: n.to_string(),
         };
         if let Some(n) = resp.content_length().filter(|n| *n > MAX_WHOLE_BODY) {
             return Err(refuse(&n));
@@ -329,17 +442,17 @@ impl StaticFile {
             return Err(refuse(&format!("over-{MAX_WHOLE_BODY}")));
         }
         let total = body.len() as u64;
-        let header = FileHeader::parse(&body).map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+        let header = FileHeader::parse(&body).map_err(|e| pyramid_error(url, &e))?;
         let region = usize::try_from(header.records_offset)
             .ok()
             .filter(|r| *r <= body.len())
-            .with_context(|| format!("{url}: the file ends inside its header region"))?;
+            .ok_or_else(|| StaticFileError::EndsInWholeRegion { url: url.into() })?;
         let pyramid = kind
             .open(HeaderRegion {
                 bytes: body[..region].to_vec(),
                 total,
             })
-            .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+            .map_err(|e| pyramid_error(url, &e))?;
         tracing::warn!("{url}: the host ignores HTTP Range; read the whole {total}-byte file");
         Ok(Self {
             url: url.to_string(),
@@ -351,23 +464,30 @@ impl StaticFile {
     }
 
     /// `file://PATH`: the header region read from the file, records with `pread`.
-    fn open_local(url: &str, path: &Path, kind: PyramidKind) -> anyhow::Result<Self> {
-        let file = FileSource::open(path).with_context(|| format!("{url}: cannot open"))?;
+    fn open_local(url: &str, path: &Path, kind: PyramidKind) -> Result<Self, StaticFileError> {
+        let file = FileSource::open(path).map_err(|source| StaticFileError::LocalOpen {
+            url: url.into(),
+            source,
+        })?;
         let total = file.size()?;
         let head = file
             .read_vec(0, HEADER_LEN.min(total as usize))
-            .with_context(|| format!("{url}: cannot read"))?;
-        let header = FileHeader::parse(&head).map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
-        anyhow::ensure!(
-            header.records_offset <= total.min(MAX_HEADER_REGION),
-            "{url}: the header region of {} bytes does not fit the file or the limit",
-            header.records_offset
-        );
+            .map_err(|source| StaticFileError::LocalRead {
+                url: url.into(),
+                source,
+            })?;
+        let header = FileHeader::parse(&head).map_err(|e| pyramid_error(url, &e))?;
+        if header.records_offset > total.min(MAX_HEADER_REGION) {
+            return Err(StaticFileError::LocalRegion {
+                url: url.into(),
+                region: header.records_offset,
+            });
+        }
         let bytes = file.read_vec(0, header.records_offset as usize)?;
         let open_bytes = bytes.len() as u64;
         let pyramid = kind
             .open(HeaderRegion { bytes, total })
-            .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
+            .map_err(|e| pyramid_error(url, &e))?;
         Ok(Self {
             url: url.to_string(),
             pyramid,
@@ -388,9 +508,16 @@ impl StaticFile {
         client: &reqwest::Client,
         start: u64,
         end: u64,
-    ) -> anyhow::Result<Vec<u8>> {
+    ) -> Result<Vec<u8>, StaticFileError> {
         let from = format!("{} bytes={start}-{}", self.url, end.saturating_sub(1));
-        anyhow::ensure!(start < end, "{from}: an empty range");
+        if start >= end {
+            return Err(StaticFileError::EmptyRange { from });
+        }
+        let failed =
+            |from: &str, e: Box<dyn std::error::Error + Send + Sync>| StaticFileError::Range {
+                from: from.to_string(),
+                source: e,
+            };
         let len = end - start;
         match &self.transport {
             Transport::Http(validators) => {
@@ -399,29 +526,31 @@ impl StaticFile {
                     .header(header::RANGE, format!("bytes={start}-{}", end - 1))
                     .send()
                     .await
-                    .with_context(|| from.clone())?;
+                    .map_err(|e| failed(&from, e.into()))?;
                 let range = content_range(resp.headers());
                 let now = Validators::of_response(resp.headers(), range.and_then(|r| r.2));
                 if let Some(what) = validators.changed(&now) {
-                    anyhow::bail!("{from}: the file changed under the client ({what})");
+                    return Err(StaticFileError::FileChanged { from, what });
                 }
-                anyhow::ensure!(
-                    resp.status() == StatusCode::PARTIAL_CONTENT,
-                    "{from}: HTTP {} to a Range request",
-                    resp.status()
-                );
-                anyhow::ensure!(
-                    range.map(|r| (r.0, r.1)) == Some((start, end - 1)),
-                    "{from}: the host answered another range"
-                );
+                if resp.status() != StatusCode::PARTIAL_CONTENT {
+                    return Err(StaticFileError::RangeStatus {
+                        from,
+                        status: resp.status(),
+                    });
+                }
+                if range.map(|r| (r.0, r.1)) != Some((start, end - 1)) {
+                    return Err(StaticFileError::OtherRange { from });
+                }
                 let body = read_body(resp, len + 1)
                     .await
-                    .with_context(|| from.clone())?;
-                anyhow::ensure!(
-                    body.len() as u64 == len,
-                    "{from}: {} bytes in the answer, {len} asked for",
-                    body.len()
-                );
+                    .map_err(|e| failed(&from, e.into()))?;
+                if body.len() as u64 != len {
+                    return Err(StaticFileError::RangeLength {
+                        from,
+                        got: body.len(),
+                        len,
+                    });
+                }
                 Ok(body)
             }
             Transport::Memory(body) => usize::try_from(start)
@@ -429,15 +558,24 @@ impl StaticFile {
                 .zip(usize::try_from(end).ok())
                 .and_then(|(a, b)| body.get(a..b))
                 .map(<[u8]>::to_vec)
-                .with_context(|| format!("{from}: the file is shorter than its index says")),
+                .ok_or(StaticFileError::Short { from }),
             Transport::File(src) => {
                 let src = src.clone();
-                let n = usize::try_from(len).context("range too long")?;
+                let n = usize::try_from(len).map_err(StaticFileError::RangeTooLong)?;
                 tokio::task::spawn_blocking(move || src.read_vec(start, n))
                     .await?
-                    .with_context(|| from.clone())
+                    .map_err(|e| failed(&from, e.into()))
             }
         }
+    }
+}
+
+/// [`StaticFileError::Pyramid`]: a header or header region of `url` that does not
+/// parse or fails its checks.
+fn pyramid_error(url: &str, e: &dyn std::fmt::Display) -> StaticFileError {
+    StaticFileError::Pyramid {
+        url: url.into(),
+        error: e.to_string(),
     }
 }
 
@@ -457,7 +595,7 @@ pub(crate) fn content_range(headers: &HeaderMap) -> Option<(u64, u64, Option<u64
 
 /// A response's body, at most `limit` bytes of it (more is an error for a range;
 /// [`StaticFile::open_whole`] asks for one byte over its limit to tell).
-async fn read_body(mut resp: reqwest::Response, limit: u64) -> anyhow::Result<Vec<u8>> {
+async fn read_body(mut resp: reqwest::Response, limit: u64) -> Result<Vec<u8>, reqwest::Error> {
     let mut out = Vec::new();
     while let Some(chunk) = resp.chunk().await? {
         out.extend_from_slice(&chunk);

@@ -35,14 +35,15 @@ mod tally;
 pub use options::{ReplayOptions, STREAMS_PER_CONNECTION};
 
 use super::check::ErrorKind;
+use super::connections::ConnectionsError;
 use super::connections::{check_connections, open_file_limit};
+use super::pacing::ScheduleError;
 use super::pacing::{MAX_RUN, MAX_TIMEOUT, Pacing};
 use super::replay_report::{
     Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
 };
 use super::schedule::Schedule;
-use super::trace::RequestKind;
-use anyhow::Context;
+use super::trace::{RequestKind, Shard};
 use loops::{closed_loop, open_loop, progress_line};
 use sender::{Prepared, Shared};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
@@ -58,6 +59,55 @@ const H2_STREAM_WINDOW: u32 = 8 << 20;
 /// bytes), under reqwest and hyper. A longer one cannot be sent at all.
 const MAX_URL_BYTES: usize = u16::MAX as usize - 1;
 
+/// Why a replay could not run: its settings, the trace's requests, or the
+/// process's resources.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("--connections must be at least 1")]
+    NoConnections,
+    #[error(transparent)]
+    Connections(#[from] ConnectionsError),
+    #[error("--threads must be at least 1")]
+    NoThreads,
+    #[error("--timeout must be above 0")]
+    ZeroTimeout,
+    #[error(
+        "--timeout {timeout:?} is longer than {} s, the longest latency the report's histograms hold",
+        MAX_TIMEOUT.as_secs()
+    )]
+    Timeout { timeout: Duration },
+    #[error(
+        "--duration {duration:?} is longer than the {} s (7 days) a replay runs",
+        MAX_RUN.as_secs()
+    )]
+    Duration { duration: Duration },
+    #[error("request {number} of the shard: {url:?} is not a URL")]
+    Url {
+        number: usize,
+        url: String,
+        #[source]
+        source: <reqwest::Url as std::str::FromStr>::Err,
+    },
+    #[error(
+        "request {number} of the shard: its URL ({start}…) is {len} bytes, more than the {MAX_URL_BYTES} an HTTP request can carry here; shorten its target"
+    )]
+    UrlTooLong {
+        number: usize,
+        start: String,
+        len: usize,
+    },
+    #[error("shard {shard} of the trace")]
+    Schedule {
+        shard: Shard,
+        #[source]
+        source: ScheduleError,
+    },
+    #[error("cannot build the HTTP client")]
+    Client(#[source] reqwest::Error),
+    #[error(transparent)]
+    Runtime(#[from] std::io::Error),
+}
+
 /// The HTTP clients, one per connection (`connections` of them, each keeping one
 /// connection alive). One client with a pool of `connections` would hand out its
 /// most recently used idle connection, so that at a moderate rate a few hot
@@ -65,7 +115,7 @@ const MAX_URL_BYTES: usize = u16::MAX as usize - 1;
 /// segments (Nagle), a hot connection in delayed-ACK mode waits 40 ms for the last
 /// segment of an answer now and then (p99 45 ms against oha's 5 ms on the same
 /// requests and rate, where oha spreads them over all its connections).
-fn clients(opts: &ReplayOptions, base: &str) -> anyhow::Result<Vec<reqwest::Client>> {
+fn clients(opts: &ReplayOptions, base: &str) -> Result<Vec<reqwest::Client>, ReplayError> {
     static PROVIDER: std::sync::Once = std::sync::Once::new();
     PROVIDER.call_once(|| {
         // HTTPS servers: the client crate builds reqwest without a crypto provider of
@@ -87,31 +137,33 @@ fn clients(opts: &ReplayOptions, base: &str) -> anyhow::Result<Vec<reqwest::Clie
                 .http2_initial_stream_window_size(H2_STREAM_WINDOW)
                 .http2_initial_connection_window_size(H2_STREAM_WINDOW * 4);
             let b = if h2c { b.http2_prior_knowledge() } else { b };
-            b.build().context("cannot build the HTTP client")
+            b.build().map_err(ReplayError::Client)
         })
         .collect()
 }
 
 /// Replays `opts.trace` (its shard) and reports. Blocking: it runs its own tokio
 /// runtime, so call it from a plain thread (in async code, `spawn_blocking`).
-pub fn replay(opts: &ReplayOptions) -> anyhow::Result<ReplayReport> {
-    anyhow::ensure!(opts.connections >= 1, "--connections must be at least 1");
+pub fn replay(opts: &ReplayOptions) -> Result<ReplayReport, ReplayError> {
+    if opts.connections < 1 {
+        return Err(ReplayError::NoConnections);
+    }
     check_connections(opts.connections, open_file_limit())?;
-    anyhow::ensure!(opts.threads >= 1, "--threads must be at least 1");
-    anyhow::ensure!(!opts.timeout.is_zero(), "--timeout must be above 0");
-    anyhow::ensure!(
-        opts.timeout <= MAX_TIMEOUT,
-        "--timeout {:?} is longer than {} s, the longest latency the report's histograms hold",
-        opts.timeout,
-        MAX_TIMEOUT.as_secs()
-    );
-    if let Pacing::Saturation { duration } = opts.pacing {
-        anyhow::ensure!(
-            duration <= MAX_RUN,
-            "--duration {:?} is longer than the {} s (7 days) a replay runs",
-            duration,
-            MAX_RUN.as_secs()
-        );
+    if opts.threads < 1 {
+        return Err(ReplayError::NoThreads);
+    }
+    if opts.timeout.is_zero() {
+        return Err(ReplayError::ZeroTimeout);
+    }
+    if opts.timeout > MAX_TIMEOUT {
+        return Err(ReplayError::Timeout {
+            timeout: opts.timeout,
+        });
+    }
+    if let Pacing::Saturation { duration } = opts.pacing
+        && duration > MAX_RUN
+    {
+        return Err(ReplayError::Duration { duration });
     }
     let trace = opts.trace.shard(opts.shard);
     let base = opts
@@ -126,18 +178,20 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<ReplayReport> {
         .enumerate()
         .map(|(i, r)| {
             let url = format!("{base}{}", r.target);
-            let url = reqwest::Url::parse(&url).with_context(|| {
-                format!("request {} of the shard: {url:?} is not a URL", i + 1)
+            let url = reqwest::Url::parse(&url).map_err(|source| ReplayError::Url {
+                number: i + 1,
+                url: url.clone(),
+                source,
             })?;
             // A longer one was counted as a `connect` error per request: the client
             // refuses to send it, so no server ever answers it (not even 414).
-            anyhow::ensure!(
-                url.as_str().len() <= MAX_URL_BYTES,
-                "request {} of the shard: its URL ({}…) is {} bytes, more than the {MAX_URL_BYTES} an HTTP request can carry here; shorten its target",
-                i + 1,
-                url.as_str().chars().take(60).collect::<String>(),
-                url.as_str().len()
-            );
+            if url.as_str().len() > MAX_URL_BYTES {
+                return Err(ReplayError::UrlTooLong {
+                    number: i + 1,
+                    start: url.as_str().chars().take(60).collect(),
+                    len: url.as_str().len(),
+                });
+            }
             Ok(Prepared {
                 url,
                 expect: r.expect.clone(),
@@ -146,10 +200,14 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<ReplayReport> {
                     && r.expect.as_ref().is_some_and(|e| e.status == 200),
             })
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, ReplayError>>()?;
     let times: Vec<f64> = trace.requests.iter().map(|r| r.t_ms).collect();
-    let schedule = Schedule::new(&opts.pacing, &times, opts.shard.count())
-        .with_context(|| format!("shard {} of the trace", opts.shard))?;
+    let schedule = Schedule::new(&opts.pacing, &times, opts.shard.count()).map_err(|source| {
+        ReplayError::Schedule {
+            shard: opts.shard,
+            source,
+        }
+    })?;
     let clients = clients(opts, &base)?;
     let rt = if opts.threads == 1 {
         tokio::runtime::Builder::new_current_thread()
@@ -172,7 +230,7 @@ async fn run(
     requests: Vec<Prepared>,
     clients: Vec<reqwest::Client>,
     schedule: Option<Schedule>,
-) -> anyhow::Result<ReplayReport> {
+) -> Result<ReplayReport, ReplayError> {
     let shared = Arc::new(Shared {
         requests,
         idle: (!opts.http2).then(|| Mutex::new((0..clients.len()).collect())),
@@ -410,23 +468,23 @@ mod tests {
         // used to panic converting it to a Duration.
         let mut t = trace("http://127.0.0.1:1");
         t.requests[3].t_ms = 1e300;
-        let e = format!("{:#}", replay(&ReplayOptions::new(t)).unwrap_err());
+        let e = crate::errors::Chain(&replay(&ReplayOptions::new(t)).unwrap_err()).to_string();
         assert!(e.contains("1e300") && e.contains("7 days"), "{e}");
         let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
         opts.timeout = Duration::from_secs(7200);
-        let e = format!("{:#}", replay(&opts).unwrap_err());
+        let e = crate::errors::Chain(&replay(&opts).unwrap_err()).to_string();
         assert!(e.contains("--timeout"), "{e}");
         opts.timeout = Duration::from_secs(1);
         opts.pacing = Pacing::Saturation {
             duration: MAX_RUN * 2,
         };
-        let e = format!("{:#}", replay(&opts).unwrap_err());
+        let e = crate::errors::Chain(&replay(&opts).unwrap_err()).to_string();
         assert!(e.contains("--duration") && e.contains("7 days"), "{e}");
         opts.pacing = Pacing::Constant {
             rate: super::super::pacing::Rate::new(1e18).unwrap(),
             duration: Duration::from_secs(1),
         };
-        let e = format!("{:#}", replay(&opts).unwrap_err());
+        let e = crate::errors::Chain(&replay(&opts).unwrap_err()).to_string();
         assert!(e.contains("1000000 requests/s"), "{e}");
     }
 
@@ -499,7 +557,8 @@ mod tests {
             "/v1/datasets/moon/levels/1/tiles?ranges={}",
             "0".repeat(100_000)
         );
-        let e = format!("{:#}", replay(&ReplayOptions::new(t.clone())).unwrap_err());
+        let e =
+            crate::errors::Chain(&replay(&ReplayOptions::new(t.clone())).unwrap_err()).to_string();
         assert!(
             e.contains("request 3") && e.contains("65534") && e.contains("100"),
             "{e}"
@@ -532,7 +591,7 @@ mod tests {
     fn a_bad_server_url_names_the_request() {
         let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
         opts.server = Some("not a url".into());
-        let e = format!("{:#}", replay(&opts).unwrap_err());
+        let e = crate::errors::Chain(&replay(&opts).unwrap_err()).to_string();
         assert!(e.contains("request 1") && e.contains("not a URL"), "{e}");
     }
 
@@ -541,7 +600,7 @@ mod tests {
         // `--connections 1000000` took 915 MB before sending anything.
         let mut opts = ReplayOptions::new(trace("http://127.0.0.1:1"));
         opts.connections = 1_000_000;
-        let e = format!("{:#}", replay(&opts).unwrap_err());
+        let e = crate::errors::Chain(&replay(&opts).unwrap_err()).to_string();
         assert!(e.contains("--connections 1000000"), "{e}");
     }
 }
