@@ -18,7 +18,7 @@ pub struct Meta {
     pub gdal: Option<String>,
     pub nginx: Option<String>,
     pub wrk: Option<String>,
-    /// bench/load.sh's peer (absent from results older than issue 18).
+    /// bench/load.sh's peer (absent from results recorded before bench/load.sh ran oha).
     #[serde(default)]
     pub oha: Option<String>,
     /// The wgpu adapter the rendering benchmarks ran on.

@@ -127,8 +127,9 @@ impl Record for Load {
     }
 }
 
-/// `loadreplay.jsonl` (bench/load.sh, issue 18): one load generator replaying the
-/// targets of one recorded trace, at saturation (`phase` "saturation": closed loop,
+/// `loadreplay.jsonl` (bench/load.sh;
+/// DECISIONS.md "Load testing: the proof around the tool"): one load generator replaying
+/// the targets of one recorded trace, at saturation (`phase` "saturation": closed loop,
 /// `--rate max`) or at a constant arrival rate (`phase` "half": half of Tessera's
 /// saturation requests/s in the same run).
 #[derive(Clone, Debug, Deserialize)]

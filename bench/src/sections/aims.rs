@@ -1,4 +1,4 @@
-//! `{{aims}}`: every aim of the issue in one table at the top — what was measured
+//! `{{aims}}`: every aim of the benchmarks in one table at the top — what was measured
 //! and whether it is met — each linked to the section with the details. The links
 //! point at headings of the template, so [`broken_links`] checks they still exist.
 

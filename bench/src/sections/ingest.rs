@@ -1,5 +1,6 @@
-//! `{{ingest}}`: real datasets (issue 13) — one file against a 64-file mosaic of the
-//! same samples, and reprojection (`build --to EPSG:4326`) against `gdalwarp`.
+//! `{{ingest}}`: real datasets (DECISIONS.md "Mosaics") — one file against a 64-file
+//! mosaic of the same samples, and reprojection (`build --to EPSG:4326`) against
+//! `gdalwarp`.
 //!
 //! Aims: the mosaic builds within 1.1× the one file's wall time with the same peak
 //! RSS (within 10 %); reprojection at least as fast as `gdalwarp -r bilinear`.

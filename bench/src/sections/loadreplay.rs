@@ -1,12 +1,13 @@
 //! `{{loadreplay}}`: one recorded trace's requests replayed by `tessera load
-//! --replay`, wrk and oha side by side (bench/load.sh, issue 18): at saturation
-//! (closed loops on one pinned core) and at half of Tessera's saturation rate
-//! (open model, latency from the scheduled start where the tool can).
+//! --replay`, wrk and oha side by side (bench/load.sh;
+//! DECISIONS.md "Load testing: the proof around the tool"): at saturation (closed loops
+//! on one pinned core) and at half of Tessera's saturation rate (open model, latency from
+//! the scheduled start where the tool can).
 //!
-//! Aim (issue 18): one `tessera load --replay` process on one core drives at least
-//! the tiles/s that wrk drives through the same requests, so the tool is never the
-//! bottleneck. Ratios are of the medians, with the spread of the run-by-run ratios
-//! (the runner alternates the tools within a run).
+//! Aim (DECISIONS.md "Load testing: replay"): one `tessera load --replay` process on one
+//! core drives at least the tiles/s that wrk drives through the same requests, so the
+//! tool is never the bottleneck. Ratios are of the medians, with the spread of the
+//! run-by-run ratios (the runner alternates the tools within a run).
 
 use super::{Aim, Section, Table, Verdict, distinct};
 use crate::results::LoadReplay;

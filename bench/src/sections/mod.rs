@@ -111,7 +111,7 @@ impl fmt::Display for Verdict {
     }
 }
 
-/// One of the aims with what was measured against it.
+/// One of the benchmarks' aims with what was measured against it.
 #[derive(Clone, Debug)]
 pub struct Aim {
     /// The heading's anchor in BENCHMARKS.md ("build" for `## Build`).

@@ -4,12 +4,12 @@
 //!
 //! Aims, per connection count: batches of 16 deliver at least nginx's payload
 //! MB/s, at least 3× Tessera's own single-tile tiles/s, and spend at most 1.2×
-//! nginx's server CPU seconds per byte served (issue 16 item 7). Ratios are of
-//! the medians, with the spread of the run-by-run ratios (run k against run k: the
-//! runner alternates servers within a run, so run k shares its machine state).
-//! CPU figures come from rows that recorded them (`server_cpu_s`, `wrk_cpu_s`,
-//! `machine_cpu_s`), per GB that wrk read (`wrk_bytes`); older results without
-//! them leave that aim not measured.
+//! nginx's server CPU seconds per byte served (DECISIONS.md "Object storage", serving
+//! efficiency). Ratios are of the medians, with the spread of the run-by-run ratios (run
+//! k against run k: the runner alternates servers within a run, so run k shares its
+//! machine state). CPU figures come from rows that recorded them (`server_cpu_s`,
+//! `wrk_cpu_s`, `machine_cpu_s`), per GB that wrk read (`wrk_bytes`); older results
+//! without them leave that aim not measured.
 
 use super::{Aim, Ctx, Section, Table, Verdict, distinct};
 use crate::chart::{BarChart, BarSeries, HEIGHT, WIDTH};

@@ -1,7 +1,7 @@
-//! `{{terrain}}`: Cesium terrain (issue 15) — quantized-mesh tiles meshed from the
-//! pyramid's error tables (`bench/terrain.sh`): per-tile meshing time and quality
-//! against CesiumJS's geometric error and a regular 65 × 65 heightmap at equal error
-//! (`terrain_mesh.jsonl`), and tiles/s served cold and warm at 64 connections
+//! `{{terrain}}`: Cesium terrain (DECISIONS.md "Cesium terrain") — quantized-mesh tiles
+//! meshed from the pyramid's error tables (`bench/terrain.sh`): per-tile meshing time and
+//! quality against CesiumJS's geometric error and a regular 65 × 65 heightmap at equal
+//! error (`terrain_mesh.jsonl`), and tiles/s served cold and warm at 64 connections
 //! (`terrain_serve.jsonl`).
 //!
 //! Aims: ≤ 0.5 ms to mesh a tile (median, sources decoded, every dataset × zoom

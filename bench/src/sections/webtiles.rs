@@ -1,6 +1,6 @@
-//! `{{webtiles}}`: Web Mercator 512 px Terrarium tiles (issue 14) — Tessera cold,
-//! source-warm and warm against TiTiler serving the same DEM as a COG, at 64
-//! connections (`bench/webtiles.sh`).
+//! `{{webtiles}}`: Web Mercator 512 px Terrarium tiles
+//! (DECISIONS.md "Standard-grid web tiles") — Tessera cold, source-warm and warm against
+//! TiTiler serving the same DEM as a COG, at 64 connections (`bench/webtiles.sh`).
 //!
 //! Aims: ≥ 10× TiTiler's tiles/s (each Tessera mode against the TiTiler row it is
 //! paired with: cold against TiTiler's first pass, source-warm and warm against
