@@ -112,8 +112,8 @@ pub struct DatasetInfo {
     /// has none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imagery: Option<crate::imagery::ImageryInfo>,
-    /// The body the grid lies on and whether the grid is longitude/latitude (issue
-    /// 17 item 4: the globe), absent when the CRS names no known ellipsoid. The
+    /// The body the grid lies on and whether the grid is longitude/latitude
+    /// (DECISIONS.md "The globe"), absent when the CRS names no known ellipsoid. The
     /// server fills it from its projection library; [`DatasetInfo::new`] from the
     /// georeferencing alone ([`crate::body::Body::from_georef`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
