@@ -17,30 +17,49 @@ use crate::ingest::hgt::Hgt;
 use crate::ingest::png16::Png16;
 use anyhow::bail;
 use std::io::Cursor;
-use tessera_shared::range_query::{self, RangeLimits};
+use tessera_shared::bootstrap::BootstrapError;
+use tessera_shared::range_query::{self, RangeLimits, RangeQueryError};
+use tessera_shared::reader::ReadError;
 use tessera_shared::tile::MAX_LEVEL;
+use tessera_shared::wire::WireError;
 use tessera_shared::{Level, fuzzing as shared};
 
-/// An entry point: the parser's verdict on some bytes, as text.
-pub type Entry = fn(&[u8]) -> Result<(), String>;
+/// An entry point: the parser's verdict on some bytes.
+pub type Entry = fn(&[u8]) -> Result<(), Rejected>;
+
+/// Why an entry point refused its bytes: the parser's own error.
+#[derive(Debug, thiserror::Error)]
+pub enum Rejected {
+    /// A DEM reader or the VRT parser (their errors carry context, said in full).
+    #[error("{0:#}")]
+    Ingest(anyhow::Error),
+    #[error(transparent)]
+    Pyramid(#[from] ReadError),
+    #[error(transparent)]
+    Wire(#[from] WireError),
+    #[error(transparent)]
+    Bootstrap(#[from] BootstrapError),
+    #[error(transparent)]
+    Ranges(#[from] RangeQueryError),
+    /// No bytes at all, where the first picks something.
+    #[error("empty input")]
+    Empty,
+    /// A `Range` header that is not a byte range: the whole representation is sent.
+    #[error("not a byte-range header: ignored")]
+    RangeIgnored,
+}
 
 /// Every fuzz target by name (`fuzz/fuzz_targets/NAME.rs`, `fuzz/corpus/NAME/`).
 pub const TARGETS: &[(&str, Entry)] = &[
-    ("geotiff", |d| geotiff(d).map_err(|e| format!("{e:#}"))),
-    ("png16", |d| png16(d).map_err(|e| format!("{e:#}"))),
-    ("hgt", |d| hgt(d).map_err(|e| format!("{e:#}"))),
-    ("pyramid", |d| {
-        shared::pyramid(d).map(drop).map_err(|e| e.to_string())
-    }),
-    ("wire", |d| {
-        shared::wire(d).map(drop).map_err(|e| e.to_string())
-    }),
-    ("bootstrap", |d| {
-        shared::bootstrap(d).map(drop).map_err(|e| e.to_string())
-    }),
+    ("geotiff", |d| geotiff(d).map_err(Rejected::Ingest)),
+    ("png16", |d| png16(d).map_err(Rejected::Ingest)),
+    ("hgt", |d| hgt(d).map_err(Rejected::Ingest)),
+    ("pyramid", |d| Ok(shared::pyramid(d).map(drop)?)),
+    ("wire", |d| Ok(shared::wire(d).map(drop)?)),
+    ("bootstrap", |d| Ok(shared::bootstrap(d).map(drop)?)),
     ("ranges", |d| ranges(d).map(drop)),
     ("http_range", |d| http_range(d).map(drop)),
-    ("vrt", |d| vrt(d).map_err(|e| format!("{e:#}"))),
+    ("vrt", |d| vrt(d).map_err(Rejected::Ingest)),
 ];
 
 /// A GDAL VRT's XML, parsed as `build` parses it (sources are only named, never
@@ -168,13 +187,13 @@ const LIMITS: RangeLimits = RangeLimits {
 /// `ranges=` of a tile request: the first byte picks the level (mod 25), the rest is
 /// the parameter's (already percent-decoded) value. Checks that accepted ranges are
 /// sorted, disjoint, inside the level and within the limits. Returns their number.
-pub fn ranges(data: &[u8]) -> Result<usize, String> {
+pub fn ranges(data: &[u8]) -> Result<usize, Rejected> {
     let Some((&l, spec)) = data.split_first() else {
-        return Err("empty input".into());
+        return Err(Rejected::Empty);
     };
     let level = Level::new(l % (MAX_LEVEL + 1)).expect("a level up to MAX_LEVEL");
     let spec = String::from_utf8_lossy(spec);
-    let ranges = range_query::parse(Some(&spec), level, LIMITS).map_err(|e| e.to_string())?;
+    let ranges = range_query::parse(Some(&spec), level, LIMITS)?;
     assert!(!ranges.is_empty() && ranges.len() <= LIMITS.max_ranges);
     assert!(ranges.iter().map(|r| r.len()).sum::<u64>() <= LIMITS.max_tiles);
     assert!(
@@ -190,7 +209,7 @@ pub fn ranges(data: &[u8]) -> Result<usize, String> {
 /// endian; fewer bytes mean size 0), the rest the header value. Checks that every
 /// range of a partial answer lies inside the representation. A header that is
 /// ignored (the whole representation is sent) is an `Err`.
-pub fn http_range(data: &[u8]) -> Result<RangeRequest, String> {
+pub fn http_range(data: &[u8]) -> Result<RangeRequest, Rejected> {
     let (size, header) = data.split_at(data.len().min(8));
     let mut raw = [0u8; 8];
     raw[..size.len()].copy_from_slice(size);
@@ -198,7 +217,7 @@ pub fn http_range(data: &[u8]) -> Result<RangeRequest, String> {
     let header = String::from_utf8_lossy(header);
     let answer = range::parse(&header, size);
     match &answer {
-        RangeRequest::Full => return Err("not a byte-range header: ignored".into()),
+        RangeRequest::Full => return Err(Rejected::RangeIgnored),
         RangeRequest::Partial(v) => {
             assert!(!v.is_empty() && v.len() <= range::MAX_RANGES);
             assert!(v.iter().all(|r| r.start <= r.end && r.end < size));

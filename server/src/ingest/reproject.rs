@@ -407,19 +407,28 @@ fn plan_grid(
     })
 }
 
+/// Why a `--spacing` value is refused ([`parse_spacing`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SpacingError {
+    #[error("{0:?} is not a positive number")]
+    NotPositive(String),
+    #[error("{0:?}: want X or X,Y")]
+    NotOneOrTwo(String),
+}
+
 /// Parses `--spacing X[,Y]`.
-pub fn parse_spacing(s: &str) -> Result<[f64; 2], String> {
+pub fn parse_spacing(s: &str) -> Result<[f64; 2], SpacingError> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
-    let num = |p: &str| -> Result<f64, String> {
+    let num = |p: &str| -> Result<f64, SpacingError> {
         p.parse::<f64>()
             .ok()
             .filter(|v| v.is_finite() && *v > 0.0)
-            .ok_or_else(|| format!("{p:?} is not a positive number"))
+            .ok_or_else(|| SpacingError::NotPositive(p.into()))
     };
     match parts.as_slice() {
         [x] => Ok([num(x)?, num(x)?]),
         [x, y] => Ok([num(x)?, num(y)?]),
-        _ => Err(format!("{s:?}: want X or X,Y")),
+        _ => Err(SpacingError::NotOneOrTwo(s.into())),
     }
 }
 

@@ -2,7 +2,7 @@
 //! to be.
 
 use crate::http::cache::LastModified;
-use crate::storage::{FileStorage, Storage, StorageSource};
+use crate::storage::{FileStorage, Storage, StorageSource, StorageUnavailable};
 use anyhow::Context;
 use bytes::Bytes;
 use std::path::{Path, PathBuf};
@@ -56,13 +56,36 @@ pub struct RangeRecord {
 }
 
 /// Why a present record could not be served.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub enum RecordError {
     /// The record fails its checksum: that tile alone is bad.
     Corrupt(Corrupt),
     /// The file cannot be read as it was opened (truncated or changed under the
     /// server): the whole dataset is unavailable until a reload.
-    Unavailable(String),
+    Unavailable(DatasetUnavailable),
+}
+
+/// Why a dataset cannot be served now: it answers 503 until a reload.
+#[derive(Debug, thiserror::Error)]
+#[error("dataset {name:?} ({}): {reason}", path.display())]
+pub struct DatasetUnavailable {
+    pub name: String,
+    pub path: PathBuf,
+    pub reason: UnavailableReason,
+}
+
+/// What made a dataset unavailable ([`DatasetUnavailable`]).
+#[derive(Debug, thiserror::Error)]
+pub enum UnavailableReason {
+    /// Its storage is no longer what was opened, or cannot be reached.
+    #[error(transparent)]
+    Storage(#[from] StorageUnavailable),
+    /// A read failed: `what` (a tile, a level) could not be read.
+    #[error("cannot read {what}: {source}")]
+    Unreadable {
+        what: String,
+        source: std::io::Error,
+    },
 }
 
 impl Dataset {
@@ -144,10 +167,18 @@ impl Dataset {
 
     /// `Err` with the reason when the file is no longer the one opened (truncated
     /// or rewritten in place): the dataset then answers 503 until a reload.
-    pub fn available(&self) -> Result<(), String> {
+    pub fn available(&self) -> Result<(), DatasetUnavailable> {
         self.storage
             .check_unchanged()
-            .map_err(|e| format!("dataset {:?} ({}): {e}", self.name, self.path.display()))
+            .map_err(|e| self.unavailable(e.into()))
+    }
+
+    fn unavailable(&self, reason: UnavailableReason) -> DatasetUnavailable {
+        DatasetUnavailable {
+            name: self.name.clone(),
+            path: self.path.clone(),
+            reason,
+        }
     }
 
     fn state(&self, tile: TileId) -> &AtomicU8 {
@@ -164,22 +195,14 @@ impl Dataset {
         let bytes = self
             .storage
             .slice(entry.offset, u64::from(entry.length))
-            .map_err(|e| self.unreadable(&tile.to_string(), &e))?;
+            .map_err(|e| RecordError::Unavailable(self.unreadable(tile.to_string(), e)))?;
         self.checked(tile, entry, bytes)
             .map(Some)
             .map_err(RecordError::Corrupt)
     }
 
-    fn unreadable(&self, what: &str, e: &std::io::Error) -> RecordError {
-        RecordError::Unavailable(self.unreadable_reason(what, e))
-    }
-
-    fn unreadable_reason(&self, what: &str, e: &std::io::Error) -> String {
-        format!(
-            "dataset {:?} ({}): cannot read {what}: {e}",
-            self.name,
-            self.path.display()
-        )
+    fn unreadable(&self, what: String, source: std::io::Error) -> DatasetUnavailable {
+        self.unavailable(UnavailableReason::Unreadable { what, source })
     }
 
     /// The records of `ranges` of `level`, in order: each requested code with its
@@ -192,7 +215,7 @@ impl Dataset {
         &self,
         level: Level,
         ranges: &[MortonRange],
-    ) -> Result<Vec<RangeRecord>, String> {
+    ) -> Result<Vec<RangeRecord>, DatasetUnavailable> {
         let mut out = Vec::new();
         // Byte spans to read: (start, end, first index into `out`, last + 1).
         let mut spans: Vec<(u64, u64, usize, usize)> = Vec::new();
@@ -221,7 +244,7 @@ impl Dataset {
             .map(|&(a, z, _, _)| self.storage.read(a, z - a));
         let read = futures_util::future::join_all(reads).await;
         for (&(a, _, first, last), bytes) in spans.iter().zip(read) {
-            let bytes = bytes.map_err(|e| self.unreadable_reason(&format!("level {level}"), &e))?;
+            let bytes = bytes.map_err(|e| self.unreadable(format!("level {level}"), e))?;
             for i in first..last {
                 let (tile, Some(e)) = out[i] else { continue };
                 let from = (e.offset - a) as usize;

@@ -4,7 +4,8 @@
 
 use super::AppState;
 use super::dataset::Dataset;
-use crate::cesium::terrain::Terrain;
+use super::web_cache::NoFootprint;
+use crate::cesium::terrain::{Terrain, TerrainError};
 use crate::web::footprint::Footprint;
 use std::sync::Arc;
 use tessera_shared::api::{DatasetLinks, EncodingLinks, StandardGridLinks, fill, routes};
@@ -18,9 +19,9 @@ const EARTH_RADIUS: f64 = 6_378_137.0;
 pub struct Offered {
     /// The dataset's place on a map (standard-grid tiles and their TileJSON, WMTS, OGC
     /// API – Tiles, the map viewer), or why it has none.
-    pub grids: Result<Arc<Footprint>, String>,
+    pub grids: Result<Arc<Footprint>, NoFootprint>,
     /// Cesium terrain, or why not.
-    pub terrain: Result<Arc<Terrain>, String>,
+    pub terrain: Result<Arc<Terrain>, TerrainError>,
     /// The radii `[a, a, b]` of the body the dataset's CRS names, when it names one.
     pub radii: Option<[f64; 3]>,
 }

@@ -4,7 +4,7 @@
 //! source tile once — and a bounded LRU of made tiles. Both caches are weighed in bytes;
 //! their sizes, hits and misses are in `/metrics`.
 
-use crate::cesium::terrain::Terrain;
+use crate::cesium::terrain::{Terrain, TerrainError};
 use crate::cesium::tiling::CesiumTile;
 use crate::geoid::Geoid;
 use crate::web::encoding::{Encoding, ImageFormat, NoData};
@@ -111,11 +111,17 @@ impl Weighter<TerrainKey, Bytes> for TerrainBytes {
     }
 }
 
+/// Why a dataset has no footprint (no place on the standard grids): the error of
+/// [`Footprint::new`], kept beside the footprints made and cloned to each asker.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{0:#}")]
+pub struct NoFootprint(Arc<anyhow::Error>);
+
 /// The shared state of the web tiles.
 pub struct WebTiles {
     pub config: WebConfig,
-    footprints: Mutex<HashMap<u64, Result<Arc<Footprint>, String>>>,
-    terrains: Mutex<HashMap<u64, Result<Arc<Terrain>, String>>>,
+    footprints: Mutex<HashMap<u64, Result<Arc<Footprint>, NoFootprint>>>,
+    terrains: Mutex<HashMap<u64, Result<Arc<Terrain>, TerrainError>>>,
     terrain_tiles: Cache<TerrainKey, Bytes, TerrainBytes>,
     sources: Cache<(u64, TileId), Arc<SourceTile>, SourceBytes>,
     made: Cache<MadeKey, Bytes, MadeBytes>,
@@ -202,14 +208,14 @@ impl WebTiles {
         &self,
         content_hash: &str,
         make: impl FnOnce() -> anyhow::Result<Footprint>,
-    ) -> Result<Arc<Footprint>, String> {
+    ) -> Result<Arc<Footprint>, NoFootprint> {
         let key = dataset_key(content_hash);
         let mut map = self
             .footprints
             .lock()
             .unwrap_or_else(PoisonError::into_inner);
         map.entry(key)
-            .or_insert_with(|| make().map(Arc::new).map_err(|e| format!("{e:#}")))
+            .or_insert_with(|| make().map(Arc::new).map_err(|e| NoFootprint(Arc::new(e))))
             .clone()
     }
 
@@ -217,8 +223,8 @@ impl WebTiles {
     pub fn terrain(
         &self,
         content_hash: &str,
-        make: impl FnOnce() -> Result<Terrain, String>,
-    ) -> Result<Arc<Terrain>, String> {
+        make: impl FnOnce() -> Result<Terrain, TerrainError>,
+    ) -> Result<Arc<Terrain>, TerrainError> {
         let key = dataset_key(content_hash);
         let mut map = self.terrains.lock().unwrap_or_else(PoisonError::into_inner);
         map.entry(key)

@@ -1,7 +1,7 @@
 //! A pyramid in a local file behind the [`Storage`] trait: positional reads on the
 //! descriptor opened at start-up, into pooled frame buffers.
 
-use super::Storage;
+use super::{Storage, StorageUnavailable};
 use bytes::Bytes;
 use std::io;
 use std::path::Path;
@@ -108,20 +108,16 @@ impl Storage for FileStorage {
         Ok(Bytes::from_owner(buf))
     }
 
-    fn check_unchanged(&self) -> Result<(), String> {
-        let meta = self
-            .file
-            .metadata()
-            .map_err(|e| format!("cannot stat the open file: {e}"))?;
+    fn check_unchanged(&self) -> Result<(), StorageUnavailable> {
+        let meta = self.file.metadata().map_err(StorageUnavailable::Stat)?;
         if meta.len() != self.size {
-            return Err(format!(
-                "the file changed size under the server ({} bytes when opened, {} now)",
-                self.size,
-                meta.len()
-            ));
+            return Err(StorageUnavailable::Resized {
+                opened: self.size,
+                now: meta.len(),
+            });
         }
         if meta.modified().ok() != self.modified {
-            return Err("the file was modified in place after it was opened".to_string());
+            return Err(StorageUnavailable::ModifiedInPlace);
         }
         Ok(())
     }
@@ -301,7 +297,7 @@ mod tests {
         fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes> {
             self.0.slice(offset, len)
         }
-        fn check_unchanged(&self) -> Result<(), String> {
+        fn check_unchanged(&self) -> Result<(), StorageUnavailable> {
             Ok(())
         }
         fn label(&self) -> String {

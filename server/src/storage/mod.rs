@@ -35,7 +35,7 @@ pub trait Storage: Send + Sync + std::fmt::Debug + 'static {
     fn slice(&self, offset: u64, len: u64) -> io::Result<Bytes>;
     /// `Err` naming what changed if the bytes may no longer be the ones opened
     /// (a file truncated or rewritten in place). Cheap: called on every request.
-    fn check_unchanged(&self) -> Result<(), String>;
+    fn check_unchanged(&self) -> Result<(), StorageUnavailable>;
     /// When the bytes were last modified, as it was when the storage was opened
     /// (`Last-Modified`); `None` where unknown.
     fn modified(&self) -> Option<SystemTime> {
@@ -66,11 +66,41 @@ pub trait Storage: Send + Sync + std::fmt::Debug + 'static {
     }
     /// Whether the bytes can be served now (`/healthz/ready`): `Err` with the reason
     /// when the storage is unreachable or no longer what was opened.
-    fn ready(&self) -> BoxFuture<'_, Result<(), String>> {
+    fn ready(&self) -> BoxFuture<'_, Result<(), StorageUnavailable>> {
         Box::pin(std::future::ready(self.check_unchanged()))
     }
     /// Where the bytes are, for messages: a path or a URL.
     fn label(&self) -> String;
+}
+
+/// Why a storage's bytes cannot be served now ([`Storage::check_unchanged`],
+/// [`Storage::ready`]).
+#[derive(Debug, thiserror::Error)]
+pub enum StorageUnavailable {
+    /// A local file's metadata cannot be read.
+    #[error("cannot stat the open file: {0}")]
+    Stat(#[source] io::Error),
+    /// A local file is no longer the length it was when opened.
+    #[error("the file changed size under the server ({opened} bytes when opened, {now} now)")]
+    Resized { opened: u64, now: u64 },
+    /// A local file's modification time moved.
+    #[error("the file was modified in place after it was opened")]
+    ModifiedInPlace,
+    /// A read found the object changed in the store; the reason that read gave.
+    #[error("{0}")]
+    ObjectChanged(String),
+    /// A HEAD found the object changed in the store.
+    #[error("{url}: the object changed in the store after it was opened; reload (SIGHUP)")]
+    ChangedInStore { url: String },
+    /// The store answered a HEAD with an error.
+    #[error("{url}: the object store is not answering: {source}")]
+    StoreNotAnswering {
+        url: String,
+        source: object_store::Error,
+    },
+    /// The store did not answer a HEAD in time.
+    #[error("{url}: the object store did not answer a HEAD within 2 s")]
+    HeadTimeout { url: String },
 }
 
 /// Lets the shared pyramid reader parse headers and indices from any [`Storage`].

@@ -11,10 +11,10 @@
 //! exponential backoff ([`StoreOptions`]); what still fails is an
 //! `io::Error` naming the URL, which the routes turn into a 503 with a JSON reason.
 
-use super::Storage;
 use super::block_cache::{self, BLOCK, BlockCache};
 use super::location::{ObjectLocation, StoreOptions};
 use super::runtime;
+use super::{Storage, StorageUnavailable};
 use bytes::Bytes;
 use futures_util::future::{BoxFuture, Either};
 use object_store::{GetOptions, GetRange, ObjectStoreExt};
@@ -379,18 +379,18 @@ impl Storage for ObjectStorage {
         })
     }
 
-    fn check_unchanged(&self) -> Result<(), String> {
+    fn check_unchanged(&self) -> Result<(), StorageUnavailable> {
         match &*self
             .changed
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
         {
-            Some(why) => Err(why.clone()),
+            Some(why) => Err(StorageUnavailable::ObjectChanged(why.clone())),
             None => Ok(()),
         }
     }
 
-    fn ready(&self) -> BoxFuture<'_, Result<(), String>> {
+    fn ready(&self) -> BoxFuture<'_, Result<(), StorageUnavailable>> {
         Box::pin(async move {
             self.check_unchanged()?;
             let (store, key, url) = (
@@ -410,19 +410,15 @@ impl Storage for ObjectStorage {
                 }
                 Ok(Ok(_)) => {
                     m.with_label_values(&["head", "changed"]).inc();
-                    Err(format!(
-                        "{url}: the object changed in the store after it was opened; reload (SIGHUP)"
-                    ))
+                    Err(StorageUnavailable::ChangedInStore { url })
                 }
                 Ok(Err(e)) => {
                     m.with_label_values(&["head", "error"]).inc();
-                    Err(format!("{url}: the object store is not answering: {e}"))
+                    Err(StorageUnavailable::StoreNotAnswering { url, source: e })
                 }
                 Err(_) => {
                     m.with_label_values(&["head", "error"]).inc();
-                    Err(format!(
-                        "{url}: the object store did not answer a HEAD within 2 s"
-                    ))
+                    Err(StorageUnavailable::HeadTimeout { url })
                 }
             }
         })

@@ -46,7 +46,7 @@ pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
             match p.read_record(tile) {
                 Ok(Some(bytes)) => {
                     if let Err(e) = check_record(&bytes, meta.texels) {
-                        bad(&mut report, e);
+                        bad(&mut report, e.to_string());
                     }
                 }
                 Ok(None) => {}
@@ -67,16 +67,29 @@ pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
     Ok(report)
 }
 
+/// Why an imagery record is bad ([`check_record`]).
+#[derive(Debug, thiserror::Error)]
+enum BadRecord {
+    #[error("does not decode as JPEG: {0}")]
+    NotJpeg(image::ImageError),
+    #[error("image is {width}×{height}, the metadata says {texels}² texels")]
+    Size {
+        width: u32,
+        height: u32,
+        texels: u32,
+    },
+}
+
 /// A record is a JPEG of `texels × texels` RGB.
-fn check_record(bytes: &[u8], texels: u32) -> Result<(), String> {
+fn check_record(bytes: &[u8], texels: u32) -> Result<(), BadRecord> {
     let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Jpeg)
-        .map_err(|e| format!("does not decode as JPEG: {e}"))?;
+        .map_err(BadRecord::NotJpeg)?;
     if (img.width(), img.height()) != (texels, texels) {
-        return Err(format!(
-            "image is {}×{}, the metadata says {texels}² texels",
-            img.width(),
-            img.height()
-        ));
+        return Err(BadRecord::Size {
+            width: img.width(),
+            height: img.height(),
+            texels,
+        });
     }
     Ok(())
 }

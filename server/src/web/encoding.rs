@@ -186,7 +186,7 @@ impl ImageFormat {
     /// `side × side` RGBA pixels in this format. PNG uses the fast deflate level:
     /// height colours compress little whatever the level, and tiles are made per
     /// request.
-    pub fn encode(self, rgba: &[u8], side: u32) -> Result<Vec<u8>, String> {
+    pub fn encode(self, rgba: &[u8], side: u32) -> Result<Vec<u8>, ImageEncodeError> {
         let mut out = Vec::new();
         match self {
             Self::Png => {
@@ -194,18 +194,31 @@ impl ImageFormat {
                 enc.set_color(png::ColorType::Rgba);
                 enc.set_depth(png::BitDepth::Eight);
                 enc.set_compression(png::Compression::Fast);
-                let mut w = enc.write_header().map_err(|e| e.to_string())?;
-                w.write_image_data(rgba).map_err(|e| e.to_string())?;
-                w.finish().map_err(|e| e.to_string())?;
+                let mut w = enc.write_header()?;
+                w.write_image_data(rgba)?;
+                w.finish()?;
             }
             Self::Webp => {
-                image_webp::WebPEncoder::new(&mut out)
-                    .encode(rgba, side, side, image_webp::ColorType::Rgba8)
-                    .map_err(|e| e.to_string())?;
+                image_webp::WebPEncoder::new(&mut out).encode(
+                    rgba,
+                    side,
+                    side,
+                    image_webp::ColorType::Rgba8,
+                )?;
             }
         }
         Ok(out)
     }
+}
+
+/// Why a tile's pixels could not be encoded ([`ImageFormat::encode`]): the encoder's
+/// own error.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageEncodeError {
+    #[error(transparent)]
+    Png(#[from] png::EncodingError),
+    #[error(transparent)]
+    Webp(#[from] image_webp::EncodingError),
 }
 
 #[cfg(test)]

@@ -2,7 +2,7 @@
 //! the mesh's indices and positions, the metadata's JSON, and the header's height
 //! range with the quantization to it.
 
-use super::{MeshVertex, QUANTIZED_MAX, TerrainMesh};
+use super::{EncodeError, MeshVertex, QUANTIZED_MAX, TerrainMesh};
 
 /// A tile's rectangle in degrees, checked.
 #[derive(Debug, Clone, Copy)]
@@ -14,12 +14,12 @@ pub(super) struct Rect {
 }
 
 impl Rect {
-    pub(super) fn new([west, south, east, north]: [f64; 4]) -> Result<Self, String> {
-        let bad = |why: &str| {
-            Err(format!(
-                "degenerate tile rectangle {:?}: {why}",
-                [west, south, east, north]
-            ))
+    pub(super) fn new([west, south, east, north]: [f64; 4]) -> Result<Self, EncodeError> {
+        let bad = |why: &'static str| {
+            Err(EncodeError::DegenerateRect {
+                rect: [west, south, east, north],
+                why,
+            })
         };
         if ![west, south, east, north].iter().all(|c| c.is_finite()) {
             return bad("an edge is not finite");
@@ -58,42 +58,51 @@ impl Rect {
     }
 }
 
-pub(super) fn check_mesh(mesh: &TerrainMesh) -> Result<(), String> {
+pub(super) fn check_mesh(mesh: &TerrainMesh) -> Result<(), EncodeError> {
     let n = mesh.vertices.len();
     if n == 0 {
-        return Err("a tile needs at least one vertex".into());
+        return Err(EncodeError::NoVertices);
     }
     if u32::try_from(n).is_err() || u32::try_from(mesh.triangles.len()).is_err() {
-        return Err(format!(
-            "{n} vertices and {} triangles: more than a tile's 32-bit counts hold",
-            mesh.triangles.len()
-        ));
+        return Err(EncodeError::TooLarge {
+            vertices: n,
+            triangles: mesh.triangles.len(),
+        });
     }
     for (i, v) in mesh.vertices.iter().enumerate() {
         if v.u > QUANTIZED_MAX || v.v > QUANTIZED_MAX {
-            return Err(format!(
-                "vertex {i} at u {} v {}: past {QUANTIZED_MAX}",
-                v.u, v.v
-            ));
+            return Err(EncodeError::VertexPast {
+                vertex: i,
+                u: v.u,
+                v: v.v,
+            });
         }
         if !v.height.is_finite() {
-            return Err(format!("vertex {i} has height {}", v.height));
+            return Err(EncodeError::HeightNotFinite {
+                vertex: i,
+                height: v.height,
+            });
         }
     }
     for (t, tri) in mesh.triangles.iter().enumerate() {
         if let Some(&i) = tri.iter().find(|&&i| i as usize >= n) {
-            return Err(format!("triangle {t} {tri:?} uses vertex {i} of {n}"));
+            return Err(EncodeError::NoSuchVertex {
+                triangle: t,
+                indices: *tri,
+                vertex: i,
+                vertices: n,
+            });
         }
     }
     Ok(())
 }
 
-pub(super) fn check_metadata(json: &str) -> Result<(), String> {
+pub(super) fn check_metadata(json: &str) -> Result<(), EncodeError> {
     match serde_json::from_str::<serde_json::Value>(json) {
         Ok(serde_json::Value::Object(_)) if u32::try_from(json.len() + 4).is_ok() => Ok(()),
-        Ok(serde_json::Value::Object(_)) => Err("metadata longer than 32-bit lengths hold".into()),
-        Ok(_) => Err("metadata must be a JSON object (spec, \"Metadata\")".into()),
-        Err(e) => Err(format!("metadata is not JSON: {e}")),
+        Ok(serde_json::Value::Object(_)) => Err(EncodeError::MetadataTooLong),
+        Ok(_) => Err(EncodeError::MetadataNotAnObject),
+        Err(e) => Err(EncodeError::MetadataNotJson(e)),
     }
 }
 
@@ -105,7 +114,7 @@ pub(super) struct HeightRange {
 }
 
 impl HeightRange {
-    pub(super) fn of(vertices: &[MeshVertex]) -> Result<Self, String> {
+    pub(super) fn of(vertices: &[MeshVertex]) -> Result<Self, EncodeError> {
         let lo = vertices
             .iter()
             .map(|v| v.height)
@@ -116,7 +125,7 @@ impl HeightRange {
             .fold(f64::NEG_INFINITY, f64::max);
         let (min, max) = (f32_at_most(lo), f32_at_least(hi));
         if !(min.is_finite() && max.is_finite()) {
-            return Err(format!("heights {lo}..{hi} m have no finite f32 bounds"));
+            return Err(EncodeError::NoF32Bounds { lo, hi });
         }
         Ok(Self { min, max })
     }

@@ -105,6 +105,43 @@ pub fn vertex_order(mesh: &TerrainMesh) -> Vec<u32> {
     order
 }
 
+/// Why a mesh cannot be a quantized-mesh tile ([`encode`]).
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    #[error("degenerate tile rectangle {rect:?}: {why}")]
+    DegenerateRect { rect: [f64; 4], why: &'static str },
+    #[error("a tile needs at least one vertex")]
+    NoVertices,
+    #[error("{vertices} vertices and {triangles} triangles: more than a tile's 32-bit counts hold")]
+    TooLarge { vertices: usize, triangles: usize },
+    #[error("vertex {vertex} at u {u} v {v}: past {QUANTIZED_MAX}")]
+    VertexPast { vertex: usize, u: u16, v: u16 },
+    #[error("vertex {vertex} has height {height}")]
+    HeightNotFinite { vertex: usize, height: f64 },
+    #[error("triangle {triangle} {indices:?} uses vertex {vertex} of {vertices}")]
+    NoSuchVertex {
+        triangle: usize,
+        indices: [u32; 3],
+        vertex: u32,
+        vertices: usize,
+    },
+    #[error("metadata longer than 32-bit lengths hold")]
+    MetadataTooLong,
+    #[error("metadata must be a JSON object (spec, \"Metadata\")")]
+    MetadataNotAnObject,
+    #[error("metadata is not JSON: {0}")]
+    MetadataNotJson(serde_json::Error),
+    #[error("heights {lo}..{hi} m have no finite f32 bounds")]
+    NoF32Bounds { lo: f64, hi: f64 },
+    #[error(
+        "{vertices} vertices take 16-bit indices, but the triangle list has an index \
+         code of {code}, past 16 bits; the mesh must use one vertex more or fewer"
+    )]
+    CodePast16Bits { vertices: usize, code: u32 },
+    #[error("edge index past its width")]
+    EdgeIndexPastWidth,
+}
+
 /// The tile's bytes, uncompressed, for `mesh` over `rect_deg` = [west, south, east,
 /// north] (degrees) on `ellipsoid`, with the extensions `ext` asks for.
 ///
@@ -142,7 +179,7 @@ pub fn encode(
     rect_deg: [f64; 4],
     ellipsoid: &Ellipsoid,
     ext: &Extensions,
-) -> Result<Vec<u8>, String> {
+) -> Result<Vec<u8>, EncodeError> {
     let rect = Rect::new(rect_deg)?;
     check_mesh(mesh)?;
     if let Some(json) = &ext.metadata {
@@ -235,13 +272,12 @@ pub fn encode(
     out.align(width.bytes());
     out.u32(triangles.len() as u32);
     for code in high_water_mark(triangles.iter().flatten().copied()) {
-        width.write(&mut out, code).map_err(|()| {
-            format!(
-                "{} vertices take 16-bit indices, but the triangle list has an index \
-                 code of {code}, past 16 bits; the mesh must use one vertex more or fewer",
-                vertices.len()
-            )
-        })?;
+        width
+            .write(&mut out, code)
+            .map_err(|()| EncodeError::CodePast16Bits {
+                vertices: vertices.len(),
+                code,
+            })?;
     }
 
     // Edge lists (spec, "EdgeIndices16/32"): west, south, east, north.
@@ -251,7 +287,7 @@ pub fn encode(
             // Edge indices are vertex numbers, which fit the width by its choice.
             width
                 .write(&mut out, i)
-                .map_err(|()| "edge index past its width".to_string())?;
+                .map_err(|()| EncodeError::EdgeIndexPastWidth)?;
         }
     }
 

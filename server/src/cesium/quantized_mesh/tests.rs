@@ -204,7 +204,9 @@ fn a_16_bit_code_that_does_not_fit_is_an_error() {
         vertices,
         triangles,
     };
-    let err = encode(&mesh, RECT, &Ellipsoid::WGS84, &Extensions::default()).unwrap_err();
+    let err = encode(&mesh, RECT, &Ellipsoid::WGS84, &Extensions::default())
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("past 16 bits"), "{err}");
 }
 
@@ -217,6 +219,7 @@ fn bad_input_is_an_error() {
     assert!(
         encode(&empty, RECT, &e, &none)
             .unwrap_err()
+            .to_string()
             .contains("at least one vertex")
     );
     let mut out_of_range = mesh.clone();
@@ -224,6 +227,7 @@ fn bad_input_is_an_error() {
     assert!(
         encode(&out_of_range, RECT, &e, &none)
             .unwrap_err()
+            .to_string()
             .contains("vertex 4 of 4")
     );
     for rect in [
@@ -238,6 +242,7 @@ fn bad_input_is_an_error() {
         assert!(
             encode(&mesh, rect, &e, &none)
                 .unwrap_err()
+                .to_string()
                 .contains("degenerate"),
             "{rect:?}"
         );
@@ -259,6 +264,7 @@ fn bad_input_is_an_error() {
         assert!(
             encode(&mesh, RECT, &e, &ext)
                 .unwrap_err()
+                .to_string()
                 .contains("metadata"),
             "{json}"
         );

@@ -40,7 +40,7 @@ pub mod tile;
 pub mod tile_builder;
 
 pub use plan::ZoomPlan;
-pub use pyramid::PyramidLevels;
+pub use pyramid::{PyramidLevels, TileReadError};
 
 use crate::cesium::ellipsoid::Ellipsoid;
 use crate::cesium::tiling::{CesiumTile, MAX_ZOOM, geometric_error, level_zero_error};
@@ -50,6 +50,7 @@ use crate::web::resample::SourceTile;
 use mapping::{Mapping, invert};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
+use tessera_shared::tile::GeometryError;
 use tessera_shared::{Level, Metadata, Quantization, TileGeometry, TileId, VerticalDatum};
 
 /// What a tile needs from the pyramid: decoded tiles, and the largest
@@ -91,21 +92,48 @@ pub struct Terrain {
     level_bounds: Mutex<HashMap<u8, (f64, Option<f64>)>>,
 }
 
-/// Why a dataset cannot be terrain.
-pub type TerrainError = String;
+/// Why a dataset cannot be terrain. Cloned: the server keeps it beside the terrain
+/// plans it caches, and says it on every request.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum TerrainError {
+    #[error("bad tile geometry: {0:?}")]
+    Geometry(GeometryError),
+    #[error(
+        "it has no georeferencing (build it from a georeferenced input, or with --crs and --bounds)"
+    )]
+    NoGeoref,
+    #[error("its CRS is not one the projection library knows")]
+    UnknownCrs,
+    #[error("its CRS names no ellipsoid")]
+    NoEllipsoid,
+    #[error("its CRS has no usable ellipsoid")]
+    UnusableEllipsoid,
+    #[error("its geotransform is singular")]
+    SingularGeotransform,
+    /// The longitude–latitude CRS of its body could not be made.
+    #[error("{0:#}")]
+    BodyCrs(Arc<anyhow::Error>),
+    #[error("its corners do not transform to longitude and latitude")]
+    CornersDoNotTransform,
+    /// `[west, south, east, north]` of its corners.
+    #[error(
+        "it spans longitudes {:.6}..{:.6} and latitudes {:.6}..{:.6}, outside −180..180 × −90..90 (the antimeridian is not handled)",
+        .0[0], .0[2], .0[1], .0[3]
+    )]
+    OutsideLonLat([f64; 4]),
+    #[error("its centre does not transform")]
+    CentreDoesNotTransform,
+}
 
 impl Terrain {
     /// The terrain of a dataset, with `geoid` for EGM96 heights (when given).
     pub fn new(m: &Metadata, geoid: Option<Arc<Geoid>>) -> Result<Self, TerrainError> {
-        let geometry = TileGeometry::new(m.width, m.height, m.tile_size)
-            .map_err(|e| format!("bad tile geometry: {e:?}"))?;
-        let georef = m
-            .georef
-            .as_ref()
-            .ok_or("it has no georeferencing (build it from a georeferenced input, or with --crs and --bounds)")?;
-        let crs = Crs::of(georef).ok_or("its CRS is not one the projection library knows")?;
-        let (a, b) = crs.body_radii().ok_or("its CRS names no ellipsoid")?;
-        let ellipsoid = Ellipsoid::new(a, b).ok_or("its CRS has no usable ellipsoid")?;
+        let geometry =
+            TileGeometry::new(m.width, m.height, m.tile_size).map_err(TerrainError::Geometry)?;
+        let georef = m.georef.as_ref().ok_or(TerrainError::NoGeoref)?;
+        let crs = Crs::of(georef).ok_or(TerrainError::UnknownCrs)?;
+        let (a, b) = crs.body_radii().ok_or(TerrainError::NoEllipsoid)?;
+        let ellipsoid = Ellipsoid::new(a, b).ok_or(TerrainError::UnusableEllipsoid)?;
         // Earth datasets go to WGS 84 longitude and latitude, what Cesium's globe is;
         // other bodies to their own ellipsoid's.
         let earth = (a - Ellipsoid::WGS84.radii()[0]).abs() < 1000.0;
@@ -120,13 +148,13 @@ impl Terrain {
                 dlat: gt[5],
             }
         } else {
-            let inverse = invert(&gt).ok_or("its geotransform is singular")?;
+            let inverse = invert(&gt).ok_or(TerrainError::SingularGeotransform)?;
             let body = if earth {
                 Crs::from_epsg(4326)
             } else {
                 Crs::from_proj_string(&format!("+proj=longlat +a={a} +b={b} +no_defs"))
             }
-            .map_err(|e| format!("{e:#}"))?;
+            .map_err(|e| TerrainError::BodyCrs(Arc::new(e)))?;
             Mapping::Projected {
                 crs: Box::new(crs),
                 body: Box::new(body),
@@ -146,7 +174,7 @@ impl Terrain {
             for (c, r) in [(t * wm, 0.0), (t * wm, hm), (0.0, t * hm), (wm, t * hm)] {
                 let [lon, lat] = mapping
                     .lon_lat(c, r)
-                    .ok_or("its corners do not transform to longitude and latitude")?;
+                    .ok_or(TerrainError::CornersDoNotTransform)?;
                 bounds = [
                     bounds[0].min(lon),
                     bounds[1].min(lat),
@@ -156,10 +184,7 @@ impl Terrain {
             }
         }
         if !(bounds[0] >= -180.0 && bounds[2] <= 180.0 && bounds[1] >= -90.0 && bounds[3] <= 90.0) {
-            return Err(format!(
-                "it spans longitudes {:.6}..{:.6} and latitudes {:.6}..{:.6}, outside −180..180 × −90..90 (the antimeridian is not handled)",
-                bounds[0], bounds[2], bounds[1], bounds[3]
-            ));
+            return Err(TerrainError::OutsideLonLat(bounds));
         }
         let (geoid, datum_warning) = match (m.vertical_datum, geoid) {
             (VerticalDatum::Ellipsoid, _) => (None, None),
@@ -186,7 +211,7 @@ impl Terrain {
         // data; and no deeper than the quantization leaves half the error to the mesh.
         let spacing = mapping
             .spacing_at(wm / 2.0, hm / 2.0)
-            .ok_or("its centre does not transform")?;
+            .ok_or(TerrainError::CentreDoesNotTransform)?;
         let mut max_zoom = 0;
         while max_zoom < MAX_ZOOM
             && CesiumTile::span(max_zoom) > 4.0 * spacing

@@ -5,6 +5,7 @@ use super::LevelData;
 use crate::web::resample::SourceTile;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
+use tessera_shared::reader::ReadError;
 use tessera_shared::{Level, TileId};
 
 /// A pyramid read directly (no server): for tests, benchmarks and tools. Decoded
@@ -24,10 +25,18 @@ impl<'a, S: tessera_shared::ByteSource> PyramidLevels<'a, S> {
     }
 }
 
-impl<S: tessera_shared::ByteSource> LevelData for PyramidLevels<'_, S> {
-    type Error = String;
+/// A tile of the pyramid that could not be read.
+#[derive(Debug, thiserror::Error)]
+#[error("{tile}: {source}")]
+pub struct TileReadError {
+    pub tile: TileId,
+    pub source: ReadError,
+}
 
-    fn tile(&self, tile: TileId) -> Result<Option<Arc<SourceTile>>, String> {
+impl<S: tessera_shared::ByteSource> LevelData for PyramidLevels<'_, S> {
+    type Error = TileReadError;
+
+    fn tile(&self, tile: TileId) -> Result<Option<Arc<SourceTile>>, TileReadError> {
         let mut map = self
             .decoded
             .lock()
@@ -38,7 +47,7 @@ impl<S: tessera_shared::ByteSource> LevelData for PyramidLevels<'_, S> {
         let rec = self
             .pyramid
             .read_tile(tile)
-            .map_err(|e| format!("{tile}: {e}"))?;
+            .map_err(|source| TileReadError { tile, source })?;
         let t = rec.map(|r| {
             Arc::new(SourceTile {
                 heights: r.heights,
@@ -50,13 +59,13 @@ impl<S: tessera_shared::ByteSource> LevelData for PyramidLevels<'_, S> {
         Ok(t)
     }
 
-    fn level_error(&self, level: Level) -> Result<f64, String> {
+    fn level_error(&self, level: Level) -> Result<f64, TileReadError> {
         let mut worst = 0.0_f64;
         for tile in self.pyramid.geometry().present_tiles(level) {
             if let Some(t) = self
                 .pyramid
                 .read_error_table(tile)
-                .map_err(|e| format!("{tile}: {e}"))?
+                .map_err(|source| TileReadError { tile, source })?
             {
                 worst = worst.max(f64::from(t.full_resolution_error()));
             }

@@ -239,7 +239,7 @@ fn make(
     };
     encode(&mesh, key.tile.rect(), &terrain.ellipsoid, &ext)
         .map(Bytes::from)
-        .map_err(Failure::Encode)
+        .map_err(Failure::EncodeMesh)
 }
 
 /// The `layer.json` document (quantized-mesh-1.0, TileJSON 2.1.0 fields).

@@ -32,7 +32,7 @@ pub async fn ready(State(state): State<Arc<AppState>>) -> impl IntoResponse {
         futures_util::future::join_all(checks)
             .await
             .into_iter()
-            .filter_map(|(name, r)| r.err().map(|why| (name, why.into())))
+            .filter_map(|(name, r)| r.err().map(|why| (name, why.to_string().into())))
             .collect();
     let status = if failing.is_empty() {
         StatusCode::OK

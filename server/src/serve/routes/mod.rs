@@ -72,8 +72,17 @@ impl Params {
     }
 }
 
+/// Why a form-encoded name or value does not decode ([`form_decode`]).
+#[derive(Debug, thiserror::Error)]
+enum FormError {
+    #[error("'%' at byte {0} is not followed by two hex digits (write a '%' as %25)")]
+    BadPercent(usize),
+    #[error("not UTF-8 once percent-decoded")]
+    NotUtf8,
+}
+
 /// One form-encoded name or value, decoded; the error says what is wrong with it.
-fn form_decode(raw: &str) -> Result<String, String> {
+fn form_decode(raw: &str) -> Result<String, FormError> {
     let hex = |b: u8| char::from(b).to_digit(16);
     let bytes = raw.as_bytes();
     let mut out = Vec::with_capacity(bytes.len());
@@ -86,9 +95,7 @@ fn form_decode(raw: &str) -> Result<String, String> {
                     bytes.get(i + 1).copied().and_then(hex),
                     bytes.get(i + 2).copied().and_then(hex),
                 ) else {
-                    return Err(format!(
-                        "'%' at byte {i} is not followed by two hex digits (write a '%' as %25)"
-                    ));
+                    return Err(FormError::BadPercent(i));
                 };
                 out.push((hi * 16 + lo) as u8);
                 i += 2;
@@ -97,7 +104,7 @@ fn form_decode(raw: &str) -> Result<String, String> {
         }
         i += 1;
     }
-    String::from_utf8(out).map_err(|_| "not UTF-8 once percent-decoded".to_string())
+    String::from_utf8(out).map_err(|_| FormError::NotUtf8)
 }
 
 impl<S: Send + Sync> FromRequestParts<S> for Params {
@@ -156,7 +163,7 @@ pub fn dataset(state: &AppState, name: &str) -> ApiResult<Arc<Dataset>> {
 }
 
 /// 503 for a dataset whose file can no longer be read as opened.
-pub fn unavailable(reason: &str) -> ApiError {
+pub fn unavailable(reason: &dyn std::fmt::Display) -> ApiError {
     tracing::warn!(%reason, "dataset unavailable");
     ApiError::unavailable(format!(
         "{reason}; replace pyramid files by renaming a complete new file over the old one, then send SIGHUP (API.md)"

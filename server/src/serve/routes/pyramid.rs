@@ -262,7 +262,7 @@ mod tests {
             Ok(self.0.slice(offset as usize..(offset + len) as usize))
         }
 
-        fn check_unchanged(&self) -> Result<(), String> {
+        fn check_unchanged(&self) -> Result<(), crate::storage::StorageUnavailable> {
             Ok(())
         }
 

@@ -10,13 +10,14 @@
 
 use super::base_url;
 use super::{Params, Segments, dataset, unavailable, xml_escape};
+use crate::cesium::quantized_mesh;
 use crate::http::cache;
 use crate::http::error::{ApiError, ApiResult, quoted};
 use crate::serve::compute::{Kind, Stop, Ticket};
-use crate::serve::dataset::{Dataset, RecordError};
+use crate::serve::dataset::{Dataset, DatasetUnavailable, RecordError};
 use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
 use crate::serve::{AppState, TilesServed};
-use crate::web::encoding::{Encoding, ImageFormat, NoData, rgba};
+use crate::web::encoding::{Encoding, ImageEncodeError, ImageFormat, NoData, rgba};
 use crate::web::footprint::Footprint;
 use crate::web::resample::{self, SourceTile};
 use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet, WebTile};
@@ -109,8 +110,11 @@ fn web_tile(tms: TileMatrixSet, z: &str, x: &str, y: &str) -> ApiResult<WebTile>
 pub enum Failure {
     Corrupt(TileId, bool),
     Undecodable(TileId, codec::CodecError),
-    Unavailable(String),
-    Encode(String),
+    Unavailable(DatasetUnavailable),
+    /// A PNG or WebP tile could not be encoded.
+    EncodeImage(ImageEncodeError),
+    /// A quantized-mesh tile could not be encoded (serve/routes/cesium.rs).
+    EncodeMesh(quantized_mesh::EncodeError),
     /// Its requesters are gone, or no memory came free in time (serve/compute/).
     Stopped(Stop),
 }
@@ -174,7 +178,7 @@ fn make(
         key.format
             .encode(&pixels, key.px)
             .map(Bytes::from)
-            .map_err(Failure::Encode)
+            .map_err(Failure::EncodeImage)
     };
     let flat = || -> Result<Bytes, Failure> {
         if !fp.meets(key.tile) {
@@ -328,11 +332,15 @@ pub fn failure_error(state: &AppState, ds: &Dataset, tile: &str, f: Failure) -> 
         }
         Failure::Unavailable(r) => unavailable(&r),
         Failure::Stopped(s) => s.into_error(),
-        Failure::Encode(e) => {
-            tracing::error!(dataset = %ds.name, %tile, error = %e, "tile encoding failed");
-            ApiError::internal(format!("{tile}: cannot encode the tile"))
-        }
+        Failure::EncodeImage(e) => encode_failed(ds, tile, &e),
+        Failure::EncodeMesh(e) => encode_failed(ds, tile, &e),
     }
+}
+
+/// The 500 for a tile that could not be encoded; the encoder's detail goes to the log.
+fn encode_failed(ds: &Dataset, tile: &str, e: &dyn std::error::Error) -> ApiError {
+    tracing::error!(dataset = %ds.name, %tile, error = %e, "tile encoding failed");
+    ApiError::internal(format!("{tile}: cannot encode the tile"))
 }
 
 /// The TileJSON 3.0.0 document of a dataset's tiles in `tms` (see the module doc).

@@ -163,12 +163,20 @@ fn default_dirs() -> Vec<PathBuf> {
     ]
 }
 
+/// Why a directory is not the viewer's assets ([`complete`]).
+#[derive(Debug, thiserror::Error)]
+enum Incomplete {
+    #[error("cannot open it ({0})")]
+    Unopenable(std::io::Error),
+    /// The required files it lacks.
+    #[error("it lacks {}", .0.join(", "))]
+    Lacks(Vec<&'static str>),
+}
+
 /// The canonical `dir` if it holds every required file, else what is missing.
-fn complete(dir: &Path) -> Result<PathBuf, String> {
-    let canonical = dir
-        .canonicalize()
-        .map_err(|e| format!("cannot open it ({e})"))?;
-    let missing: Vec<&str> = REQUIRED
+fn complete(dir: &Path) -> Result<PathBuf, Incomplete> {
+    let canonical = dir.canonicalize().map_err(Incomplete::Unopenable)?;
+    let missing: Vec<&'static str> = REQUIRED
         .iter()
         .copied()
         .filter(|f| !canonical.join(f).is_file())
@@ -176,7 +184,7 @@ fn complete(dir: &Path) -> Result<PathBuf, String> {
     if missing.is_empty() {
         Ok(canonical)
     } else {
-        Err(format!("it lacks {}", missing.join(", ")))
+        Err(Incomplete::Lacks(missing))
     }
 }
 

@@ -64,12 +64,12 @@ fn links_item(out: &mut String, label: &str, links: &[(&str, String, &str)]) {
 }
 
 /// A `<li>` for an interface the dataset does not offer, and why.
-fn unavailable_item(out: &mut String, label: &str, why: &str) {
+fn unavailable_item(out: &mut String, label: &str, why: &dyn std::fmt::Display) {
     let _ = writeln!(
         out,
         "<li class=\"unavailable\"><span class=\"what\">{}</span> unavailable: {}</li>",
         esc(label),
-        esc(why)
+        esc(&why.to_string())
     );
 }
 
@@ -302,7 +302,7 @@ pub fn render(state: &AppState) -> String {
                     "<li class=\"unavailable\" data-dataset=\"{}\">{}: unavailable: {}</li>",
                     esc(&ds.name),
                     esc(&ds.name),
-                    esc(&why)
+                    esc(&why.to_string())
                 );
             }
         }

@@ -88,7 +88,7 @@ fn config(ds: &Dataset, offered: &Offered, bounds: [f64; 4]) -> serde_json::Valu
     let m = ds.pyramid.metadata();
     let (cesium, cesium_unavailable) = match &offered.terrain {
         Ok(_) => (Some(rel(&cesium_dir(&ds.name))), None),
-        Err(why) => (None, Some(why.clone())),
+        Err(why) => (None, Some(why.to_string())),
     };
     serde_json::json!({
         "name": ds.name,
@@ -117,7 +117,7 @@ pub fn render(state: &AppState, ds: &Dataset) -> String {
                     "<h2>No map view</h2>\n<p>{} has no place on a map: {}. The dataset document \
                      and its own-grid tiles are still served.</p>",
                     esc(&ds.name),
-                    esc(why)
+                    esc(&why.to_string())
                 ),
             );
         }
