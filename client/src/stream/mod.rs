@@ -74,6 +74,7 @@ pub mod imagery_tiles;
 mod open;
 pub mod pool;
 pub mod static_file;
+mod static_file_open;
 mod stats;
 mod streamer;
 mod tile_source;

@@ -25,122 +25,35 @@
 //!
 //! The engine's parts: [`ReplayOptions`] (`options`), the requests and connections
 //! the loops share and one request's send and check (`sender`), the tally of
-//! answers and latencies (`tally`), and the open and closed loops (`loops`).
+//! answers and latencies (`tally`), the open and closed loops (`loops`), and why
+//! a replay cannot run ([`ReplayError`], `error`).
 
+mod error;
 mod loops;
 mod options;
 mod sender;
 mod tally;
 
+pub use error::ReplayError;
 pub use options::{ReplayOptions, STREAMS_PER_CONNECTION};
 
+use options::MAX_URL_BYTES;
+
 use super::check::ErrorKind;
-use super::connections::ConnectionsError;
 use super::connections::{check_connections, open_file_limit};
-use super::pacing::ScheduleError;
 use super::pacing::{MAX_RUN, MAX_TIMEOUT, Pacing};
 use super::replay_report::{
     Histograms, Http, Latency, LatencyFrom, Mode, ReplayReport, Second, rate_held,
 };
 use super::schedule::Schedule;
-use super::trace::{RequestKind, Shard};
+use super::trace::RequestKind;
 use loops::{closed_loop, open_loop, progress_line};
-use sender::{Prepared, Shared};
+use sender::{Prepared, Shared, clients};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tally::Tally;
 use tokio::time::Instant;
-
-/// HTTP/2 flow-control window per stream (bytes); the connection's is four times it.
-const H2_STREAM_WINDOW: u32 = 8 << 20;
-
-/// The longest URL a request may have: the `http` crate's URI limit (`u16::MAX - 1`
-/// bytes), under reqwest and hyper. A longer one cannot be sent at all.
-const MAX_URL_BYTES: usize = u16::MAX as usize - 1;
-
-/// Why a replay could not run: its settings, the trace's requests, or the
-/// process's resources.
-#[derive(Debug, thiserror::Error)]
-pub enum ReplayError {
-    #[error("--connections must be at least 1")]
-    NoConnections,
-    #[error(transparent)]
-    Connections(#[from] ConnectionsError),
-    #[error("--threads must be at least 1")]
-    NoThreads,
-    #[error("--timeout must be above 0")]
-    ZeroTimeout,
-    #[error(
-        "--timeout {timeout:?} is longer than {} s, the longest latency the report's histograms hold",
-        MAX_TIMEOUT.as_secs()
-    )]
-    Timeout { timeout: Duration },
-    #[error(
-        "--duration {duration:?} is longer than the {} s (7 days) a replay runs",
-        MAX_RUN.as_secs()
-    )]
-    Duration { duration: Duration },
-    #[error("request {number} of the shard: {url:?} is not a URL")]
-    Url {
-        number: usize,
-        url: String,
-        #[source]
-        source: <reqwest::Url as std::str::FromStr>::Err,
-    },
-    #[error(
-        "request {number} of the shard: its URL ({start}…) is {len} bytes, more than the {MAX_URL_BYTES} an HTTP request can carry here; shorten its target"
-    )]
-    UrlTooLong {
-        number: usize,
-        start: String,
-        len: usize,
-    },
-    #[error("shard {shard} of the trace")]
-    Schedule {
-        shard: Shard,
-        #[source]
-        source: ScheduleError,
-    },
-    #[error("cannot build the HTTP client")]
-    Client(#[source] reqwest::Error),
-    #[error(transparent)]
-    Runtime(#[from] std::io::Error),
-}
-
-/// The HTTP clients, one per connection (`connections` of them, each keeping one
-/// connection alive). One client with a pool of `connections` would hand out its
-/// most recently used idle connection, so that at a moderate rate a few hot
-/// connections carried everything: against a server whose sockets delay small
-/// segments (Nagle), a hot connection in delayed-ACK mode waits 40 ms for the last
-/// segment of an answer now and then (p99 45 ms against oha's 5 ms on the same
-/// requests and rate, where oha spreads them over all its connections).
-fn clients(opts: &ReplayOptions, base: &str) -> Result<Vec<reqwest::Client>, ReplayError> {
-    static PROVIDER: std::sync::Once = std::sync::Once::new();
-    PROVIDER.call_once(|| {
-        // HTTPS servers: the client crate builds reqwest without a crypto provider of
-        // its own (see Cargo.toml); a second install (already done elsewhere) fails
-        // harmlessly.
-        let _ = rustls::crypto::ring::default_provider().install_default();
-    });
-    let h2c = opts.http2 && base.starts_with("http://");
-    (0..opts.connections)
-        .map(|_| {
-            let b = reqwest::Client::builder()
-                .timeout(opts.timeout)
-                .pool_max_idle_per_host(1)
-                .tcp_nodelay(true);
-            // HTTP/2's default 64 KiB stream window would hold a 300 KiB batch of tiles
-            // to a window update per 64 KiB (round trips the server's Nagle makes up to
-            // 40 ms each); the replay reads every body at once, so the windows are large.
-            let b = b
-                .http2_initial_stream_window_size(H2_STREAM_WINDOW)
-                .http2_initial_connection_window_size(H2_STREAM_WINDOW * 4);
-            let b = if h2c { b.http2_prior_knowledge() } else { b };
-            b.build().map_err(ReplayError::Client)
-        })
-        .collect()
-}
 
 /// Replays `opts.trace` (its shard) and reports. Blocking: it runs its own tokio
 /// runtime, so call it from a plain thread (in async code, `spawn_blocking`).

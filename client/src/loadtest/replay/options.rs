@@ -9,6 +9,13 @@ use std::time::Duration;
 /// concurrent streams; 100 stays under all of them.
 pub const STREAMS_PER_CONNECTION: u32 = 100;
 
+/// HTTP/2 flow-control window per stream (bytes); the connection's is four times it.
+pub(super) const H2_STREAM_WINDOW: u32 = 8 << 20;
+
+/// The longest URL a request may have: the `http` crate's URI limit (`u16::MAX - 1`
+/// bytes), under reqwest and hyper. A longer one cannot be sent at all.
+pub(super) const MAX_URL_BYTES: usize = u16::MAX as usize - 1;
+
 /// What to replay and how.
 #[derive(Clone, Debug)]
 pub struct ReplayOptions {
