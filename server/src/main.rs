@@ -144,7 +144,7 @@ enum Command {
         #[arg(long, value_name = "X[,Y]", value_parser = parse_spacing, requires = "to")]
         spacing: Option<[f64; 2]>,
         /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
-        #[arg(long, default_value = "512MiB", value_parser = parse_bytes)]
+        #[arg(long, default_value = "512MiB", value_parser = parse_memory)]
         memory: u64,
         /// Most samples (width × height) an input may declare: a larger one is refused
         /// before anything is read, as is one whose spool (4 bytes a sample) does not fit
@@ -211,35 +211,26 @@ fn parse_bounds(s: &str) -> Result<Bounds, String> {
     s.parse().map_err(|e: anyhow::Error| format!("{e:#}"))
 }
 
-/// Parses sizes like `512MiB`, `2GiB`, `300MB`, `1000`.
-fn parse_bytes(s: &str) -> Result<u64, String> {
-    let t = s.trim();
-    let split = t
-        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .unwrap_or(t.len());
-    let (num, unit) = t.split_at(split);
-    let n: f64 = num
+/// Why a `--memory` value is refused ([`parse_memory`]).
+#[derive(Debug, thiserror::Error)]
+enum MemoryError {
+    #[error("{0:?} is not a size like 512MiB (units B, KiB, MiB, GiB, KB, MB, GB, …)")]
+    NotASize(String),
+    #[error("{0} is below the 64 MiB minimum memory budget")]
+    BelowMinimum(String),
+}
+
+/// `--memory`: sizes like `512MiB`, `2GiB`, `300MB`, `1.5GiB`, `1000` (bytes), units
+/// in any case, as the `bytesize` crate reads them; at least 64 MiB.
+fn parse_memory(s: &str) -> Result<u64, MemoryError> {
+    let size: bytesize::ByteSize = s
+        .trim()
         .parse()
-        .map_err(|_| format!("{s:?} is not a size like 512MiB"))?;
-    let mult: f64 = match unit.trim().to_ascii_lowercase().as_str() {
-        "" | "b" => 1.0,
-        "k" | "kb" => 1e3,
-        "kib" => 1024.0,
-        "m" | "mb" => 1e6,
-        "mib" => 1024.0 * 1024.0,
-        "g" | "gb" => 1e9,
-        "gib" => 1024.0 * 1024.0 * 1024.0,
-        u => {
-            return Err(format!(
-                "unknown size unit {u:?} (use B, KiB, MiB, GiB, KB, MB, GB)"
-            ));
-        }
-    };
-    let v = n * mult;
-    if v < f64::from(64u32 << 20) {
-        return Err(format!("{s} is below the 64 MiB minimum memory budget"));
+        .map_err(|_| MemoryError::NotASize(s.into()))?;
+    if size.as_u64() < 64 << 20 {
+        return Err(MemoryError::BelowMinimum(s.into()));
     }
-    Ok(v as u64)
+    Ok(size.as_u64())
 }
 
 fn main() -> ExitCode {
@@ -495,5 +486,40 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_memory;
+
+    #[test]
+    fn memory_takes_the_sizes_it_always_took() {
+        for (s, want) in [
+            ("512MiB", 512u64 << 20),
+            ("2GiB", 2 << 30),
+            ("300MB", 300_000_000),
+            (" 1.5 gib ", 3 << 29),
+            ("100000000", 100_000_000),
+            ("70000kb", 70_000_000),
+            ("65536KiB", 64 << 20),
+        ] {
+            assert_eq!(parse_memory(s).unwrap(), want, "{s}");
+        }
+        for bad in ["", "MiB", "-1GiB", "12 parsecs", "1e9"] {
+            assert!(
+                parse_memory(bad)
+                    .unwrap_err()
+                    .to_string()
+                    .contains("is not a size like 512MiB"),
+                "{bad}"
+            );
+        }
+        assert!(
+            parse_memory("63MiB")
+                .unwrap_err()
+                .to_string()
+                .contains("below the 64 MiB minimum")
+        );
     }
 }
