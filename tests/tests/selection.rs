@@ -210,7 +210,7 @@ fn shared_edges_match_and_every_patch_meets_tau() {
 /// block needs LOD 64 itself). Whole frames are *not* monotone, because a lower `τ`
 /// can move a coarse tile drawn near full density onto its four children, which
 /// cover the same ground with fewer triangles; the test reports how often that
-/// happens (see the issue notes).
+/// happens (it prints the count).
 #[test]
 fn lowering_tau_never_reduces_triangles_within_a_tile() {
     use tessera_client::select::{metric::TileRho, quadtree};

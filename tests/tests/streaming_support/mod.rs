@@ -68,7 +68,8 @@ pub fn serve_olinda(
 ) -> (String, reqwest::Client, tessera_shared::api::DatasetInfo) {
     let addr = start_server_for(rt, SocketAddr::from(([127, 0, 0, 1], 0)), out).0;
     let base = format!("http://{addr}");
-    let client = tessera_client::stream::imagery_tiles::http_client(Duration::from_secs(30)).unwrap();
+    let client =
+        tessera_client::stream::imagery_tiles::http_client(Duration::from_secs(30)).unwrap();
     let doc = rt
         .block_on(async {
             client
