@@ -9,6 +9,9 @@
 //! and a response can never be larger than the representation plus part headers
 //! (64 ranges of `0-` were 64 copies of the file before).
 
+use http_range_header::SyntacticallyCorrectRange;
+use std::num::NonZeroUsize;
+
 /// Most range-specs accepted in one `Range` header. A request for more is rejected
 /// with 416, which RFC 9110 §15.5.17 allows for "an excessive request of small or
 /// overlapping ranges".
@@ -46,54 +49,24 @@ pub enum RangeRequest {
     TooMany(usize),
 }
 
-/// One syntactically valid range-spec, before it meets the representation.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Spec {
-    /// `first-[last]`
-    Int(u64, Option<u64>),
-    /// `-suffix`
-    Suffix(u64),
-}
-
-/// `1*DIGIT` as a number, saturating at `u64::MAX` (a position that large is past
-/// any representation, and a length that large means "all of it").
-fn digits(s: &str) -> Option<u64> {
-    if s.is_empty() || !s.bytes().all(|b| b.is_ascii_digit()) {
-        return None;
-    }
-    Some(s.bytes().fold(0u64, |n, b| {
-        n.saturating_mul(10).saturating_add(u64::from(b - b'0'))
-    }))
-}
-
-fn spec(s: &str) -> Option<Spec> {
-    let (first, last) = s.split_once('-')?;
-    if first.is_empty() {
-        return digits(last).map(Spec::Suffix);
-    }
-    let first = digits(first)?;
-    if last.is_empty() {
-        return Some(Spec::Int(first, None));
-    }
-    let last = digits(last)?;
-    // RFC 9110 §14.1.1: an int-range whose last-pos is below its first-pos is invalid.
-    (last >= first).then_some(Spec::Int(first, Some(last)))
-}
-
-impl Spec {
-    /// The bytes this spec selects of a `size`-byte representation, if any.
-    fn resolve(self, size: u64) -> Option<ByteRange> {
-        match self {
-            Spec::Int(first, last) if first < size => Some(ByteRange {
-                start: first,
-                end: last.map_or(size - 1, |l| l.min(size - 1)),
-            }),
-            Spec::Suffix(n) if n > 0 && size > 0 => Some(ByteRange {
-                start: size.saturating_sub(n),
-                end: size - 1,
-            }),
-            _ => None,
-        }
+/// The bytes one syntactically valid range-spec selects of a `size`-byte
+/// representation, if any. A position past `u64::MAX` was read as `u64::MAX`: past
+/// any representation, and as a length "all of it".
+fn resolve(spec: SyntacticallyCorrectRange, size: u64) -> Option<ByteRange> {
+    match spec {
+        SyntacticallyCorrectRange::FromStart(first) if first < size => Some(ByteRange {
+            start: first,
+            end: size - 1,
+        }),
+        SyntacticallyCorrectRange::Indexed(first, last) if first < size => Some(ByteRange {
+            start: first,
+            end: last.min(size - 1),
+        }),
+        SyntacticallyCorrectRange::FromLast(n) if n > 0 && size > 0 => Some(ByteRange {
+            start: size.saturating_sub(n),
+            end: size - 1,
+        }),
+        _ => None,
     }
 }
 
@@ -104,32 +77,26 @@ impl Spec {
 /// name is case-insensitive. `b` past the end is clamped to the last byte; a
 /// suffix longer than the representation selects all of it. A zero-length
 /// representation satisfies no range.
+///
+/// The syntax is the `http-range-header` crate's strict parser (a `+` sign, inner
+/// whitespace, a reversed `a-b`, a position of more than 30 digits or more than 15
+/// empty or malformed elements make the header ignored). What the ranges select,
+/// the merge rule and the limit of [`MAX_RANGES`] are this module's: the crate's
+/// own `validate` refuses more than two overlapping ranges, where this merges them.
 pub fn parse(header: &str, size: u64) -> RangeRequest {
-    let Some((unit, set)) = header.split_once('=') else {
+    // No limit of the crate's: every spec is counted, and a header over the limit
+    // is still ignored when any of it does not parse.
+    let Ok(specs) =
+        http_range_header::parse_range_header_with_max_ranges(header, NonZeroUsize::MAX)
+    else {
         return RangeRequest::Full;
     };
-    if !unit.eq_ignore_ascii_case("bytes") {
-        return RangeRequest::Full;
+    let specs = specs.into_ranges();
+    if specs.len() > MAX_RANGES {
+        return RangeRequest::TooMany(specs.len());
     }
-    let mut count = 0usize;
-    let mut ranges = Vec::new();
-    for element in set.split(',').map(|e| e.trim_matches([' ', '\t'])) {
-        if element.is_empty() {
-            continue;
-        }
-        let Some(s) = spec(element) else {
-            return RangeRequest::Full;
-        };
-        count += 1;
-        if count <= MAX_RANGES {
-            ranges.extend(s.resolve(size));
-        }
-    }
-    if count == 0 {
-        RangeRequest::Full
-    } else if count > MAX_RANGES {
-        RangeRequest::TooMany(count)
-    } else if ranges.is_empty() {
+    let ranges: Vec<ByteRange> = specs.into_iter().filter_map(|s| resolve(s, size)).collect();
+    if ranges.is_empty() {
         RangeRequest::Unsatisfiable
     } else {
         RangeRequest::Partial(coalesce(ranges))
