@@ -7,6 +7,10 @@
 //! everything has been read and checked; the Markdown is written to a temporary
 //! file beside the output and renamed into place, so a failed report never
 //! leaves a partial BENCHMARKS.md.
+//!
+//! Modules: `results` (reading and checking the raw results), `stats` (medians and
+//! ratios), `sections` (one per BENCHMARKS.md section), `chart` (the PNG charts) and
+//! `template` (filling the template's placeholders).
 
 mod chart;
 mod results;

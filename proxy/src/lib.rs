@@ -16,6 +16,10 @@
 //! (nor `tessera-shared`): the fault plan knows the tile stream only by its
 //! documented layout (API.md, "Frame stream"), and its tests pin that layout to
 //! `tessera_shared::wire`.
+//!
+//! Modules: `delay` ([`Delay`]), `stall` ([`Stall`]), `faults` (the damage plan,
+//! [`Faults`]), `log` ([`RequestLog`]), and the proxy itself here; `testing` holds the
+//! unit tests' loopback servers.
 
 mod delay;
 mod faults;
