@@ -8,6 +8,7 @@
 //! assert_eq!(url, "/v1/datasets/moon/levels/3/tiles");
 //! ```
 
+use crate::imagery::ImageryMetadata;
 use crate::metadata::{GeoRef, GroundSpacing, LevelCounts, Metadata, Quantization, VerticalDatum};
 use serde::{Deserialize, Serialize};
 
@@ -111,7 +112,7 @@ pub struct DatasetInfo {
     /// The dataset's imagery pyramid (DECISIONS.md "Imagery pyramids"), absent when it
     /// has none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub imagery: Option<crate::imagery::ImageryInfo>,
+    pub imagery: Option<ImageryInfo>,
     /// The body the grid lies on and whether the grid is longitude/latitude
     /// (DECISIONS.md "The globe"), absent when the CRS names no known ellipsoid. The
     /// server fills it from its projection library; [`DatasetInfo::new`] from the
@@ -233,6 +234,46 @@ impl DatasetInfo {
                 .georef
                 .as_ref()
                 .and_then(crate::body::Body::from_georef),
+        }
+    }
+}
+
+/// What the dataset document (`GET /v1/datasets/{name}`, [`DatasetInfo`])
+/// says of a dataset's imagery.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImageryInfo {
+    /// Texels per tile side (every level).
+    pub texels: u32,
+    /// Ground size of a finest-level texel, `[x, y]` in the DEM CRS's units.
+    pub texel_size: [f64; 2],
+    /// Media type of each record.
+    pub media_type: String,
+    pub bands: [u16; 3],
+    pub source: String,
+    /// The imagery pyramid's own content hash (ETags of imagery responses).
+    pub content_hash: String,
+    /// Size of the imagery pyramid file in bytes.
+    pub bytes: u64,
+    /// Morton-range stream of imagery records; `{level}` and `{ranges}` to fill.
+    pub tiles: String,
+}
+
+impl ImageryInfo {
+    /// The imagery part of dataset `name`'s document: from its imagery pyramid's
+    /// metadata and the file's size.
+    pub fn new(name: &str, meta: &ImageryMetadata, bytes: u64) -> Self {
+        Self {
+            texels: meta.texels,
+            texel_size: meta.texel_size,
+            media_type: meta.encoding.media_type().to_string(),
+            bands: meta.bands,
+            source: meta.source.clone(),
+            content_hash: meta.content_hash.clone(),
+            bytes,
+            tiles: format!(
+                "{}?ranges={{ranges}}",
+                fill(routes::IMAGERY_TILES, &[("name", name)])
+            ),
         }
     }
 }

@@ -94,44 +94,6 @@ pub enum ImageryMetadataError {
     ContentHash(#[from] ContentHashError),
 }
 
-/// What the dataset document (`GET /v1/datasets/{name}`, [`crate::api::DatasetInfo`])
-/// says of a dataset's imagery.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ImageryInfo {
-    /// Texels per tile side (every level).
-    pub texels: u32,
-    /// Ground size of a finest-level texel, `[x, y]` in the DEM CRS's units.
-    pub texel_size: [f64; 2],
-    /// Media type of each record.
-    pub media_type: String,
-    pub bands: [u16; 3],
-    pub source: String,
-    /// The imagery pyramid's own content hash (ETags of imagery responses).
-    pub content_hash: String,
-    /// Size of the imagery pyramid file in bytes.
-    pub bytes: u64,
-    /// Morton-range stream of imagery records; `{level}` and `{ranges}` to fill.
-    pub tiles: String,
-}
-
-impl ImageryInfo {
-    pub fn new(name: &str, meta: &ImageryMetadata, bytes: u64) -> Self {
-        Self {
-            texels: meta.texels,
-            texel_size: meta.texel_size,
-            media_type: meta.encoding.media_type().to_string(),
-            bands: meta.bands,
-            source: meta.source.clone(),
-            content_hash: meta.content_hash.clone(),
-            bytes,
-            tiles: format!(
-                "{}?ranges={{ranges}}",
-                crate::api::fill(crate::api::routes::IMAGERY_TILES, &[("name", name)])
-            ),
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -215,7 +177,7 @@ mod tests {
 
     #[test]
     fn info_links_the_imagery_stream() {
-        let info = ImageryInfo::new("olinda", &meta(), 99);
+        let info = crate::api::ImageryInfo::new("olinda", &meta(), 99);
         assert_eq!(
             info.tiles,
             "/v1/datasets/olinda/imagery/levels/{level}/tiles?ranges={ranges}"

@@ -1,11 +1,12 @@
 //! Fixtures shared by the end-to-end tests in `tests/`: the moon pyramids built and
-//! decoded here, plus [`nginx`] (a real nginx serving files on loopback, for the
+//! decoded here, plus [`module_circles`] (the module-circle finder), [`nginx`] (a real nginx serving files on loopback, for the
 //! serverless reads), [`quantized_mesh`] (an independent quantized-mesh decoder the
 //! Cesium tests check the server's tiles with) and [`terrain_check`] (brute-force
 //! checks of Cesium terrain tiles against a DEM's finest samples).
 
 #![allow(clippy::unwrap_used)] // test fixtures: a failed unwrap is a failed test
 
+pub mod module_circles;
 pub mod nginx;
 pub mod quantized_mesh;
 pub mod terrain_check;

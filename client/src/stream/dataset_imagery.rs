@@ -49,7 +49,7 @@ impl Streamer {
     fn open_imagery_beside(
         &self,
         file: &StaticFile,
-    ) -> Option<(Arc<StaticFile>, tessera_shared::imagery::ImageryInfo)> {
+    ) -> Option<(Arc<StaticFile>, tessera_shared::api::ImageryInfo)> {
         let (stem, query) = match file.url.split_once('?') {
             Some((s, q)) => (s, Some(q)),
             None => (file.url.as_str(), None),
@@ -83,7 +83,7 @@ impl Streamer {
             return None;
         }
         let name = file.url.rsplit('/').next().unwrap_or_default();
-        let info = tessera_shared::imagery::ImageryInfo::new(
+        let info = tessera_shared::api::ImageryInfo::new(
             name,
             meta,
             tessera_shared::ByteSource::size(img.pyramid.source()).unwrap_or(0),

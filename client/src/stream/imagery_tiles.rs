@@ -16,7 +16,7 @@ use crate::loadtest::trace::{RequestKind, StreamDigest};
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
-use tessera_shared::imagery::ImageryInfo;
+use tessera_shared::api::ImageryInfo;
 use tessera_shared::wire::WireError;
 use tessera_shared::wire::{self, Frame};
 use tessera_shared::{Level, MortonRange, TileId, morton, range_query};

@@ -57,7 +57,7 @@ pub struct Streamer {
     /// Requests and bytes the open took.
     pub(super) opened: (u32, u64),
     /// The dataset's imagery, if it has any ([`Streamer::imagery_feed`]).
-    pub(super) imagery: Option<tessera_shared::imagery::ImageryInfo>,
+    pub(super) imagery: Option<tessera_shared::api::ImageryInfo>,
 }
 
 impl std::fmt::Debug for Streamer {

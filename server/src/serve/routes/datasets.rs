@@ -22,7 +22,7 @@ pub fn describe(ds: &Dataset) -> DatasetInfo {
     );
     info.imagery = ds.imagery.as_ref().and_then(|i| {
         let meta = i.pyramid.imagery()?;
-        Some(tessera_shared::imagery::ImageryInfo::new(
+        Some(tessera_shared::api::ImageryInfo::new(
             &ds.name,
             meta,
             i.storage.size(),

@@ -1,14 +1,15 @@
-//! No module circles in the server crate (DECISIONS.md "Server layout"): for every
-//! module, the graph over its child modules has no cycle. An edge `a -> b` between
-//! two children of one parent is code anywhere inside `a` naming something inside
-//! `b` through a `crate::`, `super::` or `self::` path (in `use` trees too, and
-//! through `pub use` re-exports). A child naming its own ancestors is not an edge:
-//! that is how Rust modules use their parent's items. Test code counts too.
+//! The module-circle finder behind `tests/tests/module_circles.rs` (DECISIONS.md
+//! "Server layout"): for every module of a crate, the graph over its child modules
+//! must have no cycle. An edge `a -> b` between two children of one parent is code
+//! anywhere inside `a` naming something inside `b` through a `crate::`, `super::` or
+//! `self::` path (in `use` trees too, and through `pub use` re-exports). A child
+//! naming its own ancestors is not an edge: that is how Rust modules use their
+//! parent's items.
 //!
 //! The sources are read as text (comments, strings and characters blanked first),
-//! which is enough for this crate's paths; it needs no compiler.
-
-#![allow(clippy::unwrap_used)] // a failed unwrap is a failed test
+//! which is enough for this workspace's paths; it needs no compiler. Test code
+//! (`#[cfg(test)]` items and the modules they declare) can be left out: a test may
+//! use any sibling it checks against without making the crate's structure circular.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt::Write;
@@ -16,55 +17,51 @@ use std::path::{Path, PathBuf};
 
 type Module = Vec<String>;
 
-#[test]
-fn no_module_imports_a_sibling_that_imports_it_back() {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let circles = circles(&src);
-    assert!(
-        circles.is_empty(),
-        "module circles (a cycle among the children of one module):\n{}",
-        circles.join("\n")
-    );
+/// Whether `#[cfg(test)]` code counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TestCode {
+    /// Test code makes edges like any other code.
+    Included,
+    /// `#[cfg(test)]` items, and the modules they declare, are left out.
+    Excluded,
 }
 
-/// The circle finder finds the circles it should.
-#[test]
-fn a_circle_between_siblings_is_found_and_a_parent_edge_is_not() {
-    let dir = tempfile::tempdir().unwrap();
-    let write = |rel: &str, text: &str| {
-        let p = dir.path().join(rel);
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        std::fs::write(p, text).unwrap();
-    };
-    write("lib.rs", "pub mod a;\npub mod b;\npub mod c;\n");
-    write("a.rs", "use crate::b::{self, X};\n// use crate::c;\n");
-    write("b/mod.rs", "pub mod inner;\npub use inner::Y;\n");
-    write("b/inner.rs", "use super::super::c::Z;\nuse super::Y;\n");
-    write(
-        "c.rs",
-        "fn f() { let s = \"crate::a::g\"; } // crate::a::g()\n",
-    );
-    assert_eq!(circles(dir.path()), Vec::<String>::new(), "no cycle yet");
-    write("c.rs", "fn f() { crate::a::g(); }\n");
-    let found = circles(dir.path());
-    assert_eq!(found.len(), 1, "{found:?}");
-    assert!(found[0].starts_with("crate: {a, b, c}"), "{}", found[0]);
-}
-
-/// Every cycle, as `parent: {members}` and one witness per edge.
-fn circles(src: &Path) -> Vec<String> {
+/// Every cycle among the modules of the crate whose root (`lib.rs`, else `main.rs`)
+/// is in `src`, as `parent: {members}` and one witness per edge.
+///
+/// # Panics
+/// When `src` or a file in it cannot be read.
+pub fn circles(src: &Path, test_code: TestCode) -> Vec<String> {
     let mut files: BTreeMap<Module, PathBuf> = BTreeMap::new();
-    collect(src, src, &mut files);
+    let root = if src.join("lib.rs").exists() {
+        "lib"
+    } else {
+        "main"
+    };
+    collect(src, src, root, &mut files);
+    let mut texts: BTreeMap<Module, String> = files
+        .iter()
+        .map(|(m, p)| (m.clone(), strip(&std::fs::read_to_string(p).unwrap())))
+        .collect();
+    if test_code == TestCode::Excluded {
+        let mut test_modules = Vec::new();
+        for (m, t) in &mut texts {
+            for name in blank_test_items(t) {
+                let mut child = m.clone();
+                child.push(name);
+                test_modules.push(child);
+            }
+        }
+        let is_test = |m: &Module| test_modules.iter().any(|t| m.starts_with(t));
+        files.retain(|m, _| !is_test(m));
+        texts.retain(|m, _| !is_test(m));
+    }
     let mut modules: BTreeSet<Module> = BTreeSet::new();
     for m in files.keys() {
         for k in 0..=m.len() {
             modules.insert(m[..k].to_vec());
         }
     }
-    let texts: BTreeMap<Module, String> = files
-        .iter()
-        .map(|(m, p)| (m.clone(), strip(&std::fs::read_to_string(p).unwrap())))
-        .collect();
 
     // Re-exports: module -> name -> the module the name comes from.
     let mut reexports: HashMap<Module, HashMap<String, Module>> = HashMap::new();
@@ -139,25 +136,28 @@ fn circles(src: &Path) -> Vec<String> {
     out
 }
 
-/// `.rs` files under `dir` by module path (`lib.rs` is the crate, `main.rs` skipped).
-fn collect(root: &Path, dir: &Path, out: &mut BTreeMap<Module, PathBuf>) {
+/// `.rs` files under `dir` by module path (`{root}.rs` is the crate; `src/bin/`, and
+/// `main.rs` beside a `lib.rs`, are other crates and skipped).
+fn collect(src: &Path, dir: &Path, root: &str, out: &mut BTreeMap<Module, PathBuf>) {
     for entry in std::fs::read_dir(dir).unwrap() {
         let path = entry.unwrap().path();
         if path.is_dir() {
-            collect(root, &path, out);
+            if dir != src || path.file_name().is_none_or(|n| n != "bin") {
+                collect(src, &path, root, out);
+            }
             continue;
         }
         if path.extension().is_none_or(|e| e != "rs") {
             continue;
         }
-        let rel = path.strip_prefix(root).unwrap().with_extension("");
+        let rel = path.strip_prefix(src).unwrap().with_extension("");
         let mut parts: Module = rel
             .components()
             .map(|c| c.as_os_str().to_string_lossy().into_owned())
             .collect();
         match parts.as_slice() {
-            [only] if only == "main" => continue,
-            [only] if only == "lib" => parts.clear(),
+            [only] if only == root => parts.clear(),
+            [only] if only == "main" || only == "lib" => continue,
             [.., last] if last == "mod" => {
                 parts.pop();
             }
@@ -249,6 +249,64 @@ fn strip(text: &str) -> String {
         }
     }
     String::from_utf8_lossy(&out).into_owned()
+}
+
+/// Blanks every `#[cfg(test)]` item of `t` (already [`strip`]ped): an item up to its
+/// `;` or to the `}` closing its first `{`. Returns the names of the modules declared
+/// `#[cfg(test)] mod name;` (their files are test code too).
+fn blank_test_items(t: &mut String) -> Vec<String> {
+    let mut declared = Vec::new();
+    let mut b = std::mem::take(t).into_bytes();
+    let mut from = 0;
+    while let Some(p) = find(&b[from..], b"#[cfg(test)]") {
+        let start = from + p;
+        let mut i = start + b"#[cfg(test)]".len();
+        // The item ends at its first `;` when that comes before any `{`, else at the
+        // brace matching its first `{`.
+        let mut depth = 0usize;
+        let mut end = b.len();
+        while i < b.len() {
+            match b[i] {
+                b';' if depth == 0 => {
+                    end = i + 1;
+                    break;
+                }
+                b'{' => depth += 1,
+                b'}' => {
+                    depth = depth.saturating_sub(1);
+                    if depth == 0 {
+                        end = i + 1;
+                        break;
+                    }
+                }
+                _ => {}
+            }
+            i += 1;
+        }
+        let item = String::from_utf8_lossy(&b[start..end]).into_owned();
+        let words: Vec<&str> = item
+            .split(|c: char| !(c.is_alphanumeric() || c == '_'))
+            .filter(|w| !w.is_empty())
+            .collect();
+        if item.ends_with(';')
+            && let Some(k) = words.iter().position(|w| *w == "mod")
+            && let Some(name) = words.get(k + 1)
+        {
+            declared.push((*name).to_string());
+        }
+        for c in &mut b[start..end] {
+            if *c != b'\n' {
+                *c = b' ';
+            }
+        }
+        from = end;
+    }
+    *t = String::from_utf8(b).unwrap_or_default();
+    declared
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
 }
 
 /// Where each `kw` keyword (`use`) ends.
