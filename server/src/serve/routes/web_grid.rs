@@ -357,30 +357,35 @@ pub fn tilejson_doc(
     let max = fp.max_zoom(tms, px);
     let [w, s, e, n] = fp.lon_lat;
     let [lon, lat] = fp.centre();
-    let mut doc = serde_json::json!({
-        "tilejson": "3.0.0",
-        "name": ds.name,
-        "tiles": [format!(
+    let mut doc = tilejson::tilejson! {
+        tiles: vec![format!(
             "{base}/v1/datasets/{}/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&size={px}&v={}",
             ds.name,
             tms.path(),
             enc.name(),
             m.content_hash
         )],
-        "scheme": "xyz",
-        "minzoom": 0,
-        "maxzoom": max,
-        "bounds": [w.clamp(-180.0, 180.0), s.clamp(-90.0, 90.0), e.clamp(-180.0, 180.0), n.clamp(-90.0, 90.0)],
-        "center": [lon, lat, fp.overview_zoom(tms).min(max)],
-        "tileSize": px,
-        "encoding": enc.name(),
-        "tileMatrixSet": tms.id(),
-        "crs": format!("EPSG:{}", tms.epsg()),
-    });
-    if let Some(a) = attribution {
-        doc["attribution"] = serde_json::Value::String(xml_escape(a));
-    }
-    doc
+        name: ds.name.clone(),
+        scheme: "xyz".to_string(),
+        minzoom: 0,
+        maxzoom: max,
+        bounds: tilejson::Bounds::new(
+            w.clamp(-180.0, 180.0),
+            s.clamp(-90.0, 90.0),
+            e.clamp(-180.0, 180.0),
+            n.clamp(-90.0, 90.0),
+        ),
+        center: tilejson::Center::new(lon, lat, fp.overview_zoom(tms).min(max)),
+    };
+    doc.attribution = attribution.map(xml_escape);
+    // Beyond TileJSON's own fields.
+    let more = &mut doc.other;
+    more.insert("tileSize".into(), px.into());
+    more.insert("encoding".into(), enc.name().into());
+    more.insert("tileMatrixSet".into(), tms.id().into());
+    more.insert("crs".into(), format!("EPSG:{}", tms.epsg()).into());
+    // As a JSON value, whose keys serialize sorted as the documents always were.
+    serde_json::to_value(doc).expect("a TileJSON document serializes")
 }
 
 /// `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`. Its URLs are

@@ -170,33 +170,36 @@ pub fn tilejson_doc(
             encoding.name()
         )
     };
-    let mut doc = serde_json::json!({
-        "tilejson": "3.0.0",
-        "name": ds.name,
-        "description": "Height tiles in the dataset's own grid: z is the pyramid level, x and y its tile columns and rows. For web maps use a standard grid (standard_grids).",
-        "tiles": [format!(
+    let mut doc = tilejson::tilejson! {
+        tiles: vec![format!(
             "{base}/v1/datasets/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&v={}",
             ds.name,
             encoding.name(),
             m.content_hash
         )],
-        "minzoom": 0,
-        "maxzoom": ds.pyramid.geometry().finest().get(),
-        "tileSize": m.tile_size,
-        "encoding": encoding.name(),
-        "scheme": "tessera-dataset",
-        "standard_grids": {
+        name: ds.name.clone(),
+        description: "Height tiles in the dataset's own grid: z is the pyramid level, x and y its tile columns and rows. For web maps use a standard grid (standard_grids).".to_string(),
+        minzoom: 0,
+        maxzoom: ds.pyramid.geometry().finest().get(),
+        scheme: "tessera-dataset".to_string(),
+    };
+    doc.attribution = attribution.map(xml_escape);
+    // Beyond TileJSON's own fields.
+    let more = &mut doc.other;
+    more.insert("tileSize".into(), m.tile_size.into());
+    more.insert("encoding".into(), encoding.name().into());
+    more.insert(
+        "standard_grids".into(),
+        serde_json::json!({
             "WebMercatorQuad": standard("webmercator"),
             "WorldCRS84Quad": standard("crs84"),
-        },
-    });
+        }),
+    );
     if let Some(crs) = m.georef.as_ref().and_then(GeoRef::crs) {
-        doc["crs"] = serde_json::Value::String(crs);
+        more.insert("crs".into(), crs.into());
     }
-    if let Some(a) = attribution {
-        doc["attribution"] = serde_json::Value::String(xml_escape(a));
-    }
-    doc
+    // As a JSON value, whose keys serialize sorted as the documents always were.
+    serde_json::to_value(doc).expect("a TileJSON document serializes")
 }
 
 /// `GET /v1/datasets/{name}/tilejson.json`: see [`tilejson_doc`]. Its URLs are
