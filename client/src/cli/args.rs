@@ -32,10 +32,10 @@ impl SourceArgs {
 
 /// A command-line duration that is not one.
 #[derive(Debug, thiserror::Error)]
-#[error("{0:?} is not a positive duration like 30s, 2m or 1500ms")]
+#[error("{0:?} is not a positive duration like 30s, 2m, 1500ms or 1m30s")]
 pub(crate) struct BadDuration(String);
 
-/// Parses `30s`, `2m`, `1500ms` or plain seconds (clap's value parser).
+/// Parses `30s`, `2m`, `1500ms`, `1m30s` or plain seconds (clap's value parser).
 pub(crate) fn parse_duration(s: &str) -> Result<std::time::Duration, BadDuration> {
     crate::loadtest::pacing::parse_duration(s).ok_or_else(|| BadDuration(s.to_string()))
 }

@@ -150,21 +150,19 @@ pub enum ScheduleError {
     Time { index: usize, t_ms: f64 },
 }
 
-/// Parses `30s`, `2m`, `1500ms` or plain seconds: the CLI's durations (`--duration`,
-/// `--timeout`) and ramp stages. `None` unless positive and finite.
+/// Parses the CLI's durations (`--duration`, `--timeout`) and ramp stages: a bare
+/// number is seconds (`2.5`); anything else is read by `humantime` (`30s`, `1500ms`,
+/// `2m`, `1h 30m`, `1m30s`). `None` unless positive and under 10⁹ s.
 pub fn parse_duration(s: &str) -> Option<Duration> {
     let t = s.trim();
-    let (num, mult) = if let Some(n) = t.strip_suffix("ms") {
-        (n, 1e-3)
-    } else if let Some(n) = t.strip_suffix('s') {
-        (n, 1.0)
-    } else if let Some(n) = t.strip_suffix('m') {
-        (n, 60.0)
-    } else {
-        (t, 1.0)
+    let d = match t.parse::<f64>() {
+        Ok(secs) if secs.is_finite() && secs > 0.0 && secs < 1e9 => {
+            Duration::from_secs_f64(secs)
+        }
+        Ok(_) => return None,
+        Err(_) => humantime::parse_duration(t).ok()?,
     };
-    let v = num.trim().parse::<f64>().ok()? * mult;
-    (v.is_finite() && v > 0.0 && v < 1e9).then(|| Duration::from_secs_f64(v))
+    (!d.is_zero() && d.as_secs_f64() < 1e9).then_some(d)
 }
 
 impl std::str::FromStr for RampStages {
@@ -237,6 +235,20 @@ mod tests {
             let e = bad.parse::<RateArg>().unwrap_err();
             assert_eq!(e, ScheduleError::Rate(bad.to_string()));
             assert!(e.to_string().contains("max"));
+        }
+    }
+
+    #[test]
+    fn durations_are_bare_seconds_or_humantime() {
+        let d = |s: &str| parse_duration(s);
+        assert_eq!(d("30s"), Some(secs(30.0)));
+        assert_eq!(d(" 1500ms "), Some(secs(1.5)));
+        assert_eq!(d("2m"), Some(secs(120.0)));
+        assert_eq!(d("1m30s"), Some(secs(90.0)));
+        assert_eq!(d("1h 30m"), Some(secs(5400.0)));
+        assert_eq!(d("2.5"), Some(secs(2.5)));
+        for bad in ["", "0", "0s", "-3", "soon", "NaN", "inf", "1e10", "40000 years"] {
+            assert_eq!(d(bad), None, "{bad:?}");
         }
     }
 
