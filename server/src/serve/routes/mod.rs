@@ -225,24 +225,16 @@ pub async fn stored_record(
     }
 }
 
-/// `&`, `<`, `>`, `"` and `'` as entities, for XML (WMTS) and HTML (TileJSON
-/// attributions are shown as HTML); control characters other than tab,
-/// newline and carriage return (not allowed in XML 1.0) are dropped.
+/// `&`, `<`, `>`, `"` and `'` as entities (`quick-xml`'s escaper), for HTML (the
+/// viewer's pages; TileJSON and `layer.json` attributions are shown as HTML);
+/// control characters other than tab, newline and carriage return (not allowed in
+/// XML 1.0) are dropped first.
 pub fn xml_escape(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&apos;"),
-            '\t' | '\n' | '\r' => out.push(c),
-            c if c.is_control() => {}
-            c => out.push(c),
-        }
-    }
-    out
+    let kept: String = s
+        .chars()
+        .filter(|&c| !c.is_control() || matches!(c, '\t' | '\n' | '\r'))
+        .collect();
+    quick_xml::escape::escape(kept.as_str()).into_owned()
 }
 
 /// Whether the query pins the content with `v=<content hash>` (then responses are immutable).

@@ -15,7 +15,7 @@
 
 use super::base_url;
 use super::web_grid::footprint;
-use super::{Params, Segments, dataset, pinned, xml_escape};
+use super::{Params, Segments, dataset, pinned};
 use crate::http::cache::{self, LastModified};
 use crate::http::error::{ApiError, ApiResult};
 use crate::serve::AppState;
@@ -26,7 +26,10 @@ use crate::web::tile_matrix::TileMatrixSet;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, Uri, header};
 use axum::response::{IntoResponse, Response};
+use quick_xml::Writer;
+use quick_xml::events::{BytesDecl, BytesText, Event};
 use std::fmt::Write as _;
+use std::io;
 use std::sync::Arc;
 use tessera_shared::api::routes;
 
@@ -108,143 +111,188 @@ pub struct Mapped<'a> {
     pub fp: &'a Footprint,
 }
 
+/// The XML writer of the capabilities: indented, into memory.
+type Xml = Writer<Vec<u8>>;
+
 /// The capabilities document of `layers` (already in name order), its URLs under
 /// `base` (scheme and authority, no trailing slash) and the document's own URL `me`.
+/// Written with `quick-xml`, which escapes every text and attribute value.
 pub fn capabilities(layers: &[Mapped<'_>], base: &str, me: &str) -> String {
-    let mut x = String::with_capacity(8192 + layers.len() * 16384);
-    x.push_str(concat!(
-        r#"<?xml version="1.0" encoding="UTF-8"?>"#,
-        "\n",
-        r#"<Capabilities xmlns="http://www.opengis.net/wmts/1.0" xmlns:ows="http://www.opengis.net/ows/1.1" xmlns:xlink="http://www.w3.org/1999/xlink" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:schemaLocation="http://www.opengis.net/wmts/1.0 http://schemas.opengis.net/wmts/1.0/wmtsGetCapabilities_response.xsd" version="1.0.0">"#,
-        "\n",
-        "  <ows:ServiceIdentification>\n",
-        "    <ows:Title>Tessera DEM tiles</ows:Title>\n",
-        "    <ows:Abstract>Elevation as Terrarium or Terrain-RGB PNG tiles on the standard WebMercatorQuad and WorldCRS84Quad grids; each layer's abstract says how to decode heights.</ows:Abstract>\n",
-        "    <ows:ServiceType>OGC WMTS</ows:ServiceType>\n",
-        "    <ows:ServiceTypeVersion>1.0.0</ows:ServiceTypeVersion>\n",
-        "  </ows:ServiceIdentification>\n",
-        "  <Contents>\n",
-    ));
-    // The deepest zoom any layer needs, per grid (the matrix sets list no deeper).
-    let mut deepest = [0u8; 2];
-    for m in layers {
-        for (i, tms) in TileMatrixSet::ALL.into_iter().enumerate() {
-            deepest[i] = deepest[i].max(m.fp.max_zoom(tms, TILE_PX));
-        }
-    }
-    for m in layers {
-        for enc in ENCODINGS {
-            layer(&mut x, m, enc, base);
-        }
-    }
-    for (i, tms) in TileMatrixSet::ALL.into_iter().enumerate() {
-        matrix_set(&mut x, tms, deepest[i]);
-    }
-    let _ = write!(
-        x,
-        "  </Contents>\n  <ServiceMetadataURL xlink:href=\"{}\"/>\n</Capabilities>\n",
-        xml_escape(me)
-    );
+    let mut w = Writer::new_with_indent(Vec::with_capacity(8192 + layers.len() * 16384), b' ', 2);
+    document(&mut w, layers, base, me).expect("XML is written to memory");
+    let mut x = String::from_utf8(w.into_inner()).expect("the XML writer writes UTF-8");
+    x.push('\n');
     x
 }
 
-fn corners(x: &mut String, [x0, y0, x1, y1]: [f64; 4]) {
-    let _ = write!(
-        x,
-        "<ows:LowerCorner>{x0} {y0}</ows:LowerCorner><ows:UpperCorner>{x1} {y1}</ows:UpperCorner>"
-    );
+fn document(w: &mut Xml, layers: &[Mapped<'_>], base: &str, me: &str) -> io::Result<()> {
+    w.write_event(Event::Decl(BytesDecl::new("1.0", Some("UTF-8"), None)))?;
+    w.create_element("Capabilities")
+        .with_attributes([
+            ("xmlns", "http://www.opengis.net/wmts/1.0"),
+            ("xmlns:ows", "http://www.opengis.net/ows/1.1"),
+            ("xmlns:xlink", "http://www.w3.org/1999/xlink"),
+            ("xmlns:xsi", "http://www.w3.org/2001/XMLSchema-instance"),
+            (
+                "xsi:schemaLocation",
+                "http://www.opengis.net/wmts/1.0 http://schemas.opengis.net/wmts/1.0/wmtsGetCapabilities_response.xsd",
+            ),
+            ("version", "1.0.0"),
+        ])
+        .write_inner_content(|w| {
+            w.create_element("ows:ServiceIdentification")
+                .write_inner_content(|w| {
+                    text(w, "ows:Title", "Tessera DEM tiles")?;
+                    text(
+                        w,
+                        "ows:Abstract",
+                        "Elevation as Terrarium or Terrain-RGB PNG tiles on the standard WebMercatorQuad and WorldCRS84Quad grids; each layer's abstract says how to decode heights.",
+                    )?;
+                    text(w, "ows:ServiceType", "OGC WMTS")?;
+                    text(w, "ows:ServiceTypeVersion", "1.0.0")
+                })?;
+            w.create_element("Contents").write_inner_content(|w| {
+                // The deepest zoom any layer needs, per grid (the matrix sets list no
+                // deeper).
+                let mut deepest = [0u8; 2];
+                for m in layers {
+                    for (i, tms) in TileMatrixSet::ALL.into_iter().enumerate() {
+                        deepest[i] = deepest[i].max(m.fp.max_zoom(tms, TILE_PX));
+                    }
+                }
+                for m in layers {
+                    for enc in ENCODINGS {
+                        layer(w, m, enc, base)?;
+                    }
+                }
+                for (i, tms) in TileMatrixSet::ALL.into_iter().enumerate() {
+                    matrix_set(w, tms, deepest[i])?;
+                }
+                Ok(())
+            })?;
+            w.create_element("ServiceMetadataURL")
+                .with_attribute(("xlink:href", me))
+                .write_empty()?;
+            Ok(())
+        })?;
+    Ok(())
 }
 
-fn layer(x: &mut String, m: &Mapped<'_>, enc: Encoding, base: &str) {
-    let name = xml_escape(&m.ds.name);
-    let [w, s, e, n] = m.fp.lon_lat;
+/// `<name>value</name>`, the value escaped.
+fn text(w: &mut Xml, name: &str, value: &str) -> io::Result<()> {
+    w.create_element(name)
+        .write_text_content(BytesText::new(value))?;
+    Ok(())
+}
+
+fn corners(w: &mut Xml, [x0, y0, x1, y1]: [f64; 4]) -> io::Result<()> {
+    text(w, "ows:LowerCorner", &format!("{x0} {y0}"))?;
+    text(w, "ows:UpperCorner", &format!("{x1} {y1}"))
+}
+
+fn layer(w: &mut Xml, m: &Mapped<'_>, enc: Encoding, base: &str) -> io::Result<()> {
+    let name = &m.ds.name;
+    let [west, south, east, north] = m.fp.lon_lat;
     let wgs84 = [
-        w.clamp(-180.0, 180.0),
-        s.clamp(-90.0, 90.0),
-        e.clamp(-180.0, 180.0),
-        n.clamp(-90.0, 90.0),
+        west.clamp(-180.0, 180.0),
+        south.clamp(-90.0, 90.0),
+        east.clamp(-180.0, 180.0),
+        north.clamp(-90.0, 90.0),
     ];
-    let _ = write!(
-        x,
-        "    <Layer>\n      <ows:Title>{name} ({})</ows:Title>\n      <ows:Abstract>{}</ows:Abstract>\n      <ows:WGS84BoundingBox>",
-        match enc {
-            Encoding::Terrarium => "Terrarium",
-            Encoding::Mapbox => "Terrain-RGB",
-        },
-        xml_escape(decoding(enc)),
-    );
-    corners(x, wgs84);
-    let _ = write!(
-        x,
-        "</ows:WGS84BoundingBox>\n      <ows:Identifier>{name}_{}</ows:Identifier>\n",
-        enc.name()
-    );
-    // The box in each grid's own CRS: GDAL takes the layer's extent from the one
-    // whose CRS matches the chosen grid's.
-    for tms in TileMatrixSet::ALL {
-        let _ = write!(x, "      <ows:BoundingBox crs=\"{}\">", crs_urn(tms));
-        let b = match tms {
-            TileMatrixSet::WorldCrs84Quad => wgs84,
-            TileMatrixSet::WebMercatorQuad => m.fp.grid_bounds(tms),
-        };
-        corners(x, b);
-        x.push_str("</ows:BoundingBox>\n");
-    }
-    x.push_str(concat!(
-        "      <Style isDefault=\"true\"><ows:Identifier>default</ows:Identifier></Style>\n",
-        "      <Format>image/png</Format>\n",
-    ));
-    for tms in TileMatrixSet::ALL {
-        let _ = writeln!(
-            x,
-            "      <TileMatrixSetLink>\n        <TileMatrixSet>{}</TileMatrixSet>\n        <TileMatrixSetLimits>",
-            tms.id()
-        );
-        let bounds = m.fp.grid_bounds(tms);
-        for z in 0..=m.fp.max_zoom(tms, TILE_PX) {
-            let l = tile_limits(tms, bounds, z);
-            let _ = writeln!(
-                x,
-                "          <TileMatrixLimits><TileMatrix>{z}</TileMatrix><MinTileRow>{}</MinTileRow><MaxTileRow>{}</MaxTileRow><MinTileCol>{}</MinTileCol><MaxTileCol>{}</MaxTileCol></TileMatrixLimits>",
-                l.min_row, l.max_row, l.min_col, l.max_col
-            );
+    let kind = match enc {
+        Encoding::Terrarium => "Terrarium",
+        Encoding::Mapbox => "Terrain-RGB",
+    };
+    w.create_element("Layer").write_inner_content(|w| {
+        text(w, "ows:Title", &format!("{name} ({kind})"))?;
+        text(w, "ows:Abstract", decoding(enc))?;
+        w.create_element("ows:WGS84BoundingBox")
+            .write_inner_content(|w| corners(w, wgs84))?;
+        text(w, "ows:Identifier", &format!("{name}_{}", enc.name()))?;
+        // The box in each grid's own CRS: GDAL takes the layer's extent from the one
+        // whose CRS matches the chosen grid's.
+        for tms in TileMatrixSet::ALL {
+            let b = match tms {
+                TileMatrixSet::WorldCrs84Quad => wgs84,
+                TileMatrixSet::WebMercatorQuad => m.fp.grid_bounds(tms),
+            };
+            w.create_element("ows:BoundingBox")
+                .with_attribute(("crs", crs_urn(tms)))
+                .write_inner_content(|w| corners(w, b))?;
         }
-        x.push_str("        </TileMatrixSetLimits>\n      </TileMatrixSetLink>\n");
-    }
-    // {TileMatrixSet} is the standard identifier, which the tile route accepts as
-    // the grid segment (web_grid.rs `grid`).
-    // GDAL and QGIS read PNG pixels exactly: alpha marks no-data for them.
-    let template = format!(
-        "{base}/v1/datasets/{}/{{TileMatrixSet}}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?encoding={}&size={TILE_PX}&nodata=transparent&v={}",
-        m.ds.name,
-        enc.name(),
-        m.ds.content_hash()
-    );
-    let _ = write!(
-        x,
-        "      <ResourceURL format=\"image/png\" resourceType=\"tile\" template=\"{}\"/>\n    </Layer>\n",
-        xml_escape(&template)
-    );
+        w.create_element("Style")
+            .with_attribute(("isDefault", "true"))
+            .write_inner_content(|w| text(w, "ows:Identifier", "default"))?;
+        text(w, "Format", "image/png")?;
+        for tms in TileMatrixSet::ALL {
+            w.create_element("TileMatrixSetLink")
+                .write_inner_content(|w| {
+                    text(w, "TileMatrixSet", tms.id())?;
+                    w.create_element("TileMatrixSetLimits")
+                        .write_inner_content(|w| {
+                            let bounds = m.fp.grid_bounds(tms);
+                            for z in 0..=m.fp.max_zoom(tms, TILE_PX) {
+                                let l = tile_limits(tms, bounds, z);
+                                w.create_element("TileMatrixLimits")
+                                    .write_inner_content(|w| {
+                                        text(w, "TileMatrix", &z.to_string())?;
+                                        text(w, "MinTileRow", &l.min_row.to_string())?;
+                                        text(w, "MaxTileRow", &l.max_row.to_string())?;
+                                        text(w, "MinTileCol", &l.min_col.to_string())?;
+                                        text(w, "MaxTileCol", &l.max_col.to_string())
+                                    })?;
+                            }
+                            Ok(())
+                        })?;
+                    Ok(())
+                })?;
+        }
+        // {TileMatrixSet} is the standard identifier, which the tile route accepts as
+        // the grid segment (web_grid.rs `grid`).
+        // GDAL and QGIS read PNG pixels exactly: alpha marks no-data for them.
+        let template = format!(
+            "{base}/v1/datasets/{}/{{TileMatrixSet}}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?encoding={}&size={TILE_PX}&nodata=transparent&v={}",
+            m.ds.name,
+            enc.name(),
+            m.ds.content_hash()
+        );
+        w.create_element("ResourceURL")
+            .with_attributes([
+                ("format", "image/png"),
+                ("resourceType", "tile"),
+                ("template", template.as_str()),
+            ])
+            .write_empty()?;
+        Ok(())
+    })?;
+    Ok(())
 }
 
-fn matrix_set(x: &mut String, tms: TileMatrixSet, deepest: u8) {
-    let _ = writeln!(
-        x,
-        "    <TileMatrixSet>\n      <ows:Identifier>{}</ows:Identifier>\n      <ows:SupportedCRS>{}</ows:SupportedCRS>\n      <WellKnownScaleSet>{}</WellKnownScaleSet>",
-        tms.id(),
-        crs_urn(tms),
-        well_known_scale_set(tms)
-    );
+fn matrix_set(w: &mut Xml, tms: TileMatrixSet, deepest: u8) -> io::Result<()> {
     let [x0, _, _, y1] = tms.extent();
-    for z in 0..=deepest {
-        let (cols, rows) = tms.matrix_size(z);
-        let _ = writeln!(
-            x,
-            "      <TileMatrix><ows:Identifier>{z}</ows:Identifier><ScaleDenominator>{}</ScaleDenominator><TopLeftCorner>{x0} {y1}</TopLeftCorner><TileWidth>{TILE_PX}</TileWidth><TileHeight>{TILE_PX}</TileHeight><MatrixWidth>{cols}</MatrixWidth><MatrixHeight>{rows}</MatrixHeight></TileMatrix>",
-            tms.scale_denominator(z, TILE_PX)
-        );
-    }
-    x.push_str("    </TileMatrixSet>\n");
+    w.create_element("TileMatrixSet").write_inner_content(|w| {
+        text(w, "ows:Identifier", tms.id())?;
+        text(w, "ows:SupportedCRS", crs_urn(tms))?;
+        text(w, "WellKnownScaleSet", well_known_scale_set(tms))?;
+        for z in 0..=deepest {
+            let (cols, rows) = tms.matrix_size(z);
+            w.create_element("TileMatrix").write_inner_content(|w| {
+                text(w, "ows:Identifier", &z.to_string())?;
+                text(
+                    w,
+                    "ScaleDenominator",
+                    &tms.scale_denominator(z, TILE_PX).to_string(),
+                )?;
+                text(w, "TopLeftCorner", &format!("{x0} {y1}"))?;
+                text(w, "TileWidth", &TILE_PX.to_string())?;
+                text(w, "TileHeight", &TILE_PX.to_string())?;
+                text(w, "MatrixWidth", &cols.to_string())?;
+                text(w, "MatrixHeight", &rows.to_string())
+            })?;
+        }
+        Ok(())
+    })?;
+    Ok(())
 }
 
 /// Scheme and authority for the document's absolute URLs, and whether they came
@@ -408,6 +456,7 @@ mod tests {
 
     #[test]
     fn dataset_strings_are_escaped() {
+        use super::super::xml_escape;
         assert_eq!(
             xml_escape("a<b>&\"c\"'\u{1}d"),
             "a&lt;b&gt;&amp;&quot;c&quot;&apos;d"
