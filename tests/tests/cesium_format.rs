@@ -6,18 +6,20 @@
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
+use glam::DVec3;
 use tessera_e2e::Rng;
 use tessera_e2e::quantized_mesh::{Decoded, decode};
-use tessera_server::cesium::ellipsoid::{self, Ellipsoid};
+use tessera_server::cesium::header_geometry::{self, possibly_shrunk};
 use tessera_server::cesium::quantized_mesh::{
     Extensions, MeshVertex, QUANTIZED_MAX, TerrainMesh, UNBOUNDED_HORIZON_DISTANCE, encode,
     vertex_order,
 };
+use tessera_shared::ellipsoid::Ellipsoid;
 
 /// A tile over the western Alps, 0.25° a side.
 const ALPS: [f64; 4] = [7.5, 45.0, 7.75, 45.25];
 
-/// The largest angle between a normal and its 8-bit oct code's (ellipsoid.rs measures
+/// The largest angle between a normal and its 8-bit oct code's (header_geometry.rs measures
 /// ≈ 0.0165 rad over random directions).
 const OCT_TOLERANCE_RAD: f64 = 0.017;
 
@@ -139,13 +141,18 @@ fn round_trip(mesh: &TerrainMesh, rect: [f64; 4], e: &Ellipsoid, ext: &Extension
     // The centre: the rectangle's, at mid height.
     let ecef: Vec<[f64; 3]> = positions
         .iter()
-        .map(|p| e.to_ecef(p[0], p[1], p[2]))
+        .map(|p| {
+            e.to_ecef(p[0].to_radians(), p[1].to_radians(), p[2])
+                .to_array()
+        })
         .collect();
-    let centre = e.to_ecef(
-        f64::midpoint(rect[0], rect[2]),
-        f64::midpoint(rect[1], rect[3]),
-        f64::midpoint(lo, hi),
-    );
+    let centre = e
+        .to_ecef(
+            f64::midpoint(rect[0], rect[2]).to_radians(),
+            f64::midpoint(rect[1], rect[3]).to_radians(),
+            f64::midpoint(lo, hi),
+        )
+        .to_array();
     assert!(norm(sub(d.header.center, centre)) < 1e-6);
 
     // The bounding sphere holds every decoded vertex.
@@ -168,11 +175,14 @@ fn round_trip(mesh: &TerrainMesh, rect: [f64; 4], e: &Ellipsoid, ext: &Extension
 /// The occlusion point is the one the ellipsoid module computes for the decoded
 /// vertices; and seen from random viewers, whenever it is hidden so is every vertex.
 fn check_horizon(d: &Decoded, e: &Ellipsoid, centre: [f64; 3], ecef: &[[f64; 3]]) {
-    let occluder = e.possibly_shrunk(f64::from(d.header.minimum_height));
+    let occluder = possibly_shrunk(e, f64::from(d.header.minimum_height));
     let point = d.header.horizon_occlusion_point;
-    let Some(want) = ellipsoid::horizon_occlusion_point(&occluder, centre, ecef) else {
+    let vectors: Vec<DVec3> = ecef.iter().map(|&p| p.into()).collect();
+    let Some(want) = header_geometry::horizon_occlusion_point(&occluder, centre.into(), &vectors)
+        .map(|p| p.to_array())
+    else {
         // No finite point bounds the tile: the far point along its direction.
-        let axis = occluder.to_scaled_space(centre);
+        let axis = occluder.to_scaled_space(centre.into()).to_array();
         assert!(angle(point, axis) < 1e-9, "{point:?}");
         assert!((norm(point) / UNBOUNDED_HORIZON_DISTANCE - 1.0).abs() < 1e-12);
         return;
@@ -183,7 +193,10 @@ fn check_horizon(d: &Decoded, e: &Ellipsoid, centre: [f64; 3], ecef: &[[f64; 3]]
     );
     assert!(norm(point) >= 1.0);
 
-    let scaled: Vec<[f64; 3]> = ecef.iter().map(|&p| occluder.to_scaled_space(p)).collect();
+    let scaled: Vec<[f64; 3]> = vectors
+        .iter()
+        .map(|&p| occluder.to_scaled_space(p).to_array())
+        .collect();
     let mut rng = Rng(0x5EED);
     let (mut hidden_views, mut views) = (0, 0);
     while views < 300 {
@@ -241,7 +254,8 @@ fn check_extensions(
         let want = if norm(*sum) > 0.0 {
             *sum
         } else {
-            e.geodetic_surface_normal(positions[k][0], positions[k][1])
+            e.geodetic_surface_normal(positions[k][0].to_radians(), positions[k][1].to_radians())
+                .to_array()
         };
         assert!(
             angle(*got, want) <= OCT_TOLERANCE_RAD,
@@ -301,7 +315,9 @@ fn a_hand_made_mesh_round_trips() {
     // Counter-clockwise from above makes normals point up, out of the ground.
     let positions = d.positions(ALPS);
     for (k, n) in d.normals.as_ref().unwrap().iter().enumerate() {
-        let up = Ellipsoid::WGS84.geodetic_surface_normal(positions[k][0], positions[k][1]);
+        let up = Ellipsoid::WGS84
+            .geodetic_surface_normal(positions[k][0].to_radians(), positions[k][1].to_radians())
+            .to_array();
         assert!(dot(*n, up) > 0.5, "vertex {k}: {n:?}");
     }
 

@@ -4,7 +4,8 @@
 
 use super::input::Rect;
 use super::{MeshVertex, QUANTIZED_MAX};
-use crate::cesium::ellipsoid::Ellipsoid;
+use glam::DVec3;
+use tessera_shared::ellipsoid::Ellipsoid;
 
 /// Zig-zag coding (spec, "VertexData"): 0, −1, 1, −2… become 0, 1, 2, 3…. Deltas of
 /// values in 0..=32767 lie in ±32767, whose codes fit 16 bits.
@@ -51,35 +52,27 @@ pub(super) fn edge_lists(vertices: &[MeshVertex]) -> [Vec<u32>; 4] {
 pub(super) fn vertex_normals(
     vertices: &[MeshVertex],
     triangles: &[[u32; 3]],
-    positions: &[[f64; 3]],
+    positions: &[DVec3],
     rect: &Rect,
     ellipsoid: &Ellipsoid,
-) -> Vec<[f64; 3]> {
-    let mut sums = vec![[0.0f64; 3]; positions.len()];
+) -> Vec<DVec3> {
+    let mut sums = vec![DVec3::ZERO; positions.len()];
     for t in triangles {
         let [a, b, c] = t.map(|i| positions[i as usize]);
-        let ab = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let ac = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [
-            ab[1] * ac[2] - ab[2] * ac[1],
-            ab[2] * ac[0] - ab[0] * ac[2],
-            ab[0] * ac[1] - ab[1] * ac[0],
-        ];
+        let n = (b - a).cross(c - a);
         for &i in t {
-            for (s, n) in sums[i as usize].iter_mut().zip(n) {
-                *s += n;
-            }
+            sums[i as usize] += n;
         }
     }
     sums.iter()
         .zip(vertices)
-        .map(|(s, v)| {
-            let len = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+        .map(|(&s, v)| {
+            let len = s.length();
             if len > 0.0 && len.is_finite() {
-                s.map(|c| c / len)
+                s / len
             } else {
                 let (lon, lat) = rect.lon_lat(v.u, v.v);
-                ellipsoid.geodetic_surface_normal(lon, lat)
+                ellipsoid.geodetic_surface_normal(lon.to_radians(), lat.to_radians())
             }
         })
         .collect()

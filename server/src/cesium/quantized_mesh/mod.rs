@@ -26,9 +26,11 @@ pub mod input;
 #[cfg(test)]
 mod tests;
 
-use crate::cesium::ellipsoid::{self, Ellipsoid};
+use crate::cesium::header_geometry::{self, possibly_shrunk};
 use codes::{IndexWidth, Writer, edge_lists, high_water_mark, vertex_normals, zig_zag};
+use glam::DVec3;
 use input::{HeightRange, Rect, check_mesh, check_metadata};
+use tessera_shared::ellipsoid::Ellipsoid;
 
 /// One vertex: its quantized tile position (0..=32767 across the tile, west→east /
 /// south→north) and its height in metres above the ellipsoid.
@@ -155,10 +157,10 @@ pub enum EncodeError {
 /// - minimum/maximum height: the vertices' least and greatest heights, as f32 rounded
 ///   down and up so that they contain every vertex.
 /// - bounding sphere: of the vertices' decoded ECEF positions
-///   ([`ellipsoid::bounding_sphere`]).
+///   ([`header_geometry::bounding_sphere`]).
 /// - horizon-occlusion point: of the same positions
-///   ([`ellipsoid::horizon_occlusion_point`]), against the ellipsoid shrunk by a
-///   negative minimum height as CesiumJS tests it ([`Ellipsoid::possibly_shrunk`]);
+///   ([`header_geometry::horizon_occlusion_point`]), against the ellipsoid shrunk by
+///   a negative minimum height as CesiumJS tests it ([`possibly_shrunk`]);
 ///   for a tile no point bounds, [`UNBOUNDED_HORIZON_DISTANCE`].
 ///
 /// Heights are quantized to 0..=32767 between the header's f32 minimum and maximum,
@@ -201,24 +203,26 @@ pub fn encode(
 
     let range = HeightRange::of(&vertices)?;
     let quantized: Vec<u16> = vertices.iter().map(|v| range.quantize(v.height)).collect();
-    let positions: Vec<[f64; 3]> = vertices
+    // Longitudes and latitudes are degrees here, radians to the ellipsoid.
+    let ecef =
+        |lon: f64, lat: f64, h: f64| ellipsoid.to_ecef(lon.to_radians(), lat.to_radians(), h);
+    let positions: Vec<DVec3> = vertices
         .iter()
         .zip(&quantized)
         .map(|(v, &q)| {
             let (lon, lat) = rect.lon_lat(v.u, v.v);
-            ellipsoid.to_ecef(lon, lat, range.decode(q))
+            ecef(lon, lat, range.decode(q))
         })
         .collect();
 
     let (centre_lon, centre_lat) = rect.centre();
-    let centre = ellipsoid.to_ecef(centre_lon, centre_lat, range.middle());
-    let (sphere_centre, sphere_radius) = ellipsoid::bounding_sphere(&positions);
-    let occluder = ellipsoid.possibly_shrunk(f64::from(range.min));
-    let horizon =
-        ellipsoid::horizon_occlusion_point(&occluder, centre, &positions).unwrap_or_else(|| {
-            let s = occluder.to_scaled_space(ellipsoid.to_ecef(centre_lon, centre_lat, 0.0));
-            let len = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
-            s.map(|c| c / len * UNBOUNDED_HORIZON_DISTANCE)
+    let centre = ecef(centre_lon, centre_lat, range.middle());
+    let (sphere_centre, sphere_radius) = header_geometry::bounding_sphere(&positions);
+    let occluder = possibly_shrunk(ellipsoid, f64::from(range.min));
+    let horizon = header_geometry::horizon_occlusion_point(&occluder, centre, &positions)
+        .unwrap_or_else(|| {
+            let s = occluder.to_scaled_space(ecef(centre_lon, centre_lat, 0.0));
+            s / s.length() * UNBOUNDED_HORIZON_DISTANCE
         });
 
     let width = if vertices.len() > MAX_VERTICES_16_BIT {
@@ -245,12 +249,12 @@ pub fn encode(
     ));
 
     // Header (spec, "QuantizedMeshHeader").
-    out.f64s(&centre);
+    out.f64s(&centre.to_array());
     out.f32(range.min);
     out.f32(range.max);
-    out.f64s(&sphere_centre);
+    out.f64s(&sphere_centre.to_array());
     out.f64s(&[sphere_radius]);
-    out.f64s(&horizon);
+    out.f64s(&horizon.to_array());
 
     // Vertex data (spec, "VertexData"): count, then u, v, height arrays of zig-zagged
     // deltas from the previous vertex's value (from 0 for the first).
@@ -297,7 +301,7 @@ pub fn encode(
         out.u8(EXTENSION_OCT_NORMALS);
         out.u32(2 * vertices.len() as u32);
         for n in normals {
-            out.0.extend_from_slice(&ellipsoid::oct_encode(n));
+            out.0.extend_from_slice(&header_geometry::oct_encode(n));
         }
     }
     if let Some(json) = &ext.metadata {

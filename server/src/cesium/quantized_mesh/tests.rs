@@ -92,7 +92,7 @@ fn header_bounds_contain_every_decoded_vertex() {
             "vertex {k}"
         );
         let (lon, lat) = rect.lon_lat(r.u[k], r.v[k]);
-        let p = e.to_ecef(lon, lat, h);
+        let p = e.to_ecef(lon.to_radians(), lat.to_radians(), h);
         let c = r.sphere.0;
         let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
         assert!(
@@ -287,9 +287,9 @@ fn extensions_follow_the_edges() {
     assert_eq!(rest[0], EXTENSION_OCT_NORMALS);
     assert_eq!(u32::from_le_bytes(rest[1..5].try_into().unwrap()), 18);
     // A flat-ish tile's normals point up, near the ellipsoid's normal.
-    let up = e.geodetic_surface_normal(7.625, 45.125);
+    let up = e.geodetic_surface_normal(7.625f64.to_radians(), 45.125f64.to_radians());
     for k in 0..9 {
-        let n = ellipsoid::oct_decode([rest[5 + 2 * k], rest[6 + 2 * k]]);
+        let n = header_geometry::oct_decode([rest[5 + 2 * k], rest[6 + 2 * k]]);
         let cos = n[0] * up[0] + n[1] * up[1] + n[2] * up[2];
         assert!(cos > 0.99, "vertex {k}: {n:?}");
     }
@@ -314,7 +314,11 @@ fn the_centre_is_the_rectangles_at_mid_height() {
     let c: Vec<f64> = (0..3)
         .map(|i| f64::from_le_bytes(bytes[8 * i..8 * i + 8].try_into().unwrap()))
         .collect();
-    assert_eq!(c, e.to_ecef(7.625, 45.125, 100.0));
+    assert_eq!(
+        c,
+        e.to_ecef(7.625f64.to_radians(), 45.125f64.to_radians(), 100.0)
+            .to_array()
+    );
 }
 
 #[test]

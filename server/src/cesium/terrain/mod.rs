@@ -42,7 +42,6 @@ pub mod tile_builder;
 pub use plan::ZoomPlan;
 pub use pyramid::{PyramidLevels, TileReadError};
 
-use crate::cesium::ellipsoid::Ellipsoid;
 use crate::cesium::tiling::{CesiumTile, MAX_ZOOM, geometric_error, level_zero_error};
 use crate::crs::Crs;
 use crate::geoid::Geoid;
@@ -50,6 +49,7 @@ use crate::web::resample::SourceTile;
 use mapping::{Mapping, invert};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
+use tessera_shared::ellipsoid::Ellipsoid;
 use tessera_shared::tile::GeometryError;
 use tessera_shared::{Level, Metadata, Quantization, TileGeometry, TileId, VerticalDatum};
 
@@ -136,7 +136,7 @@ impl Terrain {
         let ellipsoid = Ellipsoid::new(a, b).ok_or(TerrainError::UnusableEllipsoid)?;
         // Earth datasets go to WGS 84 longitude and latitude, what Cesium's globe is;
         // other bodies to their own ellipsoid's.
-        let earth = (a - Ellipsoid::WGS84.radii()[0]).abs() < 1000.0;
+        let earth = (a - Ellipsoid::WGS84.equatorial_radius()).abs() < 1000.0;
         let ellipsoid = if earth { Ellipsoid::WGS84 } else { ellipsoid };
         let gt = georef.geotransform;
         let plain_lon_lat = crs.is_geographic() && (!earth || crs.epsg() == Some(4326));

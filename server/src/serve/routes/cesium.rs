@@ -258,7 +258,7 @@ pub fn layer_doc(ds: &Dataset, terrain: &Terrain, attribution: Option<&str>) -> 
         "contentHash": m.content_hash,
         "verticalDatum": m.vertical_datum.name(),
         "heights": "metres above the ellipsoid",
-        "ellipsoidRadii": terrain.ellipsoid.radii(),
+        "ellipsoidRadii": terrain.ellipsoid.radii().to_array(),
         // What every tile keeps within (metres): CesiumJS's own estimate for a
         // 65-sample heightmap, halved per zoom.
         "levelZeroGeometricError": terrain.level_zero_error,
