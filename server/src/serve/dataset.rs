@@ -71,7 +71,9 @@ pub enum RecordError {
 pub struct DatasetUnavailable {
     pub name: String,
     pub path: PathBuf,
-    pub reason: UnavailableReason,
+    /// Boxed: an object store's error is large, and this travels in every tile
+    /// route's `Result`.
+    pub reason: Box<UnavailableReason>,
 }
 
 /// What made a dataset unavailable ([`DatasetUnavailable`]).
@@ -177,7 +179,7 @@ impl Dataset {
         DatasetUnavailable {
             name: self.name.clone(),
             path: self.path.clone(),
-            reason,
+            reason: Box::new(reason),
         }
     }
 
