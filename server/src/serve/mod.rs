@@ -1,9 +1,9 @@
 //! `tessera-server serve`: pyramids over HTTP (docs/ARCHITECTURE.md#serving, API.md).
 
+pub mod attached_imagery;
 pub mod compute;
 pub mod config;
 pub mod dataset;
-pub mod imagery;
 pub mod interfaces;
 pub mod metrics;
 pub mod registry;

@@ -1,8 +1,8 @@
 //! The datasets a server holds: one pyramid file each, named by its file stem, with
-//! the imagery pyramid beside it when there is one (see [`super::imagery`]).
+//! the imagery pyramid beside it when there is one (see [`super::attached_imagery`]).
 
+use super::attached_imagery as imagery;
 use super::dataset::{Dataset, valid_name};
-use super::imagery;
 use crate::storage::{self, Location, ObjectStorage, Storage, StoreContext};
 use anyhow::{Context, bail};
 use std::collections::BTreeMap;
