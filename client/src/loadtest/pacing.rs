@@ -156,9 +156,7 @@ pub enum ScheduleError {
 pub fn parse_duration(s: &str) -> Option<Duration> {
     let t = s.trim();
     let d = match t.parse::<f64>() {
-        Ok(secs) if secs.is_finite() && secs > 0.0 && secs < 1e9 => {
-            Duration::from_secs_f64(secs)
-        }
+        Ok(secs) if secs.is_finite() && secs > 0.0 && secs < 1e9 => Duration::from_secs_f64(secs),
         Ok(_) => return None,
         Err(_) => humantime::parse_duration(t).ok()?,
     };
@@ -247,7 +245,17 @@ mod tests {
         assert_eq!(d("1m30s"), Some(secs(90.0)));
         assert_eq!(d("1h 30m"), Some(secs(5400.0)));
         assert_eq!(d("2.5"), Some(secs(2.5)));
-        for bad in ["", "0", "0s", "-3", "soon", "NaN", "inf", "1e10", "40000 years"] {
+        for bad in [
+            "",
+            "0",
+            "0s",
+            "-3",
+            "soon",
+            "NaN",
+            "inf",
+            "1e10",
+            "40000 years",
+        ] {
             assert_eq!(d(bad), None, "{bad:?}");
         }
     }
