@@ -84,6 +84,8 @@ pub struct ServeArgs {
     /// https://tiles.example.org; documents built with it are shareable by caches
     /// [default: none: the request's Host, and those documents are private].
     #[arg(long, env = "TESSERA_PUBLIC_URL")]
+    // These doc comments are the `--help` text, where a URL is plain text.
+    #[allow(rustdoc::bare_urls)]
     pub public_url: Option<String>,
     /// Build absolute URLs from X-Forwarded-Host and X-Forwarded-Proto (only behind a
     /// proxy that sets them) when --public-url is not given.
@@ -98,6 +100,7 @@ pub struct ServeArgs {
         value_name = "ORIGIN",
         value_delimiter = ','
     )]
+    #[allow(rustdoc::bare_urls)] // the --help text, where a URL is plain text
     pub cors_origin: Vec<String>,
     /// PEM file of the TLS certificate chain: serve HTTPS (HTTP/2 and HTTP/1.1 by ALPN);
     /// needs --tls-key.
