@@ -201,18 +201,20 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         "--width and --height must be positive"
     );
     let budget = std::time::Duration::from_secs_f64(budget_ms / 1e3);
+    // What to draw with, headless or in the window.
+    let render_opts = RenderOptions {
+        width,
+        height,
+        slots: gpu_tiles,
+        view,
+        parallax,
+        backend,
+        normals,
+        morph: !no_morph,
+        imagery: !no_imagery,
+    };
     let render = out.as_ref().map(|dir| RenderSetup {
-        opts: RenderOptions {
-            width,
-            height,
-            slots: gpu_tiles,
-            view,
-            parallax,
-            backend,
-            normals,
-            morph: !no_morph,
-            imagery: !no_imagery,
-        },
+        opts: render_opts,
         out_dir: dir.clone(),
         draws: if reference {
             Draws::Reference
@@ -277,18 +279,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     };
     if !no_render && out.is_none() {
         // Neither headless nor --no-render: the windowed client.
-        let render = RenderOptions {
-            width,
-            height,
-            slots: gpu_tiles,
-            view,
-            parallax,
-            backend,
-            normals,
-            morph: !no_morph,
-            imagery: !no_imagery,
-        };
-        return window::run(&opts, render);
+        return window::run(&opts, render_opts);
     }
     let summary = fly::fly_to_file(&opts, stats.as_deref())?;
     println!("{}", serde_json::to_string_pretty(&summary)?);
