@@ -11,7 +11,7 @@ mod grid_support;
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use grid_support::{built, decode_rgba, terrarium, xyz_tile};
+use grid_support::{built, decode_rgba, terrarium, tilejson_bounds, xyz_tile};
 use serve_support::{Server, parse_metrics};
 
 /// A map's burst of neighbouring tiles decodes each source tile once: the burst
@@ -319,16 +319,7 @@ fn zoom_0_shows_a_dem_smaller_than_a_pixel() {
 fn every_tile_within_the_bounds_is_served_and_plausible() {
     let Some(b) = built() else { return };
     let srv = Server::start(&[&b.aletsch], &[]);
-    let tj = srv
-        .get("/v1/datasets/aletsch/webmercator/tilejson.json")
-        .expect(200)
-        .json();
-    let bounds: Vec<f64> = tj["bounds"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let bounds = tilejson_bounds(&srv, "aletsch");
     let doc = srv.get("/v1/datasets/aletsch").expect(200).json();
     let lowest = doc["metadata"]["min_height"]
         .as_f64()

@@ -11,7 +11,7 @@ mod grid_support;
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use grid_support::{built, decode_rgba, terrarium, xyz_tile};
+use grid_support::{built, decode_rgba, terrarium, tilejson_bounds, xyz_tile};
 use serve_support::Server;
 use std::path::Path;
 use tessera_server::crs::Crs;
@@ -284,16 +284,7 @@ fn a_projected_dem_lands_in_its_place() {
     let Some(b) = built() else { return };
     let dem = Dem::read(&testdata::dem_or_skip("aletsch.tif").unwrap(), "EPSG:2056");
     let srv = Server::start(&[&b.aletsch], &[]);
-    let tj = srv
-        .get("/v1/datasets/aletsch/webmercator/tilejson.json")
-        .expect(200)
-        .json();
-    let bounds: Vec<f64> = tj["bounds"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let bounds = tilejson_bounds(&srv, "aletsch");
     // gdalinfo's wgs84Extent of aletsch.tif: 7.4529–8.3911° E, 46.2500–46.8117° N.
     for (got, want) in bounds.iter().zip([7.4529, 46.2500, 8.3911, 46.8117]) {
         assert!((got - want).abs() < 2e-4, "bounds {bounds:?}");

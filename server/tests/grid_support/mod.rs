@@ -2,7 +2,7 @@
 //! `serve_grid_requests.rs`): their pyramids, built once per test binary from real
 //! DEMs, and reading tiles back (PNG pixels, Terrarium heights, the XYZ scheme).
 
-use crate::serve_support::build_pyramid;
+use crate::serve_support::{Server, build_pyramid};
 use std::path::PathBuf;
 use std::sync::OnceLock;
 use tessera_shared::testdata;
@@ -58,4 +58,19 @@ pub fn xyz_tile(lon: f64, lat: f64, z: u8) -> (u32, u32) {
     let l = lat.to_radians();
     let y = (1.0 - (l.tan() + 1.0 / l.cos()).ln() / std::f64::consts::PI) / 2.0 * n;
     (x as u32, y as u32)
+}
+
+/// The `bounds` (west, south, east, north in degrees) of `dataset`'s Web Mercator
+/// TileJSON on `srv`.
+pub fn tilejson_bounds(srv: &Server, dataset: &str) -> Vec<f64> {
+    let tj = srv
+        .get(&format!("/v1/datasets/{dataset}/webmercator/tilejson.json"))
+        .expect(200)
+        .json();
+    tj["bounds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect()
 }
