@@ -139,7 +139,8 @@ fn the_moon_png_georeferenced_from_flags() {
         [51.0, 8.992_187_5, 67.0, 24.992_187_5]
     );
     assert_eq!(g.raster_type, RasterType::PixelIsArea);
-    assert_eq!(g.proj.as_deref(), Some(MOON));
+    // PROJ's own spelling of the definition.
+    assert_eq!(g.proj.as_deref(), Some(&*format!("{MOON} +type=crs")));
     assert_eq!(g.epsg, None);
     let crs = Crs::of(g).expect("the stored PROJ string parses");
     assert!(crs.is_geographic());
@@ -206,7 +207,11 @@ fn bad_bounds_and_crs_values_are_errors() {
         assert_clean_failure(&o, &["--bounds", says], &out);
     }
     let o = build(&[&png], &out, &["--crs", "EPSG:1", "--bounds", "0,0,1,1"]);
-    assert_clean_failure(&o, &["--crs", "EPSG:1 is not a CRS this build knows"], &out);
+    assert_clean_failure(
+        &o,
+        &["--crs", "EPSG:1 is not a CRS in PROJ's database"],
+        &out,
+    );
     let o = build(&[&png], &out, &["--crs", "moon", "--bounds", "0,0,1,1"]);
     assert_clean_failure(&o, &["--crs", "neither EPSG:CODE nor a PROJ string"], &out);
     // Latitudes past the poles in a geographic CRS (metres by mistake).

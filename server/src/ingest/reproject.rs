@@ -37,8 +37,43 @@ pub enum Resampling {
     /// Bilinear over the four nearest source samples.
     #[default]
     Bilinear,
+    /// Cubic convolution over the 4 × 4 nearest source samples (Keys' kernel with
+    /// a = −0.5, as GDAL's `cubic`), weights renormalised over valid neighbours.
+    Cubic,
     /// The nearest source sample (keeps integer heights exact).
     Nearest,
+}
+
+impl Resampling {
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Bilinear => "bilinear",
+            Self::Cubic => "cubic",
+            Self::Nearest => "nearest",
+        }
+    }
+
+    /// Source rows (and columns) a sample reads before and after the one at or
+    /// above its position.
+    const fn reach(self) -> (usize, usize) {
+        match self {
+            Self::Cubic => (1, 2),
+            Self::Bilinear | Self::Nearest => (0, 1),
+        }
+    }
+}
+
+/// Keys' cubic convolution kernel with a = −0.5 (GDAL's `cubic`).
+fn cubic_weight(x: f64) -> f64 {
+    const A: f64 = -0.5;
+    let x = x.abs();
+    if x <= 1.0 {
+        ((A + 2.0) * x - (A + 3.0)) * x * x + 1.0
+    } else if x < 2.0 {
+        ((A * x - 5.0 * A) * x + 8.0 * A) * x - 4.0 * A
+    } else {
+        0.0
+    }
 }
 
 /// What `--to`, `--resampling` and `--spacing` asked for.
@@ -85,12 +120,12 @@ impl Reprojected {
     /// `nodata` (the user's override, else the source's own value) marks missing
     /// source samples.
     pub fn new(
-        mut src: Box<dyn RowSource>,
+        src: Box<dyn RowSource>,
         opts: &ReprojectOptions,
         nodata: Option<f64>,
         dir: &Path,
     ) -> anyhow::Result<Self> {
-        let info = src.info().clone();
+        let info = src.info();
         let georef = info
             .georef
             .clone()
@@ -108,6 +143,29 @@ impl Reprojected {
         let target = Crs::parse(&opts.to).with_context(|| format!("--to {}", opts.to))?;
         let (w, h) = (info.width as usize, info.height as usize);
         let out = plan_grid(&source, &target, &gt, w, h, opts.spacing)?;
+        Self::onto(src, &source, target, out, opts.resampling, nodata, dir)
+    }
+
+    /// Resamples `src` (in CRS `source`) onto the grid `out` of CRS `target`: what
+    /// [`Reprojected::new`] does once it has planned the grid, and what a mosaic of
+    /// inputs on different grids does for each input, onto its window of the
+    /// mosaic's grid.
+    pub fn onto(
+        mut src: Box<dyn RowSource>,
+        source: &Crs,
+        target: Crs,
+        out: Grid,
+        resampling: Resampling,
+        nodata: Option<f64>,
+        dir: &Path,
+    ) -> anyhow::Result<Self> {
+        let info = src.info().clone();
+        let gt = info
+            .georef
+            .as_ref()
+            .map(|g| g.geotransform)
+            .ok_or_else(|| anyhow!("a reprojected input needs a geotransform"))?;
+        let (w, h) = (info.width as usize, info.height as usize);
         // 1. Spool the source with no-data as NaN.
         let nodata = nodata.or(info.nodata).map(|v| v as f32);
         let file = tempfile::tempfile_in(dir)
@@ -139,9 +197,9 @@ impl Reprojected {
             raster_type: RasterType::PixelIsArea,
         };
         target.describe(&mut out_georef);
-        let sample_type = match opts.resampling {
+        let sample_type = match resampling {
             Resampling::Nearest => info.sample_type,
-            Resampling::Bilinear => SampleType::Float32,
+            Resampling::Bilinear | Resampling::Cubic => SampleType::Float32,
         };
         let mut me = Self {
             info: SourceInfo {
@@ -156,10 +214,7 @@ impl Reprojected {
                     target
                         .epsg()
                         .map_or_else(|| target.proj_string().to_string(), |c| format!("EPSG:{c}")),
-                    match opts.resampling {
-                        Resampling::Bilinear => "bilinear",
-                        Resampling::Nearest => "nearest",
-                    }
+                    resampling.name()
                 ),
             },
             spool,
@@ -167,9 +222,9 @@ impl Reprojected {
             src_h: h,
             src_gt: gt,
             out_gt: out.gt,
-            source,
+            source: source.clone(),
             target,
-            resampling: opts.resampling,
+            resampling,
             row: 0,
             band: VecDeque::new(),
             band_start: 0,
@@ -224,8 +279,9 @@ impl Reprojected {
         if lo > hi {
             return None;
         }
-        let lo = lo.floor().max(0.0) as usize;
-        let hi = (hi.floor() as usize + 1).min(self.src_h - 1);
+        let (before, after) = self.resampling.reach();
+        let lo = (lo.floor().max(0.0) as usize).saturating_sub(before);
+        let hi = (hi.floor().max(0.0) as usize + after).min(self.src_h - 1);
         Some((lo, hi))
     }
 
@@ -294,6 +350,36 @@ impl Reprojected {
                     f32::NAN
                 }
             }
+            Resampling::Cubic => {
+                let (c0, r0) = (c.floor(), r.floor());
+                let (fx, fy) = (c - c0, r - r0);
+                let mut sum = 0.0f64;
+                let mut weight = 0.0f64;
+                for dr in -1i64..=2 {
+                    let rr = r0 as i64 + dr;
+                    if rr < 0 || rr >= self.src_h as i64 {
+                        continue;
+                    }
+                    let wy = cubic_weight(fy - dr as f64);
+                    for dc in -1i64..=2 {
+                        let cc = c0 as i64 + dc;
+                        if cc < 0 || cc >= self.src_w as i64 {
+                            continue;
+                        }
+                        let v = at(cc as usize, rr as usize);
+                        let wgt = wy * cubic_weight(fx - dc as f64);
+                        if !v.is_nan() && wgt != 0.0 {
+                            sum += f64::from(v) * wgt;
+                            weight += wgt;
+                        }
+                    }
+                }
+                if weight.abs() > 1e-9 {
+                    (sum / weight) as f32
+                } else {
+                    f32::NAN
+                }
+            }
         }
     }
 }
@@ -335,12 +421,12 @@ impl RowSource for Reprojected {
     }
 }
 
-/// The output grid: size and geotransform.
+/// An output grid: size and north-up geotransform.
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Grid {
-    width: u32,
-    height: u32,
-    gt: [f64; 6],
+pub struct Grid {
+    pub width: u32,
+    pub height: u32,
+    pub gt: [f64; 6],
 }
 
 /// Footprint and spacing of the source in the target CRS.

@@ -1,6 +1,7 @@
 //! GeoTIFF georeferencing: the GeoKey directory, the tie points, pixel scale and
 //! transformation tags, normalised to GDAL's convention (see the parent module).
 
+use super::user_crs::{self, KeyValues};
 use super::{Reader, ascii_tag};
 use tessera_shared::{GeoRef, RasterType};
 use tiff::decoder::Decoder;
@@ -16,6 +17,8 @@ const PROJECTED_CS_TYPE: u16 = 3072;
 const PCS_CITATION: u16 = 3073;
 /// The `TIFFTagLocation` of key values stored in GeoAsciiParamsTag.
 const GEO_ASCII_PARAMS: u16 = 34737;
+/// The `TIFFTagLocation` of key values stored in GeoDoubleParamsTag.
+const GEO_DOUBLE_PARAMS: u16 = 34736;
 /// GeoKey value meaning "user-defined" (no EPSG code).
 const USER_DEFINED: u16 = 32767;
 
@@ -29,6 +32,8 @@ struct GeoKeys {
     gt_citation: Option<String>,
     geog_citation: Option<String>,
     pcs_citation: Option<String>,
+    /// Every key, for a user-defined CRS ([`user_crs`]).
+    values: KeyValues,
 }
 
 impl GeoKeys {
@@ -36,7 +41,7 @@ impl GeoKeys {
     /// `nkeys` entries `[KeyID, TIFFTagLocation, Count, Value]`. Location 0 means the
     /// value is the short itself; location 34737 names `Count` characters of the ASCII
     /// parameters starting at `Value`.
-    fn parse(dir: &[u16], ascii: Option<&str>) -> Self {
+    fn parse(dir: &[u16], ascii: Option<&str>, doubles: Option<&[f64]>) -> Self {
         let mut keys = Self::default();
         let Some(&[_, _, _, nkeys]) = dir.get(..4) else {
             tracing::warn!("ignoring a GeoKeyDirectoryTag of only {} values", dir.len());
@@ -52,6 +57,24 @@ impl GeoKeys {
                 let end = start + usize::from(count);
                 ascii?.get(start..end.min(ascii?.len())).map(str::to_owned)
             };
+            match location {
+                0 => {
+                    keys.values.shorts.insert(id, value);
+                }
+                GEO_DOUBLE_PARAMS => {
+                    let start = usize::from(value);
+                    if let Some(d) = doubles.and_then(|d| d.get(start..start + usize::from(count)))
+                    {
+                        keys.values.doubles.insert(id, d.to_vec());
+                    }
+                }
+                GEO_ASCII_PARAMS => {
+                    if let Some(t) = text() {
+                        keys.values.ascii.insert(id, t);
+                    }
+                }
+                _ => {}
+            }
             match (id, location) {
                 (GT_MODEL_TYPE, 0) => keys.model_type = Some(value),
                 (GT_RASTER_TYPE, 0) => keys.raster_type = Some(value),
@@ -221,9 +244,10 @@ pub(super) fn read_georef(decoder: &mut Decoder<Reader>) -> Option<GeoRef> {
             None
         }
     };
+    let doubles = f64_tag(decoder, Tag::GeoDoubleParamsTag, "GeoDoubleParamsTag");
     let keys = dir
         .as_deref()
-        .map(|d| GeoKeys::parse(d, ascii.as_deref()))
+        .map(|d| GeoKeys::parse(d, ascii.as_deref(), doubles.as_deref()))
         .unwrap_or_default();
     let Some(mut gt) = raw_geotransform(decoder) else {
         if dir.is_some() {
@@ -239,11 +263,22 @@ pub(super) fn read_georef(decoder: &mut Decoder<Reader>) -> Option<GeoRef> {
         gt[0] -= 0.5 * gt[1] + 0.5 * gt[2];
         gt[3] -= 0.5 * gt[4] + 0.5 * gt[5];
     }
+    let epsg = keys.epsg();
+    // No EPSG CRS code: the CRS the keys spell out, as GDAL reads it.
+    let (mut proj, mut wkt) = (None, None);
+    if epsg.is_none() {
+        match user_crs::definition(&keys.values) {
+            Ok(Some(def)) if def.starts_with('+') => proj = Some(def),
+            Ok(Some(def)) => wkt = Some(def),
+            Ok(None) => {}
+            Err(e) => tracing::warn!("the GeoKeys' CRS cannot be read: {e}; give it with --crs"),
+        }
+    }
     Some(GeoRef {
-        epsg: keys.epsg(),
+        epsg,
         crs_name: keys.crs_name(),
-        proj: None,
-        wkt: None,
+        proj,
+        wkt,
         geotransform: gt,
         raster_type,
     })

@@ -27,6 +27,7 @@ mod product_name;
 mod test_tiff;
 #[cfg(test)]
 mod tests;
+mod user_crs;
 mod vertical;
 
 use super::{DatumClue, RowSource, SampleType, SourceInfo};

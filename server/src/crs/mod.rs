@@ -1,7 +1,8 @@
-//! Coordinate reference systems, through a real projection library (never hand-written
-//! formulas; docs/ARCHITECTURE.md#coordinate-systems): `proj4rs`, a pure-Rust port of
-//! PROJ.4, with the EPSG definitions of `crs-definitions` (PROJ strings and WKT for every
-//! EPSG code).
+//! Coordinate reference systems, through PROJ itself (never hand-written formulas;
+//! docs/ARCHITECTURE.md#coordinate-systems, DECISIONS.md "Projection library: PROJ"):
+//! EPSG and other authority codes from PROJ's database, WKT 1 and 2 (GDAL's and
+//! ESRI's), PROJ strings and compound CRSs with a vertical part, with the datum-shift
+//! and geoid grids the system has installed (`proj-data`).
 //!
 //! ```
 //! use tessera_server::crs::Crs;
@@ -11,88 +12,152 @@
 //! assert!((lon - (-117.0)).abs() < 1e-9 && (lat - 34.3).abs() < 0.05);
 //! ```
 
-use anyhow::{Context, anyhow, bail};
-use proj4rs::Proj;
+mod proj;
+
+pub use proj::version as proj_version;
+
+use anyhow::{anyhow, bail};
 use tessera_shared::{GeoRef, GroundSpacing};
 
-/// A CRS that coordinates can be transformed out of and into.
+/// A CRS that coordinates can be transformed out of and into: its definition and
+/// what PROJ said about it when it was made. Plain data, so it can be shared between
+/// threads; each thread keeps its own PROJ objects for it ([`proj`]).
+#[derive(Clone)]
 pub struct Crs {
-    proj: Proj,
+    /// What PROJ is given: `EPSG:2056`, a WKT, a PROJ string.
+    definition: String,
+    /// xxh3 of `definition`: the key of each thread's PROJ objects.
+    key: u64,
     epsg: Option<u32>,
+    name: Option<String>,
     proj_string: String,
     wkt: Option<String>,
+    radii: Option<(f64, f64)>,
+    geographic: bool,
+    has_vertical: bool,
 }
 
 impl std::fmt::Debug for Crs {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Crs")
             .field("epsg", &self.epsg)
+            .field("name", &self.name)
             .field("proj", &self.proj_string)
             .finish_non_exhaustive()
     }
 }
 
-/// WGS 84 longitude/latitude (EPSG:4326), the pivot of every transform here.
-const WGS84: &str = "+proj=longlat +datum=WGS84 +no_defs";
+/// WGS 84 longitude/latitude (EPSG:4326), the pivot of [`Crs::to_lon_lat`].
+fn wgs84() -> &'static Crs {
+    static WGS84: std::sync::OnceLock<Crs> = std::sync::OnceLock::new();
+    WGS84.get_or_init(|| Crs::from_epsg(4326).expect("PROJ's database has EPSG:4326"))
+}
 
 impl Crs {
-    /// The CRS of an EPSG code, with its PROJ string and WKT.
-    pub fn from_epsg(code: u32) -> anyhow::Result<Self> {
-        let def = u16::try_from(code)
-            .ok()
-            .and_then(crs_definitions::from_code)
-            .ok_or_else(|| anyhow!("EPSG:{code} is not a CRS this build knows"))?;
-        let proj = Proj::from_proj_string(def.proj4)
-            .map_err(|e| anyhow!("EPSG:{code} ({}): {e}", def.proj4))?;
+    /// Any definition PROJ reads: `EPSG:CODE` (and other authorities' `AUTH:CODE`),
+    /// a compound `EPSG:4326+5773`, WKT 1 or 2 (GDAL's or ESRI's), PROJJSON, or a
+    /// PROJ string. The error is PROJ's, with the definition (shortened) in front.
+    pub fn from_definition(definition: &str) -> anyhow::Result<Self> {
+        let trimmed = definition.trim();
+        // PROJ reads a bare PROJ string as an operation; `+type=crs` makes it the CRS
+        // users (and PROJ.4-era files) mean, as GDAL's importFromProj4 does.
+        let typed;
+        let definition = if trimmed.starts_with('+') && !trimmed.contains("+type=crs") {
+            typed = format!("{trimmed} +type=crs");
+            typed.as_str()
+        } else {
+            trimmed
+        };
+        let d = proj::describe(definition).map_err(|e| anyhow!("{}: {e}", shorten(definition)))?;
+        let epsg =
+            d.id.as_ref()
+                .filter(|(auth, _)| auth.eq_ignore_ascii_case("EPSG"))
+                .and_then(|(_, code)| code.parse().ok());
         Ok(Self {
-            proj,
-            epsg: Some(code),
-            proj_string: def.proj4.to_string(),
-            wkt: Some(def.wkt.to_string()),
+            definition: definition.to_string(),
+            key: xxhash_rust::xxh3::xxh3_64(definition.as_bytes()),
+            epsg,
+            name: d
+                .name
+                .filter(|n| !n.is_empty() && n != "unknown" && n != "unnamed"),
+            proj_string: d.proj_string.unwrap_or_default(),
+            wkt: d.wkt,
+            radii: d
+                .radii
+                .filter(|&(a, b)| a.is_finite() && b.is_finite() && b > 0.0 && b <= a),
+            geographic: d.geographic,
+            has_vertical: d.has_vertical,
+        })
+    }
+
+    /// The CRS of an EPSG code.
+    pub fn from_epsg(code: u32) -> anyhow::Result<Self> {
+        // PROJ's own words for a missing code are "Unknown error (code 4096)".
+        Self::from_definition(&format!("EPSG:{code}")).map_err(|_| {
+            anyhow!(
+                "EPSG:{code} is not a CRS in PROJ's database ({})",
+                proj_version_text()
+            )
         })
     }
 
     /// A CRS from a PROJ string (`+proj=…`).
     pub fn from_proj_string(s: &str) -> anyhow::Result<Self> {
-        let proj = Proj::from_proj_string(s).map_err(|e| anyhow!("PROJ string {s:?}: {e}"))?;
-        Ok(Self {
-            proj,
-            epsg: None,
-            proj_string: s.to_string(),
-            wkt: None,
+        Self::from_definition(s).map_err(|e| anyhow!("PROJ string {s:?}: {e}"))
+    }
+
+    /// What users write on the command line: `EPSG:CODE`, `AUTH:CODE`, a PROJ string
+    /// or a WKT (see [`Crs::from_definition`]).
+    pub fn parse(s: &str) -> anyhow::Result<Self> {
+        let t = s.trim();
+        if let Some(code) = t.strip_prefix("EPSG:").or_else(|| t.strip_prefix("epsg:"))
+            && !code.contains('+')
+        {
+            let code: u32 = code
+                .parse()
+                .map_err(|_| anyhow!("{s:?}: EPSG code is not a number"))?;
+            return Self::from_epsg(code);
+        }
+        // PROJ would also take a bare name ("moon" is ESRI's GCS_Moon_2000): too
+        // easy to get by mistake on a command line, so only definitions are read.
+        let definition_like =
+            t.starts_with('+') || t.starts_with('{') || t.contains('[') || t.contains(':');
+        if !definition_like {
+            bail!(
+                "{s:?} is neither EPSG:CODE nor a PROJ string (+proj=…) nor a WKT \
+                 (AUTH:CODE and PROJJSON are read too)"
+            );
+        }
+        Self::from_definition(t).map_err(|e| {
+            anyhow!("{e} (want EPSG:CODE, AUTH:CODE, a PROJ string (+proj=…) or a WKT)")
         })
     }
 
-    /// `EPSG:CODE` or a PROJ string, as users write them on the command line.
-    pub fn parse(s: &str) -> anyhow::Result<Self> {
-        let t = s.trim();
-        if let Some(code) = t.strip_prefix("EPSG:").or_else(|| t.strip_prefix("epsg:")) {
-            let code: u32 = code
-                .parse()
-                .with_context(|| format!("{s:?}: EPSG code is not a number"))?;
-            return Self::from_epsg(code);
-        }
-        if t.starts_with('+') {
-            return Self::from_proj_string(t);
-        }
-        bail!("{s:?} is neither EPSG:CODE nor a PROJ string (+proj=…)")
-    }
-
-    /// The CRS a GeoRef names: by EPSG code, else by its PROJ string.
+    /// The CRS a GeoRef names: by EPSG code, else by its PROJ string, else by its
+    /// WKT. The PROJ string first: PROJ 9.1 finds no operation out of some WKTs that
+    /// it reads (a GDAL WKT 1 of the Moon's sphere, whose prime meridian is named
+    /// "Reference meridian"), where the PROJ string it exports for the same CRS works.
     pub fn of(georef: &GeoRef) -> Option<Self> {
         if let Some(c) = georef.epsg
             && let Ok(crs) = Self::from_epsg(c)
         {
             return Some(crs);
         }
-        georef
-            .proj
-            .as_deref()
-            .and_then(|p| Self::from_proj_string(p).ok())
+        [georef.proj.as_deref(), georef.wkt.as_deref()]
+            .into_iter()
+            .flatten()
+            .find_map(|d| Self::from_definition(d).ok())
     }
 
+    /// The EPSG code, when the definition names one or PROJ identifies it as one
+    /// with full confidence.
     pub fn epsg(&self) -> Option<u32> {
         self.epsg
+    }
+
+    /// The definition as given to PROJ.
+    pub fn definition(&self) -> &str {
+        &self.definition
     }
 
     pub fn proj_string(&self) -> &str {
@@ -103,12 +168,18 @@ impl Crs {
         self.wkt.as_deref()
     }
 
+    /// Whether the CRS says what heights are measured from (a compound CRS such as
+    /// `EPSG:4326+5773`, or a 3-D geographic CRS such as `EPSG:4979`).
+    pub fn has_vertical(&self) -> bool {
+        self.has_vertical
+    }
+
     /// The semi-axes `(equatorial, polar)` in metres of the ellipsoid (or sphere) this
-    /// CRS's coordinates are on, as the projection library parsed them: WGS 84's
+    /// CRS's coordinates are on, as PROJ reads the definition: WGS 84's
     /// `(6 378 137, 6 356 752.314…)` for EPSG:4326, `(1 737 400, 1 737 400)` for the
     /// Moon's `+proj=longlat +R=1737400`, whatever `+ellps`/`+datum`/`+a`/`+b`/`+rf`/`+R`
-    /// the definition uses. `None` only if the library's values are not a usable
-    /// ellipsoid (non-finite, non-positive, or polar > equatorial).
+    /// or WKT `ELLIPSOID` the definition uses. `None` only if the values are not a
+    /// usable ellipsoid (non-finite, non-positive, or polar > equatorial).
     ///
     /// ```
     /// use tessera_server::crs::Crs;
@@ -120,8 +191,7 @@ impl Crs {
     /// assert!((b - 6_356_752.314_245).abs() < 1e-3);
     /// ```
     pub fn body_radii(&self) -> Option<(f64, f64)> {
-        let (a, b) = self.proj.ellipse_parameters();
-        (a.is_finite() && b.is_finite() && b > 0.0 && b <= a).then_some((a, b))
+        self.radii
     }
 
     /// Longitude/latitude (degrees) on this CRS's own ellipsoid, with no datum shift:
@@ -130,26 +200,37 @@ impl Crs {
     fn own_geographic(&self) -> anyhow::Result<Self> {
         let (a, b) = self
             .body_radii()
-            .ok_or_else(|| anyhow!("the CRS {} has no usable ellipsoid", self.proj_string))?;
-        Self::from_proj_string(&format!("+proj=longlat +a={a} +b={b} +no_defs"))
+            .ok_or_else(|| anyhow!("the CRS {} has no usable ellipsoid", self.label()))?;
+        Self::from_proj_string(&format!("+proj=longlat +a={a} +b={b} +no_defs +type=crs"))
     }
 
     /// Whether coordinates are longitude/latitude (degrees).
     pub fn is_geographic(&self) -> bool {
-        self.proj.is_latlong()
+        self.geographic
     }
 
-    /// The CRS's name as its WKT gives it (`PROJCS["NAME",…` / `GEOGCS["NAME",…`).
+    /// The CRS's name as PROJ gives it ("CH1903+ / LV95").
     pub fn name(&self) -> Option<String> {
-        let wkt = self.wkt.as_deref()?;
-        let start = wkt.find("[\"")? + 2;
-        let len = wkt[start..].find('"')?;
-        Some(wkt[start..start + len].to_string())
+        self.name.clone()
     }
 
-    /// Fills a GeoRef's CRS texts (PROJ string, WKT, name) from the library.
+    /// How messages name the CRS: `EPSG:CODE (name)`, the name, or the definition.
+    pub fn label(&self) -> String {
+        match (self.epsg, &self.name) {
+            (Some(c), Some(n)) => format!("EPSG:{c} ({n})"),
+            (Some(c), None) => format!("EPSG:{c}"),
+            (None, Some(n)) => n.clone(),
+            (None, None) => shorten(&self.definition),
+        }
+    }
+
+    /// Fills a GeoRef's CRS texts (EPSG code when identified, PROJ string, WKT, name)
+    /// from the library.
     pub fn describe(&self, georef: &mut GeoRef) {
-        georef.proj = Some(self.proj_string.clone());
+        if georef.epsg.is_none() {
+            georef.epsg = self.epsg;
+        }
+        georef.proj = (!self.proj_string.is_empty()).then(|| self.proj_string.clone());
         georef.wkt.clone_from(&self.wkt);
         if georef.crs_name.is_none() {
             georef.crs_name = self.name();
@@ -158,50 +239,48 @@ impl Crs {
 
     /// `(x, y)` of this CRS → `[lon, lat]` in degrees on WGS 84.
     pub fn to_lon_lat(&self, x: f64, y: f64) -> anyhow::Result<[f64; 2]> {
-        let wgs84 = wgs84();
-        let mut p = self.input(x, y);
-        proj4rs::transform::transform(&self.proj, &wgs84, &mut p)
-            .map_err(|e| anyhow!("cannot transform ({x}, {y}) to WGS 84: {e}"))?;
-        Ok([p.0.to_degrees(), p.1.to_degrees()])
+        self.transform_to(wgs84(), x, y)
+            .map_err(|e| anyhow!("cannot transform ({x}, {y}) to WGS 84: {e}"))
     }
 
     /// `[lon, lat]` in degrees on WGS 84 → `(x, y)` of this CRS.
     pub fn from_lon_lat(&self, lon: f64, lat: f64) -> anyhow::Result<[f64; 2]> {
-        let wgs84 = wgs84();
-        let mut p = (lon.to_radians(), lat.to_radians(), 0.0);
-        proj4rs::transform::transform(&wgs84, &self.proj, &mut p)
-            .map_err(|e| anyhow!("cannot transform ({lon}°, {lat}°) from WGS 84: {e}"))?;
-        Ok(self.output(p))
+        wgs84()
+            .transform_to(self, lon, lat)
+            .map_err(|e| anyhow!("cannot transform ({lon}°, {lat}°) from WGS 84: {e}"))
     }
 
     /// `(x, y)` of this CRS → `(x, y)` of `to`.
     pub fn transform_to(&self, to: &Crs, x: f64, y: f64) -> anyhow::Result<[f64; 2]> {
-        let mut p = self.input(x, y);
-        proj4rs::transform::transform(&self.proj, &to.proj, &mut p)
+        let mut p = [[x, y, 0.0]];
+        self.transform_points(to, &mut p)
             .map_err(|e| anyhow!("cannot transform ({x}, {y}): {e}"))?;
-        Ok(to.output(p))
+        Ok([p[0][0], p[0][1]])
     }
 
-    /// proj4rs works in radians for geographic CRSs.
-    fn input(&self, x: f64, y: f64) -> (f64, f64, f64) {
-        if self.is_geographic() {
-            (x.to_radians(), y.to_radians(), 0.0)
-        } else {
-            (x, y, 0.0)
-        }
-    }
-
-    fn output(&self, p: (f64, f64, f64)) -> [f64; 2] {
-        if self.is_geographic() {
-            [p.0.to_degrees(), p.1.to_degrees()]
-        } else {
-            [p.0, p.1]
-        }
+    /// Transforms many `(x, y, z)` at once (one PROJ call). Points PROJ cannot
+    /// transform become NaN, and the error says how many; the others are done.
+    pub fn transform_points(&self, to: &Crs, points: &mut [[f64; 3]]) -> anyhow::Result<()> {
+        proj::transform(
+            (self.key, &self.definition),
+            (to.key, &to.definition),
+            points,
+        )
+        .map_err(|e| anyhow!("{} → {}: {e}", self.label(), to.label()))
     }
 }
 
-fn wgs84() -> Proj {
-    Proj::from_proj_string(WGS84).expect("the WGS 84 PROJ string parses")
+fn proj_version_text() -> String {
+    format!("PROJ {}", proj_version())
+}
+
+/// A definition cut to its first 80 characters, for messages (a WKT is long).
+fn shorten(definition: &str) -> String {
+    let one_line: String = definition.split_whitespace().collect::<Vec<_>>().join(" ");
+    match one_line.char_indices().nth(80) {
+        Some((i, _)) => format!("{}…", &one_line[..i]),
+        None => one_line,
+    }
 }
 
 /// Metres on the ground between neighbouring samples at the DEM's centre, in x
