@@ -47,6 +47,13 @@ impl std::fmt::Debug for Crs {
     }
 }
 
+/// Two CRSs are equal when PROJ is given the same definition.
+impl PartialEq for Crs {
+    fn eq(&self, other: &Self) -> bool {
+        self.definition == other.definition
+    }
+}
+
 /// WGS 84 longitude/latitude (EPSG:4326), the pivot of [`Crs::to_lon_lat`].
 fn wgs84() -> &'static Crs {
     static WGS84: std::sync::OnceLock<Crs> = std::sync::OnceLock::new();

@@ -232,8 +232,50 @@ pub fn open_regular(path: &Path) -> anyhow::Result<(std::fs::File, std::fs::Meta
     Ok((file, meta))
 }
 
-/// Opens a raster file (not a VRT): its reader and its format's name.
+/// Opens a raster file (not a VRT): its reader and its format's name. A file that
+/// states a geotransform but no CRS takes one from a `.prj` beside it
+/// ([`sidecar_crs`]).
 pub fn open_raster(path: &Path) -> anyhow::Result<(Box<dyn RowSource>, &'static str)> {
+    let (reader, format) = open_raster_file(path)?;
+    Ok((sidecar_crs(reader, path)?, format))
+}
+
+/// The largest `.prj` read: a WKT is a few kilobytes.
+const MAX_PRJ_BYTES: u64 = 1 << 20;
+
+/// ESRI's `.prj` sidecar (`dem.prj` beside `dem.tif`; one WKT, often ESRI's dialect),
+/// for an input whose own file has a geotransform but names no CRS PROJ can read.
+/// GDAL reads `.prj` for ESRI's formats; we read it for every format, since a
+/// GeoTIFF or world-file PNG without CRS keys next to one means just that. A `.prj`
+/// PROJ cannot read is an error naming it: a silently ignored CRS would misplace the
+/// DEM.
+pub fn sidecar_crs(reader: Box<dyn RowSource>, path: &Path) -> anyhow::Result<Box<dyn RowSource>> {
+    let Some(g) = reader.info().georef.as_ref() else {
+        return Ok(reader);
+    };
+    if g.epsg.is_some() || g.proj.is_some() || g.wkt.is_some() {
+        return Ok(reader);
+    }
+    let Some(prj) = ["prj", "PRJ"]
+        .iter()
+        .map(|e| path.with_extension(e))
+        .find(|p| p.is_file())
+    else {
+        return Ok(reader);
+    };
+    let name = prj.display().to_string();
+    let len = std::fs::metadata(&prj).with_context(|| name.clone())?.len();
+    if len > MAX_PRJ_BYTES {
+        bail!("{name}: {len} bytes is too large for a .prj (a WKT is a few kilobytes)");
+    }
+    let text = std::fs::read_to_string(&prj).with_context(|| format!("{name}: cannot read"))?;
+    let crs = crate::crs::Crs::from_definition(&text)
+        .with_context(|| format!("{name}: PROJ cannot read this .prj as a CRS"))?;
+    tracing::info!(input = %path.display(), crs = crs.label(), "CRS from the .prj sidecar");
+    assign::assign(reader, Some(&crs), None, &path.display().to_string())
+}
+
+fn open_raster_file(path: &Path) -> anyhow::Result<(Box<dyn RowSource>, &'static str)> {
     let (mut file, meta) = open_regular(path)?;
     if meta.len() == 0 {
         bail!("input file is empty");

@@ -46,8 +46,8 @@ pub struct Vrt {
     pub height: u32,
     /// The `GeoTransform` (GDAL's six coefficients, pixel corners), if any.
     pub geotransform: Option<[f64; 6]>,
-    /// The EPSG code the `SRS` names (WKT `AUTHORITY`/`ID` at its top level, or `EPSG:n`).
-    pub srs_epsg: Option<u32>,
+    /// The CRS the `SRS` names, as PROJ reads it.
+    pub srs: Option<crate::crs::Crs>,
     /// `AREA_OR_POINT` from the dataset's metadata: `Some(true)` for `Point`.
     pub pixel_is_point: Option<bool>,
     /// The band's `NoDataValue`.
@@ -120,13 +120,13 @@ impl Vrt {
         };
         let (width, height) = (size("rasterXSize")?, size("rasterYSize")?);
         let mut geotransform = None;
-        let mut srs_epsg = None;
+        let mut srs = None;
         let mut pixel_is_point = None;
         let mut bands = Vec::new();
         for child in root.children().filter(roxmltree::Node::is_element) {
             match child.tag_name().name() {
                 "GeoTransform" => geotransform = Some(parse_geotransform(text_of(child))?),
-                "SRS" => srs_epsg = srs_epsg_code(text_of(child)),
+                "SRS" => srs = srs_crs(text_of(child)),
                 "Metadata" if child.attribute("domain").is_none_or(str::is_empty) => {
                     for mdi in child.children().filter(|n| n.has_tag_name("MDI")) {
                         if mdi.attribute("key") == Some("AREA_OR_POINT") {
@@ -177,7 +177,7 @@ impl Vrt {
             width,
             height,
             geotransform,
-            srs_epsg,
+            srs,
             pixel_is_point,
             nodata,
             sources,
@@ -223,46 +223,20 @@ fn parse_geotransform(text: &str) -> anyhow::Result<[f64; 6]> {
     Ok(gt)
 }
 
-/// The EPSG code an `SRS` names: `EPSG:n`, or the `AUTHORITY["EPSG","n"]` (WKT 1) or
-/// `ID["EPSG",n]` (WKT 2) at the top level of a WKT string.
-fn srs_epsg_code(srs: &str) -> Option<u32> {
-    let s = srs.trim();
-    if let Some(code) = s.strip_prefix("EPSG:").or_else(|| s.strip_prefix("epsg:")) {
-        return code.trim().parse().ok();
+/// The CRS an `SRS` names (`EPSG:n`, WKT 1 or 2, a PROJ string: whatever GDAL
+/// writes there), read by PROJ. An SRS PROJ cannot read is a warning and no CRS.
+fn srs_crs(srs: &str) -> Option<crate::crs::Crs> {
+    let t = srs.trim();
+    if t.is_empty() {
+        return None;
     }
-    // Walk the WKT, remembering the last AUTHORITY/ID whose bracket opens at depth 1
-    // (inside the outermost keyword).
-    let bytes = s.as_bytes();
-    let (mut depth, mut in_quote, mut last) = (0usize, false, None);
-    let mut word_start = 0;
-    for (i, &b) in bytes.iter().enumerate() {
-        match b {
-            b'"' => in_quote = !in_quote,
-            _ if in_quote => {}
-            b'[' | b'(' => {
-                let word = s[word_start..i].trim();
-                if depth == 1 && (word == "AUTHORITY" || word == "ID") {
-                    last = Some(i + 1);
-                }
-                depth += 1;
-            }
-            b']' | b')' => depth = depth.saturating_sub(1),
-            b',' => word_start = i + 1,
-            _ => {}
-        }
-        if matches!(b, b'[' | b'(' | b']' | b')') {
-            word_start = i + 1;
+    match crate::crs::Crs::from_definition(t) {
+        Ok(c) => Some(c),
+        Err(e) => {
+            tracing::warn!("ignoring the VRT's <SRS>, which PROJ cannot read: {e:#}");
+            None
         }
     }
-    let inner = &s[last?..];
-    let inner = &inner[..inner.find([']', ')'])?];
-    let mut parts = inner.split(',').map(|p| p.trim().trim_matches('"'));
-    let authority = parts.next()?;
-    let code = parts.next()?;
-    authority
-        .eq_ignore_ascii_case("EPSG")
-        .then(|| code.parse().ok())
-        .flatten()
 }
 
 fn rect(node: roxmltree::Node, what: &str) -> anyhow::Result<Rect> {
@@ -402,7 +376,7 @@ mod tests {
     fn reads_what_gdalbuildvrt_writes() {
         let v = Vrt::parse(BUILT, Path::new("/tiles")).unwrap();
         assert_eq!((v.width, v.height), (601, 601));
-        assert_eq!(v.srs_epsg, Some(4326));
+        assert_eq!(v.srs.as_ref().and_then(crate::crs::Crs::epsg), Some(4326));
         assert_eq!(v.nodata, Some(-32767.0));
         assert_eq!(v.pixel_is_point, None);
         let gt = v.geotransform.unwrap();
@@ -423,16 +397,22 @@ mod tests {
     }
 
     #[test]
-    fn epsg_codes_come_from_the_top_level_authority() {
-        assert_eq!(srs_epsg_code("EPSG:32611"), Some(32611));
-        let wkt2 = r#"PROJCRS["CH1903+ / LV95",BASEGEOGCRS["CH1903+",ID["EPSG",4150]],CONVERSION["x",ID["EPSG",19950]],ID["EPSG",2056]]"#;
-        assert_eq!(srs_epsg_code(wkt2), Some(2056));
-        // Only nested authorities: no code for the CRS itself.
-        assert_eq!(
-            srs_epsg_code(r#"GEOGCS["x",DATUM["d",AUTHORITY["EPSG","6326"]]]"#),
-            None
+    fn the_srs_is_read_by_proj_in_any_form_gdal_writes() {
+        let code = |srs: &str| srs_crs(srs).and_then(|c| c.epsg());
+        assert_eq!(code("EPSG:32611"), Some(32611));
+        // GDAL's WKT 1 and PROJ's WKT 2 of LV95 name the code at the top level.
+        let lv95 = crate::crs::Crs::from_epsg(2056).unwrap();
+        assert_eq!(code(lv95.wkt().unwrap()), Some(2056));
+        // A user-defined WKT (no code anywhere) is still a CRS: olinda's, as GDAL writes it.
+        let utm = r#"PROJCS["UTM Zone 25, Southern Hemisphere",GEOGCS["GRS 1980(IUGG, 1980)",DATUM["unknown",SPHEROID["GRS80",6378137,298.257222101],TOWGS84[0,0,0,0,0,0,0]],PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",-33],PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],PARAMETER["false_northing",10000000],UNIT["metre",1]]"#;
+        let c = srs_crs(utm).unwrap();
+        let [lon, lat] = c.to_lon_lat(500_000.0, 9_000_000.0).unwrap();
+        assert!(
+            (lon + 33.0).abs() < 1e-9 && (lat + 9.04).abs() < 0.01,
+            "{lon} {lat}"
         );
-        assert_eq!(srs_epsg_code("+proj=longlat +datum=WGS84"), None);
+        assert!(srs_crs("+proj=longlat +datum=WGS84").is_some_and(|c| c.is_geographic()));
+        assert!(srs_crs("not a CRS").is_none() && srs_crs("  ").is_none());
     }
 
     fn with_source(body: &str) -> String {

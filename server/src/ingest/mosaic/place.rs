@@ -110,9 +110,13 @@ pub(super) fn vrt_group(path: &Path, nodata: Option<f64>, opener: Opener) -> any
         bail!("{vrt_name}: no source draws anything inside the VRT");
     }
     // The CRS is the one our readers find in the sources; the VRT gives the grid.
+    // Sources that name no CRS PROJ can read (none, or only a name) take the VRT's.
+    let crs = crs
+        .filter(|g| vrt.srs.is_none() || g.epsg.is_some() || g.proj.is_some() || g.wkt.is_some());
     let georef = match (vrt.geotransform, crs) {
         (Some(geotransform), Some(crs)) => {
-            if let (Some(vrt_code), Some(src_code)) = (vrt.srs_epsg, crs.epsg)
+            if let (Some(vrt_code), Some(src_code)) =
+                (vrt.srs.as_ref().and_then(crate::crs::Crs::epsg), crs.epsg)
                 && vrt_code != src_code
             {
                 bail!(
@@ -130,6 +134,24 @@ pub(super) fn vrt_group(path: &Path, nodata: Option<f64>, opener: Opener) -> any
                 raster_type,
                 ..crs
             })
+        }
+        // Sources with no CRS of their own take the VRT's SRS, as GDAL reads it.
+        (Some(geotransform), None) if vrt.srs.is_some() => {
+            let srs = vrt.srs.as_ref().expect("checked");
+            let mut g = GeoRef {
+                epsg: srs.epsg(),
+                crs_name: None,
+                proj: None,
+                wkt: None,
+                geotransform,
+                raster_type: if vrt.pixel_is_point == Some(true) {
+                    RasterType::PixelIsPoint
+                } else {
+                    RasterType::PixelIsArea
+                },
+            };
+            srs.describe(&mut g);
+            Some(g)
         }
         (Some(_), None) => {
             tracing::warn!(
