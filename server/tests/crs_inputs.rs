@@ -4,6 +4,8 @@
 //! spacing against PROJ's own `proj -S` scale factor, the CRS `info` names against
 //! `gdalsrsinfo`, the same georeferencing as the file that states its EPSG code.
 
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
 mod gdal;
 
 use gdal::{gdal_or_skip, path_str, run};
