@@ -40,10 +40,12 @@ enum Command {
     ///
     /// Several inputs make one mosaic: `build A.tif B.tif`, `build DIR/` (its .tif, .tiff,
     /// .hgt and .png files, sorted), `build 'tiles/*.hgt'` (a quoted glob, sorted), `build
-    /// --inputs LIST.txt`, or a VRT. Inputs must share a CRS and a grid (same spacing,
-    /// origins on one lattice); samples no input covers are no-data, and so is each
-    /// input's own no-data value. Inputs are opened only while the rows being read cross
-    /// them.
+    /// --inputs LIST.txt`, or a VRT. Inputs on one grid (one CRS, spacing and lattice)
+    /// are copied as they are. Inputs on different grids (other CRSs, spacings or
+    /// lattices) are resampled onto one: the CRS, spacing and lattice of the finest input
+    /// (or --to, --spacing), with --resampling; where they overlap the finest wins
+    /// (--overlap). Samples no input covers are no-data, and so is each input's own
+    /// no-data value. Inputs are opened only while the rows being read cross them.
     ///
     /// Distributed build (e.g. a Kubernetes Indexed Job): `build INPUT --part K/N -o PARTS/`
     /// in N processes, one per K, then `build --assemble PARTS/ -o OUT.tess` once. The
@@ -62,9 +64,11 @@ enum Command {
         #[arg(long = "inputs", value_name = "LIST")]
         inputs_list: Option<PathBuf>,
         /// Where overlapping inputs disagree (two valid samples differ): the input given
-        /// first wins, the last wins, or the build stops naming the sample and both files.
-        #[arg(long, value_enum, default_value_t = Overlap::Error)]
-        overlap: Overlap,
+        /// first wins, the last wins, the one with the finest ground spacing wins (ties by
+        /// order), or the build stops naming the sample and both files. Default: error for
+        /// inputs on one grid, finest for inputs on different grids.
+        #[arg(long, value_enum)]
+        overlap: Option<Overlap>,
         /// The pyramid file to write (e.g. dem.tess). Written to a temporary file beside
         /// it and renamed into place only when complete and verified. Or an object URL
         /// (s3://BUCKET/KEY.tess, gs://, az://; credentials from the AWS_*, GOOGLE_* or
@@ -136,12 +140,14 @@ enum Command {
         /// or a PROJ string), resampling onto a north-up grid that covers the input.
         #[arg(long, value_name = "CRS")]
         to: Option<String>,
-        /// How --to computes output samples.
-        #[arg(long, value_enum, default_value_t = Resampling::Bilinear, requires = "to")]
+        /// How --to, and inputs on different grids, compute output samples (GDAL's
+        /// bilinear, cubic and nearest).
+        #[arg(long, value_enum, default_value_t = Resampling::Bilinear)]
         resampling: Resampling,
-        /// Output spacing for --to in the target CRS's units, X or X,Y (default: the
-        /// input's resolution at its centre).
-        #[arg(long, value_name = "X[,Y]", value_parser = parse_spacing, requires = "to")]
+        /// Output spacing in the target CRS's units, X or X,Y, for --to (default: the
+        /// input's resolution at its centre) and for inputs on different grids
+        /// (default: the finest input's).
+        #[arg(long, value_name = "X[,Y]", value_parser = parse_spacing)]
         spacing: Option<[f64; 2]>,
         /// Memory budget, e.g. 512MiB, 2GiB, 300MB.
         #[arg(long, default_value = "512MiB", value_parser = parse_memory)]
@@ -339,6 +345,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     spacing,
                 }),
                 overlap,
+                resampling,
+                spacing,
                 progress: !quiet,
                 interrupt: Interrupt::install().context("cannot watch SIGINT/SIGTERM")?,
             };

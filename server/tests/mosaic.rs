@@ -12,8 +12,10 @@
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
 mod gdal;
+mod raster_support;
 
 use gdal::gdal_or_skip;
+use raster_support::finest_samples;
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -360,40 +362,98 @@ fn pieces_with_their_own_nodata_values_mix() {
     assert_same_pyramid(&reference, &out);
 }
 
+/// The finest samples of `out` over the window of `w × h` samples at `(x0, y0)`.
+fn window(out: &Path, x0: u32, y0: u32, w: u32, h: u32) -> Vec<f32> {
+    let p = Pyramid::open_file(out).unwrap();
+    let all = finest_samples(&p);
+    let width = p.metadata().width;
+    (y0..y0 + h)
+        .flat_map(|y| (x0..x0 + w).map(move |x| (x, y)))
+        .map(|(x, y)| all[(y * width + x) as usize])
+        .collect()
+}
+
+/// A piece labelled ETRS89 (EPSG:4258) beside one in WGS 84: another CRS, so it is
+/// resampled onto the first's grid. PROJ's ETRS89 → WGS 84 is the null
+/// transformation, so every sample lands on itself and the mosaic equals the one of
+/// the two original pieces.
 #[test]
-fn mismatched_crs_is_a_one_line_error() {
+fn a_piece_in_another_crs_is_resampled_onto_the_first_grid() {
     let Some(cut) = Cut::new() else { return };
     let other = cut.path("etrs89.tif");
     gdal_translate(&["-a_srs", "EPSG:4258"], cut.piece(0, 1), &other);
-    let out = cut.path("out.tess");
-    let o = build(&[cut.piece(0, 0), &other], &out, &[]);
-    assert_clean_failure(
-        &o,
-        &["N46E008_r0_c0.tif", "etrs89.tif"],
-        "different CRS (EPSG:4326 vs EPSG:4258)",
-        &out,
+    let (mixed, same) = (cut.path("mixed.tess"), cut.path("same.tess"));
+    build_ok(&[cut.piece(0, 0), &other], &mixed, &[]);
+    build_ok(&[cut.piece(0, 0), cut.piece(0, 1)], &same, &[]);
+    let (a, b) = (
+        window(&mixed, 0, 0, 601, 301),
+        window(&same, 0, 0, 601, 301),
+    );
+    let q = Pyramid::open_file(&mixed)
+        .unwrap()
+        .metadata()
+        .quantization
+        .max_error
+        + Pyramid::open_file(&same)
+            .unwrap()
+            .metadata()
+            .quantization
+            .max_error;
+    let worst = a
+        .iter()
+        .zip(&b)
+        .filter(|(x, y)| !x.is_nan() && !y.is_nan())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max);
+    assert!(
+        f64::from(worst) <= q + 1e-3,
+        "{worst} m apart (quantization {q})"
     );
 }
 
+/// A coarser piece (0.001°) beside a 3″ one: the mosaic is on the 3″ grid, the fine
+/// piece copied sample for sample (it wins where they overlap), the coarse one
+/// resampled.
 #[test]
-fn mismatched_spacing_is_a_one_line_error() {
+fn a_coarser_piece_is_resampled_and_the_finer_wins() {
     let Some(cut) = Cut::new() else { return };
     let coarse = cut.path("coarse.tif");
     gdal_translate(&["-tr", "0.001", "0.001"], cut.piece(0, 1), &coarse);
     let out = cut.path("out.tess");
-    let o = build(&[cut.piece(0, 0), &coarse], &out, &[]);
-    assert_clean_failure(
-        &o,
-        &["N46E008_r0_c0.tif", "coarse.tif"],
-        "different spacing",
-        &out,
+    build_ok(&[&coarse, cut.piece(0, 0)], &out, &[]);
+    let p = Pyramid::open_file(&out).unwrap();
+    let gt = p.metadata().georef.as_ref().unwrap().geotransform;
+    assert!((gt[1] - 1.0 / 1200.0).abs() < 1e-15, "{gt:?}");
+    let alone = cut.path("alone.tess");
+    build_ok(&[cut.piece(0, 0)], &alone, &[]);
+    // Piece (0, 0) is the mosaic's west part, its column 300 shared with the coarse.
+    let x0 = ((7.999_583_333_333_334 - gt[0]) * 1200.0).round() as u32;
+    let y0 = ((gt[3] - 47.000_416_666_666_666) * 1200.0).round() as u32;
+    let (a, b) = (
+        window(&out, x0, y0, SIDE, SIDE),
+        window(&alone, 0, 0, SIDE, SIDE),
     );
+    let q = p.metadata().quantization.max_error
+        + Pyramid::open_file(&alone)
+            .unwrap()
+            .metadata()
+            .quantization
+            .max_error;
+    // Where the fine piece has data it is copied; in its voids the coarse one may show.
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert!(
+            y.is_nan() || f64::from((x - y).abs()) <= q + 1e-4,
+            "sample {i}: {x} vs {y}"
+        );
+    }
 }
 
+/// A piece whose origin is half a cell off the first's lattice is resampled onto it:
+/// a sample between two of its samples is their mean (bilinear).
 #[test]
-fn an_origin_off_the_lattice_is_a_one_line_error() {
+fn a_piece_off_the_lattice_is_resampled_onto_it() {
     let Some(cut) = Cut::new() else { return };
-    // Piece (0, 1) moved east by half a cell: corners 8.25 − 1/2400 + 1/2400 ….
+    // Piece (0, 1) moved east by half a cell.
     let cell = 1.0 / 1200.0;
     let west = 8.0 - cell / 2.0 + f64::from(STEP) * cell + cell / 2.0;
     let north = 47.0 + cell / 2.0;
@@ -409,14 +469,36 @@ fn an_origin_off_the_lattice_is_a_one_line_error() {
     let shifted = cut.path("shifted.tif");
     gdal_translate(&args, cut.piece(0, 1), &shifted);
     let out = cut.path("out.tess");
-    let o = build(&[cut.piece(0, 0), &shifted], &out, &[]);
-    let line = assert_clean_failure(
-        &o,
-        &["N46E008_r0_c0.tif", "shifted.tif"],
-        "not on the same lattice",
-        &out,
+    build_ok(&[cut.piece(0, 0), &shifted], &out, &["--overlap", "first"]);
+    let p = Pyramid::open_file(&out).unwrap();
+    let q = p.metadata().quantization.max_error;
+    let (_, _, src) = raster_support::read_raster(&shifted);
+    // Mosaic column 300 + c + 1 lies between the shifted piece's columns c and c + 1.
+    let (row, c) = (100u32, 150u32);
+    let a = src[(row * SIDE + c) as usize];
+    let b = src[(row * SIDE + c + 1) as usize];
+    let got = window(&out, STEP + c + 1, row, 1, 1)[0];
+    assert!(!a.is_nan() && !b.is_nan());
+    assert!(
+        f64::from((got - f32::midpoint(a, b)).abs()) <= q + 1e-3,
+        "{got} vs mean of {a} and {b}"
     );
-    assert!(line.contains("0.500000"), "{line}");
+}
+
+/// Inputs on different grids need each CRS identified: an engineering CRS (GDAL's
+/// LOCAL_CS) cannot be resampled onto the other's grid.
+#[test]
+fn an_unidentified_crs_on_another_grid_is_a_one_line_error() {
+    let Some(cut) = Cut::new() else { return };
+    let local = cut.path("local.tif");
+    gdal_translate(
+        &["-a_srs", "LOCAL_CS[\"arbitrary\"]", "-tr", "0.001", "0.001"],
+        cut.piece(0, 1),
+        &local,
+    );
+    let out = cut.path("out.tess");
+    let o = build(&[cut.piece(0, 0), &local], &out, &[]);
+    assert_clean_failure(&o, &["local.tif"], "cannot be identified", &out);
 }
 
 #[test]

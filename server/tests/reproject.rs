@@ -8,12 +8,14 @@
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
 mod gdal;
+mod raster_support;
 
+use raster_support::{finest_samples, read_raster, steepest};
 use std::path::Path;
 use std::process::Command;
 use tessera_server::crs::Crs;
 use tessera_server::ingest::{self, Input};
-use tessera_shared::{FileSource, Pyramid, testdata};
+use tessera_shared::{Pyramid, testdata};
 
 fn build(input: &Path, out: &Path, to: &str) {
     let o = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
@@ -24,59 +26,6 @@ fn build(input: &Path, out: &Path, to: &str) {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-}
-
-/// Samples of a raster file read with our own reader (NaN for its no-data).
-fn read_raster(path: &Path) -> (u32, u32, Vec<f32>) {
-    let Input::Rows(mut rows) = ingest::open(path.to_str().unwrap()).unwrap() else {
-        panic!("not a file");
-    };
-    let info = rows.info().clone();
-    let mut v = vec![0f32; (info.width * info.height) as usize];
-    rows.read_rows(&mut v).unwrap();
-    if let Some(nd) = info.nodata {
-        for s in &mut v {
-            if f64::from(*s) == nd {
-                *s = f32::NAN;
-            }
-        }
-    }
-    (info.width, info.height, v)
-}
-
-/// The pyramid's finest samples in metres; NaN where no terrain cell touches them.
-fn finest_samples(p: &Pyramid<FileSource>) -> Vec<f32> {
-    let g = *p.geometry();
-    let (w, h) = (g.width() as usize, g.height() as usize);
-    let t = g.tile_size() as usize;
-    let q = p.metadata().quantization;
-    let mut out = vec![f32::NAN; w * h];
-    for tile in g.present_tiles(g.finest()) {
-        let Some(rec) = p.read_tile(tile).unwrap() else {
-            continue;
-        };
-        let (gx, gy) = g.origin(tile);
-        let (gx, gy) = (gx as usize, gy as usize);
-        for y in 0..=t {
-            for x in 0..=t {
-                let (sx, sy) = (gx + x, gy + y);
-                if sx >= w || sy >= h {
-                    continue;
-                }
-                let cell = |cx: usize, cy: usize| {
-                    cx < t && cy < t && rec.mask.is_valid(cx as u32, cy as u32)
-                };
-                let touched = cell(x, y)
-                    || (x > 0 && cell(x - 1, y))
-                    || (y > 0 && cell(x, y - 1))
-                    || (x > 0 && y > 0 && cell(x - 1, y - 1));
-                if touched {
-                    out[sy * w + sx] = q.height(rec.heights[y * (t + 1) + x]) as f32;
-                }
-            }
-        }
-    }
-    out
 }
 
 /// Builds `src` (in `from`) `--to` `to`, then checks the grid and the heights.
@@ -165,29 +114,6 @@ fn check(src: &Path, from: &str, to: &str, dir: &Path) {
     // Interpolated source positions are within MAX_ERROR_PX of exact, so a height
     // may differ by that fraction of the steepest step between neighbouring samples
     // there, besides the quantization.
-    let steepest = |i: usize| -> f64 {
-        let (x, y) = ((i % w as usize) as i64, (i / w as usize) as i64);
-        let mut most = 0f64;
-        for (dx, dy) in [
-            (-1, -1),
-            (0, -1),
-            (1, -1),
-            (-1, 0),
-            (1, 0),
-            (-1, 1),
-            (0, 1),
-            (1, 1),
-        ] {
-            let (nx, ny) = (x + dx, y + dy);
-            if nx >= 0 && ny >= 0 && nx < i64::from(w) && ny < i64::from(h) {
-                let v = want[(ny * i64::from(w) + nx) as usize];
-                if !v.is_nan() {
-                    most = most.max(f64::from(v - want[i]).abs());
-                }
-            }
-        }
-        most
-    };
     let (mut compared, mut worst_excess, mut theirs_valid) = (0usize, f64::NEG_INFINITY, 0usize);
     for (i, (o, t)) in got.iter().zip(&want).enumerate() {
         if t.is_nan() {
@@ -198,8 +124,9 @@ fn check(src: &Path, from: &str, to: &str, dir: &Path) {
             continue;
         }
         compared += 1;
-        let bound =
-            m.quantization.max_error + 1e-3 + 2.0 * ingest::reproject::MAX_ERROR_PX * steepest(i);
+        let bound = m.quantization.max_error
+            + 1e-3
+            + 2.0 * ingest::reproject::MAX_ERROR_PX * steepest(&want, w, h, i);
         worst_excess = worst_excess.max(f64::from(o - t).abs() - bound);
     }
     // Our terrain covers GDAL's but for the outermost samples (a sample counts as

@@ -58,8 +58,14 @@ pub struct BuildOptions {
     pub max_samples: u64,
     /// Overrides the input's own no-data value (each input's, in a mosaic).
     pub nodata: Option<f64>,
-    /// Which input wins where a mosaic's inputs overlap and disagree.
-    pub overlap: ingest::Overlap,
+    /// Which input wins where a mosaic's inputs overlap and disagree; `None`: an
+    /// error on one grid, the finest input on different grids.
+    pub overlap: Option<ingest::Overlap>,
+    /// How samples are resampled (`--to`, and inputs on different grids).
+    pub resampling: ingest::reproject::Resampling,
+    /// The target spacing for inputs on different grids (`--spacing`; with `--to`,
+    /// its `spacing` too).
+    pub spacing: Option<[f64; 2]>,
     /// What the heights are measured from; `None`: what the input says, else unknown.
     pub vertical_datum: Option<VerticalDatum>,
     /// Assign this horizontal CRS (`--crs`: `EPSG:CODE` or a PROJ string) to the
@@ -86,7 +92,9 @@ impl Default for BuildOptions {
             memory_budget: 512 << 20,
             max_samples: plausible::DEFAULT_MAX_SAMPLES,
             nodata: None,
-            overlap: ingest::Overlap::Error,
+            overlap: None,
+            resampling: ingest::reproject::Resampling::Bilinear,
+            spacing: None,
             vertical_datum: None,
             crs: None,
             bounds: None,

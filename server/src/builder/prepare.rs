@@ -84,11 +84,39 @@ pub(super) fn prepare(
             files.len()
         );
     }
+    let mosaic_opts = ingest::MosaicOptions {
+        nodata: opts.nodata,
+        overlap: opts.overlap,
+        grid: Some(ingest::GridOptions {
+            to: opts.reproject.as_ref().map(|r| r.to.clone()),
+            spacing: opts.spacing,
+            resampling: opts.resampling,
+            spool_dir: dir.to_path_buf(),
+        }),
+    };
     let ingest::Opened {
         input: source,
         label,
         source_name,
-    } = ingest::open_inputs(inputs, opts.nodata, opts.overlap)?;
+        resampled,
+    } = ingest::open_inputs(inputs, &mosaic_opts)?;
+    // Inputs on different grids were resampled onto one, --to and --spacing with them.
+    let reproject = if resampled {
+        None
+    } else {
+        opts.reproject.clone()
+    };
+    if reproject.is_none() && !resampled && opts.spacing.is_some() {
+        anyhow::bail!(
+            "{label}: --spacing needs --to, or inputs on different grids to resample onto one"
+        );
+    }
+    if resampled && opts.crs.is_some() {
+        anyhow::bail!(
+            "{label}: --crs relabels one grid; these inputs are on different grids, so give \
+             each its own CRS (its file's, a .prj beside it, or a VRT's <SRS>)"
+        );
+    }
     let source = match source {
         Input::Rows(rows) => Input::Rows(
             ingest::assign::assign(rows, assigned_crs.as_ref(), opts.bounds, &label)
@@ -114,7 +142,7 @@ pub(super) fn prepare(
         }),
         Input::Synthetic(_) => None,
     };
-    let reproject_spool = match (declared, &opts.reproject) {
+    let reproject_spool = match (declared, &reproject) {
         (Some(size), Some(_)) => {
             plausible::check_samples(&label, "declares", size, opts.max_samples)?;
             let need = plausible::reproject_need(size);
@@ -131,7 +159,7 @@ pub(super) fn prepare(
     };
     // Reprojection reads the source whole first; its output marks no-data as NaN,
     // so the spool below needs no no-data value of its own.
-    let (source, spool_nodata) = match (source, &opts.reproject) {
+    let (source, spool_nodata) = match (source, &reproject) {
         (Input::Rows(rows), Some(r)) => (
             Input::Rows(Box::new(
                 ingest::reproject::Reprojected::new(rows, r, opts.nodata, dir)
@@ -150,8 +178,10 @@ pub(super) fn prepare(
         Input::Synthetic(s) => (s.width(), s.height()),
     };
     let size = plausible::Declared { width, height };
-    let what = if opts.reproject.is_some() {
+    let what = if reproject.is_some() {
         "--to makes"
+    } else if resampled {
+        "the inputs' common grid makes"
     } else {
         "declares"
     };

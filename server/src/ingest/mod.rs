@@ -14,7 +14,7 @@ pub mod synthetic;
 pub mod vrt;
 
 pub use inputs::InputSpec;
-pub use mosaic::{Mosaic, Overlap};
+pub use mosaic::{GridOptions, Mosaic, MosaicOptions, Overlap};
 
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
@@ -117,22 +117,24 @@ pub struct Opened {
     pub label: String,
     /// What the metadata's `source` names: the file, or the first file and the count.
     pub source_name: String,
+    /// Inputs on different grids, resampled onto one (`--to` and `--spacing`, if
+    /// given, are done).
+    pub resampled: bool,
 }
 
 /// Opens what `build` was asked to read: one file (read exactly as before mosaics),
-/// a synthetic terrain, or a [`Mosaic`] of several files or a VRT. `nodata` overrides
-/// each input's own no-data value; `overlap` settles overlapping inputs that disagree.
-pub fn open_inputs(
-    spec: &InputSpec,
-    nodata: Option<f64>,
-    overlap: Overlap,
-) -> anyhow::Result<Opened> {
+/// a synthetic terrain, or a [`Mosaic`] of several files or a VRT, on their shared
+/// grid or, when they are on different grids, resampled onto one
+/// ([`mosaic::warp`]). `opts` gives the no-data override, the overlap rule and the
+/// target grid's options.
+pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Opened> {
     let files = match inputs::expand(spec)? {
         inputs::Expanded::Synthetic(s) => {
             return Ok(Opened {
                 input: open(&s)?,
                 source_name: file_name(&s),
                 label: s,
+                resampled: false,
             });
         }
         inputs::Expanded::Files(files) => files,
@@ -145,12 +147,14 @@ pub fn open_inputs(
             input: open(&label)?,
             source_name: file_name(&label),
             label,
+            resampled: false,
         });
     }
-    let mosaic = Mosaic::open(&files, nodata, overlap, open_raster)?;
+    let mosaic = Mosaic::open_with(&files, opts, open_raster)?;
     Ok(Opened {
         label: mosaic.label().to_string(),
         source_name: mosaic.source_name().to_string(),
+        resampled: mosaic.resampled(),
         input: Input::Rows(Box::new(mosaic)),
     })
 }

@@ -91,14 +91,7 @@ pub struct ReprojectOptions {
 pub struct Reprojected {
     info: SourceInfo,
     spool: File,
-    src_w: usize,
-    src_h: usize,
-    /// Source geotransform (north-up: no rotation terms).
-    src_gt: [f64; 6],
-    out_gt: [f64; 6],
-    source: Crs,
-    target: Crs,
-    resampling: Resampling,
+    map: Mapping,
     row: u32,
     /// Source rows `band_start .. band_start + band.len()`.
     band: VecDeque<Vec<f32>>,
@@ -106,11 +99,26 @@ pub struct Reprojected {
     band_rows_estimate: usize,
 }
 
+/// Where each output sample of a grid in one CRS reads a source grid in another:
+/// what [`Reprojected`] samples with, and what a mosaic sizes an input's memory
+/// with before opening it ([`Mapping::buffer_bytes`]).
+#[derive(Clone, Debug)]
+pub struct Mapping {
+    pub source: Crs,
+    pub target: Crs,
+    /// Source geotransform (north-up: no rotation terms) and size.
+    pub src_gt: [f64; 6],
+    pub src_w: usize,
+    pub src_h: usize,
+    pub out: Grid,
+    pub resampling: Resampling,
+}
+
 impl std::fmt::Debug for Reprojected {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Reprojected")
             .field("info", &self.info)
-            .field("target", &self.target)
+            .field("target", &self.map.target)
             .finish_non_exhaustive()
     }
 }
@@ -218,71 +226,22 @@ impl Reprojected {
                 ),
             },
             spool,
-            src_w: w,
-            src_h: h,
-            src_gt: gt,
-            out_gt: out.gt,
-            source: source.clone(),
-            target,
-            resampling,
+            map: Mapping {
+                source: source.clone(),
+                target,
+                src_gt: gt,
+                src_w: w,
+                src_h: h,
+                out,
+                resampling,
+            },
             row: 0,
             band: VecDeque::new(),
             band_start: 0,
             band_rows_estimate: 0,
         };
-        me.band_rows_estimate = me.estimate_band_rows();
+        me.band_rows_estimate = me.map.estimate_band_rows();
         Ok(me)
-    }
-
-    /// Source pixel coordinates (`col`, `row` of sample centres, fractional) of each
-    /// output sample of output row `j`: exact at the ends of spans of up to
-    /// [`crate::approx_transform::STEP`] samples, halved until the middle sample's linear estimate is within
-    /// [`MAX_ERROR_PX`] of its exact transform (GDAL's approximate transformer does
-    /// the same with 1/8 pixel), linear inside.
-    fn source_coords(&self, j: u32) -> Vec<[f64; 2]> {
-        let w = self.info.width as usize;
-        let y = self.out_gt[3] + (f64::from(j) + 0.5) * self.out_gt[5];
-        let exact = |i: usize| -> Option<[f64; 2]> {
-            let x = self.out_gt[0] + (i as f64 + 0.5) * self.out_gt[1];
-            let [sx, sy] = self.target.transform_to(&self.source, x, y).ok()?;
-            let c = [
-                (sx - self.src_gt[0]) / self.src_gt[1] - 0.5,
-                (sy - self.src_gt[3]) / self.src_gt[5] - 0.5,
-            ];
-            (c[0].is_finite() && c[1].is_finite()).then_some(c)
-        };
-        along_row(w, MAX_ERROR_PX, &exact)
-    }
-
-    /// The widest band of source rows an output row needs, from every 64th row.
-    fn estimate_band_rows(&self) -> usize {
-        let mut most = 2usize;
-        let h = self.info.height;
-        for j in (0..h).step_by(64).chain(std::iter::once(h - 1)) {
-            if let Some((lo, hi)) = self.row_span(&self.source_coords(j)) {
-                most = most.max(hi - lo + 1);
-            }
-        }
-        most
-    }
-
-    /// Source rows `lo..=hi` that the samples at `coords` read.
-    fn row_span(&self, coords: &[[f64; 2]]) -> Option<(usize, usize)> {
-        let last = self.src_h as f64 - 1.0;
-        let rows = coords
-            .iter()
-            .map(|c| c[1])
-            .filter(|r| r.is_finite() && *r > -0.5 && *r < last + 0.5);
-        let (lo, hi) = rows.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| {
-            (lo.min(r), hi.max(r))
-        });
-        if lo > hi {
-            return None;
-        }
-        let (before, after) = self.resampling.reach();
-        let lo = (lo.floor().max(0.0) as usize).saturating_sub(before);
-        let hi = (hi.floor().max(0.0) as usize + after).min(self.src_h - 1);
-        Some((lo, hi))
     }
 
     /// Makes the band hold source rows `lo..=hi`.
@@ -298,11 +257,11 @@ impl Reprojected {
         if self.band.is_empty() {
             self.band_start = lo;
         }
-        let mut raw = vec![0u8; 4 * self.src_w];
+        let mut raw = vec![0u8; 4 * self.map.src_w];
         while self.band_start + self.band.len() <= hi {
             let r = self.band_start + self.band.len();
             self.spool
-                .read_exact_at(&mut raw, (r * self.src_w * 4) as u64)
+                .read_exact_at(&mut raw, (r * self.map.src_w * 4) as u64)
                 .context("reading the reprojection spool")?;
             self.band.push_back(
                 raw.chunks_exact(4)
@@ -314,7 +273,7 @@ impl Reprojected {
     }
 
     fn sample(&self, col: f64, row: f64) -> f32 {
-        let (w, h) = (self.src_w as f64, self.src_h as f64);
+        let (w, h) = (self.map.src_w as f64, self.map.src_h as f64);
         // Inside the source's pixel areas: centres −0.5 ..= size − 0.5.
         if !(col >= -0.5 && col <= w - 0.5 && row >= -0.5 && row <= h - 0.5) {
             return f32::NAN;
@@ -325,11 +284,14 @@ impl Reprojected {
                 .map_or(f32::NAN, |line| line[c])
         };
         let (c, r) = (col.clamp(0.0, w - 1.0), row.clamp(0.0, h - 1.0));
-        match self.resampling {
+        match self.map.resampling {
             Resampling::Nearest => at(c.round() as usize, r.round() as usize),
             Resampling::Bilinear => {
                 let (c0, r0) = (c.floor() as usize, r.floor() as usize);
-                let (c1, r1) = ((c0 + 1).min(self.src_w - 1), (r0 + 1).min(self.src_h - 1));
+                let (c1, r1) = (
+                    (c0 + 1).min(self.map.src_w - 1),
+                    (r0 + 1).min(self.map.src_h - 1),
+                );
                 let (fx, fy) = (c - c0 as f64, r - r0 as f64);
                 let mut sum = 0.0f64;
                 let mut weight = 0.0f64;
@@ -357,13 +319,13 @@ impl Reprojected {
                 let mut weight = 0.0f64;
                 for dr in -1i64..=2 {
                     let rr = r0 as i64 + dr;
-                    if rr < 0 || rr >= self.src_h as i64 {
+                    if rr < 0 || rr >= self.map.src_h as i64 {
                         continue;
                     }
                     let wy = cubic_weight(fy - dr as f64);
                     for dc in -1i64..=2 {
                         let cc = c0 as i64 + dc;
-                        if cc < 0 || cc >= self.src_w as i64 {
+                        if cc < 0 || cc >= self.map.src_w as i64 {
                             continue;
                         }
                         let v = at(cc as usize, rr as usize);
@@ -384,6 +346,66 @@ impl Reprojected {
     }
 }
 
+impl Mapping {
+    /// Source pixel coordinates (`col`, `row` of sample centres, fractional) of each
+    /// output sample of output row `j`: exact at the ends of spans of up to
+    /// [`crate::approx_transform::STEP`] samples, halved until the middle sample's linear estimate is within
+    /// [`MAX_ERROR_PX`] of its exact transform (GDAL's approximate transformer does
+    /// the same with 1/8 pixel), linear inside.
+    pub fn source_coords(&self, j: u32) -> Vec<[f64; 2]> {
+        let w = self.out.width as usize;
+        let y = self.out.gt[3] + (f64::from(j) + 0.5) * self.out.gt[5];
+        let exact = |i: usize| -> Option<[f64; 2]> {
+            let x = self.out.gt[0] + (i as f64 + 0.5) * self.out.gt[1];
+            let [sx, sy] = self.target.transform_to(&self.source, x, y).ok()?;
+            let c = [
+                (sx - self.src_gt[0]) / self.src_gt[1] - 0.5,
+                (sy - self.src_gt[3]) / self.src_gt[5] - 0.5,
+            ];
+            (c[0].is_finite() && c[1].is_finite()).then_some(c)
+        };
+        along_row(w, MAX_ERROR_PX, &exact)
+    }
+
+    /// The widest band of source rows an output row needs, from every 64th row.
+    pub fn estimate_band_rows(&self) -> usize {
+        let mut most = 2usize;
+        let h = self.out.height;
+        for j in (0..h).step_by(64).chain(std::iter::once(h - 1)) {
+            if let Some((lo, hi)) = self.row_span(&self.source_coords(j)) {
+                most = most.max(hi - lo + 1);
+            }
+        }
+        most
+    }
+
+    /// Source rows `lo..=hi` that the samples at `coords` read.
+    pub fn row_span(&self, coords: &[[f64; 2]]) -> Option<(usize, usize)> {
+        let last = self.src_h as f64 - 1.0;
+        let rows = coords
+            .iter()
+            .map(|c| c[1])
+            .filter(|r| r.is_finite() && *r > -0.5 && *r < last + 0.5);
+        let (lo, hi) = rows.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| {
+            (lo.min(r), hi.max(r))
+        });
+        if lo > hi {
+            return None;
+        }
+        let (before, after) = self.resampling.reach();
+        let lo = (lo.floor().max(0.0) as usize).saturating_sub(before);
+        let hi = (hi.floor().max(0.0) as usize + after).min(self.src_h - 1);
+        Some((lo, hi))
+    }
+
+    /// Memory a [`Reprojected`] over this mapping holds while reading: the widest
+    /// band of source rows, the coordinates of one row and the spool's read buffer.
+    pub fn buffer_bytes(&self) -> u64 {
+        (self.estimate_band_rows() * self.src_w * 4 + self.out.width as usize * 16 + (1 << 20))
+            as u64
+    }
+}
+
 impl RowSource for Reprojected {
     fn info(&self) -> &SourceInfo {
         &self.info
@@ -395,8 +417,8 @@ impl RowSource for Reprojected {
             if self.row >= self.info.height {
                 bail!("read past the last reprojected row");
             }
-            let coords = self.source_coords(self.row);
-            match self.row_span(&coords) {
+            let coords = self.map.source_coords(self.row);
+            match self.map.row_span(&coords) {
                 Some((lo, hi)) => {
                     self.load_band(lo, hi)?;
                     for (o, c) in line.iter_mut().zip(&coords) {
@@ -416,7 +438,7 @@ impl RowSource for Reprojected {
 
     fn buffer_bytes(&self) -> u64 {
         // The band, the coordinates of one row, and the spool's read buffer.
-        (self.band_rows_estimate * self.src_w * 4 + self.info.width as usize * 16 + (1 << 20))
+        (self.band_rows_estimate * self.map.src_w * 4 + self.info.width as usize * 16 + (1 << 20))
             as u64
     }
 }
@@ -429,6 +451,66 @@ pub struct Grid {
     pub gt: [f64; 6],
 }
 
+/// The bounding box `[x0, y0, x1, y1]` in `target` of a `w × h` source grid's pixel
+/// areas: its border, 64 points per edge (straight lines bend under most projections,
+/// so corners alone would cut the footprint short), carried over.
+pub fn footprint(
+    source: &Crs,
+    target: &Crs,
+    gt: &[f64; 6],
+    w: usize,
+    h: usize,
+) -> anyhow::Result<[f64; 4]> {
+    let corner = |c: f64, r: f64| [gt[0] + c * gt[1], gt[3] + r * gt[5]];
+    let n = 64;
+    let mut border = Vec::with_capacity(4 * (n + 1));
+    for k in 0..=n {
+        let t = k as f64 / n as f64;
+        for (c, r) in [
+            (t * w as f64, 0.0),
+            (t * w as f64, h as f64),
+            (0.0, t * h as f64),
+            (w as f64, t * h as f64),
+        ] {
+            let [x, y] = corner(c, r);
+            border.push([x, y, 0.0]);
+        }
+    }
+    source
+        .transform_points(target, &mut border)
+        .context("the source's border does not transform")?;
+    Ok(border.iter().fold(
+        [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ],
+        |[x0, y0, x1, y1], p| [x0.min(p[0]), y0.min(p[1]), x1.max(p[0]), y1.max(p[1])],
+    ))
+}
+
+/// One source sample's step at the source's centre, carried to the target CRS:
+/// `[x, y]` in the target's units.
+pub fn source_step(
+    source: &Crs,
+    target: &Crs,
+    gt: &[f64; 6],
+    w: usize,
+    h: usize,
+) -> anyhow::Result<[f64; 2]> {
+    let corner = |c: f64, r: f64| [gt[0] + c * gt[1], gt[3] + r * gt[5]];
+    let to = |p: [f64; 2]| source.transform_to(target, p[0], p[1]);
+    let (c, r) = (w as f64 / 2.0, h as f64 / 2.0);
+    let p = to(corner(c, r))?;
+    let px = to(corner(c + 1.0, r))?;
+    let py = to(corner(c, r + 1.0))?;
+    Ok([
+        (px[0] - p[0]).hypot(px[1] - p[1]),
+        (py[0] - p[0]).hypot(py[1] - p[1]),
+    ])
+}
+
 /// Footprint and spacing of the source in the target CRS.
 fn plan_grid(
     source: &Crs,
@@ -438,45 +520,11 @@ fn plan_grid(
     h: usize,
     spacing: Option<[f64; 2]>,
 ) -> anyhow::Result<Grid> {
-    let corner = |c: f64, r: f64| [gt[0] + c * gt[1], gt[3] + r * gt[5]];
-    let to = |p: [f64; 2]| source.transform_to(target, p[0], p[1]);
-    // The pixel-area border, 64 points per edge (straight lines bend under most
-    // projections, so corners alone would cut the footprint short).
-    let (mut x0, mut y0, mut x1, mut y1) = (
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    );
-    let n = 64;
-    for k in 0..=n {
-        let t = f64::from(k) / f64::from(n);
-        for (c, r) in [
-            (t * w as f64, 0.0),
-            (t * w as f64, h as f64),
-            (0.0, t * h as f64),
-            (w as f64, t * h as f64),
-        ] {
-            let [x, y] =
-                to(corner(c, r)).context("--to: the source's border does not transform")?;
-            x0 = x0.min(x);
-            x1 = x1.max(x);
-            y0 = y0.min(y);
-            y1 = y1.max(y);
-        }
-    }
+    let [x0, y0, x1, y1] = footprint(source, target, gt, w, h).context("--to")?;
     let [sx, sy] = if let Some(s) = spacing {
         s
     } else {
-        // One source sample's step at the centre, carried to the target.
-        let (c, r) = (w as f64 / 2.0, h as f64 / 2.0);
-        let p = to(corner(c, r))?;
-        let px = to(corner(c + 1.0, r))?;
-        let py = to(corner(c, r + 1.0))?;
-        [
-            (px[0] - p[0]).hypot(px[1] - p[1]),
-            (py[0] - p[0]).hypot(py[1] - p[1]),
-        ]
+        source_step(source, target, gt, w, h)?
     };
     if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
         bail!("--to: output spacing {sx} × {sy} is not positive");

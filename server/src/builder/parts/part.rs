@@ -165,7 +165,13 @@ pub(super) fn fingerprint(
     h.update(&opts.scale.to_bits().to_le_bytes());
     h.update(&opts.offset.to_bits().to_le_bytes());
     h.update(&opts.nodata.map_or(u64::MAX, f64::to_bits).to_le_bytes());
-    h.update(format!("{:?}", opts.overlap).as_bytes());
+    h.update(
+        format!(
+            "{:?} {:?} {:?}",
+            opts.overlap, opts.resampling, opts.spacing
+        )
+        .as_bytes(),
+    );
     h.digest128().to_le_bytes()
 }
 

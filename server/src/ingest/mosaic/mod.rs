@@ -30,6 +30,9 @@ pub enum Overlap {
     /// Stop with the sample, its coordinates and the two files.
     #[default]
     Error,
+    /// The input with the finest ground spacing wins, ties by order (the default for
+    /// inputs on different grids).
+    Finest,
 }
 
 /// Opens a raster file for reading: its reader and its format's name ("GeoTIFF").
@@ -65,6 +68,8 @@ struct Piece {
     bytes: u64,
     /// What its heights are measured from, when it says, and where it says so.
     datum: Option<DatumClue>,
+    /// Off the mosaic's grid: resampled onto its window ([`warp`]).
+    warp: Option<Box<warp::Warp>>,
 }
 
 /// An open piece: its reader and its current row (no-data already NaN).
@@ -106,6 +111,23 @@ pub struct Mosaic {
     label: String,
     /// What the metadata's `source` names: the first file and the count.
     source_name: String,
+    /// Where resampled inputs are spooled while open (inputs on different grids).
+    spool_dir: Option<PathBuf>,
+    /// Whether the inputs were on different grids and resampled onto one.
+    resampled: bool,
+}
+
+/// How [`Mosaic::open_with`] treats its inputs.
+#[derive(Clone, Debug, Default)]
+pub struct MosaicOptions {
+    /// Overrides every input's own no-data value.
+    pub nodata: Option<f64>,
+    /// Who wins where inputs overlap; `None`: [`Overlap::Error`] for inputs on one
+    /// grid, [`Overlap::Finest`] for inputs on different grids.
+    pub overlap: Option<Overlap>,
+    /// How inputs on different grids are put on one; `None`: they are refused,
+    /// naming the two that differ.
+    pub grid: Option<GridOptions>,
 }
 
 /// The datum the pieces state, when those that state one agree (pieces that state
@@ -177,9 +199,26 @@ impl Mosaic {
         overlap: Overlap,
         opener: Opener,
     ) -> anyhow::Result<Self> {
+        let opts = MosaicOptions {
+            nodata,
+            overlap: Some(overlap),
+            grid: None,
+        };
+        Self::open_with(inputs, &opts, opener)
+    }
+
+    /// Reads the headers of `inputs` (files or VRTs, in order) and places them: on
+    /// their shared grid, or, with `opts.grid`, on one target grid that inputs on other
+    /// grids are resampled onto ([`warp`]).
+    pub fn open_with(
+        inputs: &[PathBuf],
+        opts: &MosaicOptions,
+        opener: Opener,
+    ) -> anyhow::Result<Self> {
         if inputs.is_empty() {
             bail!("no input to build from");
         }
+        let nodata = opts.nodata;
         let mut groups = Vec::with_capacity(inputs.len());
         for path in inputs {
             groups.push(if is_vrt(path) {
@@ -188,7 +227,24 @@ impl Mosaic {
                 file_group(path, nodata, opener)?
             });
         }
-        let (width, height, georef, pieces) = place::place(groups.as_slice())?;
+        let (width, height, georef, pieces, overlap, resampled) =
+            match (place::place(groups.as_slice()), &opts.grid) {
+                (Ok((w, h, g, p)), _) => (w, h, g, p, opts.overlap.unwrap_or_default(), false),
+                (Err(_), Some(grid)) if groups.len() > 1 => {
+                    let overlap = opts.overlap.unwrap_or(Overlap::Finest);
+                    let placed = warp::place_mixed(&groups, grid, overlap)?;
+                    log_mixed(&groups, &placed);
+                    (
+                        placed.width,
+                        placed.height,
+                        Some(placed.georef),
+                        placed.pieces,
+                        overlap,
+                        true,
+                    )
+                }
+                (Err(e), _) => return Err(e),
+            };
         let any_vrt = groups.iter().any(|g| g.is_vrt);
         let (label, source_name) = names(&groups, &pieces);
         drop(groups);
@@ -247,7 +303,14 @@ impl Mosaic {
             datum,
             label,
             source_name,
+            spool_dir: opts.grid.as_ref().map(|g| g.spool_dir.clone()),
+            resampled,
         })
+    }
+
+    /// Whether the inputs were on different grids, resampled onto one.
+    pub fn resampled(&self) -> bool {
+        self.resampled
     }
 
     /// How build errors name the mosaic.
@@ -277,6 +340,32 @@ impl Mosaic {
     fn open_piece(&self, index: usize) -> anyhow::Result<OpenPiece> {
         let p = &self.pieces[index];
         let (mut reader, _) = (self.opener)(&p.path).with_context(|| p.name.clone())?;
+        if let Some(w) = &p.warp {
+            let i = reader.info();
+            if (i.width as usize, i.height as usize) != (w.map.src_w, w.map.src_h) {
+                bail!(
+                    "{}: changed while the build ran (now {}×{}, was {}×{})",
+                    p.name,
+                    i.width,
+                    i.height,
+                    w.map.src_w,
+                    w.map.src_h
+                );
+            }
+            let dir = self.spool_dir.clone().unwrap_or_else(std::env::temp_dir);
+            reader = Box::new(
+                super::reproject::Reprojected::onto(
+                    reader,
+                    &w.map.source,
+                    w.map.target.clone(),
+                    w.map.out,
+                    w.map.resampling,
+                    w.nodata,
+                    &dir,
+                )
+                .with_context(|| format!("{}: resampling onto the mosaic's grid", p.name))?,
+            );
+        }
         let i = reader.info();
         if (i.width, i.height) != (p.src_width, p.src_height) {
             bail!(
@@ -323,7 +412,7 @@ fn conflict(
     });
     anyhow::anyhow!(
         "{other} and {} disagree at sample (col {col}, row {row}){at}: {kept} vs {new} \
-         (choose with --overlap first|last)",
+         (choose with --overlap first|last|finest)",
         pieces[later].name
     )
 }
@@ -405,7 +494,7 @@ impl RowSource for Mosaic {
                         continue;
                     }
                     match self.overlap {
-                        Overlap::First => {}
+                        Overlap::First | Overlap::Finest => {}
                         Overlap::Last => *d = v,
                         Overlap::Error => {
                             let (kept, index) = (*d, o.index);
@@ -445,6 +534,29 @@ impl RowSource for Mosaic {
     }
 }
 
+/// Logs how inputs on different grids were put on one.
+fn log_mixed(groups: &[Group], placed: &warp::Placed) {
+    let g = &placed.georef;
+    tracing::info!(
+        inputs = groups.len(),
+        crs = crs_text(g),
+        spacing = format!("{} × {}", g.geotransform[1], -g.geotransform[5]),
+        size = format!("{} × {}", placed.width, placed.height),
+        "inputs on different grids: resampled onto the finest input's grid (or --to/--spacing)"
+    );
+    for (grp, s) in groups.iter().zip(&placed.sources) {
+        tracing::info!(
+            input = grp.name,
+            crs = s.crs.label(),
+            spacing_m = format!("{:.3} × {:.3}", s.spacing.x, s.spacing.y),
+            "source"
+        );
+    }
+}
+
 mod place;
 #[cfg(test)]
 mod tests;
+pub mod warp;
+
+pub use warp::GridOptions;

@@ -39,6 +39,7 @@ pub(super) fn file_group(
         nodata: nodata_values(nodata, &[info.nodata]),
         bytes: piece_bytes(reader.as_ref()),
         datum: reader.datum_clue(),
+        warp: None,
     };
     Ok(Group {
         name,
@@ -104,6 +105,7 @@ pub(super) fn vrt_group(path: &Path, nodata: Option<f64>, opener: Opener) -> any
             nodata: nodata_values(nodata, &[info.nodata, s.nodata, vrt.nodata]),
             bytes: piece_bytes(reader.as_ref()),
             datum: reader.datum_clue(),
+            warp: None,
         });
     }
     if pieces.is_empty() {

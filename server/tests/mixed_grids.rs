@@ -1,0 +1,282 @@
+//! Collections on different grids built as one pyramid (DECISIONS.md "Mixed-grid
+//! collections"), with default flags, against GDAL: a 30″ "global" base (N46E008 warped
+//! by `gdalwarp -r average`), the real 3″ N46E008 over a sub-window (cut with
+//! `gdal_translate -srcwin`) and aletsch.tif (EPSG:2056, 200 m). The pyramid is on the
+//! finest input's grid (EPSG:4326, 3″, N46E008's lattice), and its heights equal
+//! `gdalwarp` of the inputs in priority order (coarsest first: GDAL draws the last on
+//! top) onto the same grid with the same resampling, within the quantization error plus
+//! what our interpolated source positions (≤ `MAX_ERROR_PX` off) can change, at 2 000
+//! random samples away from the inputs' edges (where which input wins can flip with a
+//! position 1e-9 off).
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+mod gdal;
+mod raster_support;
+
+use gdal::{gdal_or_skip, path_str, run};
+use raster_support::{finest_samples, read_raster, steepest};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use tessera_server::crs::Crs;
+use tessera_server::ingest::reproject::MAX_ERROR_PX;
+use tessera_shared::{Pyramid, testdata};
+
+fn build(inputs: &[&Path], out: &Path, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tessera-server"))
+        .arg("build")
+        .args(inputs)
+        .args(["--tile-size", "256", "--quiet", "-o"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// The three inputs, made by GDAL in a fresh folder: base (30″), fine (3″ window),
+/// aletsch (LV95), in priority order finest first.
+struct Collection {
+    _dir: tempfile::TempDir,
+    base: PathBuf,
+    fine: PathBuf,
+    aletsch: PathBuf,
+}
+
+impl Collection {
+    fn new() -> Option<Self> {
+        if !gdal_or_skip() {
+            return None;
+        }
+        let n46 = testdata::dem_or_skip("N46E008.tif")?;
+        let aletsch = testdata::dem_or_skip("aletsch.tif")?;
+        let dir = tempfile::tempdir().unwrap();
+        let base = dir.path().join("base_30s.tif");
+        let step = format!("{:.15}", 30.0 / 3600.0);
+        run(
+            "gdalwarp",
+            &[
+                "-q",
+                "-r",
+                "average",
+                "-tr",
+                &step,
+                &step,
+                path_str(&n46),
+                path_str(&base),
+            ],
+        );
+        let fine = dir.path().join("fine_3s.tif");
+        run(
+            "gdal_translate",
+            &[
+                "-q",
+                "-srcwin",
+                "300",
+                "350",
+                "500",
+                "400",
+                path_str(&n46),
+                path_str(&fine),
+            ],
+        );
+        Some(Self {
+            _dir: dir,
+            base,
+            fine,
+            aletsch,
+        })
+    }
+}
+
+/// An input's samples and grid, to tell where a comparison is meaningful.
+struct Grid {
+    crs: Crs,
+    gt: [f64; 6],
+    w: u32,
+    h: u32,
+    v: Vec<f32>,
+}
+
+impl Grid {
+    fn read(file: &Path, crs: &str) -> Self {
+        let (w, h, v) = read_raster(file);
+        let Ok(tessera_server::ingest::Input::Rows(rows)) =
+            tessera_server::ingest::open(path_str(file))
+        else {
+            panic!()
+        };
+        let gt = rows.info().georef.as_ref().unwrap().geotransform;
+        Self {
+            crs: Crs::parse(crs).unwrap(),
+            gt,
+            w,
+            h,
+            v,
+        }
+    }
+
+    /// `(x, y)` of `crs` in this grid's pixels (0 at the first pixel's outer edge).
+    fn pixel(&self, crs: &Crs, x: f64, y: f64) -> (f64, f64) {
+        let [sx, sy] = crs.transform_to(&self.crs, x, y).unwrap();
+        (
+            (sx - self.gt[0]) / self.gt[1],
+            (sy - self.gt[3]) / self.gt[5],
+        )
+    }
+
+    /// Within `margin` pixels of the grid's edge, or of one of its no-data samples:
+    /// where which input wins, or how weights are renormalised, can differ.
+    fn near_edge_or_void(&self, crs: &Crs, x: f64, y: f64, margin: f64) -> bool {
+        let (c, r) = self.pixel(crs, x, y);
+        let inside = |v: f64, n: u32| v > -margin && v < f64::from(n) + margin;
+        if !(inside(c, self.w) && inside(r, self.h)) {
+            return false;
+        }
+        let deep = |v: f64, n: u32| v > margin && v < f64::from(n) - margin;
+        if !(deep(c, self.w) && deep(r, self.h)) {
+            return true;
+        }
+        let m = margin.ceil() as i64;
+        let (ci, ri) = (c.floor() as i64, r.floor() as i64);
+        (ri - m..=ri + m).any(|rr| {
+            (ci - m..=ci + m).any(|cc| {
+                cc >= 0
+                    && rr >= 0
+                    && cc < i64::from(self.w)
+                    && rr < i64::from(self.h)
+                    && self.v[(rr * i64::from(self.w) + cc) as usize].is_nan()
+            })
+        })
+    }
+
+    fn covers(&self, crs: &Crs, x: f64, y: f64) -> bool {
+        let (c, r) = self.pixel(crs, x, y);
+        c > 0.0 && r > 0.0 && c < f64::from(self.w) && r < f64::from(self.h)
+    }
+}
+
+fn fuse_and_compare(c: &Collection, resampling: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fused.tess");
+    let mut extra = vec![];
+    if resampling != "bilinear" {
+        extra = vec!["--resampling", resampling];
+    }
+    let o = build(&[&c.base, &c.fine, &c.aletsch], &out, &extra);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let p = Pyramid::open_file(&out).unwrap();
+    let m = p.metadata();
+    let g = m.georef.as_ref().unwrap();
+    // The finest input's grid: EPSG:4326 at 3″, on N46E008's lattice.
+    assert_eq!(g.epsg, Some(4326));
+    let gt = g.geotransform;
+    assert!((gt[1] - 1.0 / 1200.0).abs() < 1e-15 && (gt[5] + 1.0 / 1200.0).abs() < 1e-15);
+    let lattice = (gt[0] - 7.999_583_333_333_334) * 1200.0;
+    assert!((lattice - lattice.round()).abs() < 1e-6, "{lattice}");
+
+    // GDAL: the same grid, inputs coarsest first (base 30″, aletsch 200 m, fine 3″).
+    let (w, h) = (m.width, m.height);
+    let te = [
+        gt[0],
+        gt[3] + f64::from(h) * gt[5],
+        gt[0] + f64::from(w) * gt[1],
+        gt[3],
+    ]
+    .map(|v| format!("{v:.12}"));
+    let reference = dir.path().join("gdalwarp.tif");
+    let (ws, hs) = (w.to_string(), h.to_string());
+    run(
+        "gdalwarp",
+        &[
+            "-q",
+            "-t_srs",
+            "EPSG:4326",
+            "-te",
+            &te[0],
+            &te[1],
+            &te[2],
+            &te[3],
+            "-ts",
+            &ws,
+            &hs,
+            "-r",
+            resampling,
+            "-et",
+            "0",
+            "-ot",
+            "Float32",
+            "-dstnodata",
+            "-99999",
+            path_str(&c.base),
+            path_str(&c.aletsch),
+            path_str(&c.fine),
+            path_str(&reference),
+        ],
+    );
+    let (_, _, want) = read_raster(&reference);
+    let got = finest_samples(&p);
+    let wgs84 = Crs::from_epsg(4326).unwrap();
+    let grids = [
+        Grid::read(&c.fine, "EPSG:4326"),
+        Grid::read(&c.aletsch, "EPSG:2056"),
+        Grid::read(&c.base, "EPSG:4326"),
+    ];
+    // 2 000 random samples valid in both, away from the inputs' edges and voids.
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let (mut compared, mut worst, mut fine_hits, mut aletsch_hits) = (0, f64::NEG_INFINITY, 0, 0);
+    let mut tries = 0;
+    while compared < 2000 {
+        tries += 1;
+        assert!(tries < 200_000, "too few comparable samples ({compared})");
+        let i = (next() % u64::from(w * h)) as usize;
+        let (t, o) = (want[i], got[i]);
+        let (col, row) = (i % w as usize, i / w as usize);
+        if t.is_nan()
+            || o.is_nan()
+            || col < 2
+            || row < 2
+            || col + 2 >= w as usize
+            || row + 2 >= h as usize
+        {
+            continue;
+        }
+        let x = gt[0] + (col as f64 + 0.5) * gt[1];
+        let y = gt[3] + (row as f64 + 0.5) * gt[5];
+        if grids.iter().any(|g| g.near_edge_or_void(&wgs84, x, y, 2.5)) {
+            continue;
+        }
+        let bound = m.quantization.max_error + 1e-3 + 2.0 * MAX_ERROR_PX * steepest(&want, w, h, i);
+        worst = worst.max(f64::from(o - t).abs() - bound);
+        compared += 1;
+        if grids[0].covers(&wgs84, x, y) {
+            fine_hits += 1;
+        } else if grids[1].covers(&wgs84, x, y) {
+            aletsch_hits += 1;
+        }
+    }
+    eprintln!(
+        "{resampling}: {compared} samples ({fine_hits} from the 3″ window, {aletsch_hits} from \
+         aletsch), worst excess over the bound {worst:.2e} m"
+    );
+    assert!(
+        fine_hits > 50 && aletsch_hits > 50,
+        "{fine_hits} {aletsch_hits}"
+    );
+    assert!(
+        worst <= 0.0,
+        "{resampling}: a height differs by {worst} m more than its bound"
+    );
+}
+
+#[test]
+fn three_grids_in_two_crss_fuse_as_gdalwarp_draws_them() {
+    let Some(c) = Collection::new() else { return };
+    fuse_and_compare(&c, "bilinear");
+    fuse_and_compare(&c, "cubic");
+}
