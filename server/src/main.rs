@@ -9,6 +9,7 @@ use tessera_server::builder::parts::{PartSpec, assemble as assemble_parts, build
 use tessera_server::builder::{BuildOptions, build_inputs};
 use tessera_server::ingest::assign::Bounds;
 use tessera_server::ingest::reproject::{ReprojectOptions, Resampling, parse_spacing};
+use tessera_server::ingest::vertical_shift::parse_vertical_arg;
 use tessera_server::ingest::{InputSpec, Overlap};
 use tessera_server::{info, preview, verify};
 
@@ -94,7 +95,8 @@ enum Command {
             value_name = "PARTS",
             conflicts_with_all = [
                 "input", "inputs_list", "overlap", "tile_size", "scale", "offset", "nodata",
-                "vertical_datum", "crs", "bounds", "to", "resampling", "spacing"
+                "vertical_datum", "to_vertical", "crs", "bounds", "to", "resampling",
+                "spacing"
             ]
         )]
         assemble: Option<PathBuf>,
@@ -111,17 +113,26 @@ enum Command {
         #[arg(long, allow_negative_numbers = true)]
         nodata: Option<f64>,
         /// What the heights are measured from, recorded so outputs that need another
-        /// reference (Cesium: the ellipsoid) can convert. Default: what the input says
-        /// (SRTM .hgt: egm96; a GeoTIFF's vertical GeoKeys, its DTED metadata, or the
-        /// file name of a product such as USGS SRTM or Copernicus DEM), else unknown,
-        /// with a warning giving the error Cesium terrain would show.
-        #[arg(long, value_enum)]
-        vertical_datum: Option<DatumArg>,
+        /// reference (Cesium: the ellipsoid) can convert: egm96, egm2008, ellipsoid or
+        /// unknown, for every input, or 'PATTERN=DATUM' for the inputs whose file name
+        /// matches PATTERN (repeatable; e.g. --vertical-datum 'swissalti*=ellipsoid').
+        /// Default: what the input says (SRTM .hgt: egm96; a GeoTIFF's vertical GeoKeys,
+        /// its DTED metadata, or the file name of a product such as USGS SRTM or
+        /// Copernicus DEM), else unknown, with a warning giving the error Cesium terrain
+        /// would show. Inputs in different datums are an error without --to-vertical.
+        #[arg(long, value_name = "[PATTERN=]DATUM", value_parser = parse_vertical_arg)]
+        vertical_datum: Vec<(Option<glob::Pattern>, tessera_shared::VerticalDatum)>,
+        /// Convert every input's heights to this vertical datum as they are read, through
+        /// PROJ and its geoid grids (proj-data ships EGM96's; EGM2008's must be
+        /// downloaded from cdn.proj.org): the pyramid records it.
+        #[arg(long, value_enum, value_name = "DATUM")]
+        to_vertical: Option<ToVertical>,
         /// The input's horizontal CRS: EPSG:CODE or a PROJ string (e.g. '+proj=longlat
         /// +R=1737400 +no_defs' for the Moon). Assigned, not reprojected: it replaces the
         /// input's own CRS (with a warning naming both), and --to reprojects from it. The
-        /// input needs a geotransform: its own or --bounds. A mosaic takes it as a whole
-        /// (every input; they must still share one grid).
+        /// input needs a geotransform: its own or --bounds. A mosaic on one grid takes it
+        /// as a whole (every input); inputs on different grids need their own (in the
+        /// file, a .prj beside it, or a VRT's <SRS>).
         #[arg(long, value_name = "CRS")]
         crs: Option<String>,
         /// The outer edges of the raster's pixels in the CRS's units (pixel-is-area, as
@@ -266,27 +277,24 @@ fn main() -> ExitCode {
     }
 }
 
-/// `--vertical-datum` values (shared/ does not link clap).
+/// `--to-vertical` values (shared/ does not link clap).
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum DatumArg {
+enum ToVertical {
     /// Heights above the EGM96 geoid (SRTM).
     Egm96,
     /// Heights above the EGM2008 geoid (Copernicus DEM).
     Egm2008,
-    /// Heights above the CRS's ellipsoid.
+    /// Heights above the WGS 84 ellipsoid.
     Ellipsoid,
-    /// Not known.
-    Unknown,
 }
 
-impl DatumArg {
+impl ToVertical {
     const fn datum(self) -> tessera_shared::VerticalDatum {
         use tessera_shared::VerticalDatum as V;
         match self {
             Self::Egm96 => V::Egm96,
             Self::Egm2008 => V::Egm2008,
             Self::Ellipsoid => V::Ellipsoid,
-            Self::Unknown => V::Unknown,
         }
     }
 }
@@ -303,6 +311,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             offset,
             nodata,
             vertical_datum,
+            to_vertical,
             crs,
             bounds,
             to,
@@ -336,7 +345,22 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 memory_budget: memory,
                 max_samples,
                 nodata,
-                vertical_datum: vertical_datum.map(DatumArg::datum),
+                vertical_datum: {
+                    let all: Vec<_> = vertical_datum.iter().filter(|(p, _)| p.is_none()).collect();
+                    if all.len() > 1 {
+                        anyhow::bail!(
+                            "--vertical-datum is given {} times for every input; give it once, \
+                             or as 'PATTERN=DATUM' for some inputs",
+                            all.len()
+                        );
+                    }
+                    all.first().map(|(_, d)| *d)
+                },
+                vertical_per_input: vertical_datum
+                    .iter()
+                    .filter_map(|(p, d)| Some((p.clone()?, *d)))
+                    .collect(),
+                to_vertical: to_vertical.map(ToVertical::datum),
                 crs,
                 bounds,
                 reproject: to.map(|to| ReprojectOptions {

@@ -68,6 +68,11 @@ pub struct BuildOptions {
     pub spacing: Option<[f64; 2]>,
     /// What the heights are measured from; `None`: what the input says, else unknown.
     pub vertical_datum: Option<VerticalDatum>,
+    /// What the heights of inputs whose file name matches a pattern are measured
+    /// from (before `vertical_datum`).
+    pub vertical_per_input: Vec<(glob::Pattern, VerticalDatum)>,
+    /// Convert every input's heights to this datum (`--to-vertical`).
+    pub to_vertical: Option<VerticalDatum>,
     /// Assign this horizontal CRS (`--crs`: `EPSG:CODE` or a PROJ string) to the
     /// input, replacing its own: coordinates are relabelled, not transformed
     /// ([`ingest::assign`]). With a mosaic, to the mosaic (all its inputs).
@@ -96,6 +101,8 @@ impl Default for BuildOptions {
             resampling: ingest::reproject::Resampling::Bilinear,
             spacing: None,
             vertical_datum: None,
+            vertical_per_input: Vec::new(),
+            to_vertical: None,
             crs: None,
             bounds: None,
             reproject: None,

@@ -84,7 +84,14 @@ pub(super) fn prepare(
             files.len()
         );
     }
+    let vertical = ingest::vertical_shift::VerticalOptions {
+        all: opts.vertical_datum,
+        per_input: opts.vertical_per_input.clone(),
+        to: opts.to_vertical,
+        scale: opts.scale,
+    };
     let mosaic_opts = ingest::MosaicOptions {
+        vertical: vertical.clone(),
         nodata: opts.nodata,
         overlap: opts.overlap,
         grid: Some(ingest::GridOptions {
@@ -99,6 +106,7 @@ pub(super) fn prepare(
         label,
         source_name,
         resampled,
+        mosaic,
     } = ingest::open_inputs(inputs, &mosaic_opts)?;
     // Inputs on different grids were resampled onto one, --to and --spacing with them.
     let reproject = if resampled {
@@ -130,9 +138,25 @@ pub(super) fn prepare(
         }
         source @ Input::Synthetic(_) => source,
     };
+    // One input's heights in the datum the user names for it (or it states),
+    // converted to --to-vertical's once it is georeferenced (a mosaic converts each
+    // of its inputs itself).
+    let (source, flag) = match source {
+        Input::Rows(rows) if !mosaic => {
+            let path = Path::new(&label);
+            let clue = vertical.datum_for(path, rows.datum_clue());
+            let user = vertical.datum_for(path, None).and_then(|c| c.datum);
+            let nodata: Vec<f32> = opts.nodata.map(|v| v as f32).into_iter().collect();
+            (
+                Input::Rows(vertical.convert(rows, &label, clue.as_ref(), &nodata)?),
+                opts.to_vertical.or(user),
+            )
+        }
+        source => (source, opts.to_vertical),
+    };
     // Decided on the input as read (georeferenced by --crs/--bounds if given), before
     // --to resamples it: reprojection moves the samples, not the heights' reference.
-    let datum = datum::decide(opts.vertical_datum, &source, &label);
+    let datum = datum::decide(flag, &source, &label);
     // What the inputs declare, checked before a sample is read: the source a `--to`
     // spools whole first, then the raster the pyramid is built from.
     let declared = match &source {

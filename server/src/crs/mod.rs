@@ -272,6 +272,24 @@ impl Crs {
             (self.key, &self.definition),
             (to.key, &to.definition),
             points,
+            false,
+        )
+        .map_err(|e| anyhow!("{} → {}: {e}", self.label(), to.label()))
+    }
+
+    /// [`Crs::transform_points`] with no "ballpark" operation: where PROJ lacks a
+    /// grid the transformation needs (a geoid model), an error rather than the
+    /// identity PROJ would otherwise fall back to.
+    pub fn transform_points_exactly(
+        &self,
+        to: &Crs,
+        points: &mut [[f64; 3]],
+    ) -> anyhow::Result<()> {
+        proj::transform(
+            (self.key, &self.definition),
+            (to.key, &to.definition),
+            points,
+            true,
         )
         .map_err(|e| anyhow!("{} → {}: {e}", self.label(), to.label()))
     }

@@ -33,7 +33,8 @@ impl Drop for Object {
 /// context (field order, and [`Drop`] below clears them first).
 struct ThreadProj {
     crs: HashMap<u64, Object>,
-    operations: HashMap<(u64, u64), Object>,
+    /// By (source, target, strict): strict operations refuse ballpark steps.
+    operations: HashMap<(u64, u64, bool), Object>,
     ctx: *mut sys::PJ_CONTEXT,
 }
 
@@ -84,22 +85,51 @@ impl ThreadProj {
         Ok(pj)
     }
 
-    fn operation(&mut self, from: (u64, &str), to: (u64, &str)) -> Result<*mut sys::PJ, String> {
-        if let Some(o) = self.operations.get(&(from.0, to.0)) {
+    fn operation(
+        &mut self,
+        from: (u64, &str),
+        to: (u64, &str),
+        strict: bool,
+    ) -> Result<*mut sys::PJ, String> {
+        if let Some(o) = self.operations.get(&(from.0, to.0, strict)) {
             return Ok(o.0);
         }
         let src = self
             .crs(from.0, from.1)
             .map_err(|e| format!("source: {e}"))?;
         let dst = self.crs(to.0, to.1).map_err(|e| format!("target: {e}"))?;
-        // SAFETY: both CRSs are live objects of this context.
+        // Strict: no "ballpark" operation, which PROJ otherwise falls back to where a
+        // grid is missing (EGM96 → EGM2008 heights without the EGM2008 grid would be
+        // the identity, silently).
+        let no_ballpark = CString::new("ALLOW_BALLPARK=NO").expect("no NUL");
+        let options: [*const c_char; 2] = [no_ballpark.as_ptr(), ptr::null()];
+        let options = if strict {
+            options.as_ptr()
+        } else {
+            ptr::null()
+        };
+        // SAFETY: both CRSs are live objects of this context; `options` is null or a
+        // null-terminated list of strings that outlive the call.
         let op = unsafe {
-            sys::proj_create_crs_to_crs_from_pj(self.ctx, src, dst, ptr::null_mut(), ptr::null())
+            sys::proj_create_crs_to_crs_from_pj(self.ctx, src, dst, ptr::null_mut(), options)
         };
         if op.is_null() {
-            return Err(self.error());
+            // SAFETY: ctx is live.
+            return Err(if unsafe { sys::proj_context_errno(self.ctx) } == 0 {
+                "PROJ finds no operation between them (a grid it needs may be missing)".into()
+            } else {
+                self.error()
+            });
         }
         let op = Object(op);
+        // SAFETY: op is a live operation of this context.
+        if strict
+            && unsafe { sys::proj_coordoperation_has_ballpark_transformation(self.ctx, op.0) } != 0
+        {
+            return Err(
+                "PROJ has only a ballpark operation here (a grid it needs is missing)".into(),
+            );
+        }
         // SAFETY: op is live; the result is a new object (or null on error).
         let normalised = unsafe { sys::proj_normalize_for_visualization(self.ctx, op.0) };
         if normalised.is_null() {
@@ -107,7 +137,7 @@ impl ThreadProj {
         }
         let normalised = Object(normalised);
         let pj = normalised.0;
-        self.operations.insert((from.0, to.0), normalised);
+        self.operations.insert((from.0, to.0, strict), normalised);
         Ok(pj)
     }
 }
@@ -293,14 +323,16 @@ unsafe fn identified(p: &ThreadProj, o: *const sys::PJ) -> Option<(String, Strin
 
 /// Transforms `points` (x, y, z) in place from one CRS to another, with this thread's
 /// cached operation. A point PROJ cannot transform becomes NaN; the error names the
-/// first such point. `from`/`to` are `(definition hash, definition)`.
+/// first such point. `from`/`to` are `(definition hash, definition)`; `strict`
+/// refuses ballpark operations.
 pub(super) fn transform(
     from: (u64, &str),
     to: (u64, &str),
     points: &mut [[f64; 3]],
+    strict: bool,
 ) -> Result<(), String> {
     PROJ.with_borrow_mut(|p| {
-        let op = p.operation(from, to)?;
+        let op = p.operation(from, to, strict)?;
         let mut coords: Vec<sys::PJ_COORD> = points
             .iter()
             .map(|&[x, y, z]| sys::PJ_COORD {

@@ -11,6 +11,7 @@ pub mod png16;
 pub mod raster;
 pub mod reproject;
 pub mod synthetic;
+pub mod vertical_shift;
 pub mod vrt;
 
 pub use inputs::InputSpec;
@@ -120,6 +121,9 @@ pub struct Opened {
     /// Inputs on different grids, resampled onto one (`--to` and `--spacing`, if
     /// given, are done).
     pub resampled: bool,
+    /// A [`Mosaic`] (of files, or a VRT's sources): each input's vertical datum is
+    /// settled and converted inside it.
+    pub mosaic: bool,
 }
 
 /// Opens what `build` was asked to read: one file (read exactly as before mosaics),
@@ -135,6 +139,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
                 source_name: file_name(&s),
                 label: s,
                 resampled: false,
+                mosaic: false,
             });
         }
         inputs::Expanded::Files(files) => files,
@@ -148,6 +153,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
             source_name: file_name(&label),
             label,
             resampled: false,
+            mosaic: false,
         });
     }
     let mosaic = Mosaic::open_with(&files, opts, open_raster)?;
@@ -155,6 +161,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
         label: mosaic.label().to_string(),
         source_name: mosaic.source_name().to_string(),
         resampled: mosaic.resampled(),
+        mosaic: true,
         input: Input::Rows(Box::new(mosaic)),
     })
 }

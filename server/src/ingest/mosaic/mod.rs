@@ -13,6 +13,7 @@
 //! no-data values mix. Where inputs overlap, a missing sample never conflicts with a
 //! valid one; two valid samples must be equal, or [`Overlap`] decides.
 
+use super::vertical_shift::VerticalOptions;
 use super::vrt::is_vrt;
 use super::{DatumClue, RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
@@ -115,6 +116,8 @@ pub struct Mosaic {
     spool_dir: Option<PathBuf>,
     /// Whether the inputs were on different grids and resampled onto one.
     resampled: bool,
+    /// Converts each input's heights to one vertical datum as it is opened.
+    vertical: VerticalOptions,
 }
 
 /// How [`Mosaic::open_with`] treats its inputs.
@@ -128,18 +131,36 @@ pub struct MosaicOptions {
     /// How inputs on different grids are put on one; `None`: they are refused,
     /// naming the two that differ.
     pub grid: Option<GridOptions>,
+    /// The inputs' vertical datums and the one to convert them to.
+    pub vertical: VerticalOptions,
 }
 
 /// The datum the pieces state, when those that state one agree (pieces that state
-/// nothing do not count), with where it is stated; pieces that disagree, or one that
-/// names a datum the metadata cannot record, leave it unknown and say so.
-fn agreed_datum(pieces: &[Piece]) -> Option<DatumClue> {
+/// nothing do not count), with where it is stated. Pieces in different datums cannot
+/// be mixed: an error naming two of them and the flag that converts them. A piece that
+/// names a datum the metadata cannot record leaves it unknown and says so.
+fn agreed_datum(pieces: &[Piece]) -> anyhow::Result<Option<DatumClue>> {
     let mut stating = pieces.iter().filter_map(|p| Some((p, p.datum.as_ref()?)));
-    let (first, clue) = stating.next()?;
+    let Some((first, clue)) = stating.next() else {
+        return Ok(None);
+    };
     let count = 1 + stating.clone().count();
-    if let Some((other, o)) = stating.find(|(_, c)| c.datum != clue.datum) {
-        let says = |c: &DatumClue| c.datum.map_or("another datum", VerticalDatum::name);
-        return Some(DatumClue {
+    let says = |c: &DatumClue| c.datum.map_or("another datum", VerticalDatum::name);
+    if let Some((other, o)) = stating.clone().find(|(_, c)| c.datum != clue.datum) {
+        if clue.datum.is_some() && o.datum.is_some() {
+            bail!(
+                "{} and {}: heights in different vertical datums (the first says {} ({}), the \
+                 second says {} ({})): convert them to one with --to-vertical \
+                 egm96|egm2008|ellipsoid, or say what they are with --vertical-datum",
+                first.name,
+                other.name,
+                says(clue),
+                clue.why,
+                says(o),
+                o.why
+            );
+        }
+        return Ok(Some(DatumClue {
             datum: None,
             why: format!(
                 "the inputs disagree: {} says {} ({}), {} says {} ({})",
@@ -150,10 +171,10 @@ fn agreed_datum(pieces: &[Piece]) -> Option<DatumClue> {
                 says(o),
                 o.why
             ),
-        });
+        }));
     }
     if pieces.len() == 1 {
-        return Some(clue.clone());
+        return Ok(Some(clue.clone()));
     }
     let whose = if count == pieces.len() {
         format!("all {count} inputs")
@@ -163,10 +184,10 @@ fn agreed_datum(pieces: &[Piece]) -> Option<DatumClue> {
             pieces.len()
         )
     };
-    Some(DatumClue {
+    Ok(Some(DatumClue {
         datum: clue.datum,
         why: format!("{whose}, e.g. {}: {}", first.name, clue.why),
-    })
+    }))
 }
 
 fn file_name(p: &Path) -> String {
@@ -202,7 +223,7 @@ impl Mosaic {
         let opts = MosaicOptions {
             nodata,
             overlap: Some(overlap),
-            grid: None,
+            ..MosaicOptions::default()
         };
         Self::open_with(inputs, &opts, opener)
     }
@@ -222,9 +243,9 @@ impl Mosaic {
         let mut groups = Vec::with_capacity(inputs.len());
         for path in inputs {
             groups.push(if is_vrt(path) {
-                vrt_group(path, nodata, opener)?
+                vrt_group(path, nodata, &opts.vertical, opener)?
             } else {
-                file_group(path, nodata, opener)?
+                file_group(path, nodata, &opts.vertical, opener)?
             });
         }
         let (width, height, georef, pieces, overlap, resampled) =
@@ -272,7 +293,33 @@ impl Mosaic {
             formats.join("/"),
             types.join("/"),
         );
-        let datum = agreed_datum(&pieces);
+        let datum = match opts.vertical.to {
+            Some(to) => {
+                // Every input's datum must be known to convert it (checked here, before
+                // anything is read).
+                if let Some(p) = pieces.iter().find(|p| {
+                    p.datum
+                        .as_ref()
+                        .and_then(|c| c.datum)
+                        .is_none_or(|d| d == VerticalDatum::Unknown)
+                }) {
+                    bail!(
+                        "{}: its heights' vertical datum is unknown ({}), so they cannot be \
+                         converted to {}: give it with --vertical-datum 'FILE=DATUM'",
+                        p.name,
+                        p.datum
+                            .as_ref()
+                            .map_or("it states none", |c| c.why.as_str()),
+                        to.name()
+                    );
+                }
+                Some(DatumClue {
+                    datum: Some(to),
+                    why: format!("every input converted with --to-vertical {}", to.name()),
+                })
+            }
+            None => agreed_datum(&pieces)?,
+        };
         let mut by_top: Vec<usize> = (0..pieces.len()).collect();
         by_top.sort_by_key(|&i| (pieces[i].y, i));
         let buffer_bytes = peak_open_bytes(&pieces)
@@ -305,6 +352,7 @@ impl Mosaic {
             source_name,
             spool_dir: opts.grid.as_ref().map(|g| g.spool_dir.clone()),
             resampled,
+            vertical: opts.vertical.clone(),
         })
     }
 
@@ -339,7 +387,10 @@ impl Mosaic {
 
     fn open_piece(&self, index: usize) -> anyhow::Result<OpenPiece> {
         let p = &self.pieces[index];
-        let (mut reader, _) = (self.opener)(&p.path).with_context(|| p.name.clone())?;
+        let (reader, _) = (self.opener)(&p.path).with_context(|| p.name.clone())?;
+        let mut reader = self
+            .vertical
+            .convert(reader, &p.name, p.datum.as_ref(), &p.nodata)?;
         if let Some(w) = &p.warp {
             let i = reader.info();
             if (i.width as usize, i.height as usize) != (w.map.src_w, w.map.src_h) {

@@ -2,6 +2,7 @@
 //! not fit together and why, and the placement of every piece on the mosaic's lattice.
 
 use super::super::RowSource;
+use super::super::vertical_shift::VerticalOptions;
 use super::super::vrt::{Rect, Vrt, is_vrt};
 use super::{
     Group, LATTICE_TOLERANCE, OPEN_INPUT_BYTES, Opener, Piece, crs_text, file_name, nodata_values,
@@ -18,6 +19,7 @@ pub(super) fn piece_bytes(reader: &dyn RowSource) -> u64 {
 pub(super) fn file_group(
     path: &Path,
     nodata: Option<f64>,
+    vertical: &VerticalOptions,
     opener: Opener,
 ) -> anyhow::Result<Group> {
     let name = path.display().to_string();
@@ -38,7 +40,7 @@ pub(super) fn file_group(
         src_height: info.height,
         nodata: nodata_values(nodata, &[info.nodata]),
         bytes: piece_bytes(reader.as_ref()),
-        datum: reader.datum_clue(),
+        datum: vertical.datum_for(path, reader.datum_clue()),
         warp: None,
     };
     Ok(Group {
@@ -51,7 +53,12 @@ pub(super) fn file_group(
     })
 }
 
-pub(super) fn vrt_group(path: &Path, nodata: Option<f64>, opener: Opener) -> anyhow::Result<Group> {
+pub(super) fn vrt_group(
+    path: &Path,
+    nodata: Option<f64>,
+    vertical: &VerticalOptions,
+    opener: Opener,
+) -> anyhow::Result<Group> {
     let vrt_name = path.display().to_string();
     let vrt = Vrt::open(path).with_context(|| vrt_name.clone())?;
     let mut pieces = Vec::with_capacity(vrt.sources.len());
@@ -104,7 +111,7 @@ pub(super) fn vrt_group(path: &Path, nodata: Option<f64>, opener: Opener) -> any
             src_height: info.height,
             nodata: nodata_values(nodata, &[info.nodata, s.nodata, vrt.nodata]),
             bytes: piece_bytes(reader.as_ref()),
-            datum: reader.datum_clue(),
+            datum: vertical.datum_for(&s.path, reader.datum_clue()),
             warp: None,
         });
     }
