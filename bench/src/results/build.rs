@@ -32,8 +32,8 @@ impl Record for Build {
     }
 }
 
-/// `ingest.jsonl`: one timed command of `bench/ingest.sh` (`case` "mosaic" or
-/// "reproject"; `samples` are the input's).
+/// `ingest.jsonl`: one timed command of `bench/ingest.sh` (`case` "mosaic",
+/// "reproject" or "mixed"; `samples` are the input's).
 #[derive(Clone, Debug, Deserialize)]
 pub struct Ingest {
     pub case: String,
@@ -43,6 +43,9 @@ pub struct Ingest {
     pub wall_s: f64,
     pub cpu_s: f64,
     pub rss_mib: f64,
+    /// The build's `--memory` budget in MiB, where the case sets one.
+    #[serde(default)]
+    pub memory_mib: Option<f64>,
 }
 
 impl Record for Ingest {
