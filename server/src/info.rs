@@ -162,6 +162,25 @@ pub fn render(i: &Info) -> String {
         }
     }
     let _ = writeln!(s, "heights ref {}", m.vertical_datum.name());
+    if !m.sources.is_empty() {
+        let _ = writeln!(s, "sources     {} (priority order)", m.sources.len());
+        for r in &m.sources {
+            let spacing = r.spacing.map_or_else(
+                || "spacing unknown".into(),
+                |g| format!("{:.3} × {:.3} m", g.x, g.y),
+            );
+            let area = footprint_area_km2(&r.footprint)
+                .map_or_else(String::new, |a| format!(", ≈{a:.0} km²"));
+            let _ = writeln!(
+                s,
+                "  {}: {}, {spacing}, {}, level {}{area}",
+                r.name,
+                if r.crs.is_empty() { "no CRS" } else { &r.crs },
+                r.vertical_datum.name(),
+                r.level,
+            );
+        }
+    }
     let _ = writeln!(s, "content     {}", m.content_hash);
     let _ = writeln!(
         s,
@@ -190,6 +209,26 @@ pub fn render(i: &Info) -> String {
         );
     }
     s
+}
+
+/// The area inside a longitude/latitude ring, in km², on a sphere of the Earth's mean
+/// radius (a local equirectangular shoelace: within a percent for a DEM's footprint).
+pub fn footprint_area_km2(ring: &[[f64; 2]]) -> Option<f64> {
+    const R_KM: f64 = 6371.0;
+    if ring.len() < 4 {
+        return None;
+    }
+    let mean_lat = ring.iter().map(|p| p[1]).sum::<f64>() / ring.len() as f64;
+    let k = R_KM * std::f64::consts::PI / 180.0;
+    let xy = |p: &[f64; 2]| (p[0] * k * mean_lat.to_radians().cos(), p[1] * k);
+    let twice: f64 = ring
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (xy(&w[0]), xy(&w[1]));
+            a.0 * b.1 - b.0 * a.1
+        })
+        .sum();
+    Some(twice.abs() / 2.0)
 }
 
 #[cfg(test)]

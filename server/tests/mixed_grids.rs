@@ -13,6 +13,8 @@
 
 mod gdal;
 mod raster_support;
+#[allow(dead_code)] // each test binary uses some of the shared helpers
+mod serve_support;
 
 use gdal::{gdal_or_skip, path_str, run};
 use raster_support::{finest_samples, read_raster, steepest};
@@ -279,4 +281,86 @@ fn three_grids_in_two_crss_fuse_as_gdalwarp_draws_them() {
     let Some(c) = Collection::new() else { return };
     fuse_and_compare(&c, "bilinear");
     fuse_and_compare(&c, "cubic");
+}
+
+/// The fused pyramid says where its data came from: `info` lists the three sources
+/// in priority order with their CRS, spacing and deepest level, and the server (default
+/// flags, asked from another origin as a web map would) serves their outlines as GeoJSON,
+/// each where GDAL puts the input's corners.
+#[test]
+fn the_pyramid_records_and_serves_its_sources() {
+    let Some(c) = Collection::new() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fused.tess");
+    let o = build(&[&c.base, &c.fine, &c.aletsch], &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let info = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
+        .arg("info")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let text = String::from_utf8(info.stdout).unwrap();
+    let lines: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("  ") && l.contains(".tif:"))
+        .collect();
+    assert_eq!(lines.len(), 3, "{text}");
+    assert!(
+        lines[0].starts_with("  fine_3s.tif: EPSG:4326 (WGS 84)"),
+        "{text}"
+    );
+    assert!(
+        lines[1].starts_with("  aletsch.tif: EPSG:2056 (CH1903+ / LV95), 199.99"),
+        "{text}"
+    );
+    assert!(lines[2].starts_with("  base_30s.tif: EPSG:4326"), "{text}");
+
+    let server = serve_support::Server::start(&[&out], &[]);
+    let r = server.get_with(
+        "/v1/datasets/fused/coverage.geojson",
+        &[("Origin", "https://maps.example.org")],
+    );
+    assert_eq!(r.status, 200);
+    assert_eq!(r.header("content-type"), Some("application/geo+json"));
+    assert!(r.header("access-control-allow-origin").is_some());
+    assert!(r.header("etag").is_some());
+    let fc = r.json();
+    assert_eq!(fc["type"], "FeatureCollection");
+    let f = fc["features"].as_array().unwrap();
+    let names: Vec<&str> = f
+        .iter()
+        .map(|x| x["properties"]["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["fine_3s.tif", "aletsch.tif", "base_30s.tif"]);
+    let levels: Vec<u64> = f
+        .iter()
+        .map(|x| x["properties"]["level"].as_u64().unwrap())
+        .collect();
+    let finest = fc["levels"].as_u64().unwrap() - 1;
+    // The 3″ window at the finest level, aletsch (200 m ≈ 2.5× coarser) one above,
+    // the 30″ base three above (10× coarser: 8× is the last level that keeps it).
+    assert_eq!(levels, [finest, finest - 1, finest.saturating_sub(3)]);
+    // Aletsch's outline passes through its corners as GDAL carries them to WGS 84.
+    let ring: Vec<[f64; 2]> = f[1]["geometry"]["coordinates"][0]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| [p[0].as_f64().unwrap(), p[1].as_f64().unwrap()])
+        .collect();
+    let corners = gdal::transform(
+        "EPSG:2056",
+        "EPSG:4326",
+        &[[2_601_100.0, 1_184_500.0], [2_672_700.0, 1_122_500.0]],
+    );
+    for c in corners {
+        let (lon, lat) = (c[0], c[1]);
+        let nearest = ring
+            .iter()
+            .map(|p| (p[0] - lon).hypot(p[1] - lat))
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            nearest < 1e-6,
+            "no outline point at {lon}, {lat}: {nearest}"
+        );
+    }
 }

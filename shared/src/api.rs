@@ -19,6 +19,8 @@ pub mod routes {
     pub const DATASET: &str = "/v1/datasets/{name}";
     pub const TILEJSON: &str = "/v1/datasets/{name}/tilejson.json";
     pub const PYRAMID: &str = "/v1/datasets/{name}/pyramid";
+    /// The pyramid's sources as GeoJSON (footprints, spacing, finest level).
+    pub const COVERAGE: &str = "/v1/datasets/{name}/coverage.geojson";
     /// Everything a first frame needs in one response ([`crate::bootstrap`]); query `v=`.
     pub const BOOTSTRAP: &str = "/v1/datasets/{name}/bootstrap";
     /// Morton-range tile stream; query `ranges=` ([`crate::range_query`]).
@@ -141,6 +143,10 @@ pub struct DatasetLinks {
     /// A shaded-relief PNG of the whole dataset.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub preview: Option<String>,
+    /// The sources' footprints, spacing and finest level as GeoJSON (files that record
+    /// their sources: format version 3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coverage: Option<String>,
     /// TileJSON of the standard grids (datasets with a place on a map).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub standard_grids: Option<StandardGridLinks>,
@@ -222,6 +228,7 @@ impl DatasetInfo {
                 png: format!("{}.png?encoding=terrarium", at(routes::WEB_TILE)),
                 bootstrap: None,
                 preview: None,
+                coverage: (!meta.sources.is_empty()).then(|| at(routes::COVERAGE)),
                 standard_grids: None,
                 wmts: None,
                 ogcapi_collection: None,

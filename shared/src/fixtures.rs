@@ -33,5 +33,6 @@ pub fn metadata(width: u32, height: u32, tile_size: u32) -> Metadata {
         source: "test".into(),
         generator: "test".into(),
         content_hash: "0123456789abcdef".into(),
+        sources: Vec::new(),
     }
 }

@@ -1,5 +1,6 @@
-//! The pyramid file format, version 2 (see `FORMAT.md` for the byte-level description;
-//! version 1 files still read: their metadata has its own shape, their records no mask).
+//! The pyramid file format, version 3 (see `FORMAT.md` for the byte-level description;
+//! version 1 and 2 files still read: their metadata has its own shape, and version 1
+//! records no mask).
 //!
 //! ```text
 //! header (64 B) · metadata (bincode 2) · level table (40 B per level)
@@ -22,8 +23,8 @@ pub const IMAGERY_MAGIC: [u8; 8] = *b"TESSIMG\0";
 /// says so; [`FileHeader::to_bytes`] writes the magic from it. Bit 16, not 0: the low
 /// bits stay reserved (and refused by `verify`) in DEM pyramids.
 pub const FILE_IMAGERY: u32 = 1 << 16;
-/// The version this build writes.
-pub const VERSION: u32 = 2;
+/// The version this build writes (3: the metadata lists the sources).
+pub const VERSION: u32 = 3;
 /// The oldest version this build reads.
 pub const OLDEST_READABLE: u32 = 1;
 
@@ -79,12 +80,13 @@ pub fn decode_metadata(bytes: &[u8]) -> Result<Metadata, MetadataError> {
     decode_metadata_of(bytes, VERSION)
 }
 
-/// Metadata of a `version` file (version 1 has fewer fields).
+/// Metadata of a `version` file (versions 1 and 2 have fewer fields).
 pub fn decode_metadata_of(bytes: &[u8], version: u32) -> Result<Metadata, MetadataError> {
-    if version == 1 {
-        return decode_exact::<crate::metadata::v1::Metadata>(bytes).map(Metadata::from);
+    match version {
+        1 => decode_exact::<crate::metadata::v1::Metadata>(bytes).map(Metadata::from),
+        2 => decode_exact::<crate::metadata::v2::Metadata>(bytes).map(Metadata::from),
+        _ => decode_exact(bytes),
     }
-    decode_exact(bytes)
 }
 
 /// An imagery pyramid's metadata as stored in its header.
@@ -95,7 +97,20 @@ pub fn encode_imagery_metadata(meta: &ImageryMetadata) -> Vec<u8> {
 
 /// An imagery pyramid's metadata, checked ([`ImageryMetadata::check`]).
 pub fn decode_imagery_metadata(bytes: &[u8]) -> Result<ImageryMetadata, MetadataError> {
-    let meta: ImageryMetadata = decode_exact(bytes)?;
+    decode_imagery_metadata_of(bytes, VERSION)
+}
+
+/// [`decode_imagery_metadata`] of a `version` file (version 2 embeds the DEM's
+/// metadata in its version 2 shape).
+pub fn decode_imagery_metadata_of(
+    bytes: &[u8],
+    version: u32,
+) -> Result<ImageryMetadata, MetadataError> {
+    let meta: ImageryMetadata = if version <= 2 {
+        decode_exact::<crate::imagery::v2::ImageryMetadata>(bytes)?.into()
+    } else {
+        decode_exact(bytes)?
+    };
     meta.check()?;
     Ok(meta)
 }
@@ -153,15 +168,18 @@ impl ContentHasher {
     pub fn of_version(meta: &Metadata, version: u32) -> Self {
         let mut unhashed = meta.clone();
         unhashed.content_hash.clear();
-        let bytes = if version == 1 {
-            bincode::serde::encode_to_vec(
+        let bytes = match version {
+            1 => bincode::serde::encode_to_vec(
                 crate::metadata::v1::Metadata::from(&unhashed),
                 bincode_config(),
-            )
-            .expect("metadata always serializes")
-        } else {
-            encode_metadata(&unhashed)
-        };
+            ),
+            2 => bincode::serde::encode_to_vec(
+                crate::metadata::v2::Metadata::from(&unhashed),
+                bincode_config(),
+            ),
+            _ => Ok(encode_metadata(&unhashed)),
+        }
+        .expect("metadata always serializes");
         let mut h = Xxh3::new();
         h.update(&bytes);
         Self(h)
@@ -170,10 +188,25 @@ impl ContentHasher {
     /// For an imagery pyramid: its metadata with an empty hash, then its records'
     /// checksums, exactly as for a DEM pyramid.
     pub fn imagery(meta: &ImageryMetadata) -> Self {
+        Self::imagery_of_version(meta, VERSION)
+    }
+
+    /// [`ContentHasher::imagery`] for a `version` file: the metadata in the shape that
+    /// version stores.
+    pub fn imagery_of_version(meta: &ImageryMetadata, version: u32) -> Self {
         let mut unhashed = meta.clone();
         unhashed.content_hash.clear();
+        let bytes = if version <= 2 {
+            bincode::serde::encode_to_vec(
+                crate::imagery::v2::ImageryMetadata::from(&unhashed),
+                bincode_config(),
+            )
+            .expect("metadata always serializes")
+        } else {
+            encode_imagery_metadata(&unhashed)
+        };
         let mut h = Xxh3::new();
-        h.update(&encode_imagery_metadata(&unhashed));
+        h.update(&bytes);
         Self(h)
     }
 

@@ -81,6 +81,59 @@ impl ImageryMetadata {
     }
 }
 
+/// The imagery metadata of format version 2 files: the DEM's metadata in its version 2
+/// shape, the rest as today.
+pub(crate) mod v2 {
+    use super::ImageEncoding;
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct ImageryMetadata {
+        pub dem: crate::metadata::v2::Metadata,
+        pub texels: u32,
+        pub encoding: ImageEncoding,
+        pub bands: [u16; 3],
+        pub stretch: [[f64; 2]; 3],
+        pub texel_size: [f64; 2],
+        pub source: String,
+        pub generator: String,
+        pub content_hash: String,
+    }
+
+    impl From<ImageryMetadata> for super::ImageryMetadata {
+        fn from(m: ImageryMetadata) -> Self {
+            Self {
+                dem: m.dem.into(),
+                texels: m.texels,
+                encoding: m.encoding,
+                bands: m.bands,
+                stretch: m.stretch,
+                texel_size: m.texel_size,
+                source: m.source,
+                generator: m.generator,
+                content_hash: m.content_hash,
+            }
+        }
+    }
+
+    /// Back to the old shape, to hash a version 2 file's metadata as it was written.
+    impl From<&super::ImageryMetadata> for ImageryMetadata {
+        fn from(m: &super::ImageryMetadata) -> Self {
+            Self {
+                dem: (&m.dem).into(),
+                texels: m.texels,
+                encoding: m.encoding,
+                bands: m.bands,
+                stretch: m.stretch,
+                texel_size: m.texel_size,
+                source: m.source.clone(),
+                generator: m.generator.clone(),
+                content_hash: m.content_hash.clone(),
+            }
+        }
+    }
+}
+
 /// Why an imagery pyramid's metadata is refused ([`ImageryMetadata::check`]).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum ImageryMetadataError {

@@ -50,7 +50,8 @@ pub mod testdata;
 pub use error_table::ErrorTable;
 pub use mask::CellMask;
 pub use metadata::{
-    GeoRef, GroundSpacing, LevelCounts, Metadata, Quantization, RasterType, VerticalDatum,
+    GeoRef, GroundSpacing, LevelCounts, Metadata, Quantization, RasterType, SourceRecord,
+    VerticalDatum,
 };
 pub use morton::{Morton, MortonRange};
 pub use reader::{ByteSource, FileSource, Pyramid};

@@ -167,6 +167,30 @@ pub struct Metadata {
     /// Hash of the metadata and every record's checksum (16 hex digits): the dataset's
     /// identity for ETags and caches. Empty while the file is being written.
     pub content_hash: String,
+    /// The inputs the pyramid was built from, in priority order (empty in files
+    /// before version 3, and for synthetic terrain).
+    pub sources: Vec<SourceRecord>,
+}
+
+/// One input of a pyramid (its provenance): what it is, where it lies and how fine it
+/// is, as the build read it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SourceRecord {
+    /// The file name (without its folder).
+    pub name: String,
+    /// Its horizontal CRS as the build named it (`EPSG:2056 (CH1903+ / LV95)`), or
+    /// empty when it had none.
+    pub crs: String,
+    /// Metres between its samples at its centre.
+    pub spacing: Option<GroundSpacing>,
+    /// What its heights were measured from, as read (before any `--to-vertical`).
+    pub vertical_datum: VerticalDatum,
+    /// Its outline in WGS 84 longitude/latitude degrees, a closed ring (first point =
+    /// last), counter-clockwise; empty when it has no place on Earth.
+    pub footprint: Vec<[f64; 2]>,
+    /// The pyramid level whose sample spacing is the finest at or below this input's:
+    /// the deepest level its data supports.
+    pub level: u8,
 }
 
 impl Metadata {
@@ -195,6 +219,81 @@ pub struct ContentHashError {
     pub escaped: String,
     /// Its length in bytes.
     pub len: usize,
+}
+
+/// The metadata of format version 2 files: today's without `sources`.
+pub(crate) mod v2 {
+    use super::{GeoRef, GroundSpacing, LevelCounts, Quantization, VerticalDatum};
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    pub struct Metadata {
+        pub width: u32,
+        pub height: u32,
+        pub tile_size: u32,
+        pub levels: u8,
+        pub quantization: Quantization,
+        pub min_height: f64,
+        pub max_height: f64,
+        pub nodata_count: u64,
+        pub nodata_fill: String,
+        pub georef: Option<GeoRef>,
+        pub ground_spacing: Option<GroundSpacing>,
+        pub vertical_datum: VerticalDatum,
+        pub level_counts: Vec<LevelCounts>,
+        pub source: String,
+        pub generator: String,
+        pub content_hash: String,
+    }
+
+    /// Back to the old shape, for hashing a version 2 file's metadata as it was
+    /// written (`sources` is empty by construction).
+    impl From<&super::Metadata> for Metadata {
+        fn from(m: &super::Metadata) -> Self {
+            Self {
+                width: m.width,
+                height: m.height,
+                tile_size: m.tile_size,
+                levels: m.levels,
+                quantization: m.quantization,
+                min_height: m.min_height,
+                max_height: m.max_height,
+                nodata_count: m.nodata_count,
+                nodata_fill: m.nodata_fill.clone(),
+                georef: m.georef.clone(),
+                ground_spacing: m.ground_spacing,
+                vertical_datum: m.vertical_datum,
+                level_counts: m.level_counts.clone(),
+                source: m.source.clone(),
+                generator: m.generator.clone(),
+                content_hash: m.content_hash.clone(),
+            }
+        }
+    }
+
+    impl From<Metadata> for super::Metadata {
+        fn from(m: Metadata) -> Self {
+            Self {
+                width: m.width,
+                height: m.height,
+                tile_size: m.tile_size,
+                levels: m.levels,
+                quantization: m.quantization,
+                min_height: m.min_height,
+                max_height: m.max_height,
+                nodata_count: m.nodata_count,
+                nodata_fill: m.nodata_fill,
+                georef: m.georef,
+                ground_spacing: m.ground_spacing,
+                vertical_datum: m.vertical_datum,
+                level_counts: m.level_counts,
+                source: m.source,
+                generator: m.generator,
+                content_hash: m.content_hash,
+                sources: Vec::new(),
+            }
+        }
+    }
 }
 
 /// The metadata of format version 1 files, field for field as they were written
@@ -281,6 +380,7 @@ pub(crate) mod v1 {
                 source: m.source,
                 generator: m.generator,
                 content_hash: m.content_hash,
+                sources: Vec::new(),
             }
         }
     }

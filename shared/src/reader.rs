@@ -348,8 +348,8 @@ impl Layout {
         }
         let meta_bytes = read(header.meta_offset, header.meta_len, "metadata")?;
         let (meta, imagery) = if is_imagery {
-            let imagery =
-                format::decode_imagery_metadata(&meta_bytes).map_err(ReadError::Metadata)?;
+            let imagery = format::decode_imagery_metadata_of(&meta_bytes, header.version)
+                .map_err(ReadError::Metadata)?;
             (imagery.dem.clone(), Some(imagery))
         } else {
             let meta = format::decode_metadata_of(&meta_bytes, header.version)

@@ -29,6 +29,7 @@ mod node;
 pub mod parts;
 pub mod plausible;
 mod prepare;
+pub mod provenance;
 mod sink;
 pub mod spool;
 mod tiling;

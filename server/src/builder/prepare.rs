@@ -107,6 +107,7 @@ pub(super) fn prepare(
         source_name,
         resampled,
         mosaic,
+        inputs: mut input_summaries,
     } = ingest::open_inputs(inputs, &mosaic_opts)?;
     // Inputs on different grids were resampled onto one, --to and --spacing with them.
     let reproject = if resampled {
@@ -146,6 +147,13 @@ pub(super) fn prepare(
             let path = Path::new(&label);
             let clue = vertical.datum_for(path, rows.datum_clue());
             let user = vertical.datum_for(path, None).and_then(|c| c.datum);
+            input_summaries.push(ingest::InputSummary {
+                name: source_name.clone(),
+                georef: rows.info().georef.clone(),
+                width: rows.info().width,
+                height: rows.info().height,
+                datum: clue.as_ref().and_then(|c| c.datum),
+            });
             let nodata: Vec<f32> = opts.nodata.map(|v| v as f32).into_iter().collect();
             (
                 Input::Rows(vertical.convert(rows, &label, clue.as_ref(), &nodata)?),
@@ -236,6 +244,8 @@ pub(super) fn prepare(
     let ground_spacing = georef
         .as_mut()
         .and_then(|g| ground_geometry(g, width, height, input));
+    let sources =
+        super::provenance::records(&input_summaries, ground_spacing, geometry.level_count() - 1);
     let meta = Metadata {
         width,
         height,
@@ -257,6 +267,7 @@ pub(super) fn prepare(
         source: format!("{description} ({source_name})"),
         generator: format!("tessera-server {}", env!("CARGO_PKG_VERSION")),
         content_hash: String::new(),
+        sources,
     };
     Ok(Prepared {
         source,

@@ -103,6 +103,19 @@ pub struct DatumClue {
     pub why: String,
 }
 
+/// One input as its header describes it, for the pyramid's provenance
+/// (`builder::provenance`).
+#[derive(Clone, Debug)]
+pub struct InputSummary {
+    /// The file name (without its folder).
+    pub name: String,
+    pub georef: Option<GeoRef>,
+    pub width: u32,
+    pub height: u32,
+    /// What its heights are measured from, as the build reads it.
+    pub datum: Option<tessera_shared::VerticalDatum>,
+}
+
 /// A parsed `INPUT` argument.
 #[derive(Debug)]
 pub enum Input {
@@ -124,6 +137,9 @@ pub struct Opened {
     /// A [`Mosaic`] (of files, or a VRT's sources): each input's vertical datum is
     /// settled and converted inside it.
     pub mosaic: bool,
+    /// Each input (file or VRT) of a mosaic, in priority order; empty for one input
+    /// (the caller describes it once it is georeferenced).
+    pub inputs: Vec<InputSummary>,
 }
 
 /// Opens what `build` was asked to read: one file (read exactly as before mosaics),
@@ -140,6 +156,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
                 label: s,
                 resampled: false,
                 mosaic: false,
+                inputs: Vec::new(),
             });
         }
         inputs::Expanded::Files(files) => files,
@@ -154,6 +171,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
             label,
             resampled: false,
             mosaic: false,
+            inputs: Vec::new(),
         });
     }
     let mosaic = Mosaic::open_with(&files, opts, open_raster)?;
@@ -162,6 +180,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
         source_name: mosaic.source_name().to_string(),
         resampled: mosaic.resampled(),
         mosaic: true,
+        inputs: mosaic.inputs().to_vec(),
         input: Input::Rows(Box::new(mosaic)),
     })
 }

@@ -119,6 +119,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::DATASET, get(routes::datasets::get_one))
         .route(paths::TILEJSON, get(routes::web_tiles::tilejson))
         .route(paths::PYRAMID, get(routes::pyramid::raw))
+        .route(paths::COVERAGE, get(routes::coverage::get))
         .route(paths::TILES, get(routes::tiles::ranges))
         .route(paths::ERRORS, get(routes::tiles::errors))
         .route(paths::IMAGERY_TILES, get(routes::tiles::imagery))

@@ -25,7 +25,7 @@ pub fn verify(path: &Path) -> Result<VerifyReport, ReadError> {
     let meta = p.imagery().expect("an imagery pyramid").clone();
     let g = *p.geometry();
     let mut report = VerifyReport::default();
-    let mut hash = ContentHasher::imagery(&meta);
+    let mut hash = ContentHasher::imagery_of_version(&meta, p.header().version);
     for level in g.levels() {
         for tile in g.present_tiles(level) {
             let Some(entry) = p.entry(tile).copied() else {

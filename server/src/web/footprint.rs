@@ -269,6 +269,7 @@ pub(crate) mod tests {
             source: String::new(),
             generator: String::new(),
             content_hash: String::new(),
+            sources: Vec::new(),
         }
     }
 

@@ -118,6 +118,8 @@ pub struct Mosaic {
     resampled: bool,
     /// Converts each input's heights to one vertical datum as it is opened.
     vertical: VerticalOptions,
+    /// Each input (file or VRT), in priority order, for the pyramid's provenance.
+    inputs: Vec<super::InputSummary>,
 }
 
 /// How [`Mosaic::open_with`] treats its inputs.
@@ -267,6 +269,7 @@ impl Mosaic {
                 (Err(e), _) => return Err(e),
             };
         let any_vrt = groups.iter().any(|g| g.is_vrt);
+        let inputs = summaries(&groups, &pieces);
         let (label, source_name) = names(&groups, &pieces);
         drop(groups);
 
@@ -353,12 +356,18 @@ impl Mosaic {
             spool_dir: opts.grid.as_ref().map(|g| g.spool_dir.clone()),
             resampled,
             vertical: opts.vertical.clone(),
+            inputs,
         })
     }
 
     /// Whether the inputs were on different grids, resampled onto one.
     pub fn resampled(&self) -> bool {
         self.resampled
+    }
+
+    /// Each input (file or VRT) as its header describes it, in priority order.
+    pub fn inputs(&self) -> &[super::InputSummary] {
+        &self.inputs
     }
 
     /// How build errors name the mosaic.
@@ -583,6 +592,42 @@ impl RowSource for Mosaic {
     fn datum_clue(&self) -> Option<DatumClue> {
         self.datum.clone()
     }
+}
+
+/// Each group as an [`super::InputSummary`], in the order its pieces were placed
+/// (priority order for `--overlap finest`).
+fn summaries(groups: &[Group], pieces: &[Piece]) -> Vec<super::InputSummary> {
+    let group_of: std::collections::HashMap<&Path, usize> = groups
+        .iter()
+        .enumerate()
+        .flat_map(|(i, g)| g.pieces.iter().map(move |p| (p.path.as_path(), i)))
+        .collect();
+    let mut seen = vec![false; groups.len()];
+    let mut order: Vec<usize> = Vec::new();
+    for p in pieces {
+        if let Some(&g) = group_of.get(p.path.as_path())
+            && !std::mem::replace(&mut seen[g], true)
+        {
+            order.push(g);
+        }
+    }
+    order
+        .into_iter()
+        .map(|i| {
+            let g = &groups[i];
+            super::InputSummary {
+                name: file_name(Path::new(&g.name)),
+                georef: g.georef.clone(),
+                width: g.width,
+                height: g.height,
+                datum: g
+                    .pieces
+                    .first()
+                    .and_then(|p| p.datum.as_ref())
+                    .and_then(|c| c.datum),
+            }
+        })
+        .collect()
 }
 
 /// Logs how inputs on different grids were put on one.

@@ -3,6 +3,7 @@
 pub mod base_url;
 pub mod bootstrap;
 pub mod cesium;
+pub mod coverage;
 pub mod datasets;
 pub mod health;
 pub mod ogc_api;
