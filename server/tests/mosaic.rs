@@ -149,15 +149,17 @@ fn name(p: &Path) -> String {
 
 /// Asserts that two pyramids hold the same tiles: every level's index entries (min,
 /// max, full-resolution error, flags, checksum) and every record's bytes (so every
-/// decoded height and error table), and the same metadata but for `source`, which
-/// names the input (a mosaic says "mosaic of 16 …"), and `content_hash`, which hashes
-/// the metadata too and so differs only because `source` does.
+/// decoded height and error table), and the same metadata but for `source` and
+/// `sources`, which name the inputs (a mosaic says "mosaic of 16 …" and lists the 16),
+/// and `content_hash`, which hashes the metadata too and so differs only because they
+/// do.
 fn assert_same_pyramid(want: &Path, got: &Path) {
     let a = Pyramid::open_file(want).unwrap();
     let b = Pyramid::open_file(got).unwrap();
     let strip = |m: &tessera_shared::Metadata| {
         let mut m = m.clone();
         m.source.clear();
+        m.sources.clear();
         m.content_hash.clear();
         m
     };

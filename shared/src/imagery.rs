@@ -167,6 +167,28 @@ mod tests {
         }
     }
 
+    /// A version 2 imagery file's metadata (the DEM's in its version 2 shape) still
+    /// decodes, and hashes in that shape: its content hash stays its identity.
+    #[test]
+    fn version_2_imagery_metadata_still_reads_and_hashes_as_written() {
+        let m = meta();
+        let old = v2::ImageryMetadata::from(&m);
+        let bytes = bincode::serde::encode_to_vec(&old, bincode::config::standard()).unwrap();
+        let read = crate::format::decode_imagery_metadata_of(&bytes, 2).unwrap();
+        assert_eq!(read, m);
+        // Read as version 3 the same bytes are cut short (no `sources`).
+        assert!(crate::format::decode_imagery_metadata_of(&bytes, 3).is_err());
+        let h2 = crate::format::ContentHasher::imagery_of_version(&m, 2).finish();
+        let h3 = crate::format::ContentHasher::imagery_of_version(&m, 3).finish();
+        let mut unhashed = old.clone();
+        unhashed.content_hash.clear();
+        let direct = xxhash_rust::xxh3::xxh3_64(
+            &bincode::serde::encode_to_vec(&unhashed, bincode::config::standard()).unwrap(),
+        );
+        assert_eq!(h2, format!("{direct:016x}"));
+        assert_ne!(h2, h3);
+    }
+
     #[test]
     fn check_refuses_bad_texels_and_hashes() {
         assert!(meta().check().is_ok());

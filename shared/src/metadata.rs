@@ -168,7 +168,9 @@ pub struct Metadata {
     /// identity for ETags and caches. Empty while the file is being written.
     pub content_hash: String,
     /// The inputs the pyramid was built from, in priority order (empty in files
-    /// before version 3, and for synthetic terrain).
+    /// before version 3, and for synthetic terrain). `default`: a JSON document from a
+    /// server that predates it still reads (bincode ignores the attribute).
+    #[serde(default)]
     pub sources: Vec<SourceRecord>,
 }
 

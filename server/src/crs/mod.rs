@@ -75,7 +75,8 @@ impl Crs {
         } else {
             trimmed
         };
-        let d = proj::describe(definition).map_err(|e| anyhow!("{}: {e}", shorten(definition)))?;
+        let d = proj::describe_cached(definition)
+            .map_err(|e| anyhow!("{}: {e}", shorten(definition)))?;
         let epsg =
             d.id.as_ref()
                 .filter(|(auth, _)| auth.eq_ignore_ascii_case("EPSG"))

@@ -189,6 +189,27 @@ pub(super) struct Described {
     pub has_vertical: bool,
 }
 
+/// [`describe`], remembered process-wide: a collection of thousands of inputs names a
+/// few CRSs thousands of times.
+pub(super) fn describe_cached(definition: &str) -> Result<Described, String> {
+    use std::sync::{Mutex, OnceLock};
+    /// Definitions remembered; beyond this the memory starts afresh.
+    const MAX: usize = 4096;
+    static CACHE: OnceLock<Mutex<HashMap<String, Result<Described, String>>>> = OnceLock::new();
+    let cache = CACHE.get_or_init(Mutex::default);
+    if let Some(d) = cache.lock().ok().and_then(|c| c.get(definition).cloned()) {
+        return d;
+    }
+    let d = describe(definition);
+    if let Ok(mut c) = cache.lock() {
+        if c.len() >= MAX {
+            c.clear();
+        }
+        c.insert(definition.to_string(), d.clone());
+    }
+    d
+}
+
 /// The [`Described`] of a definition PROJ accepts (`EPSG:CODE`, `EPSG:4326+5773`,
 /// WKT 1 or 2, ESRI WKT, PROJJSON, a PROJ string); an error in PROJ's words for
 /// anything else, and for objects that are not CRSs (a bare conversion or datum).
@@ -225,7 +246,14 @@ pub(super) fn describe(definition: &str) -> Result<Described, String> {
             );
             let has_vertical = kind == sys::PJ_TYPE_PJ_TYPE_COMPOUND_CRS
                 || kind == sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_3D_CRS;
-            let id = own_id(o.0).or_else(|| identified(p, o.0));
+            // Identifying searches PROJ's database (~6 ms): only for WKT and PROJJSON,
+            // which may spell out an EPSG CRS without its code; a PROJ string names
+            // none, as gdalinfo reports it.
+            let id = own_id(o.0).or_else(|| {
+                (!definition.trim_start().starts_with('+'))
+                    .then(|| identified(p, o.0))
+                    .flatten()
+            });
             let proj_string = string(sys::proj_as_proj_string(
                 p.ctx,
                 o.0,
