@@ -70,6 +70,11 @@ enum Command {
         /// inputs on one grid, finest for inputs on different grids.
         #[arg(long, value_enum)]
         overlap: Option<Overlap>,
+        /// Blend the seams between inputs over this many metres instead of a hard
+        /// edge: within that distance of a higher-priority input's edge its heights
+        /// fade linearly into those below it (needs --overlap finest or first).
+        #[arg(long, value_name = "METRES")]
+        feather: Option<f64>,
         /// The pyramid file to write (e.g. dem.tess). Written to a temporary file beside
         /// it and renamed into place only when complete and verified. Or an object URL
         /// (s3://BUCKET/KEY.tess, gs://, az://; credentials from the AWS_*, GOOGLE_* or
@@ -94,7 +99,7 @@ enum Command {
             long,
             value_name = "PARTS",
             conflicts_with_all = [
-                "input", "inputs_list", "overlap", "tile_size", "scale", "offset", "nodata",
+                "input", "inputs_list", "overlap", "feather", "tile_size", "scale", "offset", "nodata",
                 "vertical_datum", "to_vertical", "crs", "bounds", "to", "resampling",
                 "spacing"
             ]
@@ -305,6 +310,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             input,
             inputs_list,
             overlap,
+            feather,
             output,
             tile_size,
             scale,
@@ -361,6 +367,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     .filter_map(|(p, d)| Some((p.clone()?, *d)))
                     .collect(),
                 to_vertical: to_vertical.map(ToVertical::datum),
+                feather,
                 crs,
                 bounds,
                 reproject: to.map(|to| ReprojectOptions {

@@ -364,3 +364,79 @@ fn the_pyramid_records_and_serves_its_sources() {
         );
     }
 }
+
+/// `--feather 3000`: along a row through the middle of the 3″ window, each sample
+/// within 3 km of the window's east edge is the window's height blended with what lies
+/// below it (the base and aletsch, fused with the same feather) by the share
+/// distance-to-edge / 3 km, and deeper in it is the window's height alone. A hard seam
+/// (no feathering) or a blend the other way round fails the first check.
+#[test]
+fn feathering_blends_linearly_into_what_lies_below() {
+    let Some(c) = Collection::new() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let built = |inputs: &[&Path], name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let o = build(inputs, &out, extra);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let p = Pyramid::open_file(&out).unwrap();
+        (finest_samples(&p), p.metadata().clone())
+    };
+    let feather = ["--feather", "3000"];
+    let (hard, m) = built(&[&c.base, &c.fine, &c.aletsch], "hard.tess", &[]);
+    let (soft, ms) = built(&[&c.base, &c.fine, &c.aletsch], "soft.tess", &feather);
+    // What lies below the window: the same inputs with the window all no-data (so the
+    // grid, which the window decides, is the same).
+    let void = dir.path().join("fine_void.tif");
+    run(
+        "gdal_translate",
+        &[
+            "-q",
+            "-scale",
+            "0",
+            "5000",
+            "-32767",
+            "-32767",
+            path_str(&c.fine),
+            path_str(&void),
+        ],
+    );
+    let (below, mb) = built(&[&c.base, &void, &c.aletsch], "below.tess", &feather);
+    let g = m.georef.as_ref().unwrap().geotransform;
+    assert_eq!(g, ms.georef.as_ref().unwrap().geotransform);
+    assert_eq!(g, mb.georef.as_ref().unwrap().geotransform);
+    let w = m.width as usize;
+    let cell_x = m.ground_spacing.unwrap().x;
+    // The window: columns 300..800 of N46E008, rows 350..750; the mosaic starts at
+    // aletsch's west edge.
+    let x0 = ((7.999_583_333_333_334 - g[0]) * 1200.0).round() as usize + 300;
+    let (x1, row) = (
+        x0 + 500,
+        ((g[3] - 47.000_416_666_666_666) * 1200.0).round() as usize + 550,
+    );
+    let q = m.quantization.max_error + ms.quantization.max_error + mb.quantization.max_error;
+    let (mut blended, mut alone) = (0, 0);
+    for col in x1 - 80..x1 {
+        let i = row * w + col;
+        let (a, s, b) = (f64::from(hard[i]), f64::from(soft[i]), f64::from(below[i]));
+        if a.is_nan() || s.is_nan() || b.is_nan() {
+            continue;
+        }
+        // Distance from the sample's centre to the window's east edge.
+        let d = (x1 as f64 - (col as f64 + 0.5)) * cell_x;
+        let share = (d / 3000.0).min(1.0);
+        let want = b + share * (a - b);
+        assert!(
+            (s - want).abs() <= q + 1e-3,
+            "col {col}, {d:.0} m from the edge: {s} vs {want} (window {a}, below {b})"
+        );
+        if share < 1.0 && (a - b).abs() > 5.0 {
+            blended += 1;
+        } else if share >= 1.0 {
+            alone += 1;
+        }
+    }
+    assert!(
+        blended > 20 && alone > 10,
+        "{blended} blended, {alone} deep inside"
+    );
+}

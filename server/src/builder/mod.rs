@@ -74,6 +74,8 @@ pub struct BuildOptions {
     pub vertical_per_input: Vec<(glob::Pattern, VerticalDatum)>,
     /// Convert every input's heights to this datum (`--to-vertical`).
     pub to_vertical: Option<VerticalDatum>,
+    /// Blend seams between inputs over this many metres (`--feather`).
+    pub feather: Option<f64>,
     /// Assign this horizontal CRS (`--crs`: `EPSG:CODE` or a PROJ string) to the
     /// input, replacing its own: coordinates are relabelled, not transformed
     /// ([`ingest::assign`]). With a mosaic, to the mosaic (all its inputs).
@@ -104,6 +106,7 @@ impl Default for BuildOptions {
             vertical_datum: None,
             vertical_per_input: Vec::new(),
             to_vertical: None,
+            feather: None,
             crs: None,
             bounds: None,
             reproject: None,

@@ -91,6 +91,7 @@ pub(super) fn prepare(
         scale: opts.scale,
     };
     let mosaic_opts = ingest::MosaicOptions {
+        feather: opts.feather,
         vertical: vertical.clone(),
         nodata: opts.nodata,
         overlap: opts.overlap,
@@ -109,6 +110,9 @@ pub(super) fn prepare(
         mosaic,
         inputs: mut input_summaries,
     } = ingest::open_inputs(inputs, &mosaic_opts)?;
+    if opts.feather.is_some() && !mosaic {
+        anyhow::bail!("{label}: --feather blends the seams between several inputs; this is one");
+    }
     // Inputs on different grids were resampled onto one, --to and --spacing with them.
     let reproject = if resampled {
         None

@@ -68,6 +68,13 @@ pub trait RowSource: Send + std::fmt::Debug {
     /// of the file"); the caller adds the file name.
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()>;
 
+    /// For a reader that resamples another grid: for each sample of the last row
+    /// read, its distance (in source samples) to the source grid's outer edge, which a
+    /// mosaic feathers seams by (`--feather`). Others keep the default.
+    fn edge_distance(&self) -> Option<&[f32]> {
+        None
+    }
+
     /// Bytes the reader itself holds while reading (decoded bands, chunk buffers),
     /// for the build's memory plan. Small row-at-a-time readers keep the default.
     fn buffer_bytes(&self) -> u64 {

@@ -97,6 +97,9 @@ pub struct Reprojected {
     band: VecDeque<Vec<f32>>,
     band_start: usize,
     band_rows_estimate: usize,
+    /// For each sample of the last row read, its distance in source samples to the
+    /// source grid's outer edge (negative outside): what a mosaic feathers seams by.
+    edge: Vec<f32>,
 }
 
 /// Where each output sample of a grid in one CRS reads a source grid in another:
@@ -239,6 +242,7 @@ impl Reprojected {
             band: VecDeque::new(),
             band_start: 0,
             band_rows_estimate: 0,
+            edge: Vec::new(),
         };
         me.band_rows_estimate = me.map.estimate_band_rows();
         Ok(me)
@@ -418,6 +422,21 @@ impl RowSource for Reprojected {
                 bail!("read past the last reprojected row");
             }
             let coords = self.map.source_coords(self.row);
+            let (sw, sh) = (self.map.src_w as f64, self.map.src_h as f64);
+            self.edge.clear();
+            self.edge.extend(coords.iter().map(|c| {
+                // Sample centres are at −0.5 + ½ … ; the pixel-area edge at −0.5 and
+                // size − 0.5.
+                let d = (c[0] + 0.5)
+                    .min(sw - 0.5 - c[0])
+                    .min(c[1] + 0.5)
+                    .min(sh - 0.5 - c[1]);
+                if d.is_finite() {
+                    d as f32
+                } else {
+                    f32::NEG_INFINITY
+                }
+            }));
             match self.map.row_span(&coords) {
                 Some((lo, hi)) => {
                     self.load_band(lo, hi)?;
@@ -434,6 +453,10 @@ impl RowSource for Reprojected {
             self.row += 1;
         }
         Ok(())
+    }
+
+    fn edge_distance(&self) -> Option<&[f32]> {
+        Some(&self.edge)
     }
 
     fn buffer_bytes(&self) -> u64 {

@@ -71,6 +71,28 @@ struct Piece {
     datum: Option<DatumClue>,
     /// Off the mosaic's grid: resampled onto its window ([`warp`]).
     warp: Option<Box<warp::Warp>>,
+    /// Where its input ends, for `--feather`: the input's window on the mosaic
+    /// `[x0, y0, x1, y1]` (cells; an input copied as it is), or, for a resampled one,
+    /// the metres one of its source samples spans (its reader reports the distance to
+    /// its source grid's edge in samples).
+    edge: Edge,
+}
+
+/// Where an input ends, for `--feather` ([`Piece::edge`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Edge {
+    Window([u32; 4]),
+    Resampled { metres_per_sample: f64 },
+}
+
+impl Edge {
+    /// The same edge with its input moved by `(dx, dy)` cells.
+    fn shifted(self, dx: u32, dy: u32) -> Self {
+        match self {
+            Self::Window([x0, y0, x1, y1]) => Self::Window([x0 + dx, y0 + dy, x1 + dx, y1 + dy]),
+            other @ Self::Resampled { .. } => other,
+        }
+    }
 }
 
 /// An open piece: its reader and its current row (no-data already NaN).
@@ -120,6 +142,10 @@ pub struct Mosaic {
     vertical: VerticalOptions,
     /// Each input (file or VRT), in priority order, for the pyramid's provenance.
     inputs: Vec<super::InputSummary>,
+    /// `--feather`, and the metres per mosaic cell `[x, y]` it measures windows with.
+    feather: Option<(f64, [f64; 2])>,
+    /// Per sample of a row while feathering: the weighted sum and the weight left.
+    blend: Vec<(f64, f64)>,
 }
 
 /// How [`Mosaic::open_with`] treats its inputs.
@@ -135,6 +161,9 @@ pub struct MosaicOptions {
     pub grid: Option<GridOptions>,
     /// The inputs' vertical datums and the one to convert them to.
     pub vertical: VerticalOptions,
+    /// `--feather METRES`: within this distance of a higher-priority input's edge, its
+    /// heights blend linearly into those below it instead of a hard seam.
+    pub feather: Option<f64>,
 }
 
 /// The datum the pieces state, when those that state one agree (pieces that state
@@ -268,6 +297,23 @@ impl Mosaic {
                 }
                 (Err(e), _) => return Err(e),
             };
+        let feather = match opts.feather {
+            None => None,
+            Some(f) if !(f.is_finite() && f > 0.0) => {
+                bail!("--feather {f}: want a positive distance in metres")
+            }
+            Some(_) if !matches!(overlap, Overlap::First | Overlap::Finest) => {
+                bail!("--feather blends by priority: it needs --overlap finest or first")
+            }
+            Some(f) => {
+                let g = georef.as_ref().context(
+                    "--feather needs georeferenced inputs (it measures distances in metres)",
+                )?;
+                let cell = crate::crs::ground_spacing(g, width, height)
+                    .context("--feather: the mosaic's ground spacing")?;
+                Some((f, [cell.x, cell.y]))
+            }
+        };
         let any_vrt = groups.iter().any(|g| g.is_vrt);
         let inputs = summaries(&groups, &pieces);
         let (label, source_name) = names(&groups, &pieces);
@@ -357,6 +403,8 @@ impl Mosaic {
             resampled,
             vertical: opts.vertical.clone(),
             inputs,
+            feather,
+            blend: Vec::new(),
         })
     }
 
@@ -529,48 +577,10 @@ impl RowSource for Mosaic {
                 self.next_open += 1;
             }
             out_row.fill(f32::NAN);
-            for k in 0..self.open.len() {
-                let (earlier, rest) = self.open.split_at_mut(k);
-                let o = &mut rest[0];
-                let p = &self.pieces[o.index];
-                o.reader
-                    .read_rows(&mut o.row)
-                    .with_context(|| p.name.clone())?;
-                let window = &mut o.row[p.src_x as usize..(p.src_x + p.w) as usize];
-                if !p.nodata.is_empty() {
-                    for v in window.iter_mut() {
-                        if p.nodata.contains(v) {
-                            *v = f32::NAN;
-                        }
-                    }
-                }
-                let dst = &mut out_row[p.x as usize..(p.x + p.w) as usize];
-                for (j, (d, &v)) in dst.iter_mut().zip(window.iter()).enumerate() {
-                    if v.is_nan() || *d == v {
-                        continue;
-                    }
-                    if d.is_nan() {
-                        *d = v;
-                        continue;
-                    }
-                    match self.overlap {
-                        Overlap::First | Overlap::Finest => {}
-                        Overlap::Last => *d = v,
-                        Overlap::Error => {
-                            let (kept, index) = (*d, o.index);
-                            let col = p.x + j as u32;
-                            return Err(conflict(
-                                &self.pieces,
-                                self.info.georef.as_ref(),
-                                earlier,
-                                index,
-                                (col, r),
-                                kept,
-                                v,
-                            ));
-                        }
-                    }
-                }
+            if let Some((band, cell)) = self.feather {
+                self.read_feathered_row(out_row, band, cell)?;
+            } else {
+                self.read_row(out_row)?;
             }
             // Drop the inputs whose bottom row this was.
             let pieces = &self.pieces;
@@ -582,7 +592,7 @@ impl RowSource for Mosaic {
     }
 
     fn buffer_bytes(&self) -> u64 {
-        self.buffer_bytes
+        self.buffer_bytes + self.feather.map_or(0, |_| u64::from(self.info.width) * 16)
     }
 
     fn vertical_datum(&self) -> Option<VerticalDatum> {
@@ -591,6 +601,109 @@ impl RowSource for Mosaic {
 
     fn datum_clue(&self) -> Option<DatumClue> {
         self.datum.clone()
+    }
+}
+
+impl Mosaic {
+    /// Reads row `self.row` of every open piece into `out_row` by the overlap rule.
+    fn read_row(&mut self, out_row: &mut [f32]) -> anyhow::Result<()> {
+        let r = self.row;
+        for k in 0..self.open.len() {
+            let (earlier, rest) = self.open.split_at_mut(k);
+            let o = &mut rest[0];
+            let p = &self.pieces[o.index];
+            o.reader
+                .read_rows(&mut o.row)
+                .with_context(|| p.name.clone())?;
+            let window = &mut o.row[p.src_x as usize..(p.src_x + p.w) as usize];
+            if !p.nodata.is_empty() {
+                for v in window.iter_mut() {
+                    if p.nodata.contains(v) {
+                        *v = f32::NAN;
+                    }
+                }
+            }
+            let dst = &mut out_row[p.x as usize..(p.x + p.w) as usize];
+            for (j, (d, &v)) in dst.iter_mut().zip(window.iter()).enumerate() {
+                if v.is_nan() || *d == v {
+                    continue;
+                }
+                if d.is_nan() {
+                    *d = v;
+                    continue;
+                }
+                match self.overlap {
+                    Overlap::First | Overlap::Finest => {}
+                    Overlap::Last => *d = v,
+                    Overlap::Error => {
+                        let (kept, index) = (*d, o.index);
+                        let col = p.x + j as u32;
+                        return Err(conflict(
+                            &self.pieces,
+                            self.info.georef.as_ref(),
+                            earlier,
+                            index,
+                            (col, r),
+                            kept,
+                            v,
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// [`Mosaic::read_row`] with `--feather band` (metres; mosaic cells are `cell`
+    /// metres): in priority order each piece takes, of the weight its betters left,
+    /// the share `min(1, distance to its input's edge / band)`; the row is the
+    /// weighted mean. Deep inside an input it is that input alone; at its edge it
+    /// fades into what lies below; where nothing lies below it is itself.
+    fn read_feathered_row(
+        &mut self,
+        out_row: &mut [f32],
+        band: f64,
+        cell: [f64; 2],
+    ) -> anyhow::Result<()> {
+        let r = self.row;
+        self.blend.clear();
+        self.blend.resize(out_row.len(), (0.0, 1.0));
+        for o in &mut self.open {
+            let p = &self.pieces[o.index];
+            o.reader
+                .read_rows(&mut o.row)
+                .with_context(|| p.name.clone())?;
+            let edge = o.reader.edge_distance();
+            for j in 0..p.w as usize {
+                let v = o.row[p.src_x as usize + j];
+                if v.is_nan() || p.nodata.contains(&v) {
+                    continue;
+                }
+                let col = p.x as usize + j;
+                let metres = match p.edge {
+                    Edge::Window([x0, y0, x1, y1]) => {
+                        let (c, rr) = (col as f64 + 0.5, f64::from(r) + 0.5);
+                        ((c - f64::from(x0)) * cell[0])
+                            .min((f64::from(x1) - c) * cell[0])
+                            .min((rr - f64::from(y0)) * cell[1])
+                            .min((f64::from(y1) - rr) * cell[1])
+                    }
+                    Edge::Resampled { metres_per_sample } => edge
+                        .and_then(|e| e.get(p.src_x as usize + j))
+                        .map_or(band, |&d| f64::from(d) * metres_per_sample),
+                };
+                let (sum, left) = &mut self.blend[col];
+                let take = *left * (metres / band).clamp(0.0, 1.0);
+                *sum += take * f64::from(v);
+                *left -= take;
+            }
+        }
+        for (d, &(sum, left)) in out_row.iter_mut().zip(&self.blend) {
+            if left < 1.0 {
+                *d = (sum / (1.0 - left)) as f32;
+            }
+        }
+        Ok(())
     }
 }
 

@@ -5,8 +5,8 @@ use super::super::RowSource;
 use super::super::vertical_shift::VerticalOptions;
 use super::super::vrt::{Rect, Vrt, is_vrt};
 use super::{
-    Group, LATTICE_TOLERANCE, OPEN_INPUT_BYTES, Opener, Piece, crs_text, file_name, nodata_values,
-    same_crs,
+    Edge, Group, LATTICE_TOLERANCE, OPEN_INPUT_BYTES, Opener, Piece, crs_text, file_name,
+    nodata_values, same_crs,
 };
 use anyhow::{Context, bail};
 use std::path::Path;
@@ -42,6 +42,7 @@ pub(super) fn file_group(
         bytes: piece_bytes(reader.as_ref()),
         datum: vertical.datum_for(path, reader.datum_clue()),
         warp: None,
+        edge: Edge::Window([0, 0, info.width, info.height]),
     };
     Ok(Group {
         name,
@@ -113,6 +114,7 @@ pub(super) fn vrt_group(
             bytes: piece_bytes(reader.as_ref()),
             datum: vertical.datum_for(&s.path, reader.datum_clue()),
             warp: None,
+            edge: Edge::Window([0, 0, vrt.width, vrt.height]),
         });
     }
     if pieces.is_empty() {
@@ -281,9 +283,11 @@ pub(super) fn place(groups: &[Group]) -> anyhow::Result<(u32, u32, Option<GeoRef
     let mut pieces = Vec::new();
     for (g, (ox, oy)) in groups.iter().zip(&offsets) {
         for p in &g.pieces {
+            let (dx, dy) = ((ox - min_x) as u32, (oy - min_y) as u32);
             pieces.push(Piece {
-                x: p.x + (ox - min_x) as u32,
-                y: p.y + (oy - min_y) as u32,
+                x: p.x + dx,
+                y: p.y + dy,
+                edge: p.edge.shifted(dx, dy),
                 ..p.clone()
             });
         }

@@ -238,6 +238,7 @@ pub(super) fn place_mixed(
                     Piece {
                         x: p.x + cx.round() as u32,
                         y: p.y + cy.round() as u32,
+                        edge: p.edge.shifted(cx.round() as u32, cy.round() as u32),
                         ..p.clone()
                     },
                 ));
@@ -301,6 +302,9 @@ pub(super) fn place_mixed(
                         map,
                         nodata: p.nodata.first().map(|&v| f64::from(v)),
                     })),
+                    edge: super::Edge::Resampled {
+                        metres_per_sample: s.fineness(),
+                    },
                     ..p.clone()
                 },
             ));
