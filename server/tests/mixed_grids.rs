@@ -440,3 +440,35 @@ fn feathering_blends_linearly_into_what_lies_below() {
         "{blended} blended, {alone} deep inside"
     );
 }
+
+/// A spacing meant as metres for a grid in degrees (1e-5° ≈ 1 m over the 1.5° × 1°
+/// union: 1.5e10 samples) is refused before anything is read, naming the size, with
+/// nothing written (by `--max-samples`; the default, 2^40, leaves it to the free-disk
+/// check, which depends on the machine). So is a feather that is not a distance.
+#[test]
+fn a_target_grid_too_large_is_refused_before_work_starts() {
+    let Some(c) = Collection::new() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.tess");
+    let inputs = [c.base.as_path(), c.fine.as_path(), c.aletsch.as_path()];
+    let o = build(
+        &inputs,
+        &out,
+        &["--spacing", "0.00001", "--max-samples", "1000000000"],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("more than --max-samples") && err.contains("154668 × 100000"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let o = build(&[&c.base, &c.fine], &out, &["--feather", "0"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--feather 0: want a positive"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

@@ -100,6 +100,7 @@ pub(super) fn prepare(
             spacing: opts.spacing,
             resampling: opts.resampling,
             spool_dir: dir.to_path_buf(),
+            max_samples: opts.max_samples,
         }),
     };
     let ingest::Opened {

@@ -27,6 +27,8 @@ pub struct GridOptions {
     pub resampling: Resampling,
     /// Where resampled inputs are spooled while open.
     pub spool_dir: PathBuf,
+    /// `--max-samples`: a larger target grid is refused before anything else is done.
+    pub max_samples: u64,
 }
 
 /// How an input off the target grid is read: resampled onto its window.
@@ -207,6 +209,15 @@ pub(super) fn place_mixed(
             "the inputs' target grid would be {cols} × {rows} samples of {sx} × {sy} {} \
              units: not a size a pyramid can hold (check --spacing)",
             target.label()
+        );
+    }
+    if cols * rows > grid.max_samples as f64 {
+        bail!(
+            "the inputs' common grid would be {cols} × {rows} = {:.3e} samples of {sx} × {sy} \
+             ({}), more than --max-samples {}: check --spacing, or raise --max-samples",
+            cols * rows,
+            target.label(),
+            grid.max_samples
         );
     }
     let (width, height) = (cols as u32, rows as u32);
