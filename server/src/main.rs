@@ -75,6 +75,13 @@ enum Command {
         /// fade linearly into those below it (needs --overlap finest or first).
         #[arg(long, value_name = "METRES")]
         feather: Option<f64>,
+        /// Store every level over the whole collection. By default, with inputs of
+        /// different resolutions, a place covered only by coarser data is stored down
+        /// to the level that data supports and no deeper (readers refine only where
+        /// finer tiles exist; the server's web and Cesium tiles upsample the stored
+        /// ancestor), so storage follows each resolution's area.
+        #[arg(long)]
+        full_pyramid: bool,
         /// The pyramid file to write (e.g. dem.tess). Written to a temporary file beside
         /// it and renamed into place only when complete and verified. Or an object URL
         /// (s3://BUCKET/KEY.tess, gs://, az://; credentials from the AWS_*, GOOGLE_* or
@@ -99,7 +106,7 @@ enum Command {
             long,
             value_name = "PARTS",
             conflicts_with_all = [
-                "input", "inputs_list", "overlap", "feather", "tile_size", "scale", "offset", "nodata",
+                "input", "inputs_list", "overlap", "feather", "full_pyramid", "tile_size", "scale", "offset", "nodata",
                 "vertical_datum", "to_vertical", "crs", "bounds", "to", "resampling",
                 "spacing"
             ]
@@ -311,6 +318,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             inputs_list,
             overlap,
             feather,
+            full_pyramid,
             output,
             tile_size,
             scale,
@@ -368,6 +376,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     .collect(),
                 to_vertical: to_vertical.map(ToVertical::datum),
                 feather,
+                full_pyramid,
                 crs,
                 bounds,
                 reproject: to.map(|to| ReprojectOptions {

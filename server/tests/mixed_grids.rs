@@ -12,6 +12,8 @@
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
 mod gdal;
+#[allow(dead_code)] // each test binary uses some of the shared helpers
+mod grid_support;
 mod raster_support;
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
@@ -471,4 +473,169 @@ fn a_target_grid_too_large_is_refused_before_work_starts() {
         "{err}"
     );
     assert!(!out.exists());
+}
+
+/// Multi-resolution: the fused pyramid stores levels below a place's coarsest only
+/// where finer data lies. Every tile it stores is the `--full-pyramid` build's, byte
+/// for byte (same heights and error tables: nodes below are still built); every stored
+/// tile's parent is stored; the finest level exists only around the 3″ window. A web
+/// tile over a place only the 30″ base covers is still terrain (the server upsamples
+/// the stored ancestor), within what the stored level says it can be off: the largest
+/// difference there between the full pyramid's finest samples and the bilinear
+/// surface of the ancestor's, plus quantization and Terrarium's 1/256 m.
+#[test]
+fn deep_tiles_are_stored_only_where_fine_data_lies() {
+    use tessera_shared::{Level, TileId};
+    let Some(c) = Collection::new() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (multi, full) = (dir.path().join("multi.tess"), dir.path().join("full.tess"));
+    let inputs = [c.base.as_path(), c.fine.as_path(), c.aletsch.as_path()];
+    for (out, extra) in [(&multi, &[][..]), (&full, &["--full-pyramid"][..])] {
+        let o = build(&inputs, out, extra);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let (pm, pf) = (
+        Pyramid::open_file(&multi).unwrap(),
+        Pyramid::open_file(&full).unwrap(),
+    );
+    let g = *pm.geometry();
+    assert_eq!(&g, pf.geometry());
+    let finest = g.finest();
+    let (mut stored, mut dropped) = (0, 0);
+    for level in g.levels() {
+        for tile in g.present_tiles(level) {
+            let (m, f) = (pm.entry(tile), pf.entry(tile));
+            match (m.filter(|e| e.is_present()), f.filter(|e| e.is_present())) {
+                (Some(m), Some(f)) => {
+                    assert_eq!(
+                        m.checksum, f.checksum,
+                        "{tile}: not the full pyramid's record"
+                    );
+                    if let Some(p) = tile.parent() {
+                        assert!(
+                            pm.entry(p)
+                                .is_some_and(tessera_shared::format::IndexEntry::is_present),
+                            "{tile}: parent absent"
+                        );
+                    }
+                    stored += 1;
+                }
+                (Some(_), None) => panic!("{tile} stored only in the multi-resolution pyramid"),
+                (None, Some(_)) => dropped += 1,
+                (None, None) => {}
+            }
+        }
+    }
+    assert!(
+        stored > 0 && dropped > 0,
+        "{stored} stored, {dropped} dropped"
+    );
+    // The 3″ window on the mosaic's grid (aletsch's west edge is the mosaic's).
+    let m = pm.metadata();
+    let gt = m.georef.as_ref().unwrap().geotransform;
+    let wx0 = ((7.999_583_333_333_334 - gt[0]) * 1200.0).round() as u64 + 300;
+    let wy0 = ((gt[3] - 47.000_416_666_666_666) * 1200.0).round() as u64 + 350;
+    let t = u64::from(g.tile_size());
+    for tile in g.present_tiles(finest).filter(|t| {
+        pm.entry(*t)
+            .is_some_and(tessera_shared::format::IndexEntry::is_present)
+    }) {
+        // Its parent's samples meet the window.
+        let (px, py) = (
+            u64::from(tile.x() / 2) * 2 * t,
+            u64::from(tile.y() / 2) * 2 * t,
+        );
+        assert!(
+            px <= wx0 + 500 && px + 2 * t >= wx0 && py <= wy0 + 400 && py + 2 * t >= wy0,
+            "{tile}: finest tile far from the 3″ window"
+        );
+    }
+    let size = |p: &Path| std::fs::metadata(p).unwrap().len();
+    eprintln!(
+        "multi-resolution {} bytes, full pyramid {} bytes; {stored} tiles stored, {dropped} not",
+        size(&multi),
+        size(&full)
+    );
+    assert!(size(&multi) < size(&full));
+
+    // A zoom-13 Web Mercator tile where only the base lies (8.85° E, 46.15° N).
+    let server = serve_support::Server::start(&[&multi, &full], &[]);
+    let (x, y) = grid_support::xyz_tile(8.85, 46.15, 13);
+    let heights = |name: &str| {
+        let r = server.get(&format!(
+            "/v1/datasets/{name}/webmercator/13/{x}/{y}.png?encoding=terrarium"
+        ));
+        assert_eq!(r.status, 200);
+        let (_, rgba) = grid_support::decode_rgba(&r.body);
+        rgba.chunks_exact(4)
+            .map(grid_support::terrarium)
+            .collect::<Vec<f64>>()
+    };
+    let (hm, hf) = (heights("multi"), heights("full"));
+    let relief = hm.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+        - hm.iter().copied().fold(f64::INFINITY, f64::min);
+    assert!(
+        relief > 10.0,
+        "a flat tile ({relief} m of relief): no terrain drawn there"
+    );
+    // What the stored level can be off there: the full pyramid's finest samples
+    // against the bilinear surface of the level the base supports, over the web
+    // tile's place (it spans 52 × 37 finest samples here; ± 64 around its point).
+    let base_level = m
+        .sources
+        .iter()
+        .find(|s| s.name == "base_30s.tif")
+        .unwrap()
+        .level;
+    let step = 1u64 << (finest.get() - base_level);
+    let samples = finest_samples(&pf);
+    let w = u64::from(m.width);
+    let (cx, cy) = (
+        ((8.85 - gt[0]) / gt[1]) as u64,
+        ((gt[3] - 46.15) / -gt[5]) as u64,
+    );
+    let anc_level = Level::new(base_level).unwrap();
+    let q = pf.metadata().quantization;
+    let records = std::cell::RefCell::new(std::collections::HashMap::new());
+    let coarse = |sx: u64, sy: u64| -> f64 {
+        // The level's sample grid: every `step`-th finest sample.
+        let (gx, gy) = (sx as f64 / step as f64, sy as f64 / step as f64);
+        let tile = TileId::new(anc_level, (gx as u64 / t) as u32, (gy as u64 / t) as u32).unwrap();
+        let mut cache = records.borrow_mut();
+        let rec = cache
+            .entry(tile)
+            .or_insert_with(|| pf.read_tile(tile).unwrap().unwrap());
+        let (ox, oy) = (
+            gx - f64::from(tile.x()) * t as f64,
+            gy - f64::from(tile.y()) * t as f64,
+        );
+        let (x0, y0) = ((ox as u64).min(t - 1), (oy as u64).min(t - 1));
+        let (fx, fy) = (ox - x0 as f64, oy - y0 as f64);
+        let at = |i: u64, j: u64| q.height(rec.heights[(j * (t + 1) + i) as usize]);
+        at(x0, y0) * (1.0 - fx) * (1.0 - fy)
+            + at(x0 + 1, y0) * fx * (1.0 - fy)
+            + at(x0, y0 + 1) * (1.0 - fx) * fy
+            + at(x0 + 1, y0 + 1) * fx * fy
+    };
+    let mut off = 0f64;
+    for sy in cy.saturating_sub(64)..(cy + 64).min(u64::from(m.height)) {
+        for sx in cx.saturating_sub(64)..(cx + 64).min(w) {
+            let v = f64::from(samples[(sy * w + sx) as usize]);
+            if v.is_finite() {
+                off = off.max((v - coarse(sx, sy)).abs());
+            }
+        }
+    }
+    let bound = off + 2.0 * q.max_error + pm.metadata().quantization.max_error + 1.0 / 256.0;
+    let worst = hm
+        .iter()
+        .zip(&hf)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0f64, f64::max);
+    eprintln!("zoom 13 over the base: worst {worst:.3} m against a bound of {bound:.3} m");
+    assert!(worst <= bound, "{worst} m apart, more than {bound} m");
+    assert!(
+        worst > 0.0,
+        "the same heights: was the finest level stored there after all?"
+    );
 }

@@ -23,6 +23,9 @@ pub(super) struct Aggregator<'a> {
     pub(super) min_q: u16,
     pub(super) max_q: u16,
     pub(super) bar: &'a ProgressBar,
+    /// Which tiles a multi-resolution pyramid stores; `None`: all. A tile not stored
+    /// still becomes a node: its parent is assembled from it.
+    pub(super) support: Option<&'a super::support::Support>,
 }
 
 impl Aggregator<'_> {
@@ -37,12 +40,16 @@ impl Aggregator<'_> {
     ) -> anyhow::Result<()> {
         let node = match item {
             Some((node, enc)) => {
-                if let Some(record) = &enc.record {
+                if let Some(record) = &enc.record
+                    && self.support.is_none_or(|s| s.stores(level, m))
+                {
                     sink.record(level, m, record, enc.summary)?;
-                    if level == self.geometry.finest() {
-                        self.min_q = self.min_q.min(enc.summary.min);
-                        self.max_q = self.max_q.max(enc.summary.max);
-                    }
+                    // The heights' range is that of the stored records, every level
+                    // (in a whole pyramid the finest level's: the others are its
+                    // decimations; a multi-resolution one stores coarse-only places
+                    // only at coarse levels).
+                    self.min_q = self.min_q.min(enc.summary.min);
+                    self.max_q = self.max_q.max(enc.summary.max);
                 }
                 self.bar.inc(1);
                 Some(node)

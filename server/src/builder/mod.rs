@@ -32,6 +32,7 @@ mod prepare;
 pub mod provenance;
 mod sink;
 pub mod spool;
+pub mod support;
 mod tiling;
 pub mod writer;
 
@@ -76,6 +77,9 @@ pub struct BuildOptions {
     pub to_vertical: Option<VerticalDatum>,
     /// Blend seams between inputs over this many metres (`--feather`).
     pub feather: Option<f64>,
+    /// Store every level everywhere, even where only coarser data lies
+    /// (`--full-pyramid`; [`support`]).
+    pub full_pyramid: bool,
     /// Assign this horizontal CRS (`--crs`: `EPSG:CODE` or a PROJ string) to the
     /// input, replacing its own: coordinates are relabelled, not transformed
     /// ([`ingest::assign`]). With a mosaic, to the mosaic (all its inputs).
@@ -107,6 +111,7 @@ impl Default for BuildOptions {
             vertical_per_input: Vec::new(),
             to_vertical: None,
             feather: None,
+            full_pyramid: false,
             crs: None,
             bounds: None,
             reproject: None,
@@ -264,6 +269,7 @@ fn build_tiles(
         plan: loaded.plan,
         opts,
         bar: &tiles_bar,
+        support: loaded.support.as_ref(),
     };
     let (min_q, max_q) = tiling.subtrees(&mut writer, Level::ROOT, 0..1)?;
     tiles_bar.finish_and_clear();

@@ -25,6 +25,8 @@ pub(super) struct Prepared {
     pub(super) meta: Metadata,
     /// For [`BuildReport::warnings`].
     pub(super) warnings: Vec<String>,
+    /// Which tiles a multi-resolution pyramid stores; `None`: all.
+    pub(super) support: Option<super::support::Support>,
 }
 
 /// The DEM as the tiler reads it.
@@ -49,6 +51,7 @@ pub(super) struct Loaded {
     pub(super) geometry: TileGeometry,
     pub(super) plan: memory::Plan,
     pub(super) meta: Metadata,
+    pub(super) support: Option<super::support::Support>,
 }
 
 /// Opens the inputs, applies `--crs`/`--bounds`/`--to`, and sizes the pyramid; refuses
@@ -110,6 +113,7 @@ pub(super) fn prepare(
         resampled,
         mosaic,
         inputs: mut input_summaries,
+        coverage,
     } = ingest::open_inputs(inputs, &mosaic_opts)?;
     if opts.feather.is_some() && !mosaic {
         anyhow::bail!("{label}: --feather blends the seams between several inputs; this is one");
@@ -249,6 +253,9 @@ pub(super) fn prepare(
     let ground_spacing = georef
         .as_mut()
         .and_then(|g| ground_geometry(g, width, height, input));
+    let support = ground_spacing
+        .filter(|_| !opts.full_pyramid)
+        .and_then(|g| super::support::Support::new(&geometry, &coverage, (g.x * g.y).sqrt()));
     let sources =
         super::provenance::records(&input_summaries, ground_spacing, geometry.level_count() - 1);
     let meta = Metadata {
@@ -282,6 +289,7 @@ pub(super) fn prepare(
         plan,
         meta,
         warnings: datum.warning.into_iter().collect(),
+        support,
     })
 }
 
@@ -304,6 +312,7 @@ impl Prepared {
             plan,
             mut meta,
             warnings: _,
+            support,
         } = self;
         let dem = match source {
             Input::Rows(mut rows) => {
@@ -347,6 +356,7 @@ impl Prepared {
             geometry,
             plan,
             meta,
+            support,
         })
     }
 }

@@ -20,6 +20,8 @@ pub(super) struct Tiling<'a> {
     pub(super) plan: memory::Plan,
     pub(super) opts: &'a BuildOptions,
     pub(super) bar: &'a ProgressBar,
+    /// Which tiles a multi-resolution pyramid stores ([`super::support`]); `None`: all.
+    pub(super) support: Option<&'a super::support::Support>,
 }
 
 impl Tiling<'_> {
@@ -43,6 +45,7 @@ impl Tiling<'_> {
             plan,
             opts,
             bar,
+            support,
         } = *self;
         let finest = geometry.finest();
         let t = geometry.tile_log2();
@@ -62,6 +65,7 @@ impl Tiling<'_> {
             min_q: u16::MAX,
             max_q: 0,
             bar,
+            support,
         };
         std::thread::scope(|scope| -> anyhow::Result<()> {
             let (tx, rx) =

@@ -123,6 +123,16 @@ pub struct InputSummary {
     pub datum: Option<tessera_shared::VerticalDatum>,
 }
 
+/// An input's window on the mosaic's grid (the pyramid's finest), `[x0, y0, x1, y1)`
+/// in samples, and the metres one of its own samples spans (geometric mean of its two
+/// spacings): what a multi-resolution pyramid stores it down to
+/// (`builder::support`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coverage {
+    pub window: [u32; 4],
+    pub metres: f64,
+}
+
 /// A parsed `INPUT` argument.
 #[derive(Debug)]
 pub enum Input {
@@ -147,6 +157,8 @@ pub struct Opened {
     /// Each input (file or VRT) of a mosaic, in priority order; empty for one input
     /// (the caller describes it once it is georeferenced).
     pub inputs: Vec<InputSummary>,
+    /// Where inputs on different grids lie and how fine each is (empty otherwise).
+    pub coverage: Vec<Coverage>,
 }
 
 /// Opens what `build` was asked to read: one file (read exactly as before mosaics),
@@ -164,6 +176,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
                 resampled: false,
                 mosaic: false,
                 inputs: Vec::new(),
+                coverage: Vec::new(),
             });
         }
         inputs::Expanded::Files(files) => files,
@@ -179,6 +192,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
             resampled: false,
             mosaic: false,
             inputs: Vec::new(),
+            coverage: Vec::new(),
         });
     }
     let mosaic = Mosaic::open_with(&files, opts, open_raster)?;
@@ -188,6 +202,7 @@ pub fn open_inputs(spec: &InputSpec, opts: &MosaicOptions) -> anyhow::Result<Ope
         resampled: mosaic.resampled(),
         mosaic: true,
         inputs: mosaic.inputs().to_vec(),
+        coverage: mosaic.coverage(),
         input: Input::Rows(Box::new(mosaic)),
     })
 }

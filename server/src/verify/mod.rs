@@ -214,10 +214,14 @@ fn file_problems(p: &Pyramid<FileSource>) -> Vec<String> {
             meta.min_height, meta.max_height
         ));
     }
-    // The builder records the extremes of the finest level's quantized heights.
-    if let Some(index) = p.index(g.finest()) {
-        let (lo, hi) = index
-            .iter()
+    // The builder records the extremes of the stored records' quantized heights, every
+    // level (a whole pyramid's coarse levels are decimations of its finest; a
+    // multi-resolution one stores coarse-only places only at coarse levels).
+    if g.levels().any(|l| p.index(l).is_some()) {
+        let (lo, hi) = g
+            .levels()
+            .filter_map(|l| p.index(l))
+            .flatten()
             .filter(|e| e.is_present())
             .fold((u16::MAX, 0u16), |(lo, hi), e| {
                 (lo.min(e.min), hi.max(e.max))

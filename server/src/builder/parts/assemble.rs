@@ -247,6 +247,9 @@ pub fn assemble(dir: &Path, output: &Path, opts: &BuildOptions) -> anyhow::Resul
         min_q: u16::MAX,
         max_q: 0,
         bar: &tiles_bar,
+        // Above the split every tile is stored (the parts refuse a split below the
+        // levels a multi-resolution pyramid stores everywhere).
+        support: None,
     };
     for p in &parts {
         let named = || p.path.display().to_string();
@@ -265,10 +268,13 @@ pub fn assemble(dir: &Path, output: &Path, opts: &BuildOptions) -> anyhow::Resul
         }
         roots.finish().with_context(named)?;
     }
+    // The levels above the split count in the heights' range, as in a whole build
+    // (they matter in a multi-resolution pyramid, whose coarse-only places have no
+    // deeper records).
+    let (mut min_q, mut max_q) = (agg.min_q, agg.max_q);
     drop(agg);
     tiles_bar.finish_and_clear();
     // The DEM-wide numbers, as a whole build counts them.
-    let (mut min_q, mut max_q) = (u16::MAX, 0u16);
     let mut depths = [[0u64; 2]; 33];
     let mut nodata = 0u64;
     for p in &parts {

@@ -88,6 +88,20 @@ pub fn build_part(
         })
         .sum();
     let tiles_bar = bar(opts.progress, subtree_tiles, "tiling");
+    // The assembly stores every level above the split, which a multi-resolution
+    // pyramid does only down to its coarsest input's level (`Support::stores`).
+    if let Some(s) = &loaded.support
+        && split.level.get() > s.floor() + 1
+    {
+        anyhow::bail!(
+            "{} parts split the pyramid at level {}, below level {}, the deepest this \
+             multi-resolution collection stores everywhere: use at most {} parts",
+            spec.n,
+            split.level.get(),
+            s.floor(),
+            (1u64 << (2 * u32::from(s.floor() + 1))) / 4
+        );
+    }
     let tiling = Tiling {
         raster,
         geometry,
@@ -95,6 +109,7 @@ pub fn build_part(
         plan: loaded.plan,
         opts,
         bar: &tiles_bar,
+        support: loaded.support.as_ref(),
     };
     let (min_q, max_q) = tiling.subtrees(&mut writer, split.level, tops.clone())?;
     tiles_bar.finish_and_clear();

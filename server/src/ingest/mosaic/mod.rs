@@ -76,6 +76,9 @@ struct Piece {
     /// the metres one of its source samples spans (its reader reports the distance to
     /// its source grid's edge in samples).
     edge: Edge,
+    /// Metres one sample of its input spans, for inputs on different grids (what a
+    /// multi-resolution pyramid stores it down to); `None` on one grid.
+    metres: Option<f64>,
 }
 
 /// Where an input ends, for `--feather` ([`Piece::edge`]).
@@ -416,6 +419,20 @@ impl Mosaic {
     /// Each input (file or VRT) as its header describes it, in priority order.
     pub fn inputs(&self) -> &[super::InputSummary] {
         &self.inputs
+    }
+
+    /// Where each input lies on the mosaic's grid and how fine it is, for inputs on
+    /// different grids (empty on one grid: every input is as fine as the mosaic).
+    pub fn coverage(&self) -> Vec<super::Coverage> {
+        self.pieces
+            .iter()
+            .filter_map(|p| {
+                Some(super::Coverage {
+                    window: [p.x, p.y, p.x + p.w, p.y + p.h],
+                    metres: p.metres?,
+                })
+            })
+            .collect()
     }
 
     /// How build errors name the mosaic.

@@ -43,6 +43,7 @@ pub(super) fn file_group(
         datum: vertical.datum_for(path, reader.datum_clue()),
         warp: None,
         edge: Edge::Window([0, 0, info.width, info.height]),
+        metres: None,
     };
     Ok(Group {
         name,
@@ -115,6 +116,7 @@ pub(super) fn vrt_group(
             datum: vertical.datum_for(&s.path, reader.datum_clue()),
             warp: None,
             edge: Edge::Window([0, 0, vrt.width, vrt.height]),
+            metres: None,
         });
     }
     if pieces.is_empty() {

@@ -250,6 +250,7 @@ pub(super) fn place_mixed(
                         x: p.x + cx.round() as u32,
                         y: p.y + cy.round() as u32,
                         edge: p.edge.shifted(cx.round() as u32, cy.round() as u32),
+                        metres: Some(s.fineness()),
                         ..p.clone()
                     },
                 ));
@@ -316,6 +317,7 @@ pub(super) fn place_mixed(
                     edge: super::Edge::Resampled {
                         metres_per_sample: s.fineness(),
                     },
+                    metres: Some(s.fineness()),
                     ..p.clone()
                 },
             ));
