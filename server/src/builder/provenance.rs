@@ -37,13 +37,9 @@ fn record(i: &InputSummary, pyramid: Option<GroundSpacing>, finest: u8) -> Sourc
         .georef
         .as_ref()
         .and_then(|g| ground_spacing(g, i.width, i.height).ok());
-    let level = match (spacing, pyramid) {
-        (Some(s), Some(p)) => {
-            let ratio = (s.x * s.y).sqrt() / (p.x * p.y).sqrt();
-            // The finest level whose samples are no finer than this input's: each
-            // level up doubles the spacing.
-            let up = ratio.max(1.0).log2().floor() as i64;
-            (i64::from(finest) - up).clamp(0, i64::from(finest)) as u8
+    let level = match (spacing, pyramid, tessera_shared::Level::new(finest)) {
+        (Some(s), Some(p), Some(f)) => {
+            super::support::supported_level((s.x * s.y).sqrt(), (p.x * p.y).sqrt(), f)
         }
         _ => finest,
     };

@@ -31,9 +31,9 @@ pub struct Support {
 pub fn supported_level(metres: f64, pyramid: f64, finest: Level) -> u8 {
     let ratio = metres / pyramid;
     let up = if ratio.is_finite() && ratio > 1.0 {
-        // A millionth of slack: an input at the pyramid's spacing computed in another
-        // CRS must not lose its level to rounding.
-        (ratio * (1.0 - 1e-6)).log2().floor().max(0.0) as u8
+        // A millionth of slack: an input exactly 2^k coarser whose spacing is computed
+        // in another CRS must not miss its level to rounding.
+        (ratio * (1.0 + 1e-6)).log2().floor().max(0.0) as u8
     } else {
         0
     };
@@ -121,6 +121,7 @@ mod tests {
         let f = Level::new(6).unwrap();
         assert_eq!(supported_level(90.0, 90.0, f), 6);
         assert_eq!(supported_level(90.0 * 1.000_000_1, 90.0, f), 6);
+        assert_eq!(supported_level(180.0 * 0.999_999_9, 90.0, f), 5);
         assert_eq!(supported_level(179.0, 90.0, f), 6);
         assert_eq!(supported_level(180.0, 90.0, f), 5);
         // 10× coarser: 8× keeps it (3 levels up), 16× would not.

@@ -7,3 +7,4 @@ pub mod encoding;
 pub mod footprint;
 pub mod resample;
 pub mod tile_matrix;
+pub mod upsample;

@@ -17,8 +17,12 @@ use super::vertical_shift::VerticalOptions;
 use super::vrt::is_vrt;
 use super::{DatumClue, RowSource, SampleType, SourceInfo};
 use anyhow::{Context, bail};
+use conflict::conflict;
+use datum::agreed_datum;
+use feather::Edge;
 use place::{file_group, names, vrt_group};
 use std::path::{Path, PathBuf};
+use summary::{log_mixed, summaries};
 use tessera_shared::{GeoRef, VerticalDatum};
 
 /// What happens where two inputs overlap with different valid values.
@@ -79,23 +83,6 @@ struct Piece {
     /// Metres one sample of its input spans, for inputs on different grids (what a
     /// multi-resolution pyramid stores it down to); `None` on one grid.
     metres: Option<f64>,
-}
-
-/// Where an input ends, for `--feather` ([`Piece::edge`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Edge {
-    Window([u32; 4]),
-    Resampled { metres_per_sample: f64 },
-}
-
-impl Edge {
-    /// The same edge with its input moved by `(dx, dy)` cells.
-    fn shifted(self, dx: u32, dy: u32) -> Self {
-        match self {
-            Self::Window([x0, y0, x1, y1]) => Self::Window([x0 + dx, y0 + dy, x1 + dx, y1 + dy]),
-            other @ Self::Resampled { .. } => other,
-        }
-    }
 }
 
 /// An open piece: its reader and its current row (no-data already NaN).
@@ -167,61 +154,6 @@ pub struct MosaicOptions {
     /// `--feather METRES`: within this distance of a higher-priority input's edge, its
     /// heights blend linearly into those below it instead of a hard seam.
     pub feather: Option<f64>,
-}
-
-/// The datum the pieces state, when those that state one agree (pieces that state
-/// nothing do not count), with where it is stated. Pieces in different datums cannot
-/// be mixed: an error naming two of them and the flag that converts them. A piece that
-/// names a datum the metadata cannot record leaves it unknown and says so.
-fn agreed_datum(pieces: &[Piece]) -> anyhow::Result<Option<DatumClue>> {
-    let mut stating = pieces.iter().filter_map(|p| Some((p, p.datum.as_ref()?)));
-    let Some((first, clue)) = stating.next() else {
-        return Ok(None);
-    };
-    let count = 1 + stating.clone().count();
-    let says = |c: &DatumClue| c.datum.map_or("another datum", VerticalDatum::name);
-    if let Some((other, o)) = stating.clone().find(|(_, c)| c.datum != clue.datum) {
-        if clue.datum.is_some() && o.datum.is_some() {
-            bail!(
-                "{} and {}: heights in different vertical datums (the first says {} ({}), the \
-                 second says {} ({})): convert them to one with --to-vertical \
-                 egm96|egm2008|ellipsoid, or say what they are with --vertical-datum",
-                first.name,
-                other.name,
-                says(clue),
-                clue.why,
-                says(o),
-                o.why
-            );
-        }
-        return Ok(Some(DatumClue {
-            datum: None,
-            why: format!(
-                "the inputs disagree: {} says {} ({}), {} says {} ({})",
-                first.name,
-                says(clue),
-                clue.why,
-                other.name,
-                says(o),
-                o.why
-            ),
-        }));
-    }
-    if pieces.len() == 1 {
-        return Ok(Some(clue.clone()));
-    }
-    let whose = if count == pieces.len() {
-        format!("all {count} inputs")
-    } else {
-        format!(
-            "{count} of {} inputs, the others stating none",
-            pieces.len()
-        )
-    };
-    Ok(Some(DatumClue {
-        datum: clue.datum,
-        why: format!("{whose}, e.g. {}: {}", first.name, clue.why),
-    }))
 }
 
 fn file_name(p: &Path) -> String {
@@ -510,38 +442,6 @@ impl Mosaic {
     }
 }
 
-/// The error for two inputs that disagree at mosaic sample `(col, row)`: `kept` came
-/// from one of the `earlier` open pieces, `new` from piece `later`.
-#[allow(clippy::too_many_arguments)]
-fn conflict(
-    pieces: &[Piece],
-    georef: Option<&GeoRef>,
-    earlier: &[OpenPiece],
-    later: usize,
-    (col, row): (u32, u32),
-    kept: f32,
-    new: f32,
-) -> anyhow::Error {
-    let other = earlier
-        .iter()
-        .find(|o| {
-            let p = &pieces[o.index];
-            (p.x..p.x + p.w).contains(&col) && o.row[(p.src_x + col - p.x) as usize] == kept
-        })
-        .map_or("an earlier input", |o| pieces[o.index].name.as_str());
-    let at = georef.map_or_else(String::new, |g| {
-        let gt = &g.geotransform;
-        let x = gt[0] + (f64::from(col) + 0.5) * gt[1];
-        let y = gt[3] + (f64::from(row) + 0.5) * gt[5];
-        format!(" ({} {x}, {y})", crs_text(g))
-    });
-    anyhow::anyhow!(
-        "{other} and {} disagree at sample (col {col}, row {row}){at}: {kept} vs {new} \
-         (choose with --overlap first|last|finest)",
-        pieces[later].name
-    )
-}
-
 /// The largest sum of open pieces' memory over the rows: pieces are open from their
 /// top row to their bottom row.
 fn peak_open_bytes(pieces: &[Piece]) -> u64 {
@@ -670,117 +570,13 @@ impl Mosaic {
         }
         Ok(())
     }
-
-    /// [`Mosaic::read_row`] with `--feather band` (metres; mosaic cells are `cell`
-    /// metres): in priority order each piece takes, of the weight its betters left,
-    /// the share `min(1, distance to its input's edge / band)`; the row is the
-    /// weighted mean. Deep inside an input it is that input alone; at its edge it
-    /// fades into what lies below; where nothing lies below it is itself.
-    fn read_feathered_row(
-        &mut self,
-        out_row: &mut [f32],
-        band: f64,
-        cell: [f64; 2],
-    ) -> anyhow::Result<()> {
-        let r = self.row;
-        self.blend.clear();
-        self.blend.resize(out_row.len(), (0.0, 1.0));
-        for o in &mut self.open {
-            let p = &self.pieces[o.index];
-            o.reader
-                .read_rows(&mut o.row)
-                .with_context(|| p.name.clone())?;
-            let edge = o.reader.edge_distance();
-            for j in 0..p.w as usize {
-                let v = o.row[p.src_x as usize + j];
-                if v.is_nan() || p.nodata.contains(&v) {
-                    continue;
-                }
-                let col = p.x as usize + j;
-                let metres = match p.edge {
-                    Edge::Window([x0, y0, x1, y1]) => {
-                        let (c, rr) = (col as f64 + 0.5, f64::from(r) + 0.5);
-                        ((c - f64::from(x0)) * cell[0])
-                            .min((f64::from(x1) - c) * cell[0])
-                            .min((rr - f64::from(y0)) * cell[1])
-                            .min((f64::from(y1) - rr) * cell[1])
-                    }
-                    Edge::Resampled { metres_per_sample } => edge
-                        .and_then(|e| e.get(p.src_x as usize + j))
-                        .map_or(band, |&d| f64::from(d) * metres_per_sample),
-                };
-                let (sum, left) = &mut self.blend[col];
-                let take = *left * (metres / band).clamp(0.0, 1.0);
-                *sum += take * f64::from(v);
-                *left -= take;
-            }
-        }
-        for (d, &(sum, left)) in out_row.iter_mut().zip(&self.blend) {
-            if left < 1.0 {
-                *d = (sum / (1.0 - left)) as f32;
-            }
-        }
-        Ok(())
-    }
 }
 
-/// Each group as an [`super::InputSummary`], in the order its pieces were placed
-/// (priority order for `--overlap finest`).
-fn summaries(groups: &[Group], pieces: &[Piece]) -> Vec<super::InputSummary> {
-    let group_of: std::collections::HashMap<&Path, usize> = groups
-        .iter()
-        .enumerate()
-        .flat_map(|(i, g)| g.pieces.iter().map(move |p| (p.path.as_path(), i)))
-        .collect();
-    let mut seen = vec![false; groups.len()];
-    let mut order: Vec<usize> = Vec::new();
-    for p in pieces {
-        if let Some(&g) = group_of.get(p.path.as_path())
-            && !std::mem::replace(&mut seen[g], true)
-        {
-            order.push(g);
-        }
-    }
-    order
-        .into_iter()
-        .map(|i| {
-            let g = &groups[i];
-            super::InputSummary {
-                name: file_name(Path::new(&g.name)),
-                georef: g.georef.clone(),
-                width: g.width,
-                height: g.height,
-                datum: g
-                    .pieces
-                    .first()
-                    .and_then(|p| p.datum.as_ref())
-                    .and_then(|c| c.datum),
-            }
-        })
-        .collect()
-}
-
-/// Logs how inputs on different grids were put on one.
-fn log_mixed(groups: &[Group], placed: &warp::Placed) {
-    let g = &placed.georef;
-    tracing::info!(
-        inputs = groups.len(),
-        crs = crs_text(g),
-        spacing = format!("{} × {}", g.geotransform[1], -g.geotransform[5]),
-        size = format!("{} × {}", placed.width, placed.height),
-        "inputs on different grids: resampled onto the finest input's grid (or --to/--spacing)"
-    );
-    for (grp, s) in groups.iter().zip(&placed.sources) {
-        tracing::info!(
-            input = grp.name,
-            crs = s.crs.label(),
-            spacing_m = format!("{:.3} × {:.3}", s.spacing.x, s.spacing.y),
-            "source"
-        );
-    }
-}
-
+mod conflict;
+mod datum;
+mod feather;
 mod place;
+mod summary;
 #[cfg(test)]
 mod tests;
 pub mod warp;
