@@ -57,13 +57,14 @@ pub async fn get(
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
     let etag = cache::etag(ds.content_hash(), "coverage");
-    if cache::not_modified(&headers, &etag, ds.last_modified) {
-        return Ok(cache::not_modified_response(
-            &etag,
-            ds.last_modified,
-            false,
-            state.cache_max_age,
-        ));
+    if let Some(r) = cache::revalidate(
+        &headers,
+        &etag,
+        ds.last_modified,
+        false,
+        state.cache_max_age,
+    ) {
+        return Ok(r);
     }
     let body = collection(ds.pyramid.metadata()).to_string();
     let mut r = body.into_response();
