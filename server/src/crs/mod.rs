@@ -21,7 +21,7 @@ use tessera_shared::{GeoRef, GroundSpacing};
 
 /// A CRS that coordinates can be transformed out of and into: its definition and
 /// what PROJ said about it when it was made. Plain data, so it can be shared between
-/// threads; each thread keeps its own PROJ objects for it ([`proj`]).
+/// threads; each thread keeps its own PROJ objects for it (`crs/proj.rs`).
 #[derive(Clone)]
 pub struct Crs {
     /// What PROJ is given: `EPSG:2056`, a WKT, a PROJ string.

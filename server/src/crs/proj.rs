@@ -19,6 +19,9 @@ use std::collections::HashMap;
 use std::ffi::{CStr, CString, c_char};
 use std::ptr;
 
+/// Transformations a thread keeps (and twice as many CRSs) before it starts afresh.
+const MAX_CACHED: usize = 256;
+
 /// A PROJ object owned by this thread's context.
 struct Object(*mut sys::PJ);
 
@@ -93,6 +96,13 @@ impl ThreadProj {
     ) -> Result<*mut sys::PJ, String> {
         if let Some(o) = self.operations.get(&(from.0, to.0, strict)) {
             return Ok(o.0);
+        }
+        // A build over thousands of inputs meets thousands of CRSs (each input's own
+        // local projection for its ground spacing): start afresh rather than grow. No
+        // object of this context is in use between calls.
+        if self.operations.len() >= MAX_CACHED || self.crs.len() >= 2 * MAX_CACHED {
+            self.operations.clear();
+            self.crs.clear();
         }
         let src = self
             .crs(from.0, from.1)
