@@ -162,15 +162,20 @@ def lint_dockerfile(text: str) -> list[str]:
 
 
 def dockerfile_parts() -> dict:
-    """The final stage's ENTRYPOINT, CMD and HEALTHCHECK command (exec form), and the
-    file's text."""
+    """The final stage's ENTRYPOINT, CMD and HEALTHCHECK command (exec form), the
+    packages its `apt-get install`s name, and the file's text."""
     with open(DOCKERFILE, encoding="utf-8") as f:
         text = f.read()
     ins = parse_dockerfile(text)
     last_from = max(i for i, (_, instr, _) in enumerate(ins) if instr == "FROM")
     final = ins[last_from:]
     out = {"text": text}
+    out["apt_packages"] = []
     for _, instr, args in final:
+        if instr == "RUN":
+            # The packages of every `apt-get install` in the final stage.
+            for m in re.finditer(r"apt-get install((?:\s+(?:-[\w-]+|[a-z0-9][\w.+-]*))+)", args):
+                out["apt_packages"] += [w for w in m.group(1).split() if not w.startswith("-")]
         if instr in ("ENTRYPOINT", "CMD"):
             out[instr] = exec_form(args)
         if instr == "HEALTHCHECK":

@@ -93,6 +93,48 @@ def linked_libraries(binary: str) -> set[str]:
     return set(re.findall(r"^\s*(\S+\.so[.\d]*)", run(["ldd", binary]).stdout, re.M))
 
 
+def linked_library_paths(binary: str) -> dict[str, str]:
+    """The shared libraries `ldd` says `binary` loads, by name, with the file each
+    resolves to (the name itself for the loader and the vDSO)."""
+    out = {}
+    for line in run(["ldd", binary]).stdout.splitlines():
+        m = re.match(r"^\s*(\S+)(?:\s+=>\s+(\S+))?", line)
+        if m:
+            out[m.group(1)] = m.group(2) or m.group(1)
+    return out
+
+
+def package_owning(path: str) -> str | None:
+    """The Debian package that installed `path` (merged /usr: either spelling)."""
+    real = os.path.realpath(path)
+    candidates = {path, real}
+    for p in list(candidates):
+        if p.startswith("/usr/"):
+            candidates.add(p[len("/usr"):])
+        elif p.startswith("/"):
+            candidates.add("/usr" + p)
+    for p in candidates:
+        r = run(["dpkg-query", "-S", p])
+        if r.returncode == 0 and ":" in r.stdout:
+            return r.stdout.split(":")[0].strip()
+    return None
+
+
+def apt_closure(packages: list[str]) -> set[str]:
+    """`packages` and everything they depend on (Depends and Pre-Depends, recursively)."""
+    r = run(["apt-cache", "depends", "--recurse", "--no-recommends", "--no-suggests",
+             "--no-conflicts", "--no-breaks", "--no-replaces", "--no-enhances", *packages])
+    names = set(packages)
+    for line in r.stdout.splitlines():
+        line = line.strip().lstrip("|")
+        if line.startswith(("Depends:", "PreDepends:", "Pre-Depends:")):
+            line = line.split(":", 1)[1]
+        name = line.strip().strip("<>").split(":")[0]
+        if name and " " not in name:
+            names.add(name)
+    return names
+
+
 def run(argv: list[str], env: dict | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(argv, env=env, capture_output=True, text=True, timeout=timeout)
 
