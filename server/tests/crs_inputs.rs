@@ -8,7 +8,7 @@
 
 mod gdal;
 
-use gdal::{gdal_or_skip, path_str, run};
+use gdal::{gdal_or_skip, path_str, run, run_stdin};
 use std::path::Path;
 use std::process::{Command, Output};
 use tessera_shared::{Metadata, Pyramid, testdata};
@@ -61,7 +61,7 @@ fn user_defined_geokeys_give_the_ground_spacing_gdal_would() {
     let lonlat = run_stdin(
         "cs2cs",
         &["-f", "%.10f", "EPSG:31985", "EPSG:4326"],
-        &format!("{cx} {cy}\n"),
+        format!("{cx} {cy}\n"),
     );
     let v: Vec<f64> = lonlat
         .split_whitespace()
@@ -72,7 +72,7 @@ fn user_defined_geokeys_give_the_ground_spacing_gdal_would() {
     let factors = run_stdin(
         "proj",
         &["-V", "+proj=utm", "+zone=25", "+south", "+ellps=GRS80"],
-        &format!("{lon} {lat}\n"),
+        format!("{lon} {lat}\n"),
     );
     // `proj -V` prints "Parallel scale (k) : 1.00012345  (…)"; h = k (conformal).
     let line = factors
@@ -97,25 +97,6 @@ fn user_defined_geokeys_give_the_ground_spacing_gdal_would() {
     let text = info(&out);
     assert!(text.contains("UTM Zone 25, Southern Hemisphere"), "{text}");
     assert!(text.contains("+proj=utm +zone=25 +south"), "{text}");
-}
-
-fn run_stdin(program: &str, args: &[&str], input: &str) -> String {
-    use std::io::Write;
-    let mut child = Command::new(program)
-        .args(args)
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(input.as_bytes())
-        .unwrap();
-    let o = child.wait_with_output().unwrap();
-    assert!(o.status.success(), "{program} {args:?}");
-    String::from_utf8(o.stdout).unwrap()
 }
 
 /// aletsch.tif with its CRS keys replaced by an engineering CRS (what GDAL writes for

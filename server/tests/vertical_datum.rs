@@ -8,6 +8,7 @@
 
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod cli_support;
+mod gdal;
 
 use cli_support::{bin, build, tmpdir};
 use std::path::Path;
@@ -346,28 +347,12 @@ fn unknown_luxembourg_heights_warn_with_their_undulation() {
 
 /// `cs2cs` on (latitude, longitude, height) triples: PROJ's own answer.
 fn cs2cs(from: &str, to: &str, points: &[[f64; 3]]) -> Vec<f64> {
-    use std::io::Write;
-    let mut child = std::process::Command::new("cs2cs")
-        .args(["-f", "%.6f", from, to])
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let text: String = points.iter().fold(String::new(), |mut t, [lat, lon, h]| {
+    let text = points.iter().fold(String::new(), |mut t, [lat, lon, h]| {
         use std::fmt::Write as _;
         let _ = writeln!(t, "{lat:.12} {lon:.12} {h:.6}");
         t
     });
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(text.as_bytes())
-        .unwrap();
-    let o = child.wait_with_output().unwrap();
-    assert!(o.status.success());
-    String::from_utf8(o.stdout)
-        .unwrap()
+    gdal::run_stdin("cs2cs", &["-f", "%.6f", from, to], text)
         .lines()
         .map(|l| l.split_whitespace().nth(2).unwrap().parse().unwrap())
         .collect()

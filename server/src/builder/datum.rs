@@ -97,8 +97,7 @@ fn geoid() -> Option<crate::geoid::Geoid> {
 /// projection library knows, another body's ellipsoid, or points that do not transform.
 fn footprint(georef: &GeoRef, width: u32, height: u32) -> Option<Vec<[f64; 2]>> {
     let crs = Crs::of(georef)?;
-    let (a, _) = crs.body_radii()?;
-    if !(6_300_000.0..6_400_000.0).contains(&a) || width == 0 || height == 0 {
+    if !crs.is_earth() || width == 0 || height == 0 {
         return None;
     }
     let at = |i: u32, n: u32| f64::from(i) * f64::from(n - 1) / f64::from(GRID - 1);

@@ -10,6 +10,7 @@
 
 use crate::crs::{Crs, ground_spacing};
 use crate::ingest::InputSummary;
+use crate::ingest::reproject::{border_ring, bounds};
 use tessera_shared::{GeoRef, GroundSpacing, SourceRecord, VerticalDatum};
 
 /// Inputs recorded one by one; more are summarised per kind.
@@ -59,33 +60,11 @@ fn record(i: &InputSummary, pyramid: Option<GroundSpacing>, finest: u8) -> Sourc
 /// The grid's outer pixel edges in longitude/latitude: WGS 84 for a CRS on the Earth,
 /// the body's own for another (the Moon's).
 fn outline(g: &GeoRef, crs: &Crs, w: u32, h: u32) -> Option<Vec<[f64; 2]>> {
-    let gt = g.geotransform;
-    let corner = |c: f64, r: f64| [gt[0] + c * gt[1], gt[3] + r * gt[5], 0.0];
-    let n = f64::from(EDGE_POINTS);
-    let (fw, fh) = (f64::from(w), f64::from(h));
-    let mut ring = Vec::new();
-    // Counter-clockwise in longitude/latitude for a north-up grid: west edge down,
-    // south edge east, east edge up, north edge west.
-    for k in 0..EDGE_POINTS {
-        ring.push(corner(0.0, fh * f64::from(k) / n));
-    }
-    for k in 0..EDGE_POINTS {
-        ring.push(corner(fw * f64::from(k) / n, fh));
-    }
-    for k in 0..EDGE_POINTS {
-        ring.push(corner(fw, fh * (1.0 - f64::from(k) / n)));
-    }
-    for k in 0..EDGE_POINTS {
-        ring.push(corner(fw * (1.0 - f64::from(k) / n), 0.0));
-    }
-    let earth = crs
-        .body_radii()
-        .is_some_and(|(a, _)| (6_300_000.0..6_400_000.0).contains(&a));
-    let target = if earth {
+    let mut ring = border_ring(&g.geotransform, f64::from(w), f64::from(h), EDGE_POINTS);
+    let target = if crs.is_earth() {
         Crs::from_epsg(4326).ok()?
     } else {
-        let (a, b) = crs.body_radii()?;
-        Crs::from_proj_string(&format!("+proj=longlat +a={a} +b={b} +no_defs")).ok()?
+        crs.own_geographic().ok()?
     };
     crs.transform_points(&target, &mut ring).ok()?;
     let mut out: Vec<[f64; 2]> = ring.iter().map(|p| [round(p[0]), round(p[1])]).collect();
@@ -110,22 +89,7 @@ fn summarise(each: Vec<SourceRecord>) -> Vec<SourceRecord> {
         )
     };
     for r in each {
-        let b = r.footprint.iter().fold(
-            [
-                f64::INFINITY,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                f64::NEG_INFINITY,
-            ],
-            |b, p| {
-                [
-                    b[0].min(p[0]),
-                    b[1].min(p[1]),
-                    b[2].max(p[0]),
-                    b[3].max(p[1]),
-                ]
-            },
-        );
+        let b = bounds(&r.footprint);
         match kinds.iter_mut().find(|(k, _, _)| key(k) == key(&r)) {
             Some((_, n, u)) => {
                 *n += 1;

@@ -205,11 +205,18 @@ impl Crs {
     /// Longitude/latitude (degrees) on this CRS's own ellipsoid, with no datum shift:
     /// where [`Crs::to_lon_lat`] pivots through WGS 84, which means nothing for a CRS
     /// of another body.
-    fn own_geographic(&self) -> anyhow::Result<Self> {
+    pub fn own_geographic(&self) -> anyhow::Result<Self> {
         let (a, b) = self
             .body_radii()
             .ok_or_else(|| anyhow!("the CRS {} has no usable ellipsoid", self.label()))?;
         Self::from_proj_string(&format!("+proj=longlat +a={a} +b={b} +no_defs +type=crs"))
+    }
+
+    /// Whether the CRS is on the Earth (an ellipsoid of 6 300–6 400 km): where WGS 84
+    /// longitude/latitude and the geoid mean something.
+    pub fn is_earth(&self) -> bool {
+        self.radii
+            .is_some_and(|(a, _)| (6_300_000.0..6_400_000.0).contains(&a))
     }
 
     /// Whether coordinates are longitude/latitude (degrees).

@@ -371,30 +371,36 @@ pub(super) fn transform(
 ) -> Result<(), String> {
     PROJ.with_borrow_mut(|p| {
         let op = p.operation(from, to, strict)?;
-        let mut coords: Vec<sys::PJ_COORD> = points
-            .iter()
-            .map(|&[x, y, z]| sys::PJ_COORD {
-                v: [x, y, z, f64::INFINITY],
-            })
-            .collect();
-        // SAFETY: op is a live operation of this context; coords has n entries.
-        unsafe {
-            sys::proj_trans_array(
-                op,
-                sys::PJ_DIRECTION_PJ_FWD,
-                coords.len(),
-                coords.as_mut_ptr(),
-            )
-        };
+        // Through a buffer on the stack, a chunk at a time: the one-point calls of the
+        // approximate transformers (every tile plan, every reprojected row) allocate
+        // nothing.
+        let mut coords = [sys::PJ_COORD { v: [0.0; 4] }; CHUNK];
         let mut failed = None;
-        for (i, (out, c)) in points.iter_mut().zip(&coords).enumerate() {
-            // SAFETY: every PJ_COORD variant is four f64s.
-            let v = unsafe { c.v };
-            if v[..3].iter().all(|x| x.is_finite()) {
-                *out = [v[0], v[1], v[2]];
-            } else {
-                failed.get_or_insert(i);
-                *out = [f64::NAN; 3];
+        for (k, chunk) in points.chunks_mut(CHUNK).enumerate() {
+            for (c, &[x, y, z]) in coords.iter_mut().zip(chunk.iter()) {
+                *c = sys::PJ_COORD {
+                    v: [x, y, z, f64::INFINITY],
+                };
+            }
+            // SAFETY: op is a live operation of this context; the first `chunk.len()`
+            // of `coords` are initialised.
+            unsafe {
+                sys::proj_trans_array(
+                    op,
+                    sys::PJ_DIRECTION_PJ_FWD,
+                    chunk.len(),
+                    coords.as_mut_ptr(),
+                )
+            };
+            for (i, (out, c)) in chunk.iter_mut().zip(&coords).enumerate() {
+                // SAFETY: every PJ_COORD variant is four f64s.
+                let v = unsafe { c.v };
+                if v[..3].iter().all(|x| x.is_finite()) {
+                    *out = [v[0], v[1], v[2]];
+                } else {
+                    failed.get_or_insert(k * CHUNK + i);
+                    *out = [f64::NAN; 3];
+                }
             }
         }
         match failed {
@@ -406,6 +412,9 @@ pub(super) fn transform(
         }
     })
 }
+
+/// Points [`transform`] hands PROJ at a time, through a buffer on the stack.
+const CHUNK: usize = 64;
 
 /// PROJ's version, as the library in use reports it ("9.1.1").
 pub fn version() -> String {

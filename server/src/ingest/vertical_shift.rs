@@ -125,9 +125,9 @@ impl VerticalShift {
             points: Vec::new(),
         };
         // One point at the centre: a missing grid is an error now, not NaN heights later.
-        let centre = me.shifts_at(georef, info.height / 2, &[info.width / 2]);
+        let centre = me.shifts_at(info.height / 2, info.width / 2..info.width / 2 + 1);
         match centre {
-            Ok(s) if s[0].is_finite() => Ok(me.tap_row_buffer()),
+            Ok(()) if me.points[0][2].is_finite() => Ok(me),
             _ => {
                 let hint = [from, to]
                     .into_iter()
@@ -152,16 +152,12 @@ impl VerticalShift {
         }
     }
 
-    fn tap_row_buffer(mut self) -> Self {
-        self.points = Vec::with_capacity(self.info.width as usize);
-        self
-    }
-
-    /// The shift in metres (target height − source height) at the centres of
-    /// samples `cols` of row `row`.
-    fn shifts_at(&mut self, georef: &GeoRef, row: u32, cols: &[u32]) -> anyhow::Result<Vec<f64>> {
+    /// Leaves in `points[k][2]` the shift in metres (target height − source height)
+    /// at the centre of sample `cols.start + k` of row `row`.
+    fn shifts_at(&mut self, row: u32, cols: std::ops::Range<u32>) -> anyhow::Result<()> {
+        let georef = self.info.georef.as_ref().expect("checked in new");
         self.points.clear();
-        self.points.extend(cols.iter().map(|&c| {
+        self.points.extend(cols.map(|c| {
             let [x, y] = georef.sample_centre(f64::from(c), f64::from(row));
             [x, y, 0.0]
         }));
@@ -169,8 +165,7 @@ impl VerticalShift {
             .transform_points(&self.wgs84, &mut self.points)
             .context("sample positions to WGS 84")?;
         self.source_vertical
-            .transform_points_exactly(&self.target_vertical, &mut self.points)?;
-        Ok(self.points.iter().map(|p| p[2]).collect())
+            .transform_points_exactly(&self.target_vertical, &mut self.points)
     }
 }
 
@@ -182,22 +177,21 @@ impl RowSource for VerticalShift {
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
         self.inner.read_rows(out)?;
         let w = self.info.width as usize;
-        let georef = self.info.georef.clone().expect("checked in new");
-        let cols: Vec<u32> = (0..self.info.width).collect();
         for line in out.chunks_exact_mut(w) {
-            let shifts = self.shifts_at(&georef, self.row, &cols).with_context(|| {
-                format!(
-                    "converting row {} from {} to {}",
-                    self.row,
-                    self.from.name(),
-                    self.to.name()
-                )
-            })?;
-            for (v, s) in line.iter_mut().zip(&shifts) {
+            self.shifts_at(self.row, 0..self.info.width)
+                .with_context(|| {
+                    format!(
+                        "converting row {} from {} to {}",
+                        self.row,
+                        self.from.name(),
+                        self.to.name()
+                    )
+                })?;
+            for (v, p) in line.iter_mut().zip(&self.points) {
                 // No-data stays as it is; a sample PROJ cannot place becomes NaN
                 // (no-data too).
                 if !self.nodata.contains(v) {
-                    *v = (f64::from(*v) + s * self.per_metre) as f32;
+                    *v = (f64::from(*v) + p[2] * self.per_metre) as f32;
                 }
             }
             self.row += 1;

@@ -35,6 +35,10 @@ pub struct Dataset {
     /// DECISIONS.md "Imagery pyramids"), itself a dataset whose [`Dataset::pyramid`] is
     /// opened with `Pyramid::open_imagery`.
     pub imagery: Option<Arc<Dataset>>,
+    /// Whether the pyramid stores some places only down to a coarser level (its
+    /// sources say so: DECISIONS.md "Multi-resolution pyramids"), so an absent tile
+    /// may be its ancestor's surface rather than no data.
+    pub multi_resolution: bool,
 }
 
 /// A record that failed its checksum.
@@ -149,8 +153,11 @@ impl Dataset {
                     .collect()
             })
             .collect();
+        let finest = pyramid.geometry().finest().get();
+        let multi_resolution = pyramid.metadata().sources.iter().any(|s| s.level < finest);
         Ok(Self {
             name,
+            multi_resolution,
             last_modified: LastModified::new(storage.modified()),
             path,
             storage,

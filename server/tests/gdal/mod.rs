@@ -34,38 +34,52 @@ pub fn run(program: &str, args: &[&str]) -> String {
     String::from_utf8(o.stdout).unwrap()
 }
 
+/// Runs a command-line tool (GDAL's, PROJ's) with `input` on its standard input; its
+/// stdout. Panics with its stderr when it fails.
+pub fn run_stdin(program: &str, args: &[&str], input: String) -> String {
+    let mut child = Command::new(program)
+        .args(args)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Written from a thread: the tools answer as they read, and with many lines their
+    // output would fill the pipe while we still write (a deadlock).
+    let mut stdin = child.stdin.take().unwrap();
+    let writer = std::thread::spawn(move || {
+        use std::io::Write;
+        stdin.write_all(input.as_bytes()).unwrap();
+    });
+    let out = child.wait_with_output().unwrap();
+    writer.join().unwrap();
+    assert!(
+        out.status.success(),
+        "{program} {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
 /// `gdaltransform`: points of `from` carried to `to` (both `EPSG:CODE`), exactly as
 /// PROJ computes them.
 pub fn transform(from: &str, to: &str, points: &[[f64; 2]]) -> Vec<[f64; 2]> {
-    let mut child = Command::new("gdaltransform")
-        .args(["-s_srs", from, "-t_srs", to, "-output_xy"])
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Written from a thread: gdaltransform answers as it reads, and with many points
-    // its output would fill the pipe while we still write (a deadlock).
-    let mut stdin = child.stdin.take().unwrap();
     let mut text = String::with_capacity(points.len() * 32);
     for p in points {
         use std::fmt::Write as _;
         let _ = writeln!(text, "{:.10} {:.10}", p[0], p[1]);
     }
-    let writer = std::thread::spawn(move || {
-        use std::io::Write;
-        stdin.write_all(text.as_bytes()).unwrap();
-    });
-    let out = child.wait_with_output().unwrap();
-    writer.join().unwrap();
-    assert!(out.status.success());
-    String::from_utf8(out.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().unwrap()).collect();
-            [v[0], v[1]]
-        })
-        .collect()
+    run_stdin(
+        "gdaltransform",
+        &["-s_srs", from, "-t_srs", to, "-output_xy"],
+        text,
+    )
+    .lines()
+    .map(|l| {
+        let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().unwrap()).collect();
+        [v[0], v[1]]
+    })
+    .collect()
 }
 
 pub fn path_str(p: &Path) -> &str {

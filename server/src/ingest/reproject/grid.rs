@@ -12,9 +12,55 @@ pub struct Grid {
     pub gt: [f64; 6],
 }
 
+/// The outer pixel edges of a `w × h` grid with geotransform `gt`, `per_edge` points
+/// on each side, as a ring (not closed) counter-clockwise for a north-up grid: west
+/// edge down, south edge east, east edge up, north edge west. Straight lines bend
+/// under most projections, so corners alone would cut a footprint short.
+pub fn border_ring(gt: &[f64; 6], w: f64, h: f64, per_edge: u32) -> Vec<[f64; 3]> {
+    let corner = |c: f64, r: f64| [gt[0] + c * gt[1], gt[3] + r * gt[5], 0.0];
+    let n = f64::from(per_edge);
+    let mut ring = Vec::with_capacity(4 * per_edge as usize);
+    for k in 0..per_edge {
+        let t = f64::from(k) / n;
+        ring.push(corner(0.0, h * t));
+    }
+    for k in 0..per_edge {
+        let t = f64::from(k) / n;
+        ring.push(corner(w * t, h));
+    }
+    for k in 0..per_edge {
+        let t = f64::from(k) / n;
+        ring.push(corner(w, h * (1.0 - t)));
+    }
+    for k in 0..per_edge {
+        let t = f64::from(k) / n;
+        ring.push(corner(w * (1.0 - t), 0.0));
+    }
+    ring
+}
+
+/// `[x0, y0, x1, y1]` around `points` (infinite and inverted when there are none).
+pub fn bounds<'a>(points: impl IntoIterator<Item = &'a [f64; 2]>) -> [f64; 4] {
+    points.into_iter().fold(
+        [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ],
+        |b, p| {
+            [
+                b[0].min(p[0]),
+                b[1].min(p[1]),
+                b[2].max(p[0]),
+                b[3].max(p[1]),
+            ]
+        },
+    )
+}
+
 /// The bounding box `[x0, y0, x1, y1]` in `target` of a `w × h` source grid's pixel
-/// areas: its border, 64 points per edge (straight lines bend under most projections,
-/// so corners alone would cut the footprint short), carried over.
+/// areas: its border ([`border_ring`], 64 points per edge), carried over.
 pub fn footprint(
     source: &Crs,
     target: &Crs,
@@ -22,33 +68,12 @@ pub fn footprint(
     w: usize,
     h: usize,
 ) -> anyhow::Result<[f64; 4]> {
-    let corner = |c: f64, r: f64| [gt[0] + c * gt[1], gt[3] + r * gt[5]];
-    let n = 64;
-    let mut border = Vec::with_capacity(4 * (n + 1));
-    for k in 0..=n {
-        let t = k as f64 / n as f64;
-        for (c, r) in [
-            (t * w as f64, 0.0),
-            (t * w as f64, h as f64),
-            (0.0, t * h as f64),
-            (w as f64, t * h as f64),
-        ] {
-            let [x, y] = corner(c, r);
-            border.push([x, y, 0.0]);
-        }
-    }
+    let mut border = border_ring(gt, w as f64, h as f64, 64);
     source
         .transform_points(target, &mut border)
         .context("the source's border does not transform")?;
-    Ok(border.iter().fold(
-        [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ],
-        |[x0, y0, x1, y1], p| [x0.min(p[0]), y0.min(p[1]), x1.max(p[0]), y1.max(p[1])],
-    ))
+    let flat: Vec<[f64; 2]> = border.iter().map(|p| [p[0], p[1]]).collect();
+    Ok(bounds(&flat))
 }
 
 /// One source sample's step at the source's centre, carried to the target CRS:

@@ -22,7 +22,7 @@ use crate::approx_transform::along_row;
 use crate::crs::Crs;
 use anyhow::{Context, anyhow, bail};
 use grid::plan_grid;
-pub use grid::{Grid, footprint, source_step};
+pub use grid::{Grid, border_ring, bounds, footprint, source_step};
 use std::collections::VecDeque;
 use std::fs::File;
 use std::io::{BufWriter, Write};

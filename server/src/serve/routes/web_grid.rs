@@ -130,7 +130,7 @@ pub fn source(
     // pyramid a tile may be absent because only coarser data lies there: its finer
     // view is its nearest stored ancestor's surface.
     if ds.pyramid.entry(tile).is_none_or(|e| e.length == 0) {
-        return if multi_resolution(ds) {
+        return if ds.multi_resolution {
             upsampled(state, ds, tile)
         } else {
             Ok(None)
@@ -159,14 +159,6 @@ pub fn source(
         })
         .map(Some)
         .or_else(|e| e.map_or(Ok(None), Err))
-}
-
-/// Whether the pyramid stores some places only down to a coarser level (its
-/// sources say so: DECISIONS.md "Multi-resolution pyramids").
-fn multi_resolution(ds: &Dataset) -> bool {
-    let m = ds.pyramid.metadata();
-    let finest = ds.pyramid.geometry().finest().get();
-    m.sources.iter().any(|s| s.level < finest)
 }
 
 /// An absent tile of a multi-resolution pyramid made from its nearest stored
