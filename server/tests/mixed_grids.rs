@@ -18,13 +18,14 @@ mod raster_support;
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use gdal::{gdal_or_skip, path_str, run};
+use gdal::fusion::Collection;
+use gdal::{path_str, run};
 use raster_support::{finest_samples, read_raster, steepest};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 use tessera_server::crs::Crs;
 use tessera_server::ingest::reproject::MAX_ERROR_PX;
-use tessera_shared::{Pyramid, testdata};
+use tessera_shared::Pyramid;
 
 fn build(inputs: &[&Path], out: &Path, extra: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_tessera-server"))
@@ -35,61 +36,6 @@ fn build(inputs: &[&Path], out: &Path, extra: &[&str]) -> Output {
         .args(extra)
         .output()
         .unwrap()
-}
-
-/// The three inputs, made by GDAL in a fresh folder: base (30″), fine (3″ window),
-/// aletsch (LV95), in priority order finest first.
-struct Collection {
-    _dir: tempfile::TempDir,
-    base: PathBuf,
-    fine: PathBuf,
-    aletsch: PathBuf,
-}
-
-impl Collection {
-    fn new() -> Option<Self> {
-        if !gdal_or_skip() {
-            return None;
-        }
-        let n46 = testdata::dem_or_skip("N46E008.tif")?;
-        let aletsch = testdata::dem_or_skip("aletsch.tif")?;
-        let dir = tempfile::tempdir().unwrap();
-        let base = dir.path().join("base_30s.tif");
-        let step = format!("{:.15}", 30.0 / 3600.0);
-        run(
-            "gdalwarp",
-            &[
-                "-q",
-                "-r",
-                "average",
-                "-tr",
-                &step,
-                &step,
-                path_str(&n46),
-                path_str(&base),
-            ],
-        );
-        let fine = dir.path().join("fine_3s.tif");
-        run(
-            "gdal_translate",
-            &[
-                "-q",
-                "-srcwin",
-                "300",
-                "350",
-                "500",
-                "400",
-                path_str(&n46),
-                path_str(&fine),
-            ],
-        );
-        Some(Self {
-            _dir: dir,
-            base,
-            fine,
-            aletsch,
-        })
-    }
 }
 
 /// An input's samples and grid, to tell where a comparison is meaningful.
@@ -408,13 +354,9 @@ fn feathering_blends_linearly_into_what_lies_below() {
     assert_eq!(g, mb.georef.as_ref().unwrap().geotransform);
     let w = m.width as usize;
     let cell_x = m.ground_spacing.unwrap().x;
-    // The window: columns 300..800 of N46E008, rows 350..750; the mosaic starts at
-    // aletsch's west edge.
-    let x0 = ((7.999_583_333_333_334 - g[0]) * 1200.0).round() as usize + 300;
-    let (x1, row) = (
-        x0 + 500,
-        ((g[3] - 47.000_416_666_666_666) * 1200.0).round() as usize + 550,
-    );
+    // The fine window's east edge, on a row through its middle.
+    let [_, y0, x1, _] = Collection::fine_window_on(&g);
+    let (x1, row) = (x1 as usize, y0 as usize + 200);
     let q = m.quantization.max_error + ms.quantization.max_error + mb.quantization.max_error;
     let (mut blended, mut alone) = (0, 0);
     for col in x1 - 80..x1 {
@@ -533,8 +475,7 @@ fn deep_tiles_are_stored_only_where_fine_data_lies() {
     // The 3″ window on the mosaic's grid (aletsch's west edge is the mosaic's).
     let m = pm.metadata();
     let gt = m.georef.as_ref().unwrap().geotransform;
-    let wx0 = ((7.999_583_333_333_334 - gt[0]) * 1200.0).round() as u64 + 300;
-    let wy0 = ((gt[3] - 47.000_416_666_666_666) * 1200.0).round() as u64 + 350;
+    let [wx0, wy0, wx1, wy1] = Collection::fine_window_on(&gt);
     let t = u64::from(g.tile_size());
     for tile in g.present_tiles(finest).filter(|t| {
         pm.entry(*t)
@@ -546,7 +487,7 @@ fn deep_tiles_are_stored_only_where_fine_data_lies() {
             u64::from(tile.y() / 2) * 2 * t,
         );
         assert!(
-            px <= wx0 + 500 && px + 2 * t >= wx0 && py <= wy0 + 400 && py + 2 * t >= wy0,
+            px <= wx1 && px + 2 * t >= wx0 && py <= wy1 && py + 2 * t >= wy0,
             "{tile}: finest tile far from the 3″ window"
         );
     }

@@ -46,17 +46,11 @@ impl Moon {
         build(path.to_str().unwrap(), &out, &opts).unwrap();
         let pyramid = Pyramid::open_file(&out).unwrap();
         let g = *pyramid.geometry();
-        let mut tables = HashMap::new();
-        let mut heights = HashMap::new();
-        let mut masks = HashMap::new();
-        for level in g.levels() {
-            for tile in g.present_tiles(level) {
-                let rec = pyramid.read_tile(tile).unwrap().unwrap();
-                tables.insert(tile, rec.errors);
-                heights.insert(tile, rec.heights);
-                masks.insert(tile, rec.mask);
-            }
-        }
+        let StoredTiles {
+            tables,
+            heights,
+            masks,
+        } = StoredTiles::read(&pyramid);
         let world = World {
             geometry: g,
             quant: pyramid.metadata().quantization,
@@ -75,17 +69,52 @@ impl Moon {
 
     /// A tile pool holding every tile.
     pub fn pool(&self) -> TilePool {
-        let mut pool = TilePool::new(self.tables.len() + 1);
-        for (&t, e) in &self.tables {
-            pool.insert(
-                t,
-                e.clone(),
-                self.heights[&t].clone(),
-                self.masks[&t].clone(),
-            );
-        }
-        pool
+        pool_of(&self.tables, &self.heights, &self.masks)
     }
+}
+
+/// Every stored tile of a pyramid, decoded (a multi-resolution pyramid's tiles that
+/// are not stored are absent here, as they are from the file).
+#[derive(Debug, Default)]
+pub struct StoredTiles {
+    pub tables: HashMap<TileId, ErrorTable>,
+    pub heights: HashMap<TileId, Vec<u16>>,
+    pub masks: HashMap<TileId, CellMask>,
+}
+
+impl StoredTiles {
+    pub fn read(pyramid: &Pyramid<FileSource>) -> Self {
+        let g = *pyramid.geometry();
+        let mut tiles = Self::default();
+        for level in g.levels() {
+            for tile in g.present_tiles(level) {
+                let Some(rec) = pyramid.read_tile(tile).unwrap() else {
+                    continue;
+                };
+                tiles.tables.insert(tile, rec.errors);
+                tiles.heights.insert(tile, rec.heights);
+                tiles.masks.insert(tile, rec.mask);
+            }
+        }
+        tiles
+    }
+
+    /// A tile pool holding every tile.
+    pub fn pool(&self) -> TilePool {
+        pool_of(&self.tables, &self.heights, &self.masks)
+    }
+}
+
+fn pool_of(
+    tables: &HashMap<TileId, ErrorTable>,
+    heights: &HashMap<TileId, Vec<u16>>,
+    masks: &HashMap<TileId, CellMask>,
+) -> TilePool {
+    let mut pool = TilePool::new(tables.len() + 1);
+    for (&t, e) in tables {
+        pool.insert(t, e.clone(), heights[&t].clone(), masks[&t].clone());
+    }
+    pool
 }
 
 /// A small deterministic generator (SplitMix64), so failures reproduce.

@@ -8,7 +8,10 @@
 //! `L ≤ support(parent)`: siblings are stored together, so a reader refining a tile
 //! finds all four children or none (no child's area is left undrawn), and below a
 //! tile covered only by coarse data there is nothing: its finer view is its own
-//! surface. Tiles not stored are absent from the file exactly as wholly no-data tiles
+//! surface. Supports are balanced so that neighbouring tiles' supports differ by at
+//! most one level (a restricted quadtree: the client never has to coarsen fine data
+//! beside coarse data to keep drawn neighbours within one level). Tiles not stored
+//! are absent from the file exactly as wholly no-data tiles
 //! are; their nodes are still built, so every coarser tile's heights and error table
 //! are what they would be in a full pyramid (exact against the finest data).
 
@@ -38,6 +41,36 @@ pub fn supported_level(metres: f64, pyramid: f64, finest: Level) -> u8 {
         0
     };
     finest.get().saturating_sub(up)
+}
+
+/// Raises supports at one level (`s`, in Morton order) until edge neighbours differ
+/// by at most one: `s(n) ≥ s(t) − 1`. Then the stored tiles form a restricted
+/// quadtree, in which a tile stored at level `L` has every edge neighbour's area
+/// stored at level `L − 1` or finer (the support of its grandparent's neighbour is at
+/// least `L − 1`), which is what the client's balancing of drawn tiles needs to draw
+/// fine data beside coarse data at full detail instead of coarsening it. A tile
+/// raised here is stored one level deeper, as an exact node of the pyramid (its
+/// heights are the mosaic's, resampled from what lies there).
+fn balance(s: &mut [u8], level: u8) {
+    let n = 1i64 << level;
+    let Some(&top) = s.iter().max() else { return };
+    // Highest value first: a tile raised to `v − 1` is spread in the next pass.
+    for v in (2..=top).rev() {
+        for m in 0..s.len() {
+            if s[m] != v {
+                continue;
+            }
+            let (x, y) = Morton::from_raw(m as u64).decode();
+            for (dx, dy) in [(0i64, -1i64), (1, 0), (0, 1), (-1, 0)] {
+                let (nx, ny) = (i64::from(x) + dx, i64::from(y) + dy);
+                if nx < 0 || ny < 0 || nx >= n || ny >= n {
+                    continue;
+                }
+                let nm = Morton::encode(nx as u32, ny as u32).get() as usize;
+                s[nm] = s[nm].max(v - 1);
+            }
+        }
+    }
 }
 
 impl Support {
@@ -76,14 +109,16 @@ impl Support {
                 }
             }
         }
-        // Upwards: a tile's support is its children's deepest.
+        // Upwards: a tile's support is its children's deepest, then balanced.
+        balance(&mut fine, finest.get());
         let mut levels = vec![fine];
-        for _ in 0..finest.get() {
+        for level in (0..finest.get()).rev() {
             let below = levels.last().expect("at least the finest");
-            let up: Vec<u8> = below
+            let mut up: Vec<u8> = below
                 .chunks_exact(4)
                 .map(|c| c.iter().copied().max().unwrap_or(0))
                 .collect();
+            balance(&mut up, level);
             levels.push(up);
         }
         levels.reverse();
@@ -166,8 +201,8 @@ mod tests {
             finest.iter().all(|&(x, y)| x <= 5 && (8..=11).contains(&y)),
             "{finest:?}"
         );
-        // Far from the patch, nothing below level 1.
-        assert!(!stored(2).contains(&(3, 0)));
+        // Far from the patch, nothing below level 2.
+        assert!(!stored(3).contains(&(7, 0)));
         assert!(!stored(4).contains(&(15, 15)));
         // Every stored tile's parent is stored.
         for l in 1..=4u8 {
@@ -180,6 +215,32 @@ mod tests {
                 assert!(s.stores(p.level(), p.morton()), "{t} stored, {p} not");
             }
         }
+        // Restricted: beside every stored tile, the area of each edge neighbour is
+        // stored one level up or finer (the client can keep drawn neighbours within
+        // one level without coarsening the patch).
+        for l in 2..=4u8 {
+            let level = Level::new(l).unwrap();
+            for t in g
+                .present_tiles(level)
+                .filter(|t| s.stores(level, t.morton()))
+            {
+                for (dx, dy) in [(0i64, -1i64), (1, 0), (0, 1), (-1, 0)] {
+                    let (x, y) = (i64::from(t.x()) + dx, i64::from(t.y()) + dy);
+                    let Some(n) = u32::try_from(x)
+                        .ok()
+                        .zip(u32::try_from(y).ok())
+                        .and_then(|(x, y)| TileId::new(level, x, y))
+                    else {
+                        continue;
+                    };
+                    let p = n.parent().unwrap();
+                    assert!(s.stores(p.level(), p.morton()), "{t} stored, {p} not");
+                }
+            }
+        }
+        // Without balancing, the fine patch's level-4 tiles would sit beside level-1
+        // ground: level 2 is stored a tile beyond the patch's level-2 footprint.
+        assert!(stored(2).contains(&(2, 2)), "{:?}", stored(2));
         // One resolution everywhere: no support map at all.
         assert!(Support::new(&g, &[patch], 30.0).is_none());
     }
