@@ -48,20 +48,28 @@ enum Command {
     /// (--overlap). Samples no input covers are no-data, and so is each input's own
     /// no-data value. Inputs are opened only while the rows being read cross them.
     ///
+    /// Inputs may be in object storage or on a web server: `s3://BUCKET/KEY.tif`,
+    /// `https://HOST/x.tif`, `s3://BUCKET/PREFIX/` (its DEM files), `'s3://BUCKET/dir/*.tif'`,
+    /// and such URLs in --inputs lists and VRTs (GDAL's /vsis3/ and /vsicurl/ names
+    /// too). Credentials and endpoints come from AWS_*, GOOGLE_* or AZURE_* variables.
+    /// Tiled GeoTIFFs (COGs) are read in place, only the tiles needed and no overview;
+    /// other inputs are fetched whole into TMPDIR first.
+    ///
     /// Distributed build (e.g. a Kubernetes Indexed Job): `build INPUT --part K/N -o PARTS/`
     /// in N processes, one per K, then `build --assemble PARTS/ -o OUT.tess` once. The
     /// assembled file is byte for byte the one a single `build INPUT -o OUT.tess` with the
     /// same options writes. Each part reads the whole input.
     Build {
-        /// The DEMs to read (files, directories, quoted glob patterns, .vrt files), or
-        /// synthetic:SIZE[:SEED].
+        /// The DEMs to read (files, directories, quoted glob patterns, .vrt files, or the
+        /// same as s3://, gs://, az://, http(s):// URLs), or synthetic:SIZE[:SEED].
         #[arg(
             value_name = "INPUT",
             required_unless_present_any = ["inputs_list", "assemble"]
         )]
         input: Vec<String>,
         /// A text file naming inputs, one per line (files, directories or patterns,
-        /// relative to the list's folder; blank lines and lines starting with # are skipped).
+        /// relative to the list's folder, or URLs; blank lines and lines starting with #
+        /// are skipped).
         #[arg(long = "inputs", value_name = "LIST")]
         inputs_list: Option<PathBuf>,
         /// Where overlapping inputs disagree (two valid samples differ): the input given
@@ -455,6 +463,14 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 r.seconds,
                 r.samples as f64 / r.seconds / 1e6
             );
+            if r.fetched.total() > 0 {
+                println!(
+                    "read {} bytes of inputs from object storage ({} by range, {} whole into spools)",
+                    r.fetched.total(),
+                    r.fetched.ranged,
+                    r.fetched.spooled
+                );
+            }
             // After the summary, whatever --quiet says: a build that succeeded but whose
             // heights Cesium terrain will misplace.
             for w in &r.warnings {

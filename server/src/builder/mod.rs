@@ -132,6 +132,8 @@ pub struct BuildReport {
     /// What the command prints after its summary, also under `--quiet`: the heights'
     /// vertical datum is unknown (`datum`).
     pub warnings: Vec<String>,
+    /// Bytes fetched from object storage or HTTP for the inputs (`ingest::remote`).
+    pub fetched: ingest::remote::Fetched,
 }
 
 fn bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
@@ -160,6 +162,8 @@ pub fn build_inputs(
     opts: &BuildOptions,
 ) -> anyhow::Result<BuildReport> {
     let started = Instant::now();
+    let _spools = ingest::remote::SpoolScope::new();
+    let fetched_before = ingest::remote::fetched();
     let dir = output_dir(output);
     let folders = plausible::Folders {
         spool: dir.to_path_buf(),
@@ -171,7 +175,15 @@ pub fn build_inputs(
         .with_context(|| prepared.label.clone())?;
     let loaded = prepared.load(dir, opts, started, None)?;
     let report = build_tiles(&loaded, writer, opts, started)?;
-    Ok(BuildReport { warnings, ..report })
+    let after = ingest::remote::fetched();
+    Ok(BuildReport {
+        warnings,
+        fetched: ingest::remote::Fetched {
+            ranged: after.ranged - fetched_before.ranged,
+            spooled: after.spooled - fetched_before.spooled,
+        },
+        ..report
+    })
 }
 
 /// The folder beside `output` where its temporary files go.
@@ -235,6 +247,7 @@ fn finish_output(
         file_bytes,
         seconds: started.elapsed().as_secs_f64(),
         warnings: Vec::new(),
+        fetched: ingest::remote::Fetched::default(),
     })
 }
 

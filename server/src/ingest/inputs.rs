@@ -51,6 +51,10 @@ fn is_dem_file(path: &Path) -> bool {
 
 /// Expands one entry (an argument, or a list line already joined to its folder).
 fn expand_one(entry: &Path, out: &mut Vec<PathBuf>) -> anyhow::Result<()> {
+    if let Some(url) = super::remote::url_of(entry) {
+        out.extend(super::remote::expand(url)?);
+        return Ok(());
+    }
     let text = entry.to_string_lossy();
     if entry.is_dir() {
         let mut files: Vec<PathBuf> = std::fs::read_dir(entry)
@@ -114,7 +118,7 @@ pub fn expand(spec: &InputSpec) -> anyhow::Result<Expanded> {
                 continue;
             }
             let entry = Path::new(line);
-            let entry = if entry.is_absolute() {
+            let entry = if entry.is_absolute() || super::remote::url_of(entry).is_some() {
                 entry.to_path_buf()
             } else {
                 // Escape the folder so that only the line's own pattern is a pattern.

@@ -9,6 +9,7 @@ pub mod inputs;
 pub mod mosaic;
 pub mod png16;
 pub mod raster;
+pub mod remote;
 pub mod reproject;
 pub mod synthetic;
 pub mod vertical_shift;
@@ -288,6 +289,9 @@ pub fn open_regular(path: &Path) -> anyhow::Result<(std::fs::File, std::fs::Meta
 /// states a geotransform but no CRS takes one from a `.prj` beside it
 /// ([`sidecar_crs`]).
 pub fn open_raster(path: &Path) -> anyhow::Result<(Box<dyn RowSource>, &'static str)> {
+    if let Some(url) = remote::url_of(path) {
+        return remote::open_raster(url);
+    }
     let (reader, format) = open_raster_file(path)?;
     Ok((sidecar_crs(reader, path)?, format))
 }

@@ -78,6 +78,11 @@ pub fn is_vrt(path: &Path) -> bool {
 impl Vrt {
     /// Reads and parses a VRT file. Errors say what is wrong; the caller names the file.
     pub fn open(path: &Path) -> anyhow::Result<Self> {
+        let base = path.parent().unwrap_or(Path::new(""));
+        if let Some(url) = super::remote::url_of(path) {
+            let text = super::remote::read_text(url, MAX_VRT_BYTES, "a VRT")?;
+            return Self::parse(&text, base);
+        }
         let (file, meta) = super::open_regular(path)?;
         let len = meta.len();
         if len > MAX_VRT_BYTES {
@@ -90,7 +95,6 @@ impl Vrt {
         // The file is bounded above; `take` keeps it so if it grows meanwhile.
         std::io::Read::read_to_string(&mut std::io::Read::take(file, MAX_VRT_BYTES + 1), &mut text)
             .context("cannot read the VRT as UTF-8 text")?;
-        let base = path.parent().unwrap_or(Path::new(""));
         Self::parse(&text, base)
     }
 
@@ -276,13 +280,20 @@ fn parse_source(node: roxmltree::Node, base: &Path) -> anyhow::Result<VrtSource>
                 if file.is_empty() {
                     bail!("<SourceFilename> is empty");
                 }
-                if file.starts_with("/vsi") {
-                    bail!("{file}: GDAL virtual file systems (/vsi…) are not supported");
+                let url = super::remote::gdal_vsi_url(file)
+                    .or_else(|| crate::storage::is_url(file).then(|| file.to_string()));
+                if url.is_none() && file.starts_with("/vsi") {
+                    bail!(
+                        "{file}: of GDAL's virtual file systems only /vsis3/, /vsigs/, /vsiaz/ and \
+                         /vsicurl/ are read (as s3://, gs://, az:// and http(s):// URLs)"
+                    );
                 }
                 let relative = child
                     .attribute("relativeToVRT")
                     .is_some_and(|v| v.trim() == "1");
-                path = Some(if relative {
+                path = Some(if let Some(url) = url {
+                    PathBuf::from(url)
+                } else if relative {
                     base.join(file)
                 } else {
                     PathBuf::from(file)

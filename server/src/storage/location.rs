@@ -105,10 +105,25 @@ pub fn is_url(raw: &str) -> bool {
 }
 
 /// A local path or an object URL, with the store for it built from the environment.
+/// An object must be a pyramid (its key ends in `.tess`).
 pub fn locate(raw: &str, opts: StoreOptions) -> anyhow::Result<Location> {
     if !is_url(raw) {
         return Ok(Location::Local(PathBuf::from(raw)));
     }
+    let object = object_at(raw, opts)?;
+    anyhow::ensure!(
+        std::path::Path::new(object.key.as_ref())
+            .extension()
+            .is_some_and(|e| e == "tess"),
+        "{raw}: the object's key must end in .tess (got {:?})",
+        object.key.as_ref()
+    );
+    Ok(Location::Object(object))
+}
+
+/// The object (or, for listing, the prefix) a URL names, with the store for it built
+/// from the environment: any key (build inputs are GeoTIFFs, VRTs, lists).
+pub fn object_at(raw: &str, opts: StoreOptions) -> anyhow::Result<ObjectLocation> {
     let url = url::Url::parse(raw).with_context(|| format!("{raw}: not a valid URL"))?;
     let (scheme, key) = ObjectStoreScheme::parse(&url).map_err(|e| {
         anyhow::anyhow!(
@@ -116,13 +131,6 @@ pub fn locate(raw: &str, opts: StoreOptions) -> anyhow::Result<Location> {
              gs://BUCKET/KEY, az://CONTAINER/KEY, file:///PATH or http(s)://HOST/PATH"
         )
     })?;
-    anyhow::ensure!(
-        std::path::Path::new(key.as_ref())
-            .extension()
-            .is_some_and(|e| e == "tess"),
-        "{raw}: the object's key must end in .tess (got {:?})",
-        key.as_ref()
-    );
     ensure_crypto_provider();
     let retry = RetryConfig {
         backoff: BackoffConfig {
@@ -189,11 +197,11 @@ pub fn locate(raw: &str, opts: StoreOptions) -> anyhow::Result<Location> {
         other => anyhow::bail!("{raw}: {other:?} URLs are not supported"),
     };
     let store = built.map_err(|e| anyhow::anyhow!("{raw}: cannot configure the store: {e}"))?;
-    Ok(Location::Object(ObjectLocation {
+    Ok(ObjectLocation {
         url: raw.to_string(),
         store,
         key,
-    }))
+    })
 }
 
 /// HTTPS to stores uses rustls with the `ring` provider (as the server's own TLS

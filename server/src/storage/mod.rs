@@ -17,7 +17,7 @@ pub mod runtime;
 pub mod upload;
 
 pub use local::FileStorage;
-pub use location::{Location, ObjectLocation, StoreOptions, locate};
+pub use location::{Location, ObjectLocation, StoreOptions, is_url, locate, object_at};
 pub use object::{ObjectStorage, StoreContext};
 
 use bytes::Bytes;

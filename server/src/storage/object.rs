@@ -185,6 +185,11 @@ impl ObjectStorage {
         &self.loc.url
     }
 
+    /// The ETag seen at open, which every read must match.
+    pub fn etag(&self) -> Option<&str> {
+        self.etag.as_deref()
+    }
+
     fn mark_changed(&self, why: String) {
         let mut c = self
             .changed

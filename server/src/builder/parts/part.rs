@@ -65,6 +65,7 @@ pub fn build_part(
         spool: scratch.clone(),
         output: dir.to_path_buf(),
     };
+    let _spools = ingest::remote::SpoolScope::new();
     let prepared = crate::builder::prepare(inputs, &folders, spec.n, opts)?;
     let warnings = prepared.warnings.clone();
     let geometry = prepared.geometry;

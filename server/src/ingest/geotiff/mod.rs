@@ -63,6 +63,11 @@ pub struct GeoTiff {
     compression: Compression,
     /// Compressed size of every chunk; 0 marks a sparse (absent) chunk.
     chunk_bytes: Vec<u64>,
+    /// Where every chunk starts in the file.
+    chunk_offsets: Vec<u64>,
+    /// For a file read by range from a store: fetches each band's chunks before they
+    /// are decoded (`super::remote`).
+    prefetch: Option<super::remote::Prefetch>,
     /// The decoded band: rows `band_start .. band_start + band_rows`, `width` samples each.
     band: Vec<f32>,
     band_start: u32,
@@ -387,6 +392,8 @@ impl GeoTiff {
             layout,
             compression,
             chunk_bytes,
+            chunk_offsets: offsets,
+            prefetch: None,
             band: Vec::new(),
             band_start: 0,
             band_rows: 0,
@@ -396,12 +403,46 @@ impl GeoTiff {
         })
     }
 
+    /// Whether the samples are cut into tiles (a COG is), not strips.
+    pub fn is_tiled(&self) -> bool {
+        matches!(self.layout, Layout::Tiles { .. })
+    }
+
+    /// Reads each band's chunks through `prefetch` before decoding them: the reader
+    /// of an object in a store, told which byte ranges come next.
+    pub fn set_prefetch(&mut self, prefetch: super::remote::Prefetch) {
+        self.prefetch = Some(prefetch);
+    }
+
+    /// The vertical datum a known product's file name implies, when the file states
+    /// none ([`GeoTiff::open`] does this for local files).
+    pub fn set_datum_from_name(&mut self, path: &Path) {
+        if self.datum.is_none() {
+            self.datum = product_name::datum_of(path);
+        }
+    }
+
     /// Decodes band `index` (strip `index`, or the `index`-th row of tiles) into `self.band`.
     fn load_band(&mut self, index: u32) -> anyhow::Result<()> {
         let width = self.info.width;
         let band_height = self.layout.band_height();
         let start = index * band_height;
         let rows = band_height.min(self.info.height - start);
+        if let Some(p) = &self.prefetch {
+            let chunks = match self.layout {
+                Layout::Strips { .. } => index..index + 1,
+                Layout::Tiles { tiles_across, .. } => {
+                    index * tiles_across..(index + 1) * tiles_across
+                }
+            };
+            let ranges: Vec<std::ops::Range<u64>> = chunks
+                .map(|i| {
+                    let (at, len) = (self.chunk_offsets[i as usize], self.chunk_bytes[i as usize]);
+                    at..at + len
+                })
+                .collect();
+            p.band(&ranges)?;
+        }
         self.band.clear();
         self.band.resize(rows as usize * width as usize, 0.0);
         self.band_start = start;
@@ -544,7 +585,15 @@ impl RowSource for GeoTiff {
             Layout::Tiles { tile_width, .. } => tile_width,
         };
         let chunk = u64::from(chunk_w) * u64::from(self.layout.band_height()) * 4;
-        band + chunk + largest
+        // Read by range: the band's stored chunks, and the read-ahead windows.
+        let fetched = self.prefetch.as_ref().map_or(0, |_| {
+            let across = match self.layout {
+                Layout::Strips { .. } => 1,
+                Layout::Tiles { tiles_across, .. } => u64::from(tiles_across),
+            };
+            across * largest + 4 * super::remote::READ_AHEAD
+        });
+        band + chunk + largest + fetched
     }
 
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {

@@ -1,0 +1,316 @@
+//! `build` reading its inputs from object storage and HTTP (DECISIONS.md "Inputs in
+//! object storage"), against a real S3 server (`moto_server`) and a real nginx on
+//! loopback: N46E008 cut by GDAL into 64 Cloud-Optimized GeoTIFF pieces (64² tiles,
+//! deflate, with overviews) builds byte for byte as the same pieces on local disk do,
+//! listed by prefix, by glob, from a list of URLs and through a VRT naming them, while
+//! fetching only the full-resolution tiles (no overview) and a small header; a striped
+//! GeoTIFF is fetched whole into a spool; a missing key or an unreachable store is a
+//! one-line error naming the URL, with nothing left behind.
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+mod gdal;
+#[path = "../../tests/src/nginx.rs"]
+#[allow(dead_code)] // the e2e tests' nginx, of which this binary uses the static host
+mod nginx;
+
+use gdal::{gdal_or_skip, path_str, run};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use tessera_shared::s3_server::S3Server;
+use tessera_shared::testdata;
+
+const BUCKET: &str = "dem";
+
+/// The 64 pieces, in a folder of their own.
+struct Pieces {
+    dir: tempfile::TempDir,
+    names: Vec<String>,
+    /// Bytes of the full-resolution tiles of every piece (its first image's
+    /// `TileByteCounts`), overviews and headers not counted.
+    tile_bytes: u64,
+}
+
+fn pieces() -> Option<Pieces> {
+    if !gdal_or_skip() {
+        return None;
+    }
+    let n46 = testdata::dem_or_skip("N46E008.tif")?;
+    let dir = tempfile::tempdir().unwrap();
+    let mut names = Vec::new();
+    let mut tile_bytes = 0;
+    // 1201 samples: seven pieces of 150 and one of 151 on each side.
+    for j in 0..8u32 {
+        for i in 0..8u32 {
+            let size = |k: u32| if k == 7 { 151 } else { 150 };
+            let name = format!("p{j}{i}.tif");
+            let out = dir.path().join(&name);
+            run(
+                "gdal_translate",
+                &[
+                    "-q",
+                    "-of",
+                    "COG",
+                    "-co",
+                    "BLOCKSIZE=64",
+                    "-co",
+                    "COMPRESS=DEFLATE",
+                    "-srcwin",
+                    &(i * 150).to_string(),
+                    &(j * 150).to_string(),
+                    &size(i).to_string(),
+                    &size(j).to_string(),
+                    path_str(&n46),
+                    path_str(&out),
+                ],
+            );
+            tile_bytes += main_tile_bytes(&out);
+            names.push(name);
+        }
+    }
+    Some(Pieces {
+        dir,
+        names,
+        tile_bytes,
+    })
+}
+
+/// The stored bytes of a TIFF's first image's tiles, and a check that it has
+/// overviews (further images) that a reader could wrongly fetch.
+fn main_tile_bytes(path: &Path) -> u64 {
+    let mut d = tiff::decoder::Decoder::new(std::fs::File::open(path).unwrap()).unwrap();
+    let counts = d.get_tag_u64_vec(tiff::tags::Tag::TileByteCounts).unwrap();
+    assert!(d.more_images(), "{}: no overviews", path.display());
+    counts.iter().sum()
+}
+
+fn build(input: &[&str], out: &Path, env: &[(String, String)]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tessera-server"))
+        .arg("build")
+        .args(input)
+        .args(["--quiet", "-o"])
+        .arg(out)
+        .envs(env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+        .output()
+        .unwrap()
+}
+
+fn built(input: &[&str], out: &Path, env: &[(String, String)]) -> (Vec<u8>, String) {
+    let o = build(input, out, env);
+    assert!(
+        o.status.success(),
+        "build {input:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    (
+        std::fs::read(out).unwrap(),
+        String::from_utf8(o.stdout).unwrap(),
+    )
+}
+
+/// `(ranged, spooled)` bytes from the build's "read … bytes of inputs" line.
+fn fetched(stdout: &str) -> (u64, u64) {
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("read "))
+        .unwrap_or_else(|| panic!("no fetched-bytes line in {stdout:?}"));
+    let numbers: Vec<u64> = line
+        .split(|c: char| !c.is_ascii_digit())
+        .filter_map(|t| t.parse().ok())
+        .collect();
+    assert_eq!(numbers.len(), 3, "{line}");
+    assert_eq!(numbers[0], numbers[1] + numbers[2], "{line}");
+    (numbers[1], numbers[2])
+}
+
+fn store_with(p: &Pieces) -> Option<S3Server> {
+    let s3 = S3Server::start_or_skip()?;
+    s3.create_bucket(BUCKET);
+    for n in &p.names {
+        s3.put(
+            BUCKET,
+            &format!("pieces/{n}"),
+            &std::fs::read(p.dir.path().join(n)).unwrap(),
+        );
+    }
+    Some(s3)
+}
+
+#[test]
+fn a_cog_mosaic_in_s3_builds_as_on_local_disk_reading_only_its_tiles() {
+    let Some(p) = pieces() else { return };
+    let Some(s3) = store_with(&p) else { return };
+    let env = s3.env();
+    let out = tempfile::tempdir().unwrap();
+    let local_dir = format!("{}/", p.dir.path().display());
+    let (local, _) = built(&[&local_dir], &out.path().join("local.tess"), &[]);
+
+    let (by_prefix, stdout) = built(
+        &[&format!("s3://{BUCKET}/pieces/")],
+        &out.path().join("prefix.tess"),
+        &env,
+    );
+    assert!(
+        by_prefix == local,
+        "built from s3://…/pieces/ differs from the local build"
+    );
+    let (ranged, spooled) = fetched(&stdout);
+    assert_eq!(spooled, 0, "COGs are read in place");
+    // Every full-resolution tile, once, plus a header per piece; no overview.
+    assert!(
+        ranged >= p.tile_bytes && ranged as f64 <= 1.1 * p.tile_bytes as f64,
+        "fetched {ranged} bytes for {} bytes of tiles ({:.3}×)",
+        p.tile_bytes,
+        ranged as f64 / p.tile_bytes as f64
+    );
+    eprintln!(
+        "64 COG pieces from S3: {ranged} bytes fetched for {} bytes of full-resolution tiles ({:.3}×)",
+        p.tile_bytes,
+        ranged as f64 / p.tile_bytes as f64
+    );
+
+    // By glob, and from a list naming URLs: the same pieces in the same order.
+    let (by_glob, _) = built(
+        &[&format!("s3://{BUCKET}/pieces/p*.tif")],
+        &out.path().join("glob.tess"),
+        &env,
+    );
+    assert!(by_glob == local, "built from a glob differs");
+    let list = out.path().join("list.txt");
+    let urls: Vec<String> = p
+        .names
+        .iter()
+        .map(|n| format!("s3://{BUCKET}/pieces/{n}"))
+        .collect();
+    std::fs::write(&list, urls.join("\n")).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
+        .args(["build", "--inputs"])
+        .arg(&list)
+        .args(["--quiet", "-o"])
+        .arg(out.path().join("list.tess"))
+        .envs(env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        std::fs::read(out.path().join("list.tess")).unwrap() == local,
+        "built from a list of URLs differs"
+    );
+}
+
+#[test]
+fn http_inputs_vrts_naming_urls_and_spooled_non_cogs() {
+    let Some(p) = pieces() else { return };
+    let n46 = testdata::dem_or_skip("N46E008.tif").unwrap();
+    std::fs::copy(&n46, p.dir.path().join("N46E008.tif")).unwrap();
+    let Some(web) = nginx::Nginx::serve(p.dir.path()) else {
+        return;
+    };
+    let base = format!("http://{}", web.addr());
+    let out = tempfile::tempdir().unwrap();
+
+    // A striped GeoTIFF (N46E008 as USGS ships it) is fetched whole, once.
+    let (local, _) = built(&[path_str(&n46)], &out.path().join("local.tess"), &[]);
+    let (remote, stdout) = built(
+        &[&format!("{base}/N46E008.tif")],
+        &out.path().join("remote.tess"),
+        &[],
+    );
+    assert!(
+        remote == local,
+        "the spooled striped GeoTIFF built differently"
+    );
+    let size = std::fs::metadata(&n46).unwrap().len();
+    let (ranged, spooled) = fetched(&stdout);
+    assert_eq!(spooled, size, "fetched whole exactly once");
+    assert!(
+        ranged < 16 << 10,
+        "{ranged} bytes by range to find it is not tiled"
+    );
+
+    // A VRT whose sources are the pieces' URLs (relative names resolved against a
+    // remote VRT's URL, absolute ones and GDAL's /vsicurl/ names as they are).
+    let names: Vec<PathBuf> = p.names.iter().map(|n| p.dir.path().join(n)).collect();
+    let vrt = p.dir.path().join("all.vrt");
+    let mut args = vec!["-q".to_string(), path_str(&vrt).to_string()];
+    args.extend(names.iter().map(|n| path_str(n).to_string()));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    run("gdalbuildvrt", &args);
+    let (local_vrt, _) = built(&[path_str(&vrt)], &out.path().join("lv.tess"), &[]);
+    let text = std::fs::read_to_string(&vrt).unwrap();
+    let relative = r#"relativeToVRT="1">"#;
+    assert!(
+        text.contains(relative),
+        "gdalbuildvrt wrote no relative names: {text}"
+    );
+    let remote_vrt = out.path().join("all.vrt");
+    std::fs::write(
+        &remote_vrt,
+        text.replacen(
+            relative,
+            &format!(r#"relativeToVRT="0">/vsicurl/{base}/"#),
+            1,
+        )
+        .replace(relative, &format!(r#"relativeToVRT="0">{base}/"#)),
+    )
+    .unwrap();
+    let (via_urls, _) = built(&[path_str(&remote_vrt)], &out.path().join("rv.tess"), &[]);
+    assert!(via_urls == local_vrt, "a VRT naming URLs built differently");
+    let (remote_whole, _) = built(
+        &[&format!("{base}/all.vrt")],
+        &out.path().join("rw.tess"),
+        &[],
+    );
+    assert!(
+        remote_whole == local_vrt,
+        "a VRT read over HTTP built differently"
+    );
+
+    // HTTP cannot be listed.
+    let o = build(&[&format!("{base}/")], &out.path().join("x.tess"), &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("cannot be listed"),
+        "{err}"
+    );
+}
+
+#[test]
+fn missing_objects_and_unreachable_stores_are_errors_naming_the_url() {
+    let Some(s3) = S3Server::start_or_skip() else {
+        return;
+    };
+    s3.create_bucket(BUCKET);
+    let out = tempfile::tempdir().unwrap();
+    let target = out.path().join("x.tess");
+    let one_line = |o: &Output, url: &str, what: &str| {
+        assert_eq!(o.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&o.stderr);
+        let last = err.lines().last().unwrap_or("");
+        assert!(
+            last.contains(url) && last.contains(what),
+            "want {url} and {what:?} in the error: {err}"
+        );
+        assert!(!target.exists(), "an output was left behind");
+        let left: Vec<_> = std::fs::read_dir(out.path()).unwrap().collect();
+        assert!(left.is_empty(), "left behind: {left:?}");
+    };
+    let url = format!("s3://{BUCKET}/no/such.tif");
+    one_line(&build(&[&url], &target, &s3.env()), &url, "no such object");
+    let url = format!("s3://{BUCKET}/empty/");
+    one_line(
+        &build(&[&url], &target, &s3.env()),
+        &url,
+        "holds no DEM files",
+    );
+    // A store nobody answers on.
+    let closed = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let dead = format!("http://{}", closed.local_addr().unwrap());
+    drop(closed);
+    let url = format!("s3://{BUCKET}/p.tif");
+    one_line(
+        &build(&[&url], &target, &s3.env_for(&dead)),
+        &url,
+        "cannot open the object",
+    );
+}
