@@ -4,12 +4,9 @@
 //! leaves it alone: `'tiles/*.hgt'`) gives its matches sorted, and a list file gives one
 //! entry per line, each resolved against the list's folder and expanded the same way.
 
+use super::DEM_EXTENSIONS;
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
-
-/// File extensions a directory's DEM files have. `.vrt` is left out: a folder holding
-/// tiles and a VRT of them would list every tile twice.
-pub const DEM_EXTENSIONS: &[&str] = &["tif", "tiff", "hgt", "png"];
 
 /// What `build` was asked to read.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

@@ -22,6 +22,10 @@ use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
 use tessera_shared::GeoRef;
 
+/// File extensions a directory's DEM files have. `.vrt` is left out: a folder holding
+/// tiles and a VRT of them would list every tile twice.
+pub const DEM_EXTENSIONS: &[&str] = &["tif", "tiff", "hgt", "png"];
+
 /// The sample type of an input raster.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SampleType {

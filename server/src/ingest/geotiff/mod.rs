@@ -55,6 +55,16 @@ impl<T: Read + Seek + Send> TiffInput for T {}
 
 type Reader = Box<dyn TiffInput>;
 
+/// What fetches a file's chunks ahead of the decoder when the file is read by range
+/// (an object in a store, `super::remote`): told each band's chunk byte ranges before
+/// they are decoded.
+pub trait ChunkFetch: Send + fmt::Debug {
+    /// Fetches `chunks` (byte ranges in the file), replacing the previous band's.
+    fn band(&self, chunks: &[std::ops::Range<u64>]) -> std::io::Result<()>;
+    /// Bytes held besides the band (header windows), for the memory plan.
+    fn window_bytes(&self) -> u64;
+}
+
 /// A GeoTIFF read as rows, one strip or row of tiles at a time.
 pub struct GeoTiff {
     info: SourceInfo,
@@ -67,7 +77,7 @@ pub struct GeoTiff {
     chunk_offsets: Vec<u64>,
     /// For a file read by range from a store: fetches each band's chunks before they
     /// are decoded (`super::remote`).
-    prefetch: Option<super::remote::Prefetch>,
+    prefetch: Option<Box<dyn ChunkFetch>>,
     /// The decoded band: rows `band_start .. band_start + band_rows`, `width` samples each.
     band: Vec<f32>,
     band_start: u32,
@@ -410,7 +420,7 @@ impl GeoTiff {
 
     /// Reads each band's chunks through `prefetch` before decoding them: the reader
     /// of an object in a store, told which byte ranges come next.
-    pub fn set_prefetch(&mut self, prefetch: super::remote::Prefetch) {
+    pub fn set_prefetch(&mut self, prefetch: Box<dyn ChunkFetch>) {
         self.prefetch = Some(prefetch);
     }
 
@@ -586,12 +596,12 @@ impl RowSource for GeoTiff {
         };
         let chunk = u64::from(chunk_w) * u64::from(self.layout.band_height()) * 4;
         // Read by range: the band's stored chunks, and the read-ahead windows.
-        let fetched = self.prefetch.as_ref().map_or(0, |_| {
+        let fetched = self.prefetch.as_ref().map_or(0, |p| {
             let across = match self.layout {
                 Layout::Strips { .. } => 1,
                 Layout::Tiles { tiles_across, .. } => u64::from(tiles_across),
             };
-            across * largest + 4 * super::remote::READ_AHEAD
+            across * largest + p.window_bytes()
         });
         band + chunk + largest + fetched
     }

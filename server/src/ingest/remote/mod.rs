@@ -108,7 +108,7 @@ fn is_dem_key(key: &str) -> bool {
         .extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| {
-            super::inputs::DEM_EXTENSIONS
+            super::DEM_EXTENSIONS
                 .iter()
                 .any(|d| e.eq_ignore_ascii_case(d))
         })
@@ -184,7 +184,7 @@ pub fn expand(url: &str) -> anyhow::Result<Vec<PathBuf>> {
             Some(_) => bail!("{url}: no object matches this pattern"),
             None => bail!(
                 "{url}: the prefix holds no DEM files (.{})",
-                super::inputs::DEM_EXTENSIONS.join(", .")
+                super::DEM_EXTENSIONS.join(", .")
             ),
         }
     }
@@ -295,7 +295,7 @@ pub fn open_raster(url: &str) -> anyhow::Result<(Box<dyn super::RowSource>, &'st
         let mut t = super::geotiff::GeoTiff::from_reader(reader)?;
         remember(url, &object, prefetch.header_windows());
         if t.is_tiled() {
-            t.set_prefetch(prefetch);
+            t.set_prefetch(Box::new(prefetch));
             t.set_datum_from_name(Path::new(url));
             return Ok((Box::new(t), "GeoTIFF"));
         }
@@ -463,6 +463,16 @@ impl std::fmt::Debug for Spooled {
         f.debug_struct("Spooled")
             .field("inner", &self.inner)
             .finish_non_exhaustive()
+    }
+}
+
+impl super::geotiff::ChunkFetch for Prefetch {
+    fn band(&self, chunks: &[std::ops::Range<u64>]) -> std::io::Result<()> {
+        Prefetch::band(self, chunks)
+    }
+
+    fn window_bytes(&self) -> u64 {
+        4 * READ_AHEAD
     }
 }
 
