@@ -4,8 +4,10 @@
 //! deflate, with overviews) builds byte for byte as the same pieces on local disk do,
 //! listed by prefix, by glob, from a list of URLs and through a VRT naming them, while
 //! fetching only the full-resolution tiles (no overview) and a small header; a striped
-//! GeoTIFF is fetched whole into a spool; a missing key or an unreachable store is a
-//! one-line error naming the URL, with nothing left behind.
+//! GeoTIFF is fetched whole into a spool; a missing key, an unreachable store and an
+//! object replaced while the build runs (behind a delaying proxy, so the test can
+//! act between the build's two openings of it) are one-line errors naming the URL,
+//! with nothing left behind.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
@@ -313,4 +315,56 @@ fn missing_objects_and_unreachable_stores_are_errors_naming_the_url() {
         &url,
         "cannot open the object",
     );
+}
+
+#[test]
+fn an_object_replaced_during_the_build_stops_it_naming_the_url() {
+    let Some(p) = pieces() else { return };
+    let Some(s3) = store_with(&p) else { return };
+    // Every store answer held 30 ms: opening the 64 pieces to plan the mosaic takes
+    // seconds, and the test replaces the first piece once it has been opened, before
+    // the build opens it again to read it.
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let log = tessera_proxy::RequestLog::default();
+    let proxy = rt
+        .block_on(tessera_proxy::Proxy::start(tessera_proxy::Config {
+            responses: tessera_proxy::Responses::Delay(tessera_proxy::Delay::new(
+                std::time::Duration::from_millis(30),
+            )),
+            requests: Some(log.clone()),
+            ..tessera_proxy::Config::new(s3.addr())
+        }))
+        .unwrap();
+    let env = s3.env_for(&format!("http://{}", proxy.addr()));
+    let out = tempfile::tempdir().unwrap();
+    let target = out.path().join("x.tess");
+    let child = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
+        .args(["build", &format!("s3://{BUCKET}/pieces/"), "--quiet", "-o"])
+        .arg(&target)
+        .envs(env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let first = format!("/{BUCKET}/pieces/p00.tif");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !log.targets().iter().any(|t| t.starts_with(&first)) {
+        assert!(std::time::Instant::now() < deadline, "p00.tif never read");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let mut changed = std::fs::read(p.dir.path().join("p00.tif")).unwrap();
+    let last = changed.len() - 1;
+    changed[last] ^= 1;
+    s3.put(BUCKET, "pieces/p00.tif", &changed);
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let line = err.lines().last().unwrap_or("");
+    assert!(
+        line.contains(&format!("s3://{BUCKET}/pieces/p00.tif")) && line.contains("changed"),
+        "{err}"
+    );
+    assert!(!target.exists(), "an output was left behind");
+    let left: Vec<_> = std::fs::read_dir(out.path()).unwrap().collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
 }

@@ -1,0 +1,106 @@
+#!/usr/bin/env bash
+# Build inputs at collection scale (DECISIONS.md "Inputs in object storage"):
+#  1. the moon 8192² mosaic cut by GDAL into 64 Cloud-Optimized GeoTIFF pieces of
+#     1024² (512² tiles, deflate, with overviews), built from a local folder and from
+#     s3://bench/pieces/ (moto_server on loopback), alternating, RUNS times: wall time,
+#     bytes fetched against the pieces' full-resolution tile bytes, and `cmp` of the two
+#     pyramids;
+#  2. how the build scales with cores: `synthetic:16385` and the local pieces at
+#     RAYON_NUM_THREADS=1 and 2, alternating, RUNS times.
+# Prints Markdown tables of every run and the medians; the commands are the ones shown.
+source "$(dirname "$0")/common.sh"
+runs=${RUNS:-3}
+venv=${XDG_CACHE_HOME:-$HOME/.cache}/tessera/deploy-venv
+[ -x "$venv/bin/moto_server" ] || deploy/check.sh --tools-only
+free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+
+pieces=$WORK/inputs/pieces
+mkdir -p "$pieces"
+if [ ! -s "$pieces/p77.tif" ]; then
+  whole=$WORK/inputs/moon8192.tif
+  # 118.45 m samples (the data README); any georeferencing on one grid will do.
+  gdal_translate -q -a_ullr 0 970342.4 970342.4 0 "$DEM/moon_crisium_gld100_8192.png" "$whole"
+  for r in $(seq 0 7); do
+    for c in $(seq 0 7); do
+      gdal_translate -q -of COG -co BLOCKSIZE=512 -co COMPRESS=DEFLATE \
+        -srcwin $((c * 1024)) $((r * 1024)) 1024 1024 "$whole" "$pieces/p$r$c.tif"
+    done
+  done
+  rm -f "$whole"
+fi
+# The full-resolution tiles' stored bytes (first image's TileByteCounts), overviews and
+# headers left out.
+tile_bytes=$(python3 - "$pieces" <<'PY'
+import os, struct, sys
+total = 0
+for name in sorted(os.listdir(sys.argv[1])):
+    b = open(os.path.join(sys.argv[1], name), 'rb').read()
+    e = '<' if b[:2] == b'II' else '>'
+    off = struct.unpack_from(e + 'I', b, 4)[0]
+    n = struct.unpack_from(e + 'H', b, off)[0]
+    for i in range(n):
+        tag, typ, cnt, val = struct.unpack_from(e + 'HHII', b, off + 2 + 12 * i)
+        if tag == 325:
+            fmt = 'I' if typ == 4 else 'H'
+            total += sum(struct.unpack_from(e + fmt * cnt, b, val)) if cnt > 1 else val
+print(total)
+PY
+)
+
+moto_port=$(free_port)
+spawn "$WORK/moto.out" "$WORK/moto.log" "$venv/bin/moto_server" -H 127.0.0.1 -p "$moto_port"
+for _ in $(seq 200); do curl -fs "http://127.0.0.1:$moto_port/" > /dev/null && break; sleep 0.05; done
+export AWS_ENDPOINT_URL=http://127.0.0.1:$moto_port AWS_ALLOW_HTTP=true AWS_REGION=us-east-1 \
+  AWS_ACCESS_KEY_ID=bench AWS_SECRET_ACCESS_KEY=bench
+"$venv/bin/python" - "$pieces" <<PY
+import boto3, os, sys
+s3 = boto3.client('s3', endpoint_url='$AWS_ENDPOINT_URL')
+s3.create_bucket(Bucket='bench')
+for n in sorted(os.listdir(sys.argv[1])):
+    s3.upload_file(os.path.join(sys.argv[1], n), 'bench', 'pieces/' + n)
+PY
+
+timed() { # label, command...: prints "label wall cpu rss"
+  local label=$1; shift
+  /usr/bin/time -f "$label %e %U %S %M" "$@" 2>&1 > "$WORK/inputs/stdout" | tail -1
+}
+echo "| build | run | wall s | CPU s | peak RSS MiB |"
+echo "|---|---|---|---|---|"
+rows=()
+for run in $(seq "$runs"); do
+  for src in local s3; do
+    input="$pieces/"; [ $src = s3 ] && input=s3://bench/pieces/
+    read -r _ wall user sys rss < <(timed $src "$SERVER_BIN" build "$input" -o "$WORK/inputs/$src.tess" --quiet)
+    echo "| 64 COG pieces from $src | $run | $wall | $(echo "$user + $sys" | bc) | $((rss / 1024)) |"
+    rows+=("$src $wall")
+    [ $src = s3 ] && fetched=$(grep '^read ' "$WORK/inputs/stdout")
+  done
+  cmp "$WORK/inputs/local.tess" "$WORK/inputs/s3.tess" || { echo "the pyramids differ" >&2; exit 1; }
+done
+median() { sort -n | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
+ml=$(printf '%s\n' "${rows[@]}" | awk '$1=="local"{print $2}' | median)
+ms=$(printf '%s\n' "${rows[@]}" | awk '$1=="s3"{print $2}' | median)
+echo
+echo "medians: local $ml s, s3 $ms s ($(echo "scale=2; $ms / $ml" | bc)×); pyramids identical"
+echo "s3: $fetched; full-resolution tile bytes $tile_bytes"
+
+echo
+echo "| build | threads | run | wall s | CPU s |"
+echo "|---|---|---|---|---|"
+srows=()
+for run in $(seq "$runs"); do
+  for t in 1 2; do
+    for input in synthetic:16385 "$pieces/"; do
+      name=$input; [ "$input" = "$pieces/" ] && name="64 pieces"
+      read -r _ wall user sys _ < <(timed x env RAYON_NUM_THREADS=$t "$SERVER_BIN" build "$input" -o "$WORK/inputs/t.tess" --quiet)
+      echo "| $name | $t | $run | $wall | $(echo "$user + $sys" | bc) |"
+      srows+=("$name|$t|$wall")
+    done
+  done
+done
+echo
+for name in synthetic:16385 "64 pieces"; do
+  one=$(printf '%s\n' "${srows[@]}" | awk -F'|' -v n="$name" '$1==n && $2==1 {print $3}' | median)
+  two=$(printf '%s\n' "${srows[@]}" | awk -F'|' -v n="$name" '$1==n && $2==2 {print $3}' | median)
+  echo "$name: 1 thread $one s, 2 threads $two s, speedup $(echo "scale=2; $one / $two" | bc)×"
+done
