@@ -8,6 +8,7 @@
 #  2. how the build scales with cores: `synthetic:16385` and the local pieces at
 #     RAYON_NUM_THREADS=1 and 2, alternating, RUNS times.
 # Prints Markdown tables of every run and the medians; the commands are the ones shown.
+# SCALING=0 skips part 2.
 source "$(dirname "$0")/common.sh"
 runs=${RUNS:-3}
 venv=${XDG_CACHE_HOME:-$HOME/.cache}/tessera/deploy-venv
@@ -84,6 +85,7 @@ echo
 echo "medians: local $ml s, s3 $ms s ($(echo "scale=2; $ms / $ml" | bc)×); pyramids identical"
 echo "s3: $fetched; full-resolution tile bytes $tile_bytes"
 
+[ "${SCALING:-1}" = 0 ] && exit 0
 echo
 echo "| build | threads | run | wall s | CPU s |"
 echo "|---|---|---|---|---|"

@@ -26,19 +26,28 @@ const BUCKET: &str = "dem";
 
 /// The 64 pieces, in a folder of their own.
 struct Pieces {
-    dir: tempfile::TempDir,
+    dir: PathBuf,
     names: Vec<String>,
     /// Bytes of the full-resolution tiles of every piece (its first image's
     /// `TileByteCounts`), overviews and headers not counted.
     tile_bytes: u64,
 }
 
-fn pieces() -> Option<Pieces> {
+/// The pieces, made once for every test of this binary (in cargo's folder for test
+/// data, replaced on each run).
+fn pieces() -> Option<&'static Pieces> {
+    static P: std::sync::OnceLock<Option<Pieces>> = std::sync::OnceLock::new();
+    P.get_or_init(make_pieces).as_ref()
+}
+
+fn make_pieces() -> Option<Pieces> {
     if !gdal_or_skip() {
         return None;
     }
     let n46 = testdata::dem_or_skip("N46E008.tif")?;
-    let dir = tempfile::tempdir().unwrap();
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("remote_inputs_pieces");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
     let mut names = Vec::new();
     let mut tile_bytes = 0;
     // 1201 samples: seven pieces of 150 and one of 151 on each side.
@@ -46,7 +55,7 @@ fn pieces() -> Option<Pieces> {
         for i in 0..8u32 {
             let size = |k: u32| if k == 7 { 151 } else { 150 };
             let name = format!("p{j}{i}.tif");
-            let out = dir.path().join(&name);
+            let out = dir.join(&name);
             run(
                 "gdal_translate",
                 &[
@@ -132,7 +141,7 @@ fn store_with(p: &Pieces) -> Option<S3Server> {
         s3.put(
             BUCKET,
             &format!("pieces/{n}"),
-            &std::fs::read(p.dir.path().join(n)).unwrap(),
+            &std::fs::read(p.dir.join(n)).unwrap(),
         );
     }
     Some(s3)
@@ -141,10 +150,10 @@ fn store_with(p: &Pieces) -> Option<S3Server> {
 #[test]
 fn a_cog_mosaic_in_s3_builds_as_on_local_disk_reading_only_its_tiles() {
     let Some(p) = pieces() else { return };
-    let Some(s3) = store_with(&p) else { return };
+    let Some(s3) = store_with(p) else { return };
     let env = s3.env();
     let out = tempfile::tempdir().unwrap();
-    let local_dir = format!("{}/", p.dir.path().display());
+    let local_dir = format!("{}/", p.dir.display());
     let (local, _) = built(&[&local_dir], &out.path().join("local.tess"), &[]);
 
     let (by_prefix, stdout) = built(
@@ -204,8 +213,14 @@ fn a_cog_mosaic_in_s3_builds_as_on_local_disk_reading_only_its_tiles() {
 fn http_inputs_vrts_naming_urls_and_spooled_non_cogs() {
     let Some(p) = pieces() else { return };
     let n46 = testdata::dem_or_skip("N46E008.tif").unwrap();
-    std::fs::copy(&n46, p.dir.path().join("N46E008.tif")).unwrap();
-    let Some(web) = nginx::Nginx::serve(p.dir.path()) else {
+    // The web server's folder: the pieces, the striped original and a VRT (the other
+    // tests build the pieces' folder as it is).
+    let www = tempfile::tempdir().unwrap();
+    for n in &p.names {
+        std::fs::copy(p.dir.join(n), www.path().join(n)).unwrap();
+    }
+    std::fs::copy(&n46, www.path().join("N46E008.tif")).unwrap();
+    let Some(web) = nginx::Nginx::serve(www.path()) else {
         return;
     };
     let base = format!("http://{}", web.addr());
@@ -232,8 +247,8 @@ fn http_inputs_vrts_naming_urls_and_spooled_non_cogs() {
 
     // A VRT whose sources are the pieces' URLs (relative names resolved against a
     // remote VRT's URL, absolute ones and GDAL's /vsicurl/ names as they are).
-    let names: Vec<PathBuf> = p.names.iter().map(|n| p.dir.path().join(n)).collect();
-    let vrt = p.dir.path().join("all.vrt");
+    let names: Vec<PathBuf> = p.names.iter().map(|n| www.path().join(n)).collect();
+    let vrt = www.path().join("all.vrt");
     let mut args = vec!["-q".to_string(), path_str(&vrt).to_string()];
     args.extend(names.iter().map(|n| path_str(n).to_string()));
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
@@ -320,16 +335,16 @@ fn missing_objects_and_unreachable_stores_are_errors_naming_the_url() {
 #[test]
 fn an_object_replaced_during_the_build_stops_it_naming_the_url() {
     let Some(p) = pieces() else { return };
-    let Some(s3) = store_with(&p) else { return };
-    // Every store answer held 30 ms: opening the 64 pieces to plan the mosaic takes
-    // seconds, and the test replaces the first piece once it has been opened, before
-    // the build opens it again to read it.
+    let Some(s3) = store_with(p) else { return };
+    // Every store answer held 20 ms, and the last piece (read last, at the mosaic's
+    // bottom right) replaced once the build has opened it to plan: the build reads
+    // every other piece before it opens that one again.
     let rt = tokio::runtime::Runtime::new().unwrap();
     let log = tessera_proxy::RequestLog::default();
     let proxy = rt
         .block_on(tessera_proxy::Proxy::start(tessera_proxy::Config {
             responses: tessera_proxy::Responses::Delay(tessera_proxy::Delay::new(
-                std::time::Duration::from_millis(30),
+                std::time::Duration::from_millis(20),
             )),
             requests: Some(log.clone()),
             ..tessera_proxy::Config::new(s3.addr())
@@ -346,22 +361,22 @@ fn an_object_replaced_during_the_build_stops_it_naming_the_url() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let first = format!("/{BUCKET}/pieces/p00.tif");
+    let last = format!("/{BUCKET}/pieces/p77.tif");
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
-    while !log.targets().iter().any(|t| t.starts_with(&first)) {
-        assert!(std::time::Instant::now() < deadline, "p00.tif never read");
+    while !log.targets().iter().any(|t| t.starts_with(&last)) {
+        assert!(std::time::Instant::now() < deadline, "p77.tif never read");
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
-    let mut changed = std::fs::read(p.dir.path().join("p00.tif")).unwrap();
-    let last = changed.len() - 1;
-    changed[last] ^= 1;
-    s3.put(BUCKET, "pieces/p00.tif", &changed);
+    let mut changed = std::fs::read(p.dir.join("p77.tif")).unwrap();
+    let end = changed.len() - 1;
+    changed[end] ^= 1;
+    s3.put(BUCKET, "pieces/p77.tif", &changed);
     let o = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     let line = err.lines().last().unwrap_or("");
     assert!(
-        line.contains(&format!("s3://{BUCKET}/pieces/p00.tif")) && line.contains("changed"),
+        line.contains(&format!("s3://{BUCKET}/pieces/p77.tif")) && line.contains("changed"),
         "{err}"
     );
     assert!(!target.exists(), "an output was left behind");

@@ -61,6 +61,8 @@ type Reader = Box<dyn TiffInput>;
 pub trait ChunkFetch: Send + fmt::Debug {
     /// Fetches `chunks` (byte ranges in the file), replacing the previous band's.
     fn band(&self, chunks: &[std::ops::Range<u64>]) -> std::io::Result<()>;
+    /// Starts fetching `chunks` (the next band's) without waiting for them.
+    fn ahead(&self, chunks: &[std::ops::Range<u64>]);
     /// Bytes held besides the band (header windows), for the memory plan.
     fn window_bytes(&self) -> u64;
 }
@@ -432,6 +434,20 @@ impl GeoTiff {
         }
     }
 
+    /// The byte ranges of band `index`'s chunks.
+    fn band_ranges(&self, index: u32) -> Vec<std::ops::Range<u64>> {
+        let chunks = match self.layout {
+            Layout::Strips { .. } => index..index + 1,
+            Layout::Tiles { tiles_across, .. } => index * tiles_across..(index + 1) * tiles_across,
+        };
+        chunks
+            .map(|i| {
+                let (at, len) = (self.chunk_offsets[i as usize], self.chunk_bytes[i as usize]);
+                at..at + len
+            })
+            .collect()
+    }
+
     /// Decodes band `index` (strip `index`, or the `index`-th row of tiles) into `self.band`.
     fn load_band(&mut self, index: u32) -> anyhow::Result<()> {
         let width = self.info.width;
@@ -439,19 +455,11 @@ impl GeoTiff {
         let start = index * band_height;
         let rows = band_height.min(self.info.height - start);
         if let Some(p) = &self.prefetch {
-            let chunks = match self.layout {
-                Layout::Strips { .. } => index..index + 1,
-                Layout::Tiles { tiles_across, .. } => {
-                    index * tiles_across..(index + 1) * tiles_across
-                }
-            };
-            let ranges: Vec<std::ops::Range<u64>> = chunks
-                .map(|i| {
-                    let (at, len) = (self.chunk_offsets[i as usize], self.chunk_bytes[i as usize]);
-                    at..at + len
-                })
-                .collect();
-            p.band(&ranges)?;
+            p.band(&self.band_ranges(index))?;
+            let bands = self.info.height.div_ceil(band_height);
+            if index + 1 < bands {
+                p.ahead(&self.band_ranges(index + 1));
+            }
         }
         self.band.clear();
         self.band.resize(rows as usize * width as usize, 0.0);
@@ -601,7 +609,8 @@ impl RowSource for GeoTiff {
                 Layout::Strips { .. } => 1,
                 Layout::Tiles { tiles_across, .. } => u64::from(tiles_across),
             };
-            across * largest + p.window_bytes()
+            // This band's and the next's, fetched ahead.
+            2 * across * largest + p.window_bytes()
         });
         band + chunk + largest + fetched
     }

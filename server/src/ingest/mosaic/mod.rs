@@ -206,14 +206,13 @@ impl Mosaic {
             bail!("no input to build from");
         }
         let nodata = opts.nodata;
-        let mut groups = Vec::with_capacity(inputs.len());
-        for path in inputs {
-            groups.push(if is_vrt(path) {
-                vrt_group(path, nodata, &opts.vertical, opener)?
+        let groups = opening::open_all(inputs, |path| {
+            if is_vrt(path) {
+                vrt_group(path, nodata, &opts.vertical, opener)
             } else {
-                file_group(path, nodata, &opts.vertical, opener)?
-            });
-        }
+                file_group(path, nodata, &opts.vertical, opener)
+            }
+        })?;
         let (width, height, georef, pieces, overlap, resampled) =
             match (place::place(groups.as_slice()), &opts.grid) {
                 (Ok((w, h, g, p)), _) => (w, h, g, p, opts.overlap.unwrap_or_default(), false),
@@ -575,6 +574,7 @@ impl Mosaic {
 mod conflict;
 mod datum;
 mod feather;
+mod opening;
 mod place;
 mod summary;
 #[cfg(test)]

@@ -471,6 +471,10 @@ impl super::geotiff::ChunkFetch for Prefetch {
         Prefetch::band(self, chunks)
     }
 
+    fn ahead(&self, chunks: &[std::ops::Range<u64>]) {
+        Prefetch::ahead(self, chunks);
+    }
+
     fn window_bytes(&self) -> u64 {
         4 * READ_AHEAD
     }

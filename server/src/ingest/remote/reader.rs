@@ -81,12 +81,33 @@ pub struct RangeReader {
     windows: Arc<Mutex<Windows>>,
 }
 
+/// The next band's runs, being fetched in the background.
+type Pending = (
+    Vec<Range<u64>>,
+    std::sync::mpsc::Receiver<io::Result<Vec<(u64, Bytes)>>>,
+);
+
 /// The handle the GeoTIFF reader keeps to say which chunks come next
-/// ([`Prefetch::band`]).
+/// ([`Prefetch::band`], [`Prefetch::ahead`]).
 #[derive(Debug)]
 pub struct Prefetch {
     storage: Arc<ObjectStorage>,
     windows: Arc<Mutex<Windows>>,
+    pending: Mutex<Option<Pending>>,
+}
+
+/// Runs of adjacent ranges (empty ones left out), in file order.
+fn runs(chunks: &[Range<u64>]) -> Vec<Range<u64>> {
+    let mut sorted: Vec<Range<u64>> = chunks.iter().filter(|r| r.end > r.start).cloned().collect();
+    sorted.sort_by_key(|r| r.start);
+    let mut runs: Vec<Range<u64>> = Vec::new();
+    for r in sorted {
+        match runs.last_mut() {
+            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
+            _ => runs.push(r),
+        }
+    }
+    runs
 }
 
 /// A reader over `storage` and the handle that fills it ahead of the decoder;
@@ -106,43 +127,77 @@ pub fn range_reader(
             pos: 0,
             windows: windows.clone(),
         },
-        Prefetch { storage, windows },
+        Prefetch {
+            storage,
+            windows,
+            pending: Mutex::new(None),
+        },
     )
 }
 
 impl Prefetch {
     /// Fetches `chunks` (byte ranges, in any order; empty ones are skipped), one GET
-    /// per run of adjacent ranges, replacing the previous band's.
+    /// per run of adjacent ranges, replacing the previous band's; taken from the
+    /// background fetch [`Prefetch::ahead`] started when it asked for the same.
     pub fn band(&self, chunks: &[Range<u64>]) -> io::Result<()> {
-        let mut sorted: Vec<Range<u64>> =
-            chunks.iter().filter(|r| r.end > r.start).cloned().collect();
-        sorted.sort_by_key(|r| r.start);
-        let mut runs: Vec<Range<u64>> = Vec::new();
-        for r in sorted {
-            match runs.last_mut() {
-                Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
-                _ => runs.push(r),
-            }
-        }
-        // The old band goes first, so only one band is ever held.
+        let runs = runs(chunks);
+        // The old band goes first, so at most this band and the next are held.
         self.windows
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
             .band
             .clear();
-        let mut band = Vec::with_capacity(runs.len());
-        for r in runs {
-            let bytes = self
-                .storage
-                .slice(r.start, r.end - r.start)
-                .map_err(|e| without_url(self.storage.url(), e))?;
-            band.push((r.start, bytes));
-        }
+        let pending = self
+            .pending
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        let band = match pending {
+            Some((asked, rx)) if asked == runs => rx.recv().unwrap_or_else(|_| {
+                Err(io::Error::other(
+                    "the background fetch of a band was dropped",
+                ))
+            }),
+            _ => {
+                let mut band = Vec::with_capacity(runs.len());
+                for r in runs {
+                    let bytes = self
+                        .storage
+                        .slice(r.start, r.end - r.start)
+                        .map_err(|e| without_url(self.storage.url(), e))?;
+                    band.push((r.start, bytes));
+                }
+                Ok(band)
+            }
+        }?;
         self.windows
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
             .band = band;
         Ok(())
+    }
+
+    /// Starts fetching `chunks` (the next band's) in the background, so that the
+    /// store's latency passes while the current band decodes.
+    pub fn ahead(&self, chunks: &[Range<u64>]) {
+        let runs = runs(chunks);
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        let storage = self.storage.clone();
+        let asked = runs.clone();
+        crate::storage::runtime::io_runtime().spawn(async move {
+            let mut band = Vec::with_capacity(asked.len());
+            for r in asked {
+                match storage.read(r.start, r.end - r.start).await {
+                    Ok(bytes) => band.push((r.start, bytes)),
+                    Err(e) => {
+                        let _ = tx.send(Err(without_url(storage.url(), e)));
+                        return;
+                    }
+                }
+            }
+            let _ = tx.send(Ok(band));
+        });
+        *self.pending.lock().unwrap_or_else(PoisonError::into_inner) = Some((runs, rx));
     }
 
     /// The read-ahead windows fetched so far (the header's, once the file is open).
