@@ -6,7 +6,7 @@
 //!
 //! - A tiled GeoTIFF (a COG) is read in place: the header through a short read-ahead,
 //!   then, band by band, exactly the byte ranges of the tiles that band needs, one
-//!   ranged GET per run of adjacent tiles ([`reader`]). Overviews are never read.
+//!   ranged GET per run of adjacent tiles (`reader.rs`). Overviews are never read.
 //! - Anything else (a striped GeoTIFF, `.hgt`, PNG) is fetched whole once into a
 //!   folder under TMPDIR, and read from there; the log says so, and one that would not
 //!   fit in TMPDIR's free space is refused before a byte is fetched.
