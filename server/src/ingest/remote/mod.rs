@@ -290,6 +290,8 @@ pub fn open_raster(url: &str) -> anyhow::Result<(Box<dyn super::RowSource>, &'st
         .iter()
         .any(|m| &magic[..n] == m.as_slice());
     let known = prefetch.header_windows();
+    // Remembered whatever the format: a later opening checks the ETag against it.
+    remember(url, &object, known.clone());
     if tiff {
         let (reader, prefetch) = reader::range_reader(object.clone(), known);
         let mut t = super::geotiff::GeoTiff::from_reader(reader)?;
