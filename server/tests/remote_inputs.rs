@@ -33,8 +33,9 @@ struct Pieces {
     tile_bytes: u64,
 }
 
-/// The pieces, made once for every test of this binary (in cargo's folder for test
-/// data, replaced on each run).
+/// The pieces, made once for every test of this binary, in cargo's folder for test
+/// data under this process's id (two runs at once must not share one); the folders of
+/// runs that have ended are removed first.
 fn pieces() -> Option<&'static Pieces> {
     static P: std::sync::OnceLock<Option<Pieces>> = std::sync::OnceLock::new();
     P.get_or_init(make_pieces).as_ref()
@@ -45,7 +46,16 @@ fn make_pieces() -> Option<Pieces> {
         return None;
     }
     let n46 = testdata::dem_or_skip("N46E008.tif")?;
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("remote_inputs_pieces");
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    for old in std::fs::read_dir(root).into_iter().flatten().flatten() {
+        let name = old.file_name().to_string_lossy().into_owned();
+        if let Some(pid) = name.strip_prefix("remote_inputs_pieces-")
+            && !Path::new("/proc").join(pid).exists()
+        {
+            let _ = std::fs::remove_dir_all(old.path());
+        }
+    }
+    let dir = root.join(format!("remote_inputs_pieces-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let mut names = Vec::new();
