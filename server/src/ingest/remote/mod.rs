@@ -14,19 +14,19 @@
 //!   retried with backoff (`storage::location`): an object changed mid-build, or
 //!   missing, is an error naming its URL.
 
+mod listing;
 mod reader;
+mod spool;
 
 use crate::storage::{ObjectStorage, Storage, StoreContext, StoreOptions, is_url, object_at};
 use anyhow::{Context, bail};
-use futures_util::StreamExt;
-use object_store::{GetOptions, ObjectStore};
-use std::io::Write;
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
+pub use listing::expand;
 use reader::without_url;
 pub use reader::{Prefetch, READ_AHEAD, RangeReader};
+pub use spool::SpoolScope;
 
 /// The URL an input path stands for, when it is one.
 pub fn url_of(path: &Path) -> Option<&str> {
@@ -47,9 +47,6 @@ fn context() -> &'static Arc<StoreContext> {
     })
 }
 
-/// Bytes fetched whole into spools (ranged reads are counted by the context).
-static SPOOLED: AtomicU64 = AtomicU64::new(0);
-
 /// What build inputs have fetched from stores so far in this process.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Fetched {
@@ -69,7 +66,7 @@ impl Fetched {
 pub fn fetched() -> Fetched {
     Fetched {
         ranged: context().metrics.get_bytes.get(),
-        spooled: SPOOLED.load(Ordering::Relaxed),
+        spooled: spool::SPOOLED.load(std::sync::atomic::Ordering::Relaxed),
     }
 }
 
@@ -100,103 +97,6 @@ pub fn read_text(url: &str, limit: u64, what: &str) -> anyhow::Result<String> {
     }
     let bytes = o.slice(0, o.size()).map_err(|e| without_url(url, e))?;
     String::from_utf8(bytes.to_vec()).with_context(|| format!("{what} is not UTF-8 text"))
-}
-
-/// Whether a key names a DEM file by its extension.
-fn is_dem_key(key: &str) -> bool {
-    Path::new(key)
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| {
-            super::DEM_EXTENSIONS
-                .iter()
-                .any(|d| e.eq_ignore_ascii_case(d))
-        })
-}
-
-/// Expands an input URL: a prefix ending in `/` lists the DEM files directly under it
-/// (as a folder does), a key with `*`, `?` or `[` lists those matching it (a `*` does
-/// not cross `/`), anything else is one object (opening it says whether it exists).
-/// Keys are taken in byte order, as files of a folder are.
-pub fn expand(url: &str) -> anyhow::Result<Vec<PathBuf>> {
-    let wildcard = url.find(['*', '?', '[']);
-    let folder = url.ends_with('/');
-    if wildcard.is_none() && !folder {
-        return Ok(vec![PathBuf::from(url)]);
-    }
-    if url.starts_with("http://") || url.starts_with("https://") {
-        bail!(
-            "{url}: an HTTP server cannot be listed; name each file, or list their URLs in a file \
-             given with --inputs"
-        );
-    }
-    // The folder that is listed: up to the last `/` before any wildcard.
-    let cut = wildcard.unwrap_or(url.len());
-    let slash = url[..cut].rfind('/').map_or(0, |i| i + 1);
-    let (prefix_url, rest) = url.split_at(slash);
-    let loc = object_at(prefix_url, StoreOptions::default())?;
-    let prefix = loc.key.clone();
-    let pattern = if rest.is_empty() {
-        None
-    } else {
-        let full = if prefix.as_ref().is_empty() {
-            rest.to_string()
-        } else {
-            format!("{}/{rest}", prefix.as_ref())
-        };
-        Some(
-            glob::Pattern::new(&full)
-                .with_context(|| format!("{url}: not a valid glob pattern"))?,
-        )
-    };
-    let (store, recursive) = (loc.store.clone(), pattern.is_some());
-    let listed: Result<Vec<String>, object_store::Error> =
-        crate::storage::runtime::block_on(async move {
-            let p = (!prefix.as_ref().is_empty()).then_some(prefix);
-            let mut keys = Vec::new();
-            if recursive {
-                let mut s = store.list(p.as_ref());
-                while let Some(o) = s.next().await {
-                    keys.push(o?.location.to_string());
-                }
-            } else {
-                // One level, as a folder.
-                let l = store.list_with_delimiter(p.as_ref()).await?;
-                keys.extend(l.objects.into_iter().map(|o| o.location.to_string()));
-            }
-            Ok(keys)
-        });
-    let listed = listed.map_err(|e| anyhow::anyhow!("{url}: cannot list the store: {e}"))?;
-    let options = glob::MatchOptions {
-        require_literal_separator: true,
-        ..glob::MatchOptions::default()
-    };
-    let mut keys: Vec<String> = listed
-        .into_iter()
-        .filter(|k| match &pattern {
-            Some(p) => p.matches_with(k, options),
-            None => is_dem_key(k),
-        })
-        .collect();
-    keys.sort();
-    if keys.is_empty() {
-        match &pattern {
-            Some(_) => bail!("{url}: no object matches this pattern"),
-            None => bail!(
-                "{url}: the prefix holds no DEM files (.{})",
-                super::DEM_EXTENSIONS.join(", .")
-            ),
-        }
-    }
-    // Back to URLs: the listed prefix's URL, then the key's part below it.
-    let base = loc.key.as_ref().len();
-    Ok(keys
-        .into_iter()
-        .map(|k| {
-            let below = k[base..].trim_start_matches('/');
-            PathBuf::from(format!("{prefix_url}{below}"))
-        })
-        .collect())
 }
 
 /// What an earlier opening of an object fetched: its ETag and its header's windows.
@@ -313,159 +213,7 @@ pub fn open_raster(url: &str) -> anyhow::Result<(Box<dyn super::RowSource>, &'st
             "not a GeoTIFF: fetching it whole into a spool"
         );
     }
-    let spooled = spooled(url, &object)?;
-    let (inner, format) = super::open_raster(&spooled.path)?;
-    Ok((
-        Box::new(Spooled {
-            inner,
-            _file: spooled,
-        }),
-        format,
-    ))
-}
-
-#[derive(Debug)]
-struct SpoolFile {
-    _dir: tempfile::TempDir,
-    path: PathBuf,
-}
-
-/// The spooled copies of this build's inputs, by URL: fetched once, however often the
-/// build opens them; removed by [`SpoolScope`].
-fn spools() -> &'static std::sync::Mutex<std::collections::HashMap<String, Arc<SpoolFile>>> {
-    static SPOOLS: OnceLock<std::sync::Mutex<std::collections::HashMap<String, Arc<SpoolFile>>>> =
-        OnceLock::new();
-    SPOOLS.get_or_init(Default::default)
-}
-
-fn spooled(url: &str, object: &ObjectStorage) -> anyhow::Result<Arc<SpoolFile>> {
-    if let Some(s) = spools()
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .get(url)
-    {
-        return Ok(s.clone());
-    }
-    let s = Arc::new(spool(url, object)?);
-    spools()
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .insert(url.to_string(), s.clone());
-    Ok(s)
-}
-
-/// Held for a build: when it ends (done, failed or interrupted), the spooled copies
-/// of its inputs go (a reader still open keeps its own until it is dropped).
-#[derive(Debug)]
-pub struct SpoolScope(());
-
-impl SpoolScope {
-    pub fn new() -> Self {
-        Self(())
-    }
-}
-
-impl Default for SpoolScope {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl Drop for SpoolScope {
-    fn drop(&mut self) {
-        spools()
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .clear();
-    }
-}
-
-/// Fetches the whole object into a fresh folder under TMPDIR, under its own file
-/// name (an `.hgt` tile's name is its place), checked against the ETag seen at open.
-fn spool(url: &str, object: &ObjectStorage) -> anyhow::Result<SpoolFile> {
-    let tmp = std::env::temp_dir();
-    let size = object.size();
-    if let Ok(st) = rustix::fs::statvfs(&tmp)
-        && st.f_blocks > 0
-    {
-        let free = st.f_bavail.saturating_mul(st.f_frsize);
-        if size > free {
-            bail!(
-                "{size} bytes must be fetched whole (it is not a tiled GeoTIFF), but TMPDIR \
-                 ({}) has {free} bytes free; convert it to a Cloud-Optimized GeoTIFF \
-                 (gdal_translate -of COG), or point TMPDIR at a larger disk",
-                tmp.display()
-            );
-        }
-    }
-    let dir = tempfile::Builder::new()
-        .prefix("tessera-input-")
-        .tempdir_in(&tmp)
-        .with_context(|| format!("cannot make a spool folder in {}", tmp.display()))?;
-    let name = Path::new(url)
-        .file_name()
-        .map_or_else(|| "input".into(), std::ffi::OsStr::to_os_string);
-    let path = dir.path().join(name);
-    let mut file = std::fs::File::create(&path)
-        .with_context(|| format!("cannot create {}", path.display()))?;
-    let loc = object_at(url, StoreOptions::default())?;
-    let (store, key) = (loc.store.clone(), loc.key.clone());
-    let etag = object.etag().map(str::to_string);
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Result<bytes::Bytes, String>>(4);
-    crate::storage::runtime::io_runtime().spawn(async move {
-        let options = GetOptions {
-            if_match: etag,
-            ..GetOptions::default()
-        };
-        let got: Result<_, object_store::Error> = store.get_opts(&key, options).await;
-        match got {
-            Ok(r) => {
-                let mut s = r.into_stream();
-                while let Some(chunk) = s.next().await {
-                    let msg = chunk.map_err(|e| format!("the download failed: {e}"));
-                    let stop = msg.is_err();
-                    if tx.send(msg).is_err() || stop {
-                        return;
-                    }
-                }
-            }
-            Err(e @ object_store::Error::Precondition { .. }) => {
-                let _ = tx.send(Err(format!(
-                    "the object changed in the store after it was opened: {e}"
-                )));
-            }
-            Err(e) => {
-                let _ = tx.send(Err(format!("cannot fetch the object: {e}")));
-            }
-        }
-    });
-    let mut got = 0u64;
-    for chunk in rx {
-        let chunk = chunk.map_err(anyhow::Error::msg)?;
-        file.write_all(&chunk)
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        got += chunk.len() as u64;
-        SPOOLED.fetch_add(chunk.len() as u64, Ordering::Relaxed);
-    }
-    if got != size {
-        bail!("fetched {got} bytes of the {size} the store announced");
-    }
-    file.sync_all().ok();
-    Ok(SpoolFile { _dir: dir, path })
-}
-
-/// A reader of a spooled copy, which keeps the copy while it reads.
-struct Spooled {
-    inner: Box<dyn super::RowSource>,
-    _file: Arc<SpoolFile>,
-}
-
-impl std::fmt::Debug for Spooled {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Spooled")
-            .field("inner", &self.inner)
-            .finish_non_exhaustive()
-    }
+    spool::open(url, &object)
 }
 
 impl super::geotiff::ChunkFetch for Prefetch {
@@ -479,27 +227,6 @@ impl super::geotiff::ChunkFetch for Prefetch {
 
     fn window_bytes(&self) -> u64 {
         4 * READ_AHEAD
-    }
-}
-
-impl super::RowSource for Spooled {
-    fn info(&self) -> &super::SourceInfo {
-        self.inner.info()
-    }
-    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
-        self.inner.read_rows(out)
-    }
-    fn edge_distance(&self) -> Option<&[f32]> {
-        self.inner.edge_distance()
-    }
-    fn buffer_bytes(&self) -> u64 {
-        self.inner.buffer_bytes()
-    }
-    fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
-        self.inner.vertical_datum()
-    }
-    fn datum_clue(&self) -> Option<super::DatumClue> {
-        self.inner.datum_clue()
     }
 }
 
@@ -522,6 +249,7 @@ pub fn gdal_vsi_url(name: &str) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
 
     #[test]
     fn gdal_virtual_paths_become_urls() {
