@@ -178,22 +178,11 @@ pub(super) fn place_mixed(
         .with_context(|| format!("{}: to {}", g.name, target.label()))?;
         boxes.push(b);
     }
-    let union = boxes.iter().fold(
-        [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ],
-        |u, b| {
-            [
-                u[0].min(b[0]),
-                u[1].min(b[1]),
-                u[2].max(b[2]),
-                u[3].max(b[3]),
-            ]
-        },
-    );
+    let corners: Vec<[f64; 2]> = boxes
+        .iter()
+        .flat_map(|b| [[b[0], b[1]], [b[2], b[3]]])
+        .collect();
+    let union = reproject::bounds(&corners);
     let (ox, oy) =
         if on_finest_crs && (sx - fgt[1]).abs() < 1e-12 * sx && (sy + fgt[5]).abs() < 1e-12 * sy {
             (fgt[0], fgt[3])

@@ -149,17 +149,20 @@ fn remember(url: &str, object: &ObjectStorage, windows: Vec<(u64, bytes::Bytes)>
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
     let bytes: u64 = windows.iter().map(|(_, b)| b.len() as u64).sum();
-    if let Some(old) = seen.by_url.insert(
+    let old = seen.by_url.insert(
         url.to_string(),
         Seen {
             etag: object.etag().map(str::to_string),
             size: object.size(),
             windows,
         },
-    ) {
-        seen.bytes -= old.windows.iter().map(|(_, b)| b.len() as u64).sum::<u64>();
-    } else {
-        seen.order.push_back(url.to_string());
+    );
+    match old {
+        Some(old) if !old.windows.is_empty() => {
+            seen.bytes -= old.windows.iter().map(|(_, b)| b.len() as u64).sum::<u64>();
+        }
+        // New, or its bytes were let go (it left the order then): in line to go again.
+        _ => seen.order.push_back(url.to_string()),
     }
     seen.bytes += bytes;
     while seen.bytes > SEEN_BYTES
