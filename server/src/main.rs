@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use tessera_server::builder::interrupt::{Interrupt, Interrupted};
-use tessera_server::builder::parts::{PartSpec, assemble as assemble_parts, build_part};
+use tessera_server::builder::parts::{PartRead, PartSpec, assemble as assemble_parts, build_part};
 use tessera_server::builder::{BuildOptions, build_inputs};
 use tessera_server::ingest::assign::Bounds;
 use tessera_server::ingest::reproject::{ReprojectOptions, Resampling, parse_spacing};
@@ -132,6 +132,14 @@ enum Command {
         /// Input value that means "no data", overriding each file's own (e.g. GDAL_NODATA).
         #[arg(long, allow_negative_numbers = true)]
         nodata: Option<f64>,
+        /// The heights' range in metres, for inputs of floating-point samples: they are
+        /// stored in 65 536 steps between its ends (half a step of error), checked
+        /// against every sample. Default: the input's own range, which takes reading
+        /// all of it first, so each part of a distributed build (--part) then reads the
+        /// whole input. Given, a part reads only its share. Integer inputs are stored
+        /// exactly whatever the range.
+        #[arg(long, value_name = "MIN,MAX", value_parser = parse_height_range, allow_hyphen_values = true)]
+        height_range: Option<[f64; 2]>,
         /// What the heights are measured from, recorded so outputs that need another
         /// reference (Cesium: the ellipsoid) can convert: egm96, egm2008, ellipsoid or
         /// unknown, for every input, or 'PATTERN=DATUM' for the inputs whose file name
@@ -248,6 +256,23 @@ fn parse_bounds(s: &str) -> Result<Bounds, String> {
     s.parse().map_err(|e: anyhow::Error| format!("{e:#}"))
 }
 
+/// `--height-range MIN,MAX`: two finite heights in metres, MIN below MAX.
+fn parse_height_range(s: &str) -> Result<[f64; 2], String> {
+    let bad = || format!("{s:?} is not a range of heights like -500,9000 (MIN,MAX in metres)");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (lo, hi): (f64, f64) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Err(bad());
+    }
+    if lo >= hi {
+        return Err(format!("{s:?}: MIN ({lo}) must be below MAX ({hi})"));
+    }
+    Ok([lo, hi])
+}
+
 /// Why a `--memory` value is refused ([`parse_memory`]).
 #[derive(Debug, thiserror::Error)]
 enum MemoryError {
@@ -332,6 +357,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             scale,
             offset,
             nodata,
+            height_range,
             vertical_datum,
             to_vertical,
             crs,
@@ -367,6 +393,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 memory_budget: memory,
                 max_samples,
                 nodata,
+                height_range,
                 vertical_datum: {
                     let all: Vec<_> = vertical_datum.iter().filter(|(p, _)| p.is_none()).collect();
                     if all.len() > 1 {
@@ -426,6 +453,22 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     r.file_bytes as f64 / 1e6,
                     r.seconds
                 );
+                match &r.read {
+                    PartRead::Share { samples, of } => println!(
+                        "read its share of the input: {samples} of {of} samples ({:.1} %)",
+                        100.0 * *samples as f64 / *of as f64
+                    ),
+                    PartRead::Whole(why) => println!("read the whole input: {why}"),
+                    PartRead::Generated => {}
+                }
+                if r.fetched.total() > 0 {
+                    println!(
+                        "read {} bytes of inputs from object storage ({} by range, {} whole into spools)",
+                        r.fetched.total(),
+                        r.fetched.ranged,
+                        r.fetched.spooled
+                    );
+                }
                 for w in &r.warnings {
                     eprintln!("warning: {w}");
                 }

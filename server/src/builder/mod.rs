@@ -60,6 +60,10 @@ pub struct BuildOptions {
     pub max_samples: u64,
     /// Overrides the input's own no-data value (each input's, in a mosaic).
     pub nodata: Option<f64>,
+    /// `--height-range`: the heights' range in metres that floating-point samples are
+    /// quantized over, checked against every sample; `None`: the input's own range
+    /// (known only once all of it is read).
+    pub height_range: Option<[f64; 2]>,
     /// Which input wins where a mosaic's inputs overlap and disagree; `None`: an
     /// error on one grid, the finest input on different grids.
     pub overlap: Option<ingest::Overlap>,
@@ -104,6 +108,7 @@ impl Default for BuildOptions {
             memory_budget: 512 << 20,
             max_samples: plausible::DEFAULT_MAX_SAMPLES,
             nodata: None,
+            height_range: None,
             overlap: None,
             resampling: ingest::reproject::Resampling::Bilinear,
             spacing: None,
@@ -173,15 +178,12 @@ pub fn build_inputs(
     let warnings = prepared.warnings.clone();
     let writer = create_output(output, prepared.geometry, meta_reserve(&prepared.meta))
         .with_context(|| prepared.label.clone())?;
-    let loaded = prepared.load(dir, opts, started, None)?;
+    let loaded = prepared.load(dir, opts, started)?;
     let report = build_tiles(&loaded, writer, opts, started)?;
     let after = ingest::remote::fetched();
     Ok(BuildReport {
         warnings,
-        fetched: ingest::remote::Fetched {
-            ranged: after.ranged - fetched_before.ranged,
-            spooled: after.spooled - fetched_before.spooled,
-        },
+        fetched: after.since(fetched_before),
         ..report
     })
 }

@@ -2,14 +2,13 @@
 //! `--to`, the memory plan, the plausibility checks), then read: spooled, or
 //! generated on demand for synthetic terrain.
 
-use super::{BuildOptions, bar, datum, memory, plausible, spool};
+use super::{BuildOptions, bar, datum, memory, parts, plausible, spool};
 use crate::ingest::raster::Raster;
-use crate::ingest::{self, Input, RowSource, SourceInfo};
+use crate::ingest::{self, Input};
 use anyhow::Context;
 use std::path::Path;
 use std::time::Instant;
 use tessera_shared::{Metadata, Quantization, TileGeometry};
-use xxhash_rust::xxh3::Xxh3;
 
 /// An input opened and sized, before any sample is read: its geometry, the memory
 /// plan and the metadata but for what reading it tells (quantization, counts).
@@ -295,14 +294,12 @@ pub(super) fn prepare(
 
 impl Prepared {
     /// Reads the input: a file is spooled into `dir` (its quantization and no-data
-    /// count then known), synthetic terrain needs nothing. With `digest`, every raw
-    /// sample read is hashed into it too (a part's fingerprint of its input).
+    /// count then known), synthetic terrain needs nothing.
     pub(super) fn load(
         self,
         dir: &Path,
         opts: &BuildOptions,
         started: Instant,
-        digest: Option<&mut Xxh3>,
     ) -> anyhow::Result<Loaded> {
         let Prepared {
             source,
@@ -314,23 +311,22 @@ impl Prepared {
             warnings: _,
             support,
         } = self;
+        let stated = stated_range(opts);
         let dem = match source {
             Input::Rows(mut rows) => {
                 let spool_bar = bar(opts.progress, u64::from(geometry.height()), "reading");
-                let mut digesting;
-                let rows: &mut dyn RowSource = match digest {
-                    Some(hash) => {
-                        digesting = Digesting::new(rows.as_mut(), hash);
-                        &mut digesting
-                    }
-                    None => rows.as_mut(),
-                };
-                let spooled =
-                    spool::SpooledRaster::spool(rows, dir, spool_nodata, plan.band_bytes, |r| {
+                let spooled = spool::SpooledRaster::spool(
+                    rows.as_mut(),
+                    dir,
+                    spool_nodata,
+                    plan.band_bytes,
+                    stated.as_ref(),
+                    |r| {
                         spool_bar.set_position(u64::from(r));
                         opts.interrupt.check()
-                    })
-                    .with_context(|| label.clone())?;
+                    },
+                )
+                .with_context(|| label.clone())?;
                 spool_bar.finish_and_clear();
                 tracing::debug!(seconds = started.elapsed().as_secs_f64(), "input spooled");
                 meta.quantization = spooled.quantizer.to_metres(
@@ -359,6 +355,82 @@ impl Prepared {
             support,
         })
     }
+
+    /// Reads only `footprint` of the input, for a part of a distributed build
+    /// ([`parts::share_read`]): the whole build's samples and quantization there, or
+    /// why the share cannot stand alone (the caller then prepares and reads the whole
+    /// input). Synthetic terrain is generated where it is read, so it needs nothing.
+    pub(super) fn load_share(
+        self,
+        dir: &Path,
+        footprint: &parts::footprint::Footprint,
+        opts: &BuildOptions,
+        started: Instant,
+    ) -> anyhow::Result<Result<(Loaded, u64), String>> {
+        let stated = stated_range(opts);
+        let rows = match &self.source {
+            Input::Synthetic(_) => return self.load(dir, opts, started).map(|l| Ok((l, 0))),
+            Input::Rows(rows) => rows,
+        };
+        if let Some(why) = parts::share_read::needs_whole(rows.as_ref(), stated.as_ref()) {
+            return Ok(Err(why));
+        }
+        let Prepared {
+            source,
+            spool_nodata,
+            label,
+            geometry,
+            plan,
+            mut meta,
+            warnings: _,
+            support,
+        } = self;
+        let Input::Rows(mut rows) = source else {
+            unreachable!("synthetic terrain returned above")
+        };
+        let quantizer = parts::share_read::quantizer(rows.as_ref(), stated.as_ref());
+        let info = rows.info().clone();
+        let share = parts::share_read::read(
+            rows.as_mut(),
+            footprint,
+            dir,
+            spool_nodata,
+            stated.as_ref(),
+            plan.band_bytes,
+            || opts.interrupt.check(),
+        )
+        .with_context(|| label.clone())?;
+        let (file, samples) = match share {
+            parts::share_read::Share::Read { file, samples } => (file, samples),
+            parts::share_read::Share::Whole(why) => return Ok(Err(why)),
+        };
+        tracing::debug!(seconds = started.elapsed().as_secs_f64(), samples, "share spooled");
+        meta.quantization =
+            quantizer.to_metres(opts.scale, opts.offset, info.sample_type.is_integer());
+        let spooled = spool::SpooledRaster::from_share(
+            file,
+            info.width,
+            info.height,
+            quantizer,
+            info.sample_type,
+        );
+        Ok(Ok((
+            Loaded {
+                dem: Dem::Spooled(Box::new(spooled)),
+                geometry,
+                plan,
+                meta,
+                support,
+            },
+            samples,
+        )))
+    }
+}
+
+/// `--height-range` in the input's raw values.
+fn stated_range(opts: &BuildOptions) -> Option<spool::StatedRange> {
+    opts.height_range
+        .map(|m| spool::StatedRange::new(m, opts.scale, opts.offset))
 }
 
 /// The CRS's PROJ string and WKT, and the ground spacing at the DEM's centre
@@ -386,52 +458,5 @@ fn ground_geometry(
             tracing::warn!(input, "no ground spacing: {e:#}");
             None
         }
-    }
-}
-
-/// A row source that hashes every raw sample it hands on (its bits, little-endian):
-/// a part's fingerprint of its input's content.
-struct Digesting<'a> {
-    inner: &'a mut dyn RowSource,
-    hash: &'a mut Xxh3,
-}
-
-impl<'a> Digesting<'a> {
-    fn new(inner: &'a mut dyn RowSource, hash: &'a mut Xxh3) -> Self {
-        Self { inner, hash }
-    }
-}
-
-impl std::fmt::Debug for Digesting<'_> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Digesting")
-            .field("inner", &self.inner)
-            .finish_non_exhaustive()
-    }
-}
-
-impl RowSource for Digesting<'_> {
-    fn info(&self) -> &SourceInfo {
-        self.inner.info()
-    }
-
-    fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
-        self.inner.read_rows(out)?;
-        let mut bytes = [0u8; 4 << 12];
-        for chunk in out.chunks(1 << 12) {
-            for (b, v) in bytes.chunks_exact_mut(4).zip(chunk) {
-                b.copy_from_slice(&v.to_bits().to_le_bytes());
-            }
-            self.hash.update(&bytes[..4 * chunk.len()]);
-        }
-        Ok(())
-    }
-
-    fn buffer_bytes(&self) -> u64 {
-        self.inner.buffer_bytes()
-    }
-
-    fn vertical_datum(&self) -> Option<tessera_shared::VerticalDatum> {
-        self.inner.vertical_datum()
     }
 }

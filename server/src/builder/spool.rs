@@ -25,6 +25,27 @@ pub struct RawQuantizer {
 }
 
 impl RawQuantizer {
+    /// Integer samples, stored exactly: a step of one raw unit from the type's least
+    /// value.
+    pub fn exact(sample_type: SampleType) -> Self {
+        Self {
+            raw_offset: if sample_type == SampleType::Int16 {
+                -32768.0
+            } else {
+                0.0
+            },
+            raw_step: 1.0,
+        }
+    }
+
+    /// Floating-point samples between raw values `lo` and `hi`, in 65 536 steps.
+    pub fn over(lo: f64, hi: f64) -> Self {
+        Self {
+            raw_offset: lo,
+            raw_step: if hi > lo { (hi - lo) / 65535.0 } else { 1.0 },
+        }
+    }
+
     pub fn quantize(&self, raw: f32) -> u16 {
         ((f64::from(raw) - self.raw_offset) / self.raw_step)
             .round()
@@ -42,6 +63,47 @@ impl RawQuantizer {
                 (scale * self.raw_step).abs() / 2.0
             },
         }
+    }
+}
+
+/// `--height-range` in raw sample values: what floating-point samples are quantized
+/// over, whatever their own range, so that a part of a distributed build that reads
+/// only its share quantizes as the whole build does.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StatedRange {
+    /// Raw values (`(metres − offset) / scale`).
+    pub raw: [f64; 2],
+    /// As the user gave it, in metres, for messages.
+    pub metres: [f64; 2],
+}
+
+impl StatedRange {
+    /// `--height-range` (metres) under `metres = offset + scale · raw` (`scale > 0`).
+    pub fn new(metres: [f64; 2], scale: f64, offset: f64) -> Self {
+        Self {
+            raw: metres.map(|m| (m - offset) / scale),
+            metres,
+        }
+    }
+
+    pub fn quantizer(&self) -> RawQuantizer {
+        RawQuantizer::over(self.raw[0], self.raw[1])
+    }
+
+    /// Refuses samples from raw `lo` to `hi` that reach beyond the range.
+    pub fn check(&self, lo: f32, hi: f32) -> anyhow::Result<()> {
+        let [a, b] = self.raw;
+        let [ma, mb] = self.metres;
+        if f64::from(lo) < a || f64::from(hi) > b {
+            let scale = (mb - ma) / (b - a);
+            let out = if f64::from(lo) < a { lo } else { hi };
+            bail!(
+                "a sample is {:.3} m, outside --height-range {ma},{mb}: give a range that \
+                 holds every height",
+                ma + (f64::from(out) - a) * scale
+            );
+        }
+        Ok(())
     }
 }
 
@@ -138,6 +200,7 @@ impl SpooledRaster {
         dir: &Path,
         nodata: Option<f64>,
         band_bytes: usize,
+        stated: Option<&StatedRange>,
         mut progress: impl FnMut(u32) -> anyhow::Result<()>,
     ) -> anyhow::Result<Self> {
         let info = src.info().clone();
@@ -240,24 +303,12 @@ impl SpooledRaster {
             .transpose()
             .context(SPOOL_WRITE)?;
         let quantizer = if info.sample_type.is_integer() {
-            RawQuantizer {
-                raw_offset: if info.sample_type == SampleType::Int16 {
-                    -32768.0
-                } else {
-                    0.0
-                },
-                raw_step: 1.0,
-            }
+            RawQuantizer::exact(info.sample_type)
+        } else if let Some(range) = stated {
+            range.check(lo, hi)?;
+            range.quantizer()
         } else {
-            let step = if hi > lo {
-                (f64::from(hi) - f64::from(lo)) / 65535.0
-            } else {
-                1.0
-            };
-            RawQuantizer {
-                raw_offset: f64::from(lo),
-                raw_step: step,
-            }
+            RawQuantizer::over(f64::from(lo), f64::from(hi))
         };
         Ok(Self {
             file,
@@ -269,6 +320,31 @@ impl SpooledRaster {
             nodata_count,
             sample_type: info.sample_type,
         })
+    }
+}
+
+impl SpooledRaster {
+    /// The spool of a part's share (`parts::share_read`): `file` holds the samples
+    /// the part reads where a whole spool holds them, and no void (a share with one is
+    /// read whole); the rest is never asked for. The depth counts are the whole
+    /// raster's as if all valid: a part counts its own (`parts::split::share`).
+    pub(crate) fn from_share(
+        file: File,
+        width: u32,
+        height: u32,
+        quantizer: RawQuantizer,
+        sample_type: SampleType,
+    ) -> Self {
+        Self {
+            file,
+            validity: None,
+            depth_counts: crate::ingest::raster::all_valid_depth_counts(width, height),
+            width,
+            height,
+            quantizer,
+            nodata_count: 0,
+            sample_type,
+        }
     }
 }
 

@@ -101,6 +101,14 @@ impl RowSource for Assigned {
         self.inner.read_rows(out)
     }
 
+    fn skip_rows(&mut self, n: u32) -> anyhow::Result<()> {
+        self.inner.skip_rows(n)
+    }
+
+    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+        self.inner.set_columns(columns)
+    }
+
     fn buffer_bytes(&self) -> u64 {
         self.inner.buffer_bytes()
     }

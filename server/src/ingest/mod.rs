@@ -63,6 +63,9 @@ pub struct SourceInfo {
     pub description: String,
 }
 
+/// Memory the default [`RowSource::skip_rows`] reads rows into.
+const SKIP_BUFFER: usize = 4 << 20;
+
 /// A raster read as rows, top (north) to bottom.
 pub trait RowSource: Send + std::fmt::Debug {
     fn info(&self) -> &SourceInfo;
@@ -72,6 +75,31 @@ pub trait RowSource: Send + std::fmt::Debug {
     /// Errors describe the problem (e.g. "truncated TIFF: strip 7 ends past the end
     /// of the file"); the caller adds the file name.
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()>;
+
+    /// Passes over the next `n` rows without returning them (a part of a distributed
+    /// build reads only its share). Readers that can jump ahead (a tiled GeoTIFF, a
+    /// mosaic, which opens only the inputs it still needs) do; the default reads the
+    /// rows and drops them.
+    fn skip_rows(&mut self, n: u32) -> anyhow::Result<()> {
+        let w = self.info().width as usize;
+        let per = (SKIP_BUFFER / (4 * w)).max(1);
+        let mut buf = vec![0f32; per.min(n as usize) * w];
+        let mut left = n as usize;
+        while left > 0 {
+            let k = per.min(left);
+            self.read_rows(&mut buf[..k * w])?;
+            left -= k;
+        }
+        Ok(())
+    }
+
+    /// Which columns the caller reads from the rows that follow (sorted, disjoint
+    /// ranges); samples outside them may hold anything. A hint: a tiled GeoTIFF then
+    /// fetches and decodes only the tiles over them, a mosaic opens only the inputs
+    /// over them. The default reads every column.
+    fn set_columns(&mut self, _columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+        Ok(())
+    }
 
     /// For a reader that resamples another grid: for each sample of the last row
     /// read, its distance (in source samples) to the source grid's outer edge, which a

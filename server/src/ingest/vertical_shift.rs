@@ -56,6 +56,8 @@ pub struct VerticalShift {
     nodata: Vec<f32>,
     row: u32,
     points: Vec<[f64; 3]>,
+    /// The columns read ([`RowSource::set_columns`]): only they are converted.
+    columns: Vec<std::ops::Range<u32>>,
 }
 
 impl std::fmt::Debug for VerticalShift {
@@ -123,6 +125,7 @@ impl VerticalShift {
             nodata,
             row: 0,
             points: Vec::new(),
+            columns: Vec::new(),
         };
         // One point at the centre: a missing grid is an error now, not NaN heights later.
         let centre = me.shifts_at(info.height / 2, info.width / 2..info.width / 2 + 1);
@@ -177,9 +180,12 @@ impl RowSource for VerticalShift {
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
         self.inner.read_rows(out)?;
         let w = self.info.width as usize;
+        let all = [0..self.info.width];
+        let columns = std::mem::take(&mut self.columns);
+        let spans = if columns.is_empty() { &all[..] } else { &columns[..] };
         for line in out.chunks_exact_mut(w) {
-            self.shifts_at(self.row, 0..self.info.width)
-                .with_context(|| {
+            for span in spans {
+                self.shifts_at(self.row, span.clone()).with_context(|| {
                     format!(
                         "converting row {} from {} to {}",
                         self.row,
@@ -187,15 +193,30 @@ impl RowSource for VerticalShift {
                         self.to.name()
                     )
                 })?;
-            for (v, p) in line.iter_mut().zip(&self.points) {
-                // No-data stays as it is; a sample PROJ cannot place becomes NaN
-                // (no-data too).
-                if !self.nodata.contains(v) {
-                    *v = (f64::from(*v) + p[2] * self.per_metre) as f32;
+                let part = &mut line[span.start as usize..span.end as usize];
+                for (v, p) in part.iter_mut().zip(&self.points) {
+                    // No-data stays as it is; a sample PROJ cannot place becomes NaN
+                    // (no-data too).
+                    if !self.nodata.contains(v) {
+                        *v = (f64::from(*v) + p[2] * self.per_metre) as f32;
+                    }
                 }
             }
             self.row += 1;
         }
+        self.columns = columns;
+        Ok(())
+    }
+
+    fn skip_rows(&mut self, n: u32) -> anyhow::Result<()> {
+        self.inner.skip_rows(n)?;
+        self.row += n;
+        Ok(())
+    }
+
+    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+        self.inner.set_columns(columns)?;
+        self.columns = columns.to_vec();
         Ok(())
     }
 

@@ -78,8 +78,8 @@ fn differences(a: &Metadata, b: &Metadata) -> String {
         d.push("its georeferencing or vertical datum differs".into());
     }
     if d.is_empty() {
-        "its input's samples or the build options differ (--nodata, --overlap, or --memory \
-         with an input that has no-data)"
+        "its input files (their sizes or ETags) or the build options differ (--nodata, \
+         --overlap, --height-range or --memory)"
             .into()
     } else {
         d.join(", ")

@@ -32,14 +32,16 @@
 //! pyramid from its parts).
 
 pub mod assemble;
+pub mod footprint;
 pub mod layout;
 pub mod part;
 pub mod reader;
+pub(crate) mod share_read;
 pub mod split;
 pub mod writer;
 
 pub use assemble::assemble;
-pub use part::{PartReport, build_part};
+pub use part::{PartRead, PartReport, build_part};
 pub use reader::PartFile;
 pub use split::{PartSpec, Split};
 

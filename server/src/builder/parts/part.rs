@@ -1,6 +1,7 @@
 //! Building one part (`build INPUT --part K/N -o PARTS/`): the input spooled whole,
 //! the part's subtrees cut, and its fingerprint of input, metadata and options.
 
+use super::footprint::Footprint;
 use super::layout::{Section, Trailer};
 use super::split::{PartSpec, Split, share};
 use super::writer::PartWriter;
@@ -13,7 +14,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tessera_shared::format;
-use tessera_shared::{Level, Morton, TileGeometry, TileId};
+use tessera_shared::{Level, Metadata, Morton, TileGeometry, TileId};
 use xxhash_rust::xxh3::Xxh3;
 
 /// What a part build did.
@@ -30,6 +31,21 @@ pub struct PartReport {
     pub seconds: f64,
     /// As [`crate::builder::BuildReport::warnings`].
     pub warnings: Vec<String>,
+    /// How much of the input the part read.
+    pub read: PartRead,
+    /// Bytes fetched from object storage or HTTP for the inputs.
+    pub fetched: ingest::remote::Fetched,
+}
+
+/// How much of its input a part read ([`super::share_read`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum PartRead {
+    /// Only its share: `samples` of the input's `of`.
+    Share { samples: u64, of: u64 },
+    /// The whole input, and why.
+    Whole(String),
+    /// Synthetic terrain, generated where it is read.
+    Generated,
 }
 
 /// Builds part `spec` of `inputs` into `dir` (created if missing) as
@@ -66,6 +82,7 @@ pub fn build_part(
         output: dir.to_path_buf(),
     };
     let _spools = ingest::remote::SpoolScope::new();
+    let fetched_before = ingest::remote::fetched();
     let prepared = crate::builder::prepare(inputs, &folders, spec.n, opts)?;
     let warnings = prepared.warnings.clone();
     let geometry = prepared.geometry;
@@ -74,8 +91,17 @@ pub fn build_part(
     let reserve = meta_reserve(&prepared.meta);
     let target = dir.join(spec.file_name());
     let mut writer = PartWriter::create(&target, spec, &geometry, split.level, tops.clone())?;
-    let mut digest = Xxh3::new();
-    let loaded = prepared.load(&scratch, opts, started, Some(&mut digest))?;
+    let footprint = Footprint::of(&geometry, split.level, tops.clone());
+    let whole = u64::from(geometry.width()) * u64::from(geometry.height());
+    let (loaded, read) = match prepared.load_share(&scratch, &footprint, opts, started)? {
+        Ok((loaded, 0)) => (loaded, PartRead::Generated),
+        Ok((loaded, samples)) => (loaded, PartRead::Share { samples, of: whole }),
+        Err(why) => {
+            tracing::debug!(k = spec.k, n = spec.n, "reading the whole input: {why}");
+            let prepared = crate::builder::prepare(inputs, &folders, spec.n, opts)?;
+            (prepared.load(&scratch, opts, started)?, PartRead::Whole(why))
+        }
+    };
     let raster = loaded.dem.raster();
     let subtree_tiles: u64 = (split.level.get()..=geometry.finest().get())
         .map(|l| {
@@ -116,7 +142,7 @@ pub fn build_part(
     tiles_bar.finish_and_clear();
     let depths = share(raster, &geometry, split.level, tops.clone())?;
     let trailer = Trailer {
-        fingerprint: fingerprint(&loaded, opts, reserve, digest.digest()),
+        fingerprint: fingerprint(&loaded, opts, reserve, ingest::inputs::identity(inputs)?),
         tops: tops.clone(),
         meta_reserve: reserve,
         spacings: spacings(&geometry),
@@ -146,6 +172,8 @@ pub fn build_part(
         file_bytes,
         seconds: started.elapsed().as_secs_f64(),
         warnings,
+        read,
+        fetched: ingest::remote::fetched().since(fetched_before),
     })
 }
 
@@ -154,33 +182,36 @@ pub(super) fn spacings(g: &TileGeometry) -> u32 {
     g.tile_log2() + u32::from(g.finest().get()) + 1
 }
 
-/// A digest of everything that shapes the pyramid's bytes: the metadata (size, tile
-/// size, quantization, CRS, source, generator), the input's raw samples, the
-/// options, and for an input with no-data the band height its fill used
-/// (`--memory` sets it).
+/// A digest of everything that shapes the pyramid's bytes and that every part knows
+/// without reading samples (each may read only its share): the metadata (size, tile
+/// size, quantization, CRS, the inputs' provenance, generator), the inputs' identity
+/// (`inputs`: paths, sizes, ETags), the options, and the band height the no-data
+/// fill of a whole read uses (`--memory` sets it).
 pub(super) fn fingerprint(
     loaded: &Loaded,
     opts: &BuildOptions,
     reserve: u64,
-    digest: u64,
+    inputs: u64,
 ) -> [u8; 16] {
     let mut h = Xxh3::new();
-    h.update(b"tessera part fingerprint 1\0");
-    h.update(&format::encode_metadata(&loaded.meta));
+    h.update(b"tessera part fingerprint 2\0");
+    // The no-data count is the only field a part learns from the samples it reads
+    // (a whole read counts the input's, a share none); the parts' own counts are
+    // compared when they are added up.
+    let meta = Metadata {
+        nodata_count: 0,
+        ..loaded.meta.clone()
+    };
+    h.update(&format::encode_metadata(&meta));
     h.update(&reserve.to_le_bytes());
-    h.update(&digest.to_le_bytes());
-    let raster = loaded.dem.raster();
-    for [v, f] in raster.depth_counts() {
-        h.update(&v.to_le_bytes());
-        h.update(&f.to_le_bytes());
-    }
-    h.update(&[u8::from(raster.has_nodata())]);
-    if raster.has_nodata() {
-        h.update(&(loaded.plan.band_bytes as u64).to_le_bytes());
-    }
+    h.update(&inputs.to_le_bytes());
+    h.update(&(loaded.plan.band_bytes as u64).to_le_bytes());
     h.update(&opts.scale.to_bits().to_le_bytes());
     h.update(&opts.offset.to_bits().to_le_bytes());
     h.update(&opts.nodata.map_or(u64::MAX, f64::to_bits).to_le_bytes());
+    for v in opts.height_range.into_iter().flatten() {
+        h.update(&v.to_bits().to_le_bytes());
+    }
     h.update(
         format!(
             "{:?} {:?} {:?}",

@@ -86,6 +86,9 @@ pub struct GeoTiff {
     band_rows: u32,
     /// The next row `read_rows` returns.
     next_row: u32,
+    /// The columns read ([`RowSource::set_columns`]; empty: all): a tiled file decodes
+    /// only the tiles over them.
+    columns: Vec<std::ops::Range<u32>>,
     /// Set when decoding failed: the decoder's state is then unknown.
     failed: bool,
     /// What the file (or its name) says about the heights' vertical datum.
@@ -410,6 +413,7 @@ impl GeoTiff {
             band_start: 0,
             band_rows: 0,
             next_row: 0,
+            columns: Vec::new(),
             failed: false,
             datum,
         })
@@ -435,12 +439,23 @@ impl GeoTiff {
     }
 
     /// The byte ranges of band `index`'s chunks.
+    /// Whether the tile `across` tiles from the west edge lies over a column read.
+    fn column_wanted(&self, across: u32) -> bool {
+        let Layout::Tiles { tile_width, .. } = self.layout else {
+            return true;
+        };
+        let (x0, x1) = (across * tile_width, (across + 1) * tile_width);
+        self.columns.is_empty() || self.columns.iter().any(|c| c.start < x1 && x0 < c.end)
+    }
+
     fn band_ranges(&self, index: u32) -> Vec<std::ops::Range<u64>> {
         let chunks = match self.layout {
             Layout::Strips { .. } => index..index + 1,
             Layout::Tiles { tiles_across, .. } => index * tiles_across..(index + 1) * tiles_across,
         };
+        let first = chunks.start;
         chunks
+            .filter(|&i| self.column_wanted(i - first))
             .map(|i| {
                 let (at, len) = (self.chunk_offsets[i as usize], self.chunk_bytes[i as usize]);
                 at..at + len
@@ -475,7 +490,13 @@ impl GeoTiff {
                 for across in 0..tiles_across {
                     let x0 = across * tile_width;
                     let w = tile_width.min(width - x0);
-                    self.decode_chunk(index * tiles_across + across, x0, w, start, rows)?;
+                    if self.column_wanted(across) {
+                        self.decode_chunk(index * tiles_across + across, x0, w, start, rows)?;
+                    } else {
+                        for row in self.band.chunks_exact_mut(width as usize) {
+                            row[x0 as usize..(x0 + w) as usize].fill(f32::NAN);
+                        }
+                    }
                 }
             }
         }
@@ -655,6 +676,31 @@ impl RowSource for GeoTiff {
             // Finished: give the band's memory back.
             self.band = Vec::new();
             self.band_rows = 0;
+        }
+        Ok(())
+    }
+
+    fn skip_rows(&mut self, n: u32) -> anyhow::Result<()> {
+        let end = u64::from(self.next_row) + u64::from(n);
+        if end > u64::from(self.info.height) {
+            bail!(
+                "skipped past the last row: rows {}..{end} of a raster of {} rows",
+                self.next_row,
+                self.info.height
+            );
+        }
+        // The band is decoded when a row of it is read, so skipped bands never are.
+        self.next_row = end as u32;
+        Ok(())
+    }
+
+    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+        if self.columns != columns {
+            self.columns = columns.to_vec();
+            if matches!(self.layout, Layout::Tiles { .. }) {
+                // The decoded band may lack tiles the new columns need.
+                self.band_rows = 0;
+            }
         }
         Ok(())
     }

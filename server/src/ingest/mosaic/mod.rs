@@ -136,6 +136,9 @@ pub struct Mosaic {
     feather: Option<(f64, [f64; 2])>,
     /// Per sample of a row while feathering: the weighted sum and the weight left.
     blend: Vec<(f64, f64)>,
+    /// The columns read ([`RowSource::set_columns`]; empty: all): inputs wholly
+    /// outside them are not opened.
+    columns: Vec<std::ops::Range<u32>>,
 }
 
 /// How [`Mosaic::open_with`] treats its inputs.
@@ -339,6 +342,7 @@ impl Mosaic {
             inputs,
             feather,
             blend: Vec::new(),
+            columns: Vec::new(),
         })
     }
 
@@ -390,6 +394,33 @@ impl Mosaic {
         self.open.len()
     }
 
+    /// Whether input `i` lies over a column read.
+    fn wanted(&self, i: usize) -> bool {
+        wanted(&self.columns, &self.pieces[i])
+    }
+
+    /// Opens input `i`, passes over its first `skip` rows in the mosaic, and keeps it
+    /// among the open inputs in input order.
+    fn open_at(&mut self, i: usize, skip: u32) -> anyhow::Result<()> {
+        let mut opened = self.open_piece(i)?;
+        let p = &self.pieces[i];
+        if !self.columns.is_empty() {
+            opened
+                .reader
+                .set_columns(&source_columns(&self.columns, p))
+                .with_context(|| p.name.clone())?;
+        }
+        if skip > 0 {
+            opened
+                .reader
+                .skip_rows(skip)
+                .with_context(|| p.name.clone())?;
+        }
+        let at = self.open.partition_point(|o| o.index < i);
+        self.open.insert(at, opened);
+        Ok(())
+    }
+
     fn open_piece(&self, index: usize) -> anyhow::Result<OpenPiece> {
         let p = &self.pieces[index];
         let (reader, _) = (self.opener)(&p.path).with_context(|| p.name.clone())?;
@@ -433,12 +464,26 @@ impl Mosaic {
                 p.src_height
             );
         }
-        let mut row = vec![0f32; p.src_width as usize];
-        for _ in 0..p.src_y {
-            reader.read_rows(&mut row).with_context(|| p.name.clone())?;
-        }
+        reader.skip_rows(p.src_y).with_context(|| p.name.clone())?;
+        let row = vec![0f32; p.src_width as usize];
         Ok(OpenPiece { index, reader, row })
     }
+}
+
+/// Whether `p` lies over one of `columns` (empty: every column).
+fn wanted(columns: &[std::ops::Range<u32>], p: &Piece) -> bool {
+    columns.is_empty() || columns.iter().any(|c| c.start < p.x + p.w && p.x < c.end)
+}
+
+/// `columns` (of the mosaic) as columns of `p`'s source, clipped to its window.
+fn source_columns(columns: &[std::ops::Range<u32>], p: &Piece) -> Vec<std::ops::Range<u32>> {
+    columns
+        .iter()
+        .filter_map(|c| {
+            let (a, b) = (c.start.max(p.x), c.end.min(p.x + p.w));
+            (a < b).then(|| a - p.x + p.src_x..b - p.x + p.src_x)
+        })
+        .collect()
 }
 
 /// The largest sum of open pieces' memory over the rows: pieces are open from their
@@ -487,9 +532,9 @@ impl RowSource for Mosaic {
             while let Some(&i) = self.by_top.get(self.next_open)
                 && self.pieces[i].y == r
             {
-                let opened = self.open_piece(i)?;
-                let at = self.open.partition_point(|o| o.index < i);
-                self.open.insert(at, opened);
+                if self.wanted(i) {
+                    self.open_at(i, 0)?;
+                }
                 self.next_open += 1;
             }
             out_row.fill(f32::NAN);
@@ -503,6 +548,64 @@ impl RowSource for Mosaic {
             self.open
                 .retain(|o| pieces[o.index].y + pieces[o.index].h > r + 1);
             self.row += 1;
+        }
+        Ok(())
+    }
+
+    fn skip_rows(&mut self, n: u32) -> anyhow::Result<()> {
+        let target = self.row + n;
+        if target > self.info.height {
+            bail!("skipped past the mosaic's last row");
+        }
+        let pieces = &self.pieces;
+        self.open.retain(|o| pieces[o.index].y + pieces[o.index].h > target);
+        for o in &mut self.open {
+            o.reader
+                .skip_rows(n)
+                .with_context(|| pieces[o.index].name.clone())?;
+        }
+        // Inputs whose top row is skipped are opened (and skipped to `target`) only
+        // if they reach past it and lie over a column read.
+        while let Some(&i) = self.by_top.get(self.next_open)
+            && self.pieces[i].y < target
+        {
+            let p = &self.pieces[i];
+            if p.y + p.h > target && self.wanted(i) {
+                self.open_at(i, target - p.y)?;
+            }
+            self.next_open += 1;
+        }
+        self.row = target;
+        Ok(())
+    }
+
+    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+        if self.columns == columns {
+            return Ok(());
+        }
+        self.columns = columns.to_vec();
+        let pieces = &self.pieces;
+        let cols = &self.columns;
+        self.open.retain(|o| wanted(cols, &pieces[o.index]));
+        for o in &mut self.open {
+            let p = &pieces[o.index];
+            o.reader
+                .set_columns(&source_columns(cols, p))
+                .with_context(|| p.name.clone())?;
+        }
+        // Inputs passed over while they lay outside the columns, wanted now: opened
+        // at the current row.
+        let late: Vec<usize> = (0..self.next_open)
+            .map(|k| self.by_top[k])
+            .filter(|&i| {
+                let p = &self.pieces[i];
+                p.y + p.h > self.row
+                    && wanted(&self.columns, p)
+                    && !self.open.iter().any(|o| o.index == i)
+            })
+            .collect();
+        for i in late {
+            self.open_at(i, self.row - self.pieces[i].y)?;
         }
         Ok(())
     }

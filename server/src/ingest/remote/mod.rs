@@ -57,6 +57,14 @@ pub struct Fetched {
 }
 
 impl Fetched {
+    /// What was fetched after `before` was taken.
+    pub fn since(self, before: Fetched) -> Fetched {
+        Fetched {
+            ranged: self.ranged - before.ranged,
+            spooled: self.spooled - before.spooled,
+        }
+    }
+
     pub fn total(self) -> u64 {
         self.ranged + self.spooled
     }
@@ -175,6 +183,14 @@ fn remember(url: &str, object: &ObjectStorage, windows: Vec<(u64, bytes::Bytes)>
             seen.bytes -= freed;
         }
     }
+}
+
+/// The size and ETag an earlier opening of `url` saw, if it was opened.
+pub fn identity(url: &str) -> Option<(u64, Option<String>)> {
+    let seen = seen()
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    seen.by_url.get(url).map(|s| (s.size, s.etag.clone()))
 }
 
 /// Opens a raster input at `url`: a tiled GeoTIFF in place, anything else from a

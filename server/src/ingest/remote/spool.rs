@@ -185,6 +185,14 @@ impl RowSource for Spooled {
     fn edge_distance(&self) -> Option<&[f32]> {
         self.inner.edge_distance()
     }
+    fn skip_rows(&mut self, n: u32) -> anyhow::Result<()> {
+        self.inner.skip_rows(n)
+    }
+
+    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+        self.inner.set_columns(columns)
+    }
+
     fn buffer_bytes(&self) -> u64 {
         self.inner.buffer_bytes()
     }
