@@ -359,17 +359,18 @@ impl Prepared {
     /// Reads only `footprint` of the input, for a part of a distributed build
     /// ([`parts::share_read`]): the whole build's samples and quantization there, or
     /// why the share cannot stand alone (the caller then prepares and reads the whole
-    /// input). Synthetic terrain is generated where it is read, so it needs nothing.
+    /// input); with the samples read, `None` for synthetic terrain, generated where
+    /// it is read.
     pub(super) fn load_share(
         self,
         dir: &Path,
         footprint: &parts::footprint::Footprint,
         opts: &BuildOptions,
         started: Instant,
-    ) -> anyhow::Result<Result<(Loaded, u64), String>> {
+    ) -> anyhow::Result<Result<(Loaded, Option<u64>), String>> {
         let stated = stated_range(opts);
         let rows = match &self.source {
-            Input::Synthetic(_) => return self.load(dir, opts, started).map(|l| Ok((l, 0))),
+            Input::Synthetic(_) => return self.load(dir, opts, started).map(|l| Ok((l, None))),
             Input::Rows(rows) => rows,
         };
         if let Some(why) = parts::share_read::needs_whole(rows.as_ref(), stated.as_ref()) {
@@ -404,7 +405,11 @@ impl Prepared {
             parts::share_read::Share::Read { file, samples } => (file, samples),
             parts::share_read::Share::Whole(why) => return Ok(Err(why)),
         };
-        tracing::debug!(seconds = started.elapsed().as_secs_f64(), samples, "share spooled");
+        tracing::debug!(
+            seconds = started.elapsed().as_secs_f64(),
+            samples,
+            "share spooled"
+        );
         meta.quantization =
             quantizer.to_metres(opts.scale, opts.offset, info.sample_type.is_integer());
         let spooled = spool::SpooledRaster::from_share(
@@ -422,7 +427,7 @@ impl Prepared {
                 meta,
                 support,
             },
-            samples,
+            Some(samples),
         )))
     }
 }

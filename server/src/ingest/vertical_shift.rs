@@ -182,7 +182,11 @@ impl RowSource for VerticalShift {
         let w = self.info.width as usize;
         let all = [0..self.info.width];
         let columns = std::mem::take(&mut self.columns);
-        let spans = if columns.is_empty() { &all[..] } else { &columns[..] };
+        let spans = if columns.is_empty() {
+            &all[..]
+        } else {
+            &columns[..]
+        };
         for line in out.chunks_exact_mut(w) {
             for span in spans {
                 self.shifts_at(self.row, span.clone()).with_context(|| {

@@ -176,9 +176,8 @@ mod tests {
                 let fp = Footprint::of(&g, split.level, tops.clone());
                 let runs = fp.runs();
                 let read = |(x, y): (u32, u32)| {
-                    runs.iter().any(|r| {
-                        r.rows.contains(&y) && r.columns.iter().any(|c| c.contains(&x))
-                    })
+                    runs.iter()
+                        .any(|r| r.rows.contains(&y) && r.columns.iter().any(|c| c.contains(&x)))
                 };
                 let finest = g.finest();
                 let depth = 2 * u32::from(finest.get() - split.level.get());
@@ -206,7 +205,10 @@ mod tests {
             // corner samples.
             let whole = u64::from(w) * u64::from(h);
             assert!(total >= whole, "{w}×{h}/{n}: {total} < {whole}");
-            assert!(total * 10 < whole * 12, "{w}×{h}/{n}: {total} read of {whole}");
+            assert!(
+                total * 10 < whole * 12,
+                "{w}×{h}/{n}: {total} read of {whole}"
+            );
         }
     }
 
@@ -227,7 +229,14 @@ mod tests {
         // (1024, 512), (0, 0), (0, 1024), (1024, 1024); those in the window dropped.
         assert_eq!(
             fp.points,
-            vec![(0, 0), (0, 1024), (512, 0), (512, 512), (1024, 512), (1024, 1024)]
+            vec![
+                (0, 0),
+                (0, 1024),
+                (512, 0),
+                (512, 512),
+                (1024, 512),
+                (1024, 1024)
+            ]
         );
     }
 }

@@ -94,12 +94,15 @@ pub fn build_part(
     let footprint = Footprint::of(&geometry, split.level, tops.clone());
     let whole = u64::from(geometry.width()) * u64::from(geometry.height());
     let (loaded, read) = match prepared.load_share(&scratch, &footprint, opts, started)? {
-        Ok((loaded, 0)) => (loaded, PartRead::Generated),
-        Ok((loaded, samples)) => (loaded, PartRead::Share { samples, of: whole }),
+        Ok((loaded, None)) => (loaded, PartRead::Generated),
+        Ok((loaded, Some(samples))) => (loaded, PartRead::Share { samples, of: whole }),
         Err(why) => {
             tracing::debug!(k = spec.k, n = spec.n, "reading the whole input: {why}");
             let prepared = crate::builder::prepare(inputs, &folders, spec.n, opts)?;
-            (prepared.load(&scratch, opts, started)?, PartRead::Whole(why))
+            (
+                prepared.load(&scratch, opts, started)?,
+                PartRead::Whole(why),
+            )
         }
     };
     let raster = loaded.dem.raster();

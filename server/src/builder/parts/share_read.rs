@@ -87,10 +87,7 @@ pub(crate) fn read(
                 let y = u64::from(row) + i as u64;
                 for c in &run.columns {
                     let span = &line[c.start as usize..c.end as usize];
-                    if let Some(at) = span
-                        .iter()
-                        .position(|v| v.is_nan() || Some(*v) == nodata)
-                    {
+                    if let Some(at) = span.iter().position(|v| v.is_nan() || Some(*v) == nodata) {
                         return Ok(Share::Whole(format!(
                             "its share holds no-data (sample {}, {y}), which is filled from \
                              the nearest valid sample across the whole input",

@@ -558,7 +558,8 @@ impl RowSource for Mosaic {
             bail!("skipped past the mosaic's last row");
         }
         let pieces = &self.pieces;
-        self.open.retain(|o| pieces[o.index].y + pieces[o.index].h > target);
+        self.open
+            .retain(|o| pieces[o.index].y + pieces[o.index].h > target);
         for o in &mut self.open {
             o.reader
                 .skip_rows(n)

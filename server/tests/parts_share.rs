@@ -1,0 +1,296 @@
+//! Each part of a distributed build reads only its share of the input (DECISIONS.md
+//! "Distributed build"), with the real binary on real data cut by GDAL: a mosaic of
+//! Cloud-Optimized GeoTIFF pieces is read about once across all parts, a part whose
+//! share holds no-data (a gap in the collection) reads the whole input and says so,
+//! floating-point samples read their share with `--height-range`; and whatever each part
+//! read, the assembled pyramid is byte for byte the single build's.
+
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
+mod gdal;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use tessera_shared::testdata;
+
+/// Runs `tessera-server build ARGS… --quiet`; its stdout, or its stderr as the error.
+fn build(args: &[&str]) -> Result<String, String> {
+    let o = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
+        .arg("build")
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    if o.status.success() {
+        Ok(String::from_utf8_lossy(&o.stdout).into_owned())
+    } else {
+        Err(String::from_utf8_lossy(&o.stderr).into_owned())
+    }
+}
+
+fn text(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// 16 COG pieces of 512² (256² tiles, deflate, overviews) of the moon mosaic's
+/// north-west 2048², in `dir`: `p{row}{col}.tif`.
+fn cog_pieces(dir: &Path) -> Option<Vec<PathBuf>> {
+    let png = testdata::dem_or_skip("moon_crisium_gld100_4096.png")?;
+    if !gdal::gdal_or_skip() {
+        return None;
+    }
+    let whole = dir.join("whole.tif");
+    // 236.9 m samples (the data README); any georeferencing on one grid will do.
+    gdal::run(
+        "gdal_translate",
+        &[
+            "-q",
+            "-srcwin",
+            "0",
+            "0",
+            "2048",
+            "2048",
+            "-a_ullr",
+            "0",
+            "485171.2",
+            "485171.2",
+            "0",
+            text(&png),
+            text(&whole),
+        ],
+    );
+    let mut pieces = Vec::new();
+    for r in 0..4 {
+        for c in 0..4 {
+            let p = dir.join(format!("p{r}{c}.tif"));
+            let (x, y) = ((c * 512).to_string(), (r * 512).to_string());
+            gdal::run(
+                "gdal_translate",
+                &[
+                    "-q",
+                    "-of",
+                    "COG",
+                    "-co",
+                    "BLOCKSIZE=256",
+                    "-co",
+                    "COMPRESS=DEFLATE",
+                    "-srcwin",
+                    &x,
+                    &y,
+                    "512",
+                    "512",
+                    text(&whole),
+                    text(&p),
+                ],
+            );
+            pieces.push(p);
+        }
+    }
+    std::fs::remove_file(whole).unwrap();
+    Some(pieces)
+}
+
+/// How a part's stdout says it read: `Some((samples, of))` for its share, `None` for the
+/// whole input (the line must say why).
+fn share_read(stdout: &str) -> Option<(u64, u64)> {
+    if let Some(line) = stdout
+        .lines()
+        .find(|l| l.starts_with("read the whole input: "))
+    {
+        assert!(
+            line.len() > "read the whole input: ".len() + 10,
+            "no reason: {line}"
+        );
+        return None;
+    }
+    let line = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("read its share of the input: "))
+        .unwrap_or_else(|| panic!("no line on what the part read: {stdout}"));
+    let words: Vec<&str> = line.split_whitespace().collect();
+    Some((words[0].parse().unwrap(), words[2].parse().unwrap()))
+}
+
+/// Builds parts `0..n` of `input` (plus `flags`) into `dir` and assembles them into
+/// `out`; what each part's stdout says it read.
+fn parts(
+    input: &[&str],
+    flags: &[&str],
+    n: u32,
+    dir: &Path,
+    out: &Path,
+) -> Vec<Option<(u64, u64)>> {
+    let reads = (0..n)
+        .map(|k| {
+            let spec = format!("{k}/{n}");
+            let args: Vec<&str> = input
+                .iter()
+                .chain(flags)
+                .copied()
+                .chain(["--part", &spec, "-o", text(dir)])
+                .collect();
+            share_read(&build(&args).unwrap())
+        })
+        .collect();
+    build(&["--assemble", text(dir), "-o", text(out)]).unwrap();
+    reads
+}
+
+fn assert_same_bytes(a: &Path, b: &Path) {
+    let (x, y) = (std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
+    assert!(
+        x == y,
+        "{} and {} differ ({} and {} bytes)",
+        a.display(),
+        b.display(),
+        x.len(),
+        y.len()
+    );
+}
+
+#[test]
+fn a_cog_mosaic_is_read_about_once_across_its_parts() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some(_) = cog_pieces(tmp.path()) else {
+        return;
+    };
+    let folder = format!("{}/", tmp.path().display());
+    let flags = ["--tile-size", "64"];
+    let single = tmp.path().join("single.tess");
+    build(&[&folder, "--tile-size", "64", "-o", text(&single)]).unwrap();
+    let out = tmp.path().join("assembled.tess");
+    let reads = parts(&[&folder], &flags, 16, &tmp.path().join("parts"), &out);
+    let whole = 2048 * 2048;
+    let mut total = 0;
+    for (k, r) in reads.iter().enumerate() {
+        let (samples, of) = r.unwrap_or_else(|| panic!("part {k} read the whole input"));
+        assert_eq!(of, whole);
+        // A sixteenth, plus its windows' shared edges and a few coarse corners.
+        assert!(samples < whole / 16 + whole / 64, "part {k} read {samples}");
+        total += samples;
+    }
+    // Across the parts: the DEM once, plus the edges two windows share.
+    assert!(
+        total >= whole && total * 100 <= whole * 102,
+        "{total} of {whole}"
+    );
+    assert_same_bytes(&single, &out);
+}
+
+#[test]
+fn parts_over_a_gap_in_the_collection_read_the_whole_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some(pieces) = cog_pieces(tmp.path()) else {
+        return;
+    };
+    // Fifteen pieces: the one at row 1, column 2 missing leaves a hole of no-data
+    // inside the mosaic, filled from its nearest valid samples across the input.
+    let list = tmp.path().join("list.txt");
+    let names: Vec<String> = pieces
+        .iter()
+        .filter(|p| !p.ends_with("p12.tif"))
+        .map(|p| p.display().to_string())
+        .collect();
+    std::fs::write(&list, names.join("\n")).unwrap();
+    let input = ["--inputs", text(&list)];
+    let single = tmp.path().join("single.tess");
+    build(&[
+        "--inputs",
+        text(&list),
+        "--tile-size",
+        "64",
+        "-o",
+        text(&single),
+    ])
+    .unwrap();
+    let out = tmp.path().join("assembled.tess");
+    let reads = parts(
+        &input,
+        &["--tile-size", "64"],
+        16,
+        &tmp.path().join("parts"),
+        &out,
+    );
+    let whole = reads.iter().filter(|r| r.is_none()).count();
+    // The hole is 512² of the 2048² mosaic: the parts whose 512² share meets it,
+    // with its one-sample edge or a coarse corner, read everything; the others do not.
+    assert!(
+        (1..=4).contains(&whole),
+        "{whole} of 16 parts read the whole input"
+    );
+    assert!(reads.iter().filter(|r| r.is_some()).count() >= 12);
+    assert_same_bytes(&single, &out);
+}
+
+#[test]
+fn float_samples_read_their_share_given_a_height_range() {
+    let Some(dem) = testdata::dem_or_skip("aletsch.tif") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = text(&dem).to_string();
+    // aletsch.tif is float32, heights 502.0 .. 4216.3 m (the data README).
+    let flags = ["--tile-size", "64", "--height-range", "500,4500"];
+    let single = tmp.path().join("single.tess");
+    let args: Vec<&str> = [dem.as_str()]
+        .into_iter()
+        .chain(flags)
+        .chain(["-o", text(&single)])
+        .collect();
+    build(&args).unwrap();
+    let out = tmp.path().join("assembled.tess");
+    let reads = parts(&[&dem], &flags, 4, &tmp.path().join("parts"), &out);
+    assert!(reads.iter().all(Option::is_some), "{reads:?}");
+    assert_same_bytes(&single, &out);
+
+    // Without the range, each part reads the whole input to learn it, and says so.
+    let stdout = build(&[
+        &dem,
+        "--tile-size",
+        "64",
+        "--part",
+        "0/4",
+        "-o",
+        text(&tmp.path().join("p2")),
+    ])
+    .unwrap();
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("read the whole input"))
+        .unwrap();
+    assert!(
+        line.contains("floating-point") && line.contains("--height-range"),
+        "{line}"
+    );
+
+    // A range that leaves heights out is refused, naming it, and leaves no part.
+    let dir = tmp.path().join("p3");
+    for k in 0..4 {
+        let spec = format!("{k}/4");
+        let e = build(&[
+            &dem,
+            "--tile-size",
+            "64",
+            "--height-range",
+            "1000,4500",
+            "--part",
+            &spec,
+            "-o",
+            text(&dir),
+        ])
+        .unwrap_err();
+        assert!(e.contains("outside --height-range 1000,4500"), "{e}");
+        assert!(e.contains("aletsch.tif"), "{e}");
+    }
+    let left: Vec<_> = std::fs::read_dir(&dir).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+    let e = build(&[
+        &dem,
+        "--height-range",
+        "4500,1000",
+        "-o",
+        text(&tmp.path().join("x.tess")),
+    ])
+    .unwrap_err();
+    assert!(e.contains("MIN (4500) must be below MAX (1000)"), "{e}");
+}
