@@ -7,6 +7,7 @@
 #     pyramids;
 #  2. how the build scales with cores: `synthetic:16385` and the local pieces at
 #     RAYON_NUM_THREADS=1 and 2, alternating, RUNS times.
+#  3. parts that read only their share: the s3:// pieces as 4 and 16 parts.
 # Prints Markdown tables of every run and the medians; the commands are the ones shown.
 # SCALING=0 skips part 2.
 source "$(dirname "$0")/common.sh"
@@ -84,6 +85,32 @@ ms=$(printf '%s\n' "${rows[@]}" | awk '$1=="s3"{print $2}' | median)
 echo
 echo "medians: local $ml s, s3 $ms s ($(echo "scale=2; $ms / $ml" | bc)×); pyramids identical"
 echo "s3: $fetched; full-resolution tile bytes $tile_bytes"
+
+# 3. Parts that read only their share: the pieces from s3:// as N = 4 and 16 parts, one
+#    after another; bytes fetched by all parts against the whole build's, the slowest
+#    part's wall time, and `cmp` of the assembled pyramid with the whole build's.
+echo
+echo "| parts | bytes fetched, all parts | ÷ whole build's | slowest part wall s | median part wall s |"
+echo "|---|---|---|---|---|"
+whole_bytes=$(echo "$fetched" | awk '{print $2}')
+for n in 4 16; do
+  dir=$WORK/inputs/parts$n
+  rm -rf "$dir"
+  sum=0
+  walls=()
+  for k in $(seq 0 $((n - 1))); do
+    read -r _ wall _ _ _ < <(timed part "$SERVER_BIN" build s3://bench/pieces/ --part "$k/$n" -o "$dir" --quiet)
+    grep -q '^read its share' "$WORK/inputs/stdout" || { cat "$WORK/inputs/stdout" >&2; exit 1; }
+    sum=$((sum + $(awk '/^read [0-9]+ bytes/ {print $2}' "$WORK/inputs/stdout")))
+    walls+=("$wall")
+  done
+  "$SERVER_BIN" build --assemble "$dir" -o "$WORK/inputs/assembled.tess" --quiet > /dev/null
+  cmp "$WORK/inputs/s3.tess" "$WORK/inputs/assembled.tess" || { echo "assembled $n parts differ" >&2; exit 1; }
+  slowest=$(printf '%s\n' "${walls[@]}" | sort -n | tail -1)
+  mid=$(printf '%s\n' "${walls[@]}" | median)
+  echo "| $n | $sum | $(echo "scale=3; $sum / $whole_bytes" | bc) | $slowest | $mid |"
+done
+echo "(whole build from s3: $whole_bytes bytes; assembled pyramids identical to it)"
 
 [ "${SCALING:-1}" = 0 ] && exit 0
 echo

@@ -58,7 +58,10 @@ enum Command {
     /// Distributed build (e.g. a Kubernetes Indexed Job): `build INPUT --part K/N -o PARTS/`
     /// in N processes, one per K, then `build --assemble PARTS/ -o OUT.tess` once. The
     /// assembled file is byte for byte the one a single `build INPUT -o OUT.tess` with the
-    /// same options writes. Each part reads the whole input.
+    /// same options writes. Each part reads only its share of the input (from a COG or a
+    /// mosaic, the tiles and files under its subtrees), unless its share holds no-data
+    /// or the samples are floating-point without --height-range: it then reads the
+    /// whole input, and says why.
     Build {
         /// The DEMs to read (files, directories, quoted glob patterns, .vrt files, or the
         /// same as s3://, gs://, az://, http(s):// URLs), or synthetic:SIZE[:SEED].

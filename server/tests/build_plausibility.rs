@@ -84,14 +84,15 @@ fn a_vrt_declaring_more_than_the_disk_holds_is_refused_before_spooling() {
     );
     assert!(line.contains("spooling them writes "), "{line}");
     assert!(line.contains(&d.display().to_string()), "{line}");
-    // A part of a distributed build spools in TMPDIR: the same refusal, naming it.
+    // A part of a distributed build spools in TMPDIR: the same refusal, naming it
+    // (one part of one: a part of N spools its 1/N share at least).
     let parts = d.join("parts");
     let o = bin()
         .arg("build")
         .arg(&vrt)
         .args([
             "--part",
-            "0/2",
+            "0/1",
             "--quiet",
             "--max-samples",
             &u64::MAX.to_string(),

@@ -229,6 +229,15 @@ pub(super) fn prepare(
     let geometry =
         TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
     let spool = match &source {
+        // A part spools its share at least, and the whole input when its share
+        // cannot stand alone (`parts::share_read`): a warning if that cannot fit.
+        Input::Rows(_) if share > 1 => {
+            let whole = plausible::spool_need(size);
+            plausible::DiskNeed {
+                least: whole.least / u64::from(share),
+                most: whole.most,
+            }
+        }
         Input::Rows(_) => plausible::spool_need(size),
         Input::Synthetic(_) => plausible::DiskNeed::default(),
     };

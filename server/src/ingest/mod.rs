@@ -93,11 +93,12 @@ pub trait RowSource: Send + std::fmt::Debug {
         Ok(())
     }
 
-    /// Which columns the caller reads from the rows that follow (sorted, disjoint
-    /// ranges); samples outside them may hold anything. A hint: a tiled GeoTIFF then
-    /// fetches and decodes only the tiles over them, a mosaic opens only the inputs
-    /// over them. The default reads every column.
-    fn set_columns(&mut self, _columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+    /// What the caller reads next: of the rows before row `until`, the columns
+    /// `columns` (sorted, disjoint ranges); samples outside them may hold anything. A
+    /// hint: a tiled GeoTIFF then fetches and decodes only the tiles under them and
+    /// fetches nothing ahead past `until`, a mosaic opens only the inputs under them.
+    /// The default reads every column.
+    fn set_window(&mut self, _columns: &[std::ops::Range<u32>], _until: u32) -> anyhow::Result<()> {
         Ok(())
     }
 

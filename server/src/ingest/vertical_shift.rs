@@ -56,7 +56,7 @@ pub struct VerticalShift {
     nodata: Vec<f32>,
     row: u32,
     points: Vec<[f64; 3]>,
-    /// The columns read ([`RowSource::set_columns`]): only they are converted.
+    /// The columns read ([`RowSource::set_window`]): only they are converted.
     columns: Vec<std::ops::Range<u32>>,
 }
 
@@ -218,8 +218,8 @@ impl RowSource for VerticalShift {
         Ok(())
     }
 
-    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
-        self.inner.set_columns(columns)?;
+    fn set_window(&mut self, columns: &[std::ops::Range<u32>], until: u32) -> anyhow::Result<()> {
+        self.inner.set_window(columns, until)?;
         self.columns = columns.to_vec();
         Ok(())
     }

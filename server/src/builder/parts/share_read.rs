@@ -77,7 +77,7 @@ pub(crate) fn read(
             rows.skip_rows(run.rows.start - row)?;
             row = run.rows.start;
         }
-        rows.set_columns(&run.columns)?;
+        rows.set_window(&run.columns, run.rows.end)?;
         while row < run.rows.end {
             check()?;
             let n = band_rows.min((run.rows.end - row) as usize);

@@ -86,9 +86,11 @@ pub struct GeoTiff {
     band_rows: u32,
     /// The next row `read_rows` returns.
     next_row: u32,
-    /// The columns read ([`RowSource::set_columns`]; empty: all): a tiled file decodes
+    /// The columns read ([`RowSource::set_window`]; empty: all): a tiled file decodes
     /// only the tiles over them.
     columns: Vec<std::ops::Range<u32>>,
+    /// No band starting at or after this row is fetched ahead.
+    until: u32,
     /// Set when decoding failed: the decoder's state is then unknown.
     failed: bool,
     /// What the file (or its name) says about the heights' vertical datum.
@@ -414,6 +416,7 @@ impl GeoTiff {
             band_rows: 0,
             next_row: 0,
             columns: Vec::new(),
+            until: u32::MAX,
             failed: false,
             datum,
         })
@@ -472,7 +475,7 @@ impl GeoTiff {
         if let Some(p) = &self.prefetch {
             p.band(&self.band_ranges(index))?;
             let bands = self.info.height.div_ceil(band_height);
-            if index + 1 < bands {
+            if index + 1 < bands && (index + 1) * band_height < self.until {
                 p.ahead(&self.band_ranges(index + 1));
             }
         }
@@ -694,7 +697,8 @@ impl RowSource for GeoTiff {
         Ok(())
     }
 
-    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
+    fn set_window(&mut self, columns: &[std::ops::Range<u32>], until: u32) -> anyhow::Result<()> {
+        self.until = until;
         if self.columns != columns {
             self.columns = columns.to_vec();
             if matches!(self.layout, Layout::Tiles { .. }) {

@@ -136,9 +136,11 @@ pub struct Mosaic {
     feather: Option<(f64, [f64; 2])>,
     /// Per sample of a row while feathering: the weighted sum and the weight left.
     blend: Vec<(f64, f64)>,
-    /// The columns read ([`RowSource::set_columns`]; empty: all): inputs wholly
+    /// The columns read ([`RowSource::set_window`]; empty: all): inputs wholly
     /// outside them are not opened.
     columns: Vec<std::ops::Range<u32>>,
+    /// The row before which the caller reads ([`RowSource::set_window`]).
+    until: u32,
 }
 
 /// How [`Mosaic::open_with`] treats its inputs.
@@ -343,6 +345,7 @@ impl Mosaic {
             feather,
             blend: Vec::new(),
             columns: Vec::new(),
+            until: u32::MAX,
         })
     }
 
@@ -404,10 +407,13 @@ impl Mosaic {
     fn open_at(&mut self, i: usize, skip: u32) -> anyhow::Result<()> {
         let mut opened = self.open_piece(i)?;
         let p = &self.pieces[i];
-        if !self.columns.is_empty() {
+        if !self.columns.is_empty() || self.until != u32::MAX {
             opened
                 .reader
-                .set_columns(&source_columns(&self.columns, p))
+                .set_window(
+                    &source_columns(&self.columns, p),
+                    source_until(self.until, p),
+                )
                 .with_context(|| p.name.clone())?;
         }
         if skip > 0 {
@@ -484,6 +490,14 @@ fn source_columns(columns: &[std::ops::Range<u32>], p: &Piece) -> Vec<std::ops::
             (a < b).then(|| a - p.x + p.src_x..b - p.x + p.src_x)
         })
         .collect()
+}
+
+/// Row `until` of the mosaic as a row of `p`'s source (`u32::MAX`: none).
+fn source_until(until: u32, p: &Piece) -> u32 {
+    if until == u32::MAX {
+        return until;
+    }
+    until.clamp(p.y, p.y + p.h) - p.y + p.src_y
 }
 
 /// The largest sum of open pieces' memory over the rows: pieces are open from their
@@ -580,18 +594,19 @@ impl RowSource for Mosaic {
         Ok(())
     }
 
-    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
-        if self.columns == columns {
+    fn set_window(&mut self, columns: &[std::ops::Range<u32>], until: u32) -> anyhow::Result<()> {
+        if self.columns == columns && self.until == until {
             return Ok(());
         }
         self.columns = columns.to_vec();
+        self.until = until;
         let pieces = &self.pieces;
         let cols = &self.columns;
         self.open.retain(|o| wanted(cols, &pieces[o.index]));
         for o in &mut self.open {
             let p = &pieces[o.index];
             o.reader
-                .set_columns(&source_columns(cols, p))
+                .set_window(&source_columns(cols, p), source_until(until, p))
                 .with_context(|| p.name.clone())?;
         }
         // Inputs passed over while they lay outside the columns, wanted now: opened

@@ -189,8 +189,8 @@ impl RowSource for Spooled {
         self.inner.skip_rows(n)
     }
 
-    fn set_columns(&mut self, columns: &[std::ops::Range<u32>]) -> anyhow::Result<()> {
-        self.inner.set_columns(columns)
+    fn set_window(&mut self, columns: &[std::ops::Range<u32>], until: u32) -> anyhow::Result<()> {
+        self.inner.set_window(columns, until)
     }
 
     fn buffer_bytes(&self) -> u64 {
