@@ -33,6 +33,19 @@ def parse_dockerfile(text: str) -> list[tuple[int, str, str]]:
     return out
 
 
+def image_args(ins: list[tuple[int, str, str]]) -> dict[str, str | None]:
+    """The global ARGs (those before the first FROM, which FROM lines may use) and their
+    defaults (None: no default)."""
+    out: dict[str, str | None] = {}
+    for _, instr, args in ins:
+        if instr == "FROM":
+            break
+        if instr == "ARG":
+            name, eq, default = args.partition("=")
+            out[name.strip()] = default.strip().strip('"') if eq else None
+    return out
+
+
 def exec_form(args: str) -> list[str] | None:
     try:
         v = json.loads(args)
@@ -54,7 +67,8 @@ D9  the final stage's last USER is numeric and not 0/root
 D10 HEALTHCHECK in the final stage, on /healthz/live, exec form
 D11 ENTRYPOINT ["tessera-server"] and CMD in exec form, CMD starts with serve
 D12 EXPOSE 8080 = the CMD's --listen port = the HEALTHCHECK's port
-D13 only the built binaries are copied from the builder"""
+D13 only the built binaries are copied from the builder
+D14 every base image is a global `ARG NAME_IMAGE=<pinned default>` that its FROM names (local bases: deploy/image.py)"""
 
 
 def lint_dockerfile(text: str) -> list[str]:
@@ -63,6 +77,7 @@ def lint_dockerfile(text: str) -> list[str]:
     first = text.lstrip().splitlines()[0] if text.strip() else ""
     if not re.match(r"#\s*syntax=docker/dockerfile:1(\.\d+)?\s*$", first):
         problems.append("D1: no `# syntax=docker/dockerfile:1.x` parser directive on line 1")
+    global_args = image_args(ins)
     stages: list[dict] = []
     for line, instr, args in ins:
         if instr == "FROM":
@@ -70,7 +85,13 @@ def lint_dockerfile(text: str) -> list[str]:
             if not m:
                 problems.append(f"line {line}: D2: cannot parse FROM {args}")
                 continue
-            stages.append({"image": m.group(1), "name": m.group(2), "ins": [], "line": line})
+            written = m.group(1)
+            ref = re.fullmatch(r"\$\{?(\w+)\}?", written)
+            image = global_args.get(ref.group(1)) if ref else written
+            if ref and image is None:
+                problems.append(f"line {line}: D14: FROM {written} names no global ARG with a default")
+                image = written
+            stages.append({"image": image, "written": written, "name": m.group(2), "ins": [], "line": line})
         elif stages:
             stages[-1]["ins"].append((line, instr, args))
     if len(stages) < 2 or not stages[0]["name"]:
@@ -82,6 +103,8 @@ def lint_dockerfile(text: str) -> list[str]:
         img = s["image"]
         if img in names:
             continue
+        if not re.fullmatch(r"\$\{?\w+_IMAGE\}?", s["written"]):
+            problems.append(f"line {s['line']}: D14: FROM {s['written']} is not a global NAME_IMAGE build argument")
         base, tag, digest = split_image(img)
         if not (tag or digest) or tag == "latest":
             problems.append(f"line {s['line']}: D3: base image {img} is not pinned by a tag")

@@ -1,4 +1,4 @@
-"""deploy/Dockerfile: hadolint, this project's own rules D1-D13 (dockerfile_rules.py),
+"""deploy/Dockerfile: hadolint, this project's own rules D1-D14 (dockerfile_rules.py),
 .dockerignore; a broken copy must be rejected by both linters."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ def read_dockerfile() -> str:
 
 
 def rule_of(problem: str) -> str:
-    """The rule (D1...D13) a lint problem names."""
+    """The rule (D1...D14) a lint problem names."""
     return re.search(r"\bD\d+\b", problem).group(0)
 
 
@@ -54,10 +54,11 @@ def test_dockerignore_keeps_git_target_out_and_node_modules_out():
 
 @pytest.fixture
 def broken_dockerfile() -> str:
-    """FROM ...:latest, USER root, ADD of a URL and apt lists left behind."""
+    """FROM ...:latest (a literal image, not a build argument), USER root, ADD of a URL
+    and apt lists left behind."""
     bad = read_dockerfile()
     for old, new in (
-        ("FROM debian:12.12-slim AS runtime", "FROM debian:latest AS runtime"),
+        ("FROM ${RUNTIME_IMAGE} AS runtime", "FROM debian:latest AS runtime"),
         ("USER 10001:10001", "USER root"),
         ("COPY --from=builder", "ADD https://example.invalid/x.tar.gz /opt/\nCOPY --from=builder"),
         (" \\\n && rm -rf /var/lib/apt/lists/*", ""),
@@ -68,7 +69,19 @@ def broken_dockerfile() -> str:
 
 def test_own_lint_catches_latest_user_root_add_url_and_apt_lists(broken_dockerfile):
     problems = lint_dockerfile(broken_dockerfile)
-    assert {"D3", "D6", "D8", "D9"} <= {rule_of(p) for p in problems}, f"found {problems}"
+    assert {"D3", "D6", "D8", "D9", "D14"} <= {rule_of(p) for p in problems}, f"found {problems}"
+
+
+def test_own_lint_resolves_base_image_arguments():
+    """A base image's build argument is checked by its default: an untagged default is
+    caught (D3), and so is a FROM naming an argument that has none (D14)."""
+    text = read_dockerfile()
+    m = re.search(r"^ARG NODE_IMAGE=\S+$", text, re.M)
+    assert m, "the Dockerfile has no `ARG NODE_IMAGE=...` line"
+    untagged = text.replace(m.group(0), "ARG NODE_IMAGE=node")
+    assert "D3" in {rule_of(p) for p in lint_dockerfile(untagged)}
+    no_default = text.replace(m.group(0), "ARG NODE_IMAGE")
+    assert "D14" in {rule_of(p) for p in lint_dockerfile(no_default)}
 
 
 def test_hadolint_rejects_the_broken_dockerfile(tools, broken_dockerfile, tmp_path):
