@@ -16,19 +16,28 @@ venv=${XDG_CACHE_HOME:-$HOME/.cache}/tessera/deploy-venv
 [ -x "$venv/bin/moto_server" ] || deploy/check.sh --tools-only
 free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 
+# UPSAMPLE=K (default 1): the mosaic upsampled K times by GDAL (bilinear) before it is
+# cut, for a collection K² times larger (pieces of 1024·K²; K = 4: 32768², 1.07 × 10⁹
+# samples): parts' footprints then span more COG tiles.
+up=${UPSAMPLE:-1}
+side=$((1024 * up))
 pieces=$WORK/inputs/pieces
 mkdir -p "$pieces"
 if [ ! -s "$pieces/p77.tif" ]; then
-  whole=$WORK/inputs/moon8192.tif
+  whole=$WORK/inputs/moon.tif
   # 118.45 m samples (the data README); any georeferencing on one grid will do.
   gdal_translate -q -a_ullr 0 970342.4 970342.4 0 "$DEM/moon_crisium_gld100_8192.png" "$whole"
+  if [ "$up" != 1 ]; then
+    gdal_translate -q -of VRT -r bilinear -outsize $((8192 * up)) $((8192 * up)) "$whole" "$whole.vrt"
+    whole=$whole.vrt
+  fi
   for r in $(seq 0 7); do
     for c in $(seq 0 7); do
       gdal_translate -q -of COG -co BLOCKSIZE=512 -co COMPRESS=DEFLATE \
-        -srcwin $((c * 1024)) $((r * 1024)) 1024 1024 "$whole" "$pieces/p$r$c.tif"
+        -srcwin $((c * side)) $((r * side)) $side $side "$whole" "$pieces/p$r$c.tif"
     done
   done
-  rm -f "$whole"
+  rm -f "$WORK/inputs/moon.tif" "$WORK/inputs/moon.tif.vrt"
 fi
 # The full-resolution tiles' stored bytes (first image's TileByteCounts), overviews and
 # headers left out.

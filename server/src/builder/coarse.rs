@@ -7,12 +7,11 @@ use super::node::{Encoded, Node, encode};
 use super::sink::Sink;
 use indicatif::ProgressBar;
 use tessera_shared::tile::BLOCKS;
-use tessera_shared::{CellMask, Level, Morton, Quantization, TileGeometry};
+use tessera_shared::{CellMask, Level, Morton, TileGeometry};
 
 /// Post-order assembly of coarse tiles as their children arrive in Morton order.
 pub(super) struct Aggregator<'a> {
     pub(super) geometry: TileGeometry,
-    pub(super) quant: Quantization,
     pub(super) spacings: u32,
     /// The coarsest level assembled: the root for a whole build, the split level for
     /// a part of a distributed build. Its nodes go to [`Sink::top`], not to a parent.
@@ -78,7 +77,7 @@ impl Aggregator<'_> {
         if m.quadrant() == 3 {
             let children = std::mem::take(slot);
             let parent = self.assemble(&children).map(|node| {
-                let enc = encode(&node, &self.geometry, parent_level, &self.quant);
+                let enc = encode(&node, &self.geometry, parent_level);
                 (node, enc)
             });
             // Freed before the parent cascades upward, so each level holds at most

@@ -3,10 +3,10 @@
 //! §4.1), masked.
 
 use super::mesh_error::{self, CoarseCorners};
-use super::node::Node;
+use super::node::{Node, to_metres};
 use crate::ingest::raster::Raster;
 use tessera_shared::tile::BLOCKS;
-use tessera_shared::{CellMask, TileGeometry, TileId};
+use tessera_shared::{CellMask, Quantization, TileGeometry, TileId};
 
 /// Corner heights of the coarse cells (spacing > T) enclosing the finest tile at
 /// global `(gx0, gy0)`, on the padded grid (clamped to the DEM's edge).
@@ -35,12 +35,14 @@ fn coarse_corners(
     Ok(CoarseCorners { cells })
 }
 
-/// Reads a finest tile (clamping the padding to the DEM's edge) and measures it.
+/// Reads a finest tile (clamping the padding to the DEM's edge) and measures it. Its
+/// errors are kept as the metres its records and its ancestors' store (`node.rs`).
 pub(super) fn finest_node(
     raster: &dyn Raster,
     g: &TileGeometry,
     tile: TileId,
     spacings: u32,
+    quant: &Quantization,
 ) -> anyhow::Result<Node> {
     let side = g.tile_samples();
     let (gx0, gy0) = g.origin(tile);
@@ -58,8 +60,11 @@ pub(super) fn finest_node(
         dst[w as usize..].fill(edge);
     }
     let corners = coarse_corners(raster, g, gx0, gy0, spacings)?;
-    let errors =
+    let mut errors =
         mesh_error::finest_tile_errors(&heights, g.tile_log2(), gx0, gy0, &corners, spacings);
+    for v in &mut errors.values {
+        *v = f64::from(to_metres(*v, quant));
+    }
     let (min, max) = block_ranges(&heights, side);
     // Samples beyond the DEM's width and height are padding, never terrain.
     let cells = side as u32 - 1;

@@ -7,8 +7,14 @@ use tessera_shared::format::{FLAG_PARTIAL, IndexEntry};
 use tessera_shared::tile::BLOCKS;
 use tessera_shared::{CellMask, ErrorTable, Level, Quantization, TileGeometry, codec};
 
-/// A tile with what its parent needs: heights, exact block errors for every spacing,
-/// and block min/max (empty blocks are `min = u16::MAX, max = 0`).
+/// A tile with what its parent needs: heights, block errors for every spacing, and
+/// block min/max (empty blocks are `min = u16::MAX, max = 0`).
+///
+/// Errors are in metres as records store them ([`to_metres`]: rounded up to `f32`),
+/// converted once, at the finest level: the conversion is non-decreasing, so the
+/// maximum of converted errors is the converted maximum, and every table is what
+/// pooling exact errors and converting last gives. Held so, a node can be rebuilt
+/// from its record and the errors its record does not store (`build --update`).
 pub(super) struct Node {
     pub(super) heights: Vec<u16>,
     pub(super) errors: BlockErrors,
@@ -35,7 +41,7 @@ pub(super) fn to_metres(steps: f64, q: &Quantization) -> f32 {
     }
 }
 
-pub(super) fn encode(node: &Node, g: &TileGeometry, level: Level, q: &Quantization) -> Encoded {
+pub(super) fn encode(node: &Node, g: &TileGeometry, level: Level) -> Encoded {
     let t = g.tile_log2();
     let mut table = ErrorTable::empty(t);
     let below = u32::from(g.finest().get() - level.get());
@@ -43,7 +49,7 @@ pub(super) fn encode(node: &Node, g: &TileGeometry, level: Level, q: &Quantizati
         let k = t - n + below;
         for by in 0..BLOCKS {
             for bx in 0..BLOCKS {
-                table.set_error(n, bx, by, to_metres(node.errors.get(k, bx, by), q));
+                table.set_error(n, bx, by, node.errors.get(k, bx, by) as f32);
             }
         }
     }

@@ -56,7 +56,6 @@ impl Tiling<'_> {
         let (first, end) = (tops.start << depth, tops.end << depth);
         let mut agg = Aggregator {
             geometry,
-            quant,
             spacings,
             top,
             pending: (0..=finest.get())
@@ -82,8 +81,8 @@ impl Tiling<'_> {
                             if !geometry.is_present(tile) {
                                 return Ok(None);
                             }
-                            let node = finest_node(raster, &geometry, tile, spacings)?;
-                            let enc = encode(&node, &geometry, finest, &quant);
+                            let node = finest_node(raster, &geometry, tile, spacings, &quant)?;
+                            let enc = encode(&node, &geometry, finest);
                             Ok(Some((node, enc)))
                         })
                         .collect();

@@ -238,7 +238,6 @@ pub fn assemble(dir: &Path, output: &Path, opts: &BuildOptions) -> anyhow::Resul
     // Above it: the parts' roots, through the same aggregation as a whole build.
     let mut agg = Aggregator {
         geometry,
-        quant: meta.quantization,
         spacings: spacings(&geometry),
         top: Level::ROOT,
         pending: (0..=finest.get())

@@ -52,7 +52,7 @@ pub const EXTENSION: &str = "tesspart";
 /// First bytes of a part file.
 pub const MAGIC: [u8; 8] = *b"TESSPART";
 /// Part file format version (FORMAT.md "Part files").
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 /// Fixed header at the start of a part file.
 pub const HEADER_LEN: usize = 64;
 /// The frame before each record: Morton code, length and index summary.
