@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use tessera_server::builder::interrupt::{Interrupt, Interrupted};
 use tessera_server::builder::parts::{PartRead, PartSpec, assemble as assemble_parts, build_part};
+use tessera_server::builder::update::UpdateReport;
 use tessera_server::builder::{BuildOptions, build_inputs};
 use tessera_server::ingest::assign::Bounds;
 use tessera_server::ingest::reproject::{ReprojectOptions, Resampling, parse_spacing};
@@ -143,6 +144,20 @@ enum Command {
         /// exactly whatever the range.
         #[arg(long, value_name = "MIN,MAX", value_parser = parse_height_range, allow_hyphen_values = true)]
         height_range: Option<[f64; 2]>,
+        /// Also write OUT.tess.state (about 1-2 % of the pyramid at --tile-size 512):
+        /// the errors a record does not keep and the inputs read, which `--update` needs
+        /// to update this pyramid later. Not with --part or a multi-resolution pyramid.
+        #[arg(long)]
+        state: bool,
+        /// Update OLD.tess (built with --state) to the pyramid of the inputs given now:
+        /// reads only the inputs added, removed or changed since (by size and ETag or
+        /// modification time), re-encodes only the tiles they touch and copies every
+        /// other record byte for byte; the result is byte for byte what a whole build
+        /// of the inputs with the same options writes, and gets its own .state. When
+        /// that cannot hold (another grid or tile size, no-data, a multi-resolution
+        /// pyramid, reordered inputs, ...), it builds the whole pyramid and says why.
+        #[arg(long, value_name = "OLD.tess", conflicts_with_all = ["part", "assemble"])]
+        update: Option<PathBuf>,
         /// What the heights are measured from, recorded so outputs that need another
         /// reference (Cesium: the ellipsoid) can convert: egm96, egm2008, ellipsoid or
         /// unknown, for every input, or 'PATTERN=DATUM' for the inputs whose file name
@@ -361,6 +376,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             offset,
             nodata,
             height_range,
+            state,
+            update,
             vertical_datum,
             to_vertical,
             crs,
@@ -397,6 +414,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 max_samples,
                 nodata,
                 height_range,
+                state: state || update.is_some(),
                 vertical_datum: {
                     let all: Vec<_> = vertical_datum.iter().filter(|(p, _)| p.is_none()).collect();
                     if all.len() > 1 {
@@ -478,16 +496,24 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 return Ok(ExitCode::SUCCESS);
             }
             // An object URL (s3://…) is built locally first, then uploaded whole.
-            let r =
-                tessera_server::storage::upload::with_output(
-                    &output,
-                    !quiet,
-                    |out| match &assemble {
-                        Some(dir) => assemble_parts(dir, out, &opts),
-                        None => build_inputs(&inputs, out, &opts),
-                    },
+            if opts.state && output.to_string_lossy().contains("://") {
+                anyhow::bail!(
+                    "{}: --state and --update write the pyramid's .state beside it: give a \
+                     local -o (and upload both)",
+                    output.display()
                 );
-            let r = match r {
+            }
+            let r = tessera_server::storage::upload::with_output(&output, !quiet, |out| {
+                match (&assemble, &update) {
+                    (Some(dir), _) => assemble_parts(dir, out, &opts).map(|r| (r, None)),
+                    (None, Some(old)) => {
+                        tessera_server::builder::update::update(&inputs, old, out, &opts)
+                            .map(|(r, u)| (r, Some(u)))
+                    }
+                    (None, None) => build_inputs(&inputs, out, &opts).map(|r| (r, None)),
+                }
+            });
+            let (r, updated) = match r {
                 Ok(r) => r,
                 Err(e) => return interrupted(&e).ok_or(e),
             };
@@ -516,6 +542,29 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     r.fetched.ranged,
                     r.fetched.spooled
                 );
+            }
+            match (&updated, &update) {
+                (
+                    Some(UpdateReport::Updated {
+                        measured,
+                        rewritten,
+                        copied,
+                        samples,
+                    }),
+                    Some(old),
+                ) => println!(
+                    "updated {} from {}: {rewritten} tiles with new bytes, {copied} copied byte \
+                     for byte ({measured} finest tiles measured again); read {samples} of {} \
+                     input samples ({:.1} %)",
+                    output.display(),
+                    old.display(),
+                    r.samples,
+                    100.0 * *samples as f64 / r.samples as f64
+                ),
+                (Some(UpdateReport::Whole(why)), _) => {
+                    println!("built the whole pyramid, not an update: {why}");
+                }
+                _ => {}
             }
             // After the summary, whatever --quiet says: a build that succeeded but whose
             // heights Cesium terrain will misplace.

@@ -43,6 +43,7 @@ impl Aggregator<'_> {
                     && self.support.is_none_or(|s| s.stores(level, m))
                 {
                     sink.record(level, m, record, enc.summary)?;
+                    sink.node(level, m, &node)?;
                     // The heights' range is that of the stored records, every level
                     // (in a whole pyramid the finest level's: the others are its
                     // decimations; a multi-resolution one stores coarse-only places

@@ -31,7 +31,7 @@ impl BlockErrors {
         self.values[(k * BLOCKS * BLOCKS + by * BLOCKS + bx) as usize]
     }
 
-    fn slot(&mut self, k: u32, bx: u32, by: u32) -> &mut f64 {
+    pub fn slot_mut(&mut self, k: u32, bx: u32, by: u32) -> &mut f64 {
         &mut self.values[(k * BLOCKS * BLOCKS + by * BLOCKS + bx) as usize]
     }
 
@@ -43,7 +43,7 @@ impl BlockErrors {
             for cby in 0..BLOCKS {
                 for cbx in 0..BLOCKS {
                     let v = child.get(k, cbx, cby);
-                    let s = self.slot(k, qx * BLOCKS / 2 + cbx / 2, qy * BLOCKS / 2 + cby / 2);
+                    let s = self.slot_mut(k, qx * BLOCKS / 2 + cbx / 2, qy * BLOCKS / 2 + cby / 2);
                     *s = s.max(v);
                 }
             }
@@ -113,7 +113,7 @@ pub fn finest_tile_errors(
                     .copied()
                     .fold(0.0, f64::max);
                 for by in by_lo..=by_hi {
-                    let s = out.slot(k, bx as u32, by as u32);
+                    let s = out.slot_mut(k, bx as u32, by as u32);
                     *s = s.max(m);
                 }
             }

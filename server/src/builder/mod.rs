@@ -34,6 +34,7 @@ mod sink;
 pub mod spool;
 pub mod support;
 mod tiling;
+pub mod update;
 pub mod writer;
 
 use crate::ingest;
@@ -64,6 +65,9 @@ pub struct BuildOptions {
     /// quantized over, checked against every sample; `None`: the input's own range
     /// (known only once all of it is read).
     pub height_range: Option<[f64; 2]>,
+    /// `--state`: also write `OUT.tess.state`, what `build --update` needs to update
+    /// the pyramid later ([`update`]).
+    pub state: bool,
     /// Which input wins where a mosaic's inputs overlap and disagree; `None`: an
     /// error on one grid, the finest input on different grids.
     pub overlap: Option<ingest::Overlap>,
@@ -109,6 +113,7 @@ impl Default for BuildOptions {
             max_samples: plausible::DEFAULT_MAX_SAMPLES,
             nodata: None,
             height_range: None,
+            state: false,
             overlap: None,
             resampling: ingest::reproject::Resampling::Bilinear,
             spacing: None,
@@ -176,10 +181,32 @@ pub fn build_inputs(
     };
     let prepared = prepare(inputs, &folders, 1, opts)?;
     let warnings = prepared.warnings.clone();
+    let state = if opts.state {
+        anyhow::ensure!(
+            !output.to_string_lossy().contains("://"),
+            "{}: --state writes a file beside the pyramid: give a local -o",
+            output.display()
+        );
+        anyhow::ensure!(
+            prepared.support.is_none(),
+            "{}: --state is for pyramids stored whole; this collection builds a \
+             multi-resolution one (add --full-pyramid)",
+            prepared.label
+        );
+        let records = update::input_records(&prepared.input_windows)?;
+        let writer =
+            update::state::StateWriter::create(&update::state::path_of(output), prepared.geometry)?;
+        Some((writer, records))
+    } else {
+        None
+    };
     let writer = create_output(output, prepared.geometry, meta_reserve(&prepared.meta))
         .with_context(|| prepared.label.clone())?;
     let loaded = prepared.load(dir, opts, started)?;
-    let report = build_tiles(&loaded, writer, opts, started)?;
+    let (report, state) = build_tiles(&loaded, writer, state, opts, started)?;
+    if let Some((writer, records)) = state {
+        writer.finish(&report.metadata.content_hash, records)?;
+    }
     let after = ingest::remote::fetched();
     Ok(BuildReport {
         warnings,
@@ -261,12 +288,13 @@ fn count_tiles(geometry: &TileGeometry, levels: impl Iterator<Item = Level>) -> 
 }
 
 /// A whole build: the root's subtree, then the metadata's numbers, then the file.
-fn build_tiles(
+fn build_tiles<S>(
     loaded: &Loaded,
     writer: writer::PyramidWriter,
+    mut state: Option<(update::state::StateWriter, S)>,
     opts: &BuildOptions,
     started: Instant,
-) -> anyhow::Result<BuildReport> {
+) -> anyhow::Result<(BuildReport, Option<(update::state::StateWriter, S)>)> {
     let geometry = loaded.geometry;
     let raster = loaded.dem.raster();
     let mut writer = writer;
@@ -286,13 +314,27 @@ fn build_tiles(
         bar: &tiles_bar,
         support: loaded.support.as_ref(),
     };
-    let (min_q, max_q) = tiling.subtrees(&mut writer, Level::ROOT, 0..1)?;
+    let (min_q, max_q) = match state.as_mut() {
+        Some((state, _)) => tiling.subtrees(
+            &mut update::StateSink {
+                pyramid: &mut writer,
+                state,
+                old: None,
+            },
+            Level::ROOT,
+            0..1,
+        )?,
+        None => tiling.subtrees(&mut writer, Level::ROOT, 0..1)?,
+    };
     tiles_bar.finish_and_clear();
     tracing::debug!(seconds = started.elapsed().as_secs_f64(), "tiles built");
     meta.min_height = quant.height(min_q);
     meta.max_height = quant.height(max_q);
     meta.level_counts = level_counts(&geometry, &raster.depth_counts());
-    finish_output(writer, meta, &geometry, opts, started)
+    Ok((
+        finish_output(writer, meta, &geometry, opts, started)?,
+        state,
+    ))
 }
 /// Valid and filled sample counts of each level (level 0 first) from the raster's
 /// depth counts: level `L` samples every `2^(L_max − L)`-th column and row.

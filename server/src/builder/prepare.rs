@@ -26,6 +26,11 @@ pub(super) struct Prepared {
     pub(super) warnings: Vec<String>,
     /// Which tiles a multi-resolution pyramid stores; `None`: all.
     pub(super) support: Option<super::support::Support>,
+    /// Each input file and its window on the grid (`build --state`).
+    pub(super) input_windows: Vec<(std::path::PathBuf, [u32; 4])>,
+    /// Whether samples were resampled onto the grid (`--to`, or inputs on different
+    /// grids): a changed input then reaches a little past its window.
+    pub(super) resampled: bool,
 }
 
 /// The DEM as the tiler reads it.
@@ -289,6 +294,22 @@ pub(super) fn prepare(
         content_hash: String::new(),
         sources,
     };
+    let input_windows = match &source {
+        Input::Rows(r) => {
+            let w = r.input_windows();
+            if w.is_empty()
+                && let ingest::inputs::Expanded::Files(files) = ingest::inputs::expand(inputs)?
+            {
+                files
+                    .into_iter()
+                    .map(|f| (f, [0, 0, width, height]))
+                    .collect()
+            } else {
+                w
+            }
+        }
+        Input::Synthetic(_) => Vec::new(),
+    };
     Ok(Prepared {
         source,
         spool_nodata,
@@ -298,6 +319,8 @@ pub(super) fn prepare(
         meta,
         warnings: datum.warning.into_iter().collect(),
         support,
+        input_windows,
+        resampled: resampled || reproject.is_some(),
     })
 }
 
@@ -319,6 +342,8 @@ impl Prepared {
             mut meta,
             warnings: _,
             support,
+            input_windows: _,
+            resampled: _,
         } = self;
         let stated = stated_range(opts);
         let dem = match source {
@@ -394,6 +419,8 @@ impl Prepared {
             mut meta,
             warnings: _,
             support,
+            input_windows: _,
+            resampled: _,
         } = self;
         let Input::Rows(mut rows) = source else {
             unreachable!("synthetic terrain returned above")

@@ -19,6 +19,12 @@ pub(super) trait Sink {
 
     /// A tile of the top level the tiler assembles (`None`: absent), in Morton order.
     fn top(&mut self, m: Morton, node: Option<Node>) -> anyhow::Result<()>;
+
+    /// The node of a tile whose record was just stored, for what its record does not
+    /// keep (`build --state`). Most sinks need nothing.
+    fn node(&mut self, _level: Level, _m: Morton, _node: &Node) -> anyhow::Result<()> {
+        Ok(())
+    }
 }
 
 impl Sink for writer::PyramidWriter {

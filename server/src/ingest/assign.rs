@@ -109,6 +109,10 @@ impl RowSource for Assigned {
         self.inner.set_window(columns, until)
     }
 
+    fn input_windows(&self) -> Vec<(std::path::PathBuf, [u32; 4])> {
+        self.inner.input_windows()
+    }
+
     fn buffer_bytes(&self) -> u64 {
         self.inner.buffer_bytes()
     }

@@ -241,3 +241,21 @@ pub fn identity(spec: &InputSpec) -> anyhow::Result<u64> {
     }
     Ok(h.digest())
 }
+
+/// What identifies one input file's content without reading it: its size, and an
+/// object's ETag or a file's modification time (nanoseconds since 1970).
+pub fn file_identity(path: &Path) -> anyhow::Result<(u64, String)> {
+    if let Some(url) = super::remote::url_of(path) {
+        return Ok(super::remote::identity(url)
+            .map(|(size, etag)| (size, etag.unwrap_or_default()))
+            .unwrap_or_default());
+    }
+    let m = std::fs::metadata(path)
+        .with_context(|| format!("{}: cannot read its size", path.display()))?;
+    let modified = m
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map_or(0, |d| d.as_nanos());
+    Ok((m.len(), format!("mtime {modified}")))
+}

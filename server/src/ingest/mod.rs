@@ -109,6 +109,13 @@ pub trait RowSource: Send + std::fmt::Debug {
         None
     }
 
+    /// The files a mosaic is read from and each one's window on its grid, `[x, y,
+    /// width, height]` (`build --state`). Others keep the default: none, and the
+    /// build names its one input itself.
+    fn input_windows(&self) -> Vec<(PathBuf, [u32; 4])> {
+        Vec::new()
+    }
+
     /// Bytes the reader itself holds while reading (decoded bands, chunk buffers),
     /// for the build's memory plan. Small row-at-a-time readers keep the default.
     fn buffer_bytes(&self) -> u64 {

@@ -224,6 +224,10 @@ impl RowSource for VerticalShift {
         Ok(())
     }
 
+    fn input_windows(&self) -> Vec<(std::path::PathBuf, [u32; 4])> {
+        self.inner.input_windows()
+    }
+
     fn buffer_bytes(&self) -> u64 {
         self.inner.buffer_bytes() + u64::from(self.info.width) * (24 + 8 + 4)
     }

@@ -53,6 +53,12 @@ pub struct Footprint {
 impl Footprint {
     /// The samples the subtrees of the level-`split` tiles `tops` read.
     pub fn of(g: &TileGeometry, split: Level, tops: Range<u64>) -> Self {
+        Self::of_tiles(g, split, tops)
+    }
+
+    /// The samples the subtrees of the level-`split` tiles with Morton codes `codes`
+    /// read (for the finest level: those tiles, for `build --update`).
+    pub fn of_tiles(g: &TileGeometry, split: Level, codes: impl IntoIterator<Item = u64>) -> Self {
         let t = g.tile_log2();
         let below = u32::from(g.finest().get() - split.get());
         // Cells of a split-level tile, a side.
@@ -61,7 +67,7 @@ impl Footprint {
         let (last_x, last_y) = (w - 1, h - 1);
         let mut windows = Vec::new();
         let mut corners = BTreeSet::new();
-        for m in tops {
+        for m in codes {
             let tile = TileId::from_morton(split, Morton::from_raw(m)).expect("m < 4^S");
             let (x0, y0) = (u64::from(tile.x()) * f, u64::from(tile.y()) * f);
             if x0 >= w || y0 >= h {

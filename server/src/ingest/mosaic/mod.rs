@@ -626,6 +626,13 @@ impl RowSource for Mosaic {
         Ok(())
     }
 
+    fn input_windows(&self) -> Vec<(PathBuf, [u32; 4])> {
+        self.pieces
+            .iter()
+            .map(|p| (p.path.clone(), [p.x, p.y, p.w, p.h]))
+            .collect()
+    }
+
     fn buffer_bytes(&self) -> u64 {
         self.buffer_bytes + self.feather.map_or(0, |_| u64::from(self.info.width) * 16)
     }

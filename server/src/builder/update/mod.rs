@@ -1,0 +1,581 @@
+//! `build INPUTS… --update OLD.tess -o NEW.tess`: the pyramid of the updated inputs,
+//! byte for byte what a whole build of them writes, from reading only the inputs that
+//! changed and re-encoding only the tiles they touch (DECISIONS.md "Updates").
+//!
+//! - **What changed.** `OLD.tess.state` ([`state`]) lists the inputs the old build read
+//!   (path, size, ETag or modification time, window on the grid). An input added, gone,
+//!   moved or with another size or tag changed; its old and new windows (grown by two
+//!   samples when inputs were resampled onto the grid) are the changed area.
+//! - **What is rebuilt.** A tile's record depends only on the samples of its own
+//!   closed footprint (its errors are measured against cells inside it), so the tiles
+//!   to re-encode are exactly those whose footprint meets the changed area: the
+//!   finest ones and their ancestors. Their finest samples (and the coarse-cell corners
+//!   their errors are measured against) are read as a part reads its share
+//!   (`parts::share_read`).
+//! - **What is copied.** Every other record is copied byte for byte with its index
+//!   entry (so its checksum, the per-tile ETag, stays), and a tile that did not change
+//!   but whose parent did becomes a node again from its record and its state entry.
+//! - **When it cannot.** An update that could not give the whole build's bytes builds
+//!   the whole pyramid instead and says why: another grid, tile size, CRS, datum or
+//!   quantization; no-data in the old pyramid or in what is read (the fill reaches
+//!   across the input); a multi-resolution pyramid; `--feather`; inputs reordered; a
+//!   pyramid of another tessera-server version.
+
+mod composite;
+pub mod state;
+
+use super::coarse::Aggregator;
+use super::finest::finest_node;
+use super::mesh_error::BlockErrors;
+use super::node::{Node, encode};
+use super::sink::Sink;
+use super::{BuildOptions, BuildReport, bar, plausible, writer};
+use crate::ingest;
+use anyhow::{Context, ensure};
+use state::{InputRecord, State, StateWriter};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use tessera_shared::reader::{FileSource, Pyramid};
+use tessera_shared::tile::BLOCKS;
+use tessera_shared::{Level, Morton, TileGeometry, TileId};
+
+/// What an update did.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum UpdateReport {
+    /// Copied `copied` records; measured and encoded `measured` tiles again, of which
+    /// `rewritten` have new bytes; read `samples` input samples.
+    Updated {
+        measured: u64,
+        rewritten: u64,
+        copied: u64,
+        samples: u64,
+    },
+    /// Built whole, and why.
+    Whole(String),
+}
+
+/// The inputs as a state file records them.
+pub(super) fn input_records(windows: &[(PathBuf, [u32; 4])]) -> anyhow::Result<Vec<InputRecord>> {
+    windows
+        .iter()
+        .map(|(path, window)| {
+            let (size, tag) = ingest::inputs::file_identity(path)?;
+            Ok(InputRecord {
+                path: path.to_string_lossy().into_owned(),
+                size,
+                tag,
+                window: *window,
+            })
+        })
+        .collect()
+}
+
+/// A pyramid writer that also writes the update state.
+pub(super) struct StateSink<'a> {
+    pub(super) pyramid: &'a mut writer::PyramidWriter,
+    pub(super) state: &'a mut StateWriter,
+    /// For an update: the old pyramid, and how many re-encoded records differ from
+    /// its (a re-measured tile whose samples did not change encodes as before).
+    pub(super) old: Option<(&'a Pyramid<FileSource>, u64)>,
+}
+
+impl Sink for StateSink<'_> {
+    fn record(
+        &mut self,
+        level: Level,
+        m: Morton,
+        record: &[u8],
+        summary: tessera_shared::format::IndexEntry,
+    ) -> anyhow::Result<()> {
+        if let Some((old, differ)) = &mut self.old {
+            let same = TileId::from_morton(level, m)
+                .and_then(|t| old.entry(t))
+                .is_some_and(|e| {
+                    e.length as usize == record.len()
+                        && e.checksum == xxhash_rust::xxh3::xxh3_64(record)
+                });
+            *differ += u64::from(!same);
+        }
+        self.pyramid.push(level, m, record, summary)
+    }
+
+    fn top(&mut self, _m: Morton, _node: Option<Node>) -> anyhow::Result<()> {
+        Ok(())
+    }
+
+    fn node(&mut self, level: Level, m: Morton, node: &Node) -> anyhow::Result<()> {
+        self.state.push(level, m, node)
+    }
+}
+
+/// Updates `old` to the pyramid of `inputs` at `output` (and its state).
+pub fn update(
+    inputs: &ingest::InputSpec,
+    old: &Path,
+    output: &Path,
+    opts: &BuildOptions,
+) -> anyhow::Result<(BuildReport, UpdateReport)> {
+    let started = Instant::now();
+    ensure!(
+        !output.to_string_lossy().contains("://") && !old.to_string_lossy().contains("://"),
+        "--update reads and writes local files (and their .state beside them)"
+    );
+    ensure!(
+        old.canonicalize().ok() != output.canonicalize().ok() || !output.exists(),
+        "{}: --update writes a new pyramid; give -o another file than the old one",
+        output.display()
+    );
+    let pyramid = Pyramid::open_file(old).with_context(|| old.display().to_string())?;
+    let state = State::open(&state::path_of(old))?;
+    let old_meta = pyramid.metadata().clone();
+    ensure!(
+        state.content_hash == old_meta.content_hash,
+        "{}: the state of another pyramid (content hash {}, {} has {})",
+        state::path_of(old).display(),
+        state.content_hash,
+        old.display(),
+        old_meta.content_hash
+    );
+    let _spools = ingest::remote::SpoolScope::new();
+    let fetched_before = ingest::remote::fetched();
+    let dir = super::output_dir(output);
+    let folders = plausible::Folders {
+        spool: dir.to_path_buf(),
+        output: dir.to_path_buf(),
+    };
+    let prepared = super::prepare(inputs, &folders, 1, opts)?;
+    let warnings = prepared.warnings.clone();
+    let geometry = prepared.geometry;
+    let records = input_records(&prepared.input_windows)?;
+    let whole = |why: String| -> anyhow::Result<(BuildReport, UpdateReport)> {
+        tracing::info!("building the whole pyramid: {why}");
+        let report = super::build_inputs(
+            inputs,
+            output,
+            &BuildOptions {
+                state: true,
+                ..opts.clone()
+            },
+        )?;
+        Ok((report, UpdateReport::Whole(why)))
+    };
+    if let Some(why) = cannot_update(&old_meta, &prepared.meta, &geometry, &state, &records, opts)
+        .or_else(|| {
+            prepared
+                .support
+                .is_some()
+                .then(|| "the pyramid is multi-resolution".into())
+        })
+    {
+        drop(prepared);
+        return whole(why);
+    }
+    let area = changed_area(&state.inputs, &records, prepared.resampled);
+    let changed = changed_tiles(&geometry, &area);
+    let dirty = dirty_ranges(&geometry, &area, &changed);
+    // The changed tiles' samples; the coarse corners beyond them that did not change
+    // come from the old pyramid.
+    let mut footprint = super::parts::footprint::Footprint::of_tiles(
+        &geometry,
+        geometry.finest(),
+        changed.iter().copied(),
+    );
+    footprint.points.clear();
+    let (loaded, samples) = match prepared.load_share(dir, &footprint, opts, started)? {
+        Ok((loaded, samples)) => (loaded, samples.unwrap_or(0)),
+        Err(why) => return whole(why),
+    };
+    if loaded.meta.quantization != old_meta.quantization {
+        return whole(format!(
+            "the heights' quantization changed ({:?}, was {:?})",
+            loaded.meta.quantization, old_meta.quantization
+        ));
+    }
+    let mut pyramid_out =
+        super::create_output(output, geometry, super::meta_reserve(&loaded.meta))?;
+    let mut state_out = StateWriter::create(&state::path_of(output), geometry)?;
+    let tiles_bar = bar(
+        opts.progress,
+        super::count_tiles(&geometry, geometry.levels()),
+        "updating",
+    );
+    let spacings = geometry.tile_log2() + u32::from(geometry.finest().get()) + 1;
+    let composite = composite::Composite::new(geometry, loaded.dem.raster(), &pyramid, &area);
+    let mut u = Updater {
+        g: geometry,
+        old: &pyramid,
+        state: &state,
+        dirty: &dirty,
+        raster: &composite,
+        quant: loaded.meta.quantization,
+        spacings,
+        agg: Aggregator {
+            geometry,
+            spacings,
+            top: Level::ROOT,
+            pending: (0..=geometry.finest().get())
+                .map(|_| [None, None, None, None])
+                .collect(),
+            min_q: u16::MAX,
+            max_q: 0,
+            bar: &tiles_bar,
+            support: None,
+        },
+        copied: 0,
+        copied_range: (u16::MAX, 0),
+        measured: 0,
+        opts,
+    };
+    let mut sink = StateSink {
+        pyramid: &mut pyramid_out,
+        state: &mut state_out,
+        old: Some((&pyramid, 0)),
+    };
+    u.visit(&mut sink, Level::ROOT, Morton::from_raw(0))?;
+    let differ = sink.old.map_or(0, |(_, d)| d);
+    tiles_bar.finish_and_clear();
+    let total = super::count_tiles(&geometry, geometry.levels());
+    let copied = u.copied;
+    let (min_q, max_q) = (
+        u.agg.min_q.min(u.copied_range.0),
+        u.agg.max_q.max(u.copied_range.1),
+    );
+    let quant = u.quant;
+    let mut meta = loaded.meta.clone();
+    meta.min_height = quant.height(min_q);
+    meta.max_height = quant.height(max_q);
+    meta.level_counts = super::level_counts(&geometry, &loaded.dem.raster().depth_counts());
+    let report = super::finish_output(pyramid_out, meta, &geometry, opts, started)?;
+    state_out.finish(&report.metadata.content_hash, records)?;
+    let _ = total;
+    Ok((
+        BuildReport {
+            warnings,
+            fetched: ingest::remote::fetched().since(fetched_before),
+            ..report
+        },
+        UpdateReport::Updated {
+            measured: u.measured,
+            rewritten: differ,
+            copied,
+            samples,
+        },
+    ))
+}
+
+/// Why `old` cannot be updated to the pyramid `new` describes: `None` when it can.
+fn cannot_update(
+    old: &tessera_shared::Metadata,
+    new: &tessera_shared::Metadata,
+    g: &TileGeometry,
+    state: &State,
+    records: &[InputRecord],
+    opts: &BuildOptions,
+) -> Option<String> {
+    if (old.width, old.height, old.tile_size) != (g.width(), g.height(), g.tile_size())
+        || (state.width, state.height, state.tile_size) != (g.width(), g.height(), g.tile_size())
+    {
+        return Some(format!(
+            "the grid changed ({}×{} samples in tiles of {}, was {}×{} in tiles of {})",
+            g.width(),
+            g.height(),
+            g.tile_size(),
+            old.width,
+            old.height,
+            old.tile_size
+        ));
+    }
+    if old.georef != new.georef {
+        return Some("the georeferencing changed".into());
+    }
+    if old.vertical_datum != new.vertical_datum {
+        return Some("the vertical datum changed".into());
+    }
+    if old.generator != new.generator {
+        return Some(format!(
+            "the old pyramid was built by {}, this is {}",
+            old.generator, new.generator
+        ));
+    }
+    if old.nodata_count > 0 {
+        return Some(format!(
+            "the old pyramid has {} no-data samples, filled from their nearest valid sample across the input",
+            old.nodata_count
+        ));
+    }
+    if opts.feather.is_some() {
+        return Some("--feather blends across inputs' edges".into());
+    }
+    // The inputs both lists hold must keep their order (it decides who wins in overlaps).
+    let position: HashMap<&str, usize> = records
+        .iter()
+        .enumerate()
+        .map(|(i, r)| (r.path.as_str(), i))
+        .collect();
+    let kept: Vec<usize> = state
+        .inputs
+        .iter()
+        .filter_map(|r| position.get(r.path.as_str()).copied())
+        .collect();
+    if kept.windows(2).any(|w| w[0] > w[1]) {
+        return Some("the inputs' order changed".into());
+    }
+    None
+}
+
+/// Rectangles of samples `[x0, y0, x1, y1)` whose samples may differ: the old and new
+/// windows of every input added, removed or changed.
+fn changed_area(old: &[InputRecord], new: &[InputRecord], resampled: bool) -> Vec<[u32; 4]> {
+    let margin = if resampled { 2 } else { 0 };
+    let rect = |[x, y, w, h]: [u32; 4]| {
+        [
+            x.saturating_sub(margin),
+            y.saturating_sub(margin),
+            x + w + margin,
+            y + h + margin,
+        ]
+    };
+    let before: HashMap<&str, &InputRecord> = old.iter().map(|r| (r.path.as_str(), r)).collect();
+    let after: HashMap<&str, &InputRecord> = new.iter().map(|r| (r.path.as_str(), r)).collect();
+    let mut out = Vec::new();
+    for r in new {
+        match before.get(r.path.as_str()) {
+            Some(o) if *o == r => {}
+            Some(o) => {
+                out.push(rect(o.window));
+                out.push(rect(r.window));
+            }
+            None => out.push(rect(r.window)),
+        }
+    }
+    for r in old {
+        if !after.contains_key(r.path.as_str()) {
+            out.push(rect(r.window));
+        }
+    }
+    out
+}
+
+/// Morton codes (sorted) of the present finest tiles whose closed footprint `[x0, x0 +
+/// T] × [y0, y0 + T]` meets a changed rectangle.
+fn changed_tiles(g: &TileGeometry, area: &[[u32; 4]]) -> Vec<u64> {
+    let t = g.tile_size();
+    let finest = g.finest();
+    let side = 1u32 << finest.get();
+    let mut codes = Vec::new();
+    for &[x0, y0, x1, y1] in area {
+        let (x1, y1) = (x1.min(g.width()), y1.min(g.height()));
+        if x0 >= x1 || y0 >= y1 {
+            continue;
+        }
+        let span = |a: u32, b: u32| (a.saturating_sub(t).div_ceil(t))..=((b - 1) / t).min(side - 1);
+        for ty in span(y0, y1) {
+            for tx in span(x0, x1) {
+                let tile = TileId::new(finest, tx, ty).expect("inside the level");
+                if g.is_present(tile) {
+                    codes.push(tile.morton().get());
+                }
+            }
+        }
+    }
+    codes.sort_unstable();
+    codes.dedup();
+    codes
+}
+
+/// The finest tiles to measure again, as sorted disjoint Morton ranges: the changed
+/// ones, and every tile inside a coarse cell (spacing `2T … 2^(t + L)`) with a corner
+/// in the changed area: a tile's errors against such a cell feed its ancestors, and
+/// the cell's corner moved. (A cell of spacing `2^k` aligned on its lattice is one
+/// tile of level `L − (k − t)`.)
+fn dirty_ranges(g: &TileGeometry, area: &[[u32; 4]], changed: &[u64]) -> Vec<std::ops::Range<u64>> {
+    let t = g.tile_log2();
+    let finest = u32::from(g.finest().get());
+    let (w, h) = (g.width(), g.height());
+    let mut ranges: Vec<std::ops::Range<u64>> = changed.iter().map(|&c| c..c + 1).collect();
+    for &[x0, y0, x1, y1] in area {
+        let (x1, y1) = (x1.min(w), y1.min(h));
+        if x0 >= x1 || y0 >= y1 {
+            continue;
+        }
+        for k in t + 1..=t + finest {
+            let s = 1u64 << k;
+            // Lattice positions whose sample (clamped to the last one, as the tiler
+            // clamps corners) lies in [a, b).
+            let lattice = |a: u32, b: u32, last: u32| -> Vec<u64> {
+                let mut v: Vec<u64> = (u64::from(a).div_ceil(s)..=(u64::from(b) - 1) / s)
+                    .map(|i| i * s)
+                    .collect();
+                if (a..b).contains(&last) {
+                    let beyond = u64::from(last).div_ceil(s) * s;
+                    v.extend([beyond, beyond + s]);
+                }
+                v
+            };
+            let level = Level::new((finest + t - k) as u8).expect("a level of the pyramid");
+            let d = 2 * (k - t);
+            for cy in lattice(y0, y1, h - 1) {
+                for cx in lattice(x0, x1, w - 1) {
+                    // The up-to-four cells with this corner.
+                    for (ox, oy) in [
+                        (cx, cy),
+                        (cx.wrapping_sub(s), cy),
+                        (cx, cy.wrapping_sub(s)),
+                        (cx.wrapping_sub(s), cy.wrapping_sub(s)),
+                    ] {
+                        if ox >= u64::from(w) || oy >= u64::from(h) {
+                            continue;
+                        }
+                        let Some(tile) = TileId::new(level, (ox / s) as u32, (oy / s) as u32)
+                        else {
+                            continue;
+                        };
+                        let m = tile.morton().get();
+                        ranges.push(m << d..(m + 1) << d);
+                    }
+                }
+            }
+        }
+    }
+    ranges.sort_unstable_by_key(|r| r.start);
+    let mut merged: Vec<std::ops::Range<u64>> = Vec::new();
+    for r in ranges {
+        match merged.last_mut() {
+            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
+            _ => merged.push(r),
+        }
+    }
+    merged
+}
+
+struct Updater<'a> {
+    g: TileGeometry,
+    old: &'a Pyramid<FileSource>,
+    state: &'a State,
+    /// Finest Morton ranges to measure again (sorted, disjoint): tiles whose samples
+    /// or whose coarse cells' corners changed.
+    dirty: &'a [std::ops::Range<u64>],
+    raster: &'a dyn ingest::raster::Raster,
+    quant: tessera_shared::Quantization,
+    spacings: u32,
+    agg: Aggregator<'a>,
+    copied: u64,
+    copied_range: (u16, u16),
+    measured: u64,
+    opts: &'a BuildOptions,
+}
+
+impl Updater<'_> {
+    /// Whether a finest descendant of the level-`level` tile `m` is to be measured
+    /// again.
+    fn changed(&self, level: Level, m: Morton) -> bool {
+        let d = 2 * u32::from(self.g.finest().get() - level.get());
+        let (a, b) = (m.get() << d, (m.get() + 1) << d);
+        let i = self.dirty.partition_point(|r| r.end <= a);
+        i < self.dirty.len() && self.dirty[i].start < b
+    }
+
+    /// The tile `m` of `level`, in Morton order: its subtree copied if nothing in it
+    /// changed, else re-encoded (a finest tile from the samples read, a coarse one from
+    /// its children).
+    fn visit(&mut self, sink: &mut StateSink<'_>, level: Level, m: Morton) -> anyhow::Result<()> {
+        self.opts.interrupt.check()?;
+        let tile = TileId::from_morton(level, m).expect("m < 4^level");
+        if !self.g.is_present(tile) {
+            return self.agg.push_node(sink, level, m, None);
+        }
+        if !self.changed(level, m) {
+            self.copy_subtree(sink, level, m)?;
+            let node = self.node_from_old(level, m)?;
+            return self.agg.push_node(sink, level, m, Some(node));
+        }
+        if level == self.g.finest() {
+            let node = finest_node(self.raster, &self.g, tile, self.spacings, &self.quant)?;
+            let enc = encode(&node, &self.g, level);
+            self.measured += 1;
+            return self.agg.push(sink, level, m, Some((node, enc)));
+        }
+        let child = level.finer().expect("above the finest level");
+        for q in 0..4 {
+            self.visit(sink, child, Morton::from_raw(4 * m.get() + q))?;
+        }
+        Ok(())
+    }
+
+    /// Copies the records (and state entries) of the subtree of tile `m` of `level`.
+    fn copy_subtree(
+        &mut self,
+        sink: &mut StateSink<'_>,
+        level: Level,
+        m: Morton,
+    ) -> anyhow::Result<()> {
+        for l in level.get()..=self.g.finest().get() {
+            let lvl = Level::new(l).expect("a level of the pyramid");
+            let d = 2 * u32::from(l - level.get());
+            for code in m.get() << d..(m.get() + 1) << d {
+                let tile = TileId::from_morton(lvl, Morton::from_raw(code)).expect("code < 4^l");
+                let Some(&entry) = self.old.entry(tile) else {
+                    continue;
+                };
+                if entry.length == 0 {
+                    continue;
+                }
+                let record = self
+                    .old
+                    .read_record(tile)?
+                    .context("an index entry without its record")?;
+                sink.pyramid
+                    .push(lvl, Morton::from_raw(code), &record, entry)?;
+                let values = self.state.values(lvl, Morton::from_raw(code))?;
+                sink.state.copy(lvl, Morton::from_raw(code), &values)?;
+                self.copied += 1;
+                self.copied_range = (
+                    self.copied_range.0.min(entry.min),
+                    self.copied_range.1.max(entry.max),
+                );
+                self.agg.bar.inc(1);
+            }
+        }
+        Ok(())
+    }
+
+    /// The node the whole build held for tile `m` of `level`: heights, mask and block
+    /// ranges from its record, errors from its record and its state entry.
+    fn node_from_old(&self, level: Level, m: Morton) -> anyhow::Result<Node> {
+        let tile = TileId::from_morton(level, m).expect("m < 4^level");
+        let rec = self.old.read_tile(tile)?.with_context(|| {
+            format!(
+                "tile {m:?} of level {} has no record (no-data?)",
+                level.get()
+            )
+        })?;
+        let t = self.g.tile_log2();
+        let below = u32::from(self.g.finest().get() - level.get());
+        let mut node = Node {
+            heights: rec.heights,
+            errors: BlockErrors::zeros(self.spacings as usize),
+            min: [u16::MAX; 64],
+            max: [0; 64],
+            mask: rec.mask,
+        };
+        for n in 0..=t {
+            for by in 0..BLOCKS {
+                for bx in 0..BLOCKS {
+                    *node.errors.slot_mut(t - n + below, bx, by) =
+                        f64::from(rec.errors.error(n, bx, by));
+                }
+            }
+        }
+        for by in 0..BLOCKS {
+            for bx in 0..BLOCKS {
+                let (lo, hi) = rec.errors.block_range(bx, by);
+                let i = (by * BLOCKS + bx) as usize;
+                node.min[i] = lo;
+                node.max[i] = hi;
+            }
+        }
+        State::restore(&self.g, level, &self.state.values(level, m)?, &mut node)?;
+        Ok(node)
+    }
+}
