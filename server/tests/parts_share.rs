@@ -9,7 +9,9 @@
 
 mod gdal;
 
-use std::path::{Path, PathBuf};
+use gdal::pieces::cog_pieces;
+
+use std::path::Path;
 use std::process::Command;
 use tessera_shared::testdata;
 
@@ -30,64 +32,6 @@ fn build(args: &[&str]) -> Result<String, String> {
 
 fn text(p: &Path) -> &str {
     p.to_str().unwrap()
-}
-
-/// 16 COG pieces of 512² (256² tiles, deflate, overviews) of the moon mosaic's
-/// north-west 2048², in `dir`: `p{row}{col}.tif`.
-fn cog_pieces(dir: &Path) -> Option<Vec<PathBuf>> {
-    let png = testdata::dem_or_skip("moon_crisium_gld100_4096.png")?;
-    if !gdal::gdal_or_skip() {
-        return None;
-    }
-    let whole = dir.join("whole.tif");
-    // 236.9 m samples (the data README); any georeferencing on one grid will do.
-    gdal::run(
-        "gdal_translate",
-        &[
-            "-q",
-            "-srcwin",
-            "0",
-            "0",
-            "2048",
-            "2048",
-            "-a_ullr",
-            "0",
-            "485171.2",
-            "485171.2",
-            "0",
-            text(&png),
-            text(&whole),
-        ],
-    );
-    let mut pieces = Vec::new();
-    for r in 0..4 {
-        for c in 0..4 {
-            let p = dir.join(format!("p{r}{c}.tif"));
-            let (x, y) = ((c * 512).to_string(), (r * 512).to_string());
-            gdal::run(
-                "gdal_translate",
-                &[
-                    "-q",
-                    "-of",
-                    "COG",
-                    "-co",
-                    "BLOCKSIZE=256",
-                    "-co",
-                    "COMPRESS=DEFLATE",
-                    "-srcwin",
-                    &x,
-                    &y,
-                    "512",
-                    "512",
-                    text(&whole),
-                    text(&p),
-                ],
-            );
-            pieces.push(p);
-        }
-    }
-    std::fs::remove_file(whole).unwrap();
-    Some(pieces)
 }
 
 /// How a part's stdout says it read: `Some((samples, of))` for its share, `None` for the

@@ -5,6 +5,7 @@
 #![allow(dead_code)] // each test binary uses its own subset
 
 pub mod fusion;
+pub mod pieces;
 
 use std::path::Path;
 use std::process::Command;
