@@ -298,3 +298,69 @@ fn a_missing_foreign_or_damaged_state_is_refused() {
     );
     assert!(!out.exists() && !tmp.path().join("out.tess.state").exists());
 }
+
+/// A DEM of `1 + 16 · 64` samples a side: its last column and row are the last
+/// tiles' shared edge, where no tile starts; an update that measures tiles against
+/// corners there reads them from those tiles.
+#[test]
+fn an_update_of_a_dem_ending_on_a_tile_edge() {
+    let Some(png) = tessera_shared::testdata::dem_or_skip("moon_crisium_gld100_4096.png") else {
+        return;
+    };
+    if !gdal::gdal_or_skip() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let whole_tif = t.join("whole.tif");
+    gdal::run(
+        "gdal_translate",
+        &[
+            "-q", "-srcwin", "0", "0", "1025", "1025", "-a_ullr", "0", "242822.5", "242822.5", "0",
+        ]
+        .into_iter()
+        .chain([text(&png), text(&whole_tif)])
+        .collect::<Vec<_>>(),
+    );
+    std::fs::create_dir(t.join("pieces")).unwrap();
+    for (name, x, w) in [("a.tif", "0", "512"), ("b.tif", "512", "513")] {
+        let out = t.join("pieces").join(name);
+        gdal::run(
+            "gdal_translate",
+            &[
+                "-q",
+                "-of",
+                "COG",
+                "-co",
+                "BLOCKSIZE=256",
+                "-srcwin",
+                x,
+                "0",
+                w,
+                "1025",
+            ]
+            .into_iter()
+            .chain([text(&whole_tif), text(&out)])
+            .collect::<Vec<_>>(),
+        );
+    }
+    let dir = format!("{}/", t.join("pieces").display());
+    let old = t.join("old.tess");
+    build(&[&dir, "--tile-size", "64", "--state", "-o", text(&old)]).unwrap();
+    resurvey(&t.join("pieces").join("a.tif"));
+    let whole = t.join("whole.tess");
+    build(&[&dir, "--tile-size", "64", "-o", text(&whole)]).unwrap();
+    let new = t.join("new.tess");
+    let stdout = build(&[
+        &dir,
+        "--tile-size",
+        "64",
+        "--update",
+        text(&old),
+        "-o",
+        text(&new),
+    ])
+    .unwrap();
+    assert!(stdout.contains("updated "), "{stdout}");
+    assert_same_bytes(&whole, &new);
+}

@@ -74,7 +74,13 @@ impl<'a> Composite<'a> {
             return Ok(v[0]);
         }
         let t = self.g.tile_size();
-        let (tx, ty) = (x / t, y / t);
+        // The last column (row) of a DEM whose cells are a multiple of T is the last
+        // tile's shared edge: no tile starts there.
+        let last = |n: u32| n.saturating_sub(2) / t;
+        let (tx, ty) = (
+            (x / t).min(last(self.g.width())),
+            (y / t).min(last(self.g.height())),
+        );
         let side = t as usize + 1;
         let heights = self.old_tile(tx, ty)?;
         Ok(heights[(y - ty * t) as usize * side + (x - tx * t) as usize])

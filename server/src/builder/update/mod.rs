@@ -173,6 +173,15 @@ pub fn update(
     }
     let area = changed_area(&state.inputs, &records, prepared.resampled);
     let changed = changed_tiles(&geometry, &area);
+    let finest_tiles = super::count_tiles(&geometry, std::iter::once(geometry.finest()));
+    if changed.len() as u64 * 2 > finest_tiles {
+        drop(prepared);
+        return whole(format!(
+            "{} of the {finest_tiles} finest tiles changed: a whole build reads and encodes \
+             them as fast and in parallel",
+            changed.len()
+        ));
+    }
     let dirty = dirty_ranges(&geometry, &area, &changed);
     // The changed tiles' samples; the coarse corners beyond them that did not change
     // come from the old pyramid.
@@ -577,5 +586,75 @@ impl Updater<'_> {
         }
         State::restore(&self.g, level, &self.state.values(level, m)?, &mut node)?;
         Ok(node)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn input(path: &str, size: u64, window: [u32; 4]) -> InputRecord {
+        InputRecord {
+            path: path.into(),
+            size,
+            tag: "mtime 1".into(),
+            window,
+        }
+    }
+
+    #[test]
+    fn the_changed_area_is_what_was_added_removed_or_changed() {
+        let old = [
+            input("a.tif", 10, [0, 0, 100, 100]),
+            input("b.tif", 10, [100, 0, 100, 100]),
+            input("c.tif", 10, [0, 100, 100, 100]),
+        ];
+        let new = [
+            input("a.tif", 10, [0, 0, 100, 100]),
+            input("b.tif", 11, [100, 0, 100, 100]),
+            input("d.tif", 10, [100, 100, 100, 100]),
+        ];
+        assert_eq!(
+            changed_area(&old, &new, false),
+            vec![
+                [100, 0, 200, 100],
+                [100, 0, 200, 100],
+                [100, 100, 200, 200],
+                [0, 100, 100, 200]
+            ]
+        );
+        // Resampled inputs reach two samples past their window.
+        assert_eq!(changed_area(&old[..1], &[], true), vec![[0, 0, 102, 102]]);
+        assert!(changed_area(&old, &old, false).is_empty());
+    }
+
+    #[test]
+    fn changed_tiles_meet_the_area_with_their_closed_footprint() {
+        // 257² at tile 64: 4 × 4 finest tiles, sample 64 shared by tiles 0 and 1.
+        let g = TileGeometry::new(257, 257, 64).unwrap();
+        let code = |x, y| TileId::new(g.finest(), x, y).unwrap().morton().get();
+        let mut want = vec![code(0, 0), code(1, 0)];
+        want.sort_unstable();
+        assert_eq!(changed_tiles(&g, &[[64, 0, 65, 1]]), want);
+        assert_eq!(changed_tiles(&g, &[[65, 0, 127, 1]]), vec![code(1, 0)]);
+        // Beyond the DEM: clipped.
+        assert_eq!(changed_tiles(&g, &[[256, 256, 400, 400]]), vec![code(3, 3)]);
+    }
+
+    #[test]
+    fn tiles_under_a_changed_coarse_corner_are_dirty() {
+        // 257² at tile 64 (L = 2): the sample (128, 128) is a corner of the four
+        // level-1 cells (spacing 128) and of nothing coarser but the root's clamp.
+        let g = TileGeometry::new(257, 257, 64).unwrap();
+        let area = [[128, 128, 129, 129]];
+        let changed = changed_tiles(&g, &area);
+        assert_eq!(changed.len(), 4, "the four tiles sharing the sample");
+        let dirty = dirty_ranges(&g, &area, &changed);
+        // Every finest tile lies in a level-1 cell with that corner.
+        assert_eq!(dirty, vec![0..16]);
+        // A change in one tile's inside, off every coarse lattice: that tile only.
+        let area = [[10, 10, 20, 20]];
+        let changed = changed_tiles(&g, &area);
+        assert_eq!(dirty_ranges(&g, &area, &changed), vec![0..1]);
     }
 }
