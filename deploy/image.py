@@ -10,15 +10,15 @@ reaches no image registry (`./run image` runs this with the deploy tools' Python
                            through nginx, then one replica killed
     ./run image parts      `build --part K/2` twice and `build --assemble` as containers
                            on a real DEM; the result byte for byte a single build's
-    ./run image check      no engine, no network, seconds: the Dockerfile's base-image
+    ./run image check      no engine, no network, under a second: the Dockerfile's base-image
                            arguments, the plan derived from compose.yaml, the
                            prerequisites found (deploy/tests/test_image.py runs it)
     ./run image clean [--all]   the image, its build caches (--all: the bases too)
 
 Options: --dem FILE (parts' input; default ../shared/data/dem/N46E008.tif beside the
 repository), --host-server BIN (parts: also compare with a single build by this
-binary, which must be built from the same sources), --keep (keep the containers' logs
-and files), --no-cache (podman build without its layer cache; BuildKit-style cache
+binary, which must be built from the same sources), --keep (keep the run's folder: the
+pyramids it built and fetched), --no-cache (podman build without its layer cache; BuildKit-style cache
 mounts stay: `clean` removes them).
 
 No registry: the Dockerfile's three FROM images are build arguments (RUST_IMAGE,
@@ -431,7 +431,7 @@ def build(image: str, no_cache: bool) -> dict:
     argv.append(ROOT)
     cached = any(os.path.isdir(os.path.join(BUILDAH_CACHE, d)) for d in ("tessera-target", "tessera-cargo-registry"))
     say(f"podman build -f deploy/Dockerfile -t {image} (a release build of the workspace: "
-        f"{'cargo cache mounts present' if cached else 'cold, tens of minutes on 2 cores'}); log: target/image/build.log")
+        f"{'cargo cache mounts present' if cached else 'cold: ~10 min on 2 cores'}); log: target/image/build.log")
     os.makedirs(STATE, exist_ok=True)
     log = os.path.join(STATE, "build.log")
     t0 = time.time()
@@ -750,12 +750,13 @@ def stack_test(image: str, work: str) -> dict:
     ups = upstreams_in_log(st, paths)
     if len(ups) < 2:
         raise Failure(f"{len(paths)} requests through nginx all went to {ups or 'no upstream'}: not both replicas")
-    say(f"stack: {len(paths)} tiles through nginx ({total} bytes) equal the local serve's, served by {len(ups)} replicas")
+    say(f"stack: {len(paths)} answers through nginx (tiles of every level, a level's stream, a Terrarium PNG, the "
+        f"viewer's libraries; {total} bytes) equal the local serve's, served by {len(ups)} replicas")
     pinned = f"{paths[0]}?v={doc['content_hash']}"
     cache = [same_answer(front, ref, pinned)[1].get("x-cache-status") for _ in range(2)]
     if cache != ["MISS", "HIT"]:
         raise Failure(f"a pinned tile through nginx twice: X-Cache-Status {cache}, expected MISS then HIT")
-    res.update(tiles=len(paths), tile_bytes=total, replicas_used=len(ups), pinned_cache=cache)
+    res.update(answers=len(paths), answer_bytes=total, replicas_used=len(ups), pinned_cache=cache)
 
     # One replica killed (SIGKILL, as a crash): every request still answered.
     victim = st.name("tessera-2")
@@ -969,6 +970,7 @@ def main() -> int:
         return 1 if problems else 0
 
     def on_signal(sig, _frame):
+        print(f"image: error: stopped by signal {sig}; removing what this run made", file=sys.stderr)
         raise SystemExit(128 + sig)
 
     signal.signal(signal.SIGTERM, on_signal)
@@ -978,7 +980,7 @@ def main() -> int:
     os.chmod(work, 0o755)
     if not a.keep:
         CLEANUP.add(f"folder {work}", lambda: shutil.rmtree(work, ignore_errors=True))
-    entry: dict = {"what": a.what}
+    entry: dict = {"what": a.what, "ok": False}
     t0 = time.time()
     try:
         if shutil.which("podman") is None:
