@@ -10,7 +10,7 @@ use tessera_shared::{CellMask, Quantization, TileGeometry, TileId};
 
 /// Corner heights of the coarse cells (spacing > T) enclosing the finest tile at
 /// global `(gx0, gy0)`, on the padded grid (clamped to the DEM's edge).
-fn coarse_corners(
+pub(super) fn coarse_corners(
     raster: &dyn Raster,
     g: &TileGeometry,
     gx0: u64,

@@ -72,6 +72,21 @@ pub fn finest_tile_errors(
     corners: &CoarseCorners,
     spacings: u32,
 ) -> BlockErrors {
+    finest_tile_errors_at(heights, tile_log2, gx0, gy0, corners, spacings, |_| true)
+}
+
+/// [`finest_tile_errors`] for the spacings `k` that `wanted` accepts only (the others
+/// are left 0): what `build --update` measures again for a tile whose samples did not
+/// change but some of whose coarse cells' corners did.
+pub fn finest_tile_errors_at(
+    heights: &[u16],
+    tile_log2: u32,
+    gx0: u64,
+    gy0: u64,
+    corners: &CoarseCorners,
+    spacings: u32,
+    wanted: impl Fn(u32) -> bool,
+) -> BlockErrors {
     let t = 1usize << tile_log2;
     let side = t + 1;
     let block = t / BLOCKS as usize;
@@ -79,7 +94,7 @@ pub fn finest_tile_errors(
     let mut row = vec![0f64; side];
     let h = |u: usize, v: usize| f64::from(heights[v * side + u]);
     // k = 0 is the data itself: error 0.
-    for k in 1..spacings {
+    for k in (1..spacings).filter(|&k| wanted(k)) {
         let s = 1usize << k;
         let sf = s as f64;
         for v in 0..side {

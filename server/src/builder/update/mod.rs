@@ -32,6 +32,7 @@ use super::sink::Sink;
 use super::{BuildOptions, BuildReport, bar, plausible, writer};
 use crate::ingest;
 use anyhow::{Context, ensure};
+use rayon::prelude::*;
 use state::{InputRecord, State, StateWriter};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -183,14 +184,21 @@ pub fn update(
         ));
     }
     let dirty = dirty_ranges(&geometry, &area, &changed);
-    // The changed tiles' samples; the coarse corners beyond them that did not change
-    // come from the old pyramid.
-    let mut footprint = super::parts::footprint::Footprint::of_tiles(
-        &geometry,
-        geometry.finest(),
-        changed.iter().copied(),
-    );
-    footprint.points.clear();
+    // Only the changed area is read: every other sample a re-measured tile needs is
+    // in the old pyramid's finest records (`composite`).
+    let footprint = super::parts::footprint::Footprint {
+        windows: area
+            .iter()
+            .filter_map(|&[x0, y0, x1, y1]| {
+                let (x1, y1) = (x1.min(geometry.width()), y1.min(geometry.height()));
+                (x0 < x1 && y0 < y1).then_some(super::parts::footprint::Window {
+                    x: x0..x1,
+                    y: y0..y1,
+                })
+            })
+            .collect(),
+        points: Vec::new(),
+    };
     let (loaded, samples) = match prepared.load_share(dir, &footprint, opts, started)? {
         Ok((loaded, samples)) => (loaded, samples.unwrap_or(0)),
         Err(why) => return whole(why),
@@ -216,6 +224,8 @@ pub fn update(
         old: &pyramid,
         state: &state,
         dirty: &dirty,
+        changed: &changed,
+        area: &area,
         raster: &composite,
         quant: loaded.meta.quantization,
         spacings,
@@ -235,6 +245,17 @@ pub fn update(
         copied_range: (u16::MAX, 0),
         measured: 0,
         opts,
+        dirty_finest: dirty
+            .iter()
+            .flat_map(|r| r.clone())
+            .filter(|&c| {
+                geometry.is_present(
+                    TileId::from_morton(geometry.finest(), Morton::from_raw(c)).expect("c < 4^L"),
+                )
+            })
+            .collect(),
+        ready: std::collections::VecDeque::new(),
+        batch: loaded.plan.batch.max(1),
     };
     let mut sink = StateSink {
         pyramid: &mut pyramid_out,
@@ -465,6 +486,9 @@ struct Updater<'a> {
     /// Finest Morton ranges to measure again (sorted, disjoint): tiles whose samples
     /// or whose coarse cells' corners changed.
     dirty: &'a [std::ops::Range<u64>],
+    /// The finest tiles whose samples changed (sorted), and the changed area.
+    changed: &'a [u64],
+    area: &'a [[u32; 4]],
     raster: &'a dyn ingest::raster::Raster,
     quant: tessera_shared::Quantization,
     spacings: u32,
@@ -473,6 +497,11 @@ struct Updater<'a> {
     copied_range: (u16, u16),
     measured: u64,
     opts: &'a BuildOptions,
+    /// The present finest tiles to measure again, in Morton order.
+    dirty_finest: Vec<u64>,
+    /// Finest tiles measured ahead, in parallel batches of `batch`, in Morton order.
+    ready: std::collections::VecDeque<(u64, Node, super::node::Encoded)>,
+    batch: usize,
 }
 
 impl Updater<'_> {
@@ -500,8 +529,7 @@ impl Updater<'_> {
             return self.agg.push_node(sink, level, m, Some(node));
         }
         if level == self.g.finest() {
-            let node = finest_node(self.raster, &self.g, tile, self.spacings, &self.quant)?;
-            let enc = encode(&node, &self.g, level);
+            let (node, enc) = self.measure(m)?;
             self.measured += 1;
             return self.agg.push(sink, level, m, Some((node, enc)));
         }
@@ -510,6 +538,78 @@ impl Updater<'_> {
             self.visit(sink, child, Morton::from_raw(4 * m.get() + q))?;
         }
         Ok(())
+    }
+
+    /// The finest tile `m`, measured and encoded: from the batch measured ahead, or
+    /// with the next batch (the tiles from `m` on, in parallel).
+    fn measure(&mut self, m: Morton) -> anyhow::Result<(Node, super::node::Encoded)> {
+        if self.ready.front().map(|r| r.0) != Some(m.get()) {
+            self.ready.clear();
+            let start = self.dirty_finest.partition_point(|&c| c < m.get());
+            let end = (start + self.batch).min(self.dirty_finest.len());
+            let this = &*self;
+            let measured: Vec<_> = this.dirty_finest[start..end]
+                .par_iter()
+                .map(|&c| {
+                    let node = this.measure_one(Morton::from_raw(c))?;
+                    let enc = encode(&node, &this.g, this.g.finest());
+                    Ok((c, node, enc))
+                })
+                .collect::<anyhow::Result<_>>()?;
+            self.ready.extend(measured);
+        }
+        let (c, node, enc) = self
+            .ready
+            .pop_front()
+            .context("a dirty tile was not measured")?;
+        ensure!(c == m.get(), "finest tiles measured out of order");
+        Ok((node, enc))
+    }
+
+    /// Measures finest tile `m`: whole if its samples changed; else from its old
+    /// record and state entry, measuring again only the spacings whose cell around it
+    /// has a corner in the changed area.
+    fn measure_one(&self, m: Morton) -> anyhow::Result<Node> {
+        let g = &self.g;
+        let tile = TileId::from_morton(g.finest(), m).expect("m < 4^L");
+        if self.changed.binary_search(&m.get()).is_ok() {
+            return finest_node(self.raster, g, tile, self.spacings, &self.quant);
+        }
+        let mut node = self.node_from_old(g.finest(), m)?;
+        let (gx0, gy0) = g.origin(tile);
+        let (last_x, last_y) = (u64::from(g.width() - 1), u64::from(g.height() - 1));
+        let moved = |k: u32| {
+            let s = 1u64 << k;
+            let (cx, cy) = (gx0 / s * s, gy0 / s * s);
+            [(cx, cy), (cx + s, cy), (cx, cy + s), (cx + s, cy + s)]
+                .iter()
+                .any(|&(x, y)| {
+                    let (x, y) = (x.min(last_x) as u32, y.min(last_y) as u32);
+                    self.area
+                        .iter()
+                        .any(|&[x0, y0, x1, y1]| (x0..x1).contains(&x) && (y0..y1).contains(&y))
+                })
+        };
+        let t = g.tile_log2();
+        let corners = super::finest::coarse_corners(self.raster, g, gx0, gy0, self.spacings)?;
+        let errors = super::mesh_error::finest_tile_errors_at(
+            &node.heights,
+            t,
+            gx0,
+            gy0,
+            &corners,
+            self.spacings,
+            |k| k > t && moved(k),
+        );
+        for k in (t + 1..self.spacings).filter(|&k| moved(k)) {
+            for by in 0..BLOCKS {
+                for bx in 0..BLOCKS {
+                    *node.errors.slot_mut(k, bx, by) =
+                        f64::from(super::node::to_metres(errors.get(k, bx, by), &self.quant));
+                }
+            }
+        }
+        Ok(node)
     }
 
     /// Copies the records (and state entries) of the subtree of tile `m` of `level`.
