@@ -8,7 +8,7 @@
 #  2. how the build scales with cores: `synthetic:16385` and the local pieces at
 #     RAYON_NUM_THREADS=1 and 2, alternating, RUNS times.
 #  3. parts that read only their share: the s3:// pieces as 4 and 16 parts;
-#  4. an update after one piece changed, against the whole build.
+#  4. an update after 4 of the 64 pieces changed, against the whole build.
 # Prints Markdown tables of every run and the medians; the commands are the ones shown.
 # SCALING=0 skips part 2.
 source "$(dirname "$0")/common.sh"
@@ -122,38 +122,49 @@ for n in 4 16; do
 done
 echo "(whole build from s3: $whole_bytes bytes; assembled pyramids identical to it)"
 
-# 4. Updates: the s3:// pieces built with --state; one piece (p34) resurveyed (heights
-#    rescaled by GDAL) and uploaded over its object; then, RUNS times alternating, the
-#    whole build and `--update` of the old pyramid: wall time, bytes fetched, `cmp`.
+# 4. Updates: the pieces built with --state, locally and from s3://; four pieces (p11,
+#    p26, p52, p67: 1/16 of the samples) resurveyed (heights rescaled by GDAL), in the
+#    folder and uploaded over their objects; then, RUNS times alternating, the whole
+#    build and `--update` of the old pyramid: wall time, bytes fetched, `cmp`.
 echo
-old=$WORK/inputs/old.tess
-"$SERVER_BIN" build s3://bench/pieces/ --state -o "$old" --quiet > /dev/null
-gdal_translate -q -of COG -co BLOCKSIZE=512 -co COMPRESS=DEFLATE -ot UInt16 \
-  -scale 0 65535 0 60000 "$pieces/p34.tif" "$WORK/inputs/p34.tif"
-"$venv/bin/python" - "$WORK/inputs/p34.tif" <<PY
+for src in local s3; do
+  input="$pieces/"; [ $src = s3 ] && input=s3://bench/pieces/
+  "$SERVER_BIN" build "$input" --state -o "$WORK/inputs/old-$src.tess" --quiet > /dev/null
+done
+for p in p11 p26 p52 p67; do
+  gdal_translate -q -of COG -co BLOCKSIZE=512 -co COMPRESS=DEFLATE -ot UInt16 \
+    -scale 0 65535 0 60000 "$pieces/$p.tif" "$WORK/inputs/$p.tif"
+  mv "$WORK/inputs/$p.tif" "$pieces/$p.tif"
+  "$venv/bin/python" - "$pieces/$p.tif" "$p" <<PY
 import boto3, sys
-boto3.client('s3', endpoint_url='$AWS_ENDPOINT_URL').upload_file(sys.argv[1], 'bench', 'pieces/p34.tif')
+boto3.client('s3', endpoint_url='$AWS_ENDPOINT_URL').upload_file(sys.argv[1], 'bench', 'pieces/' + sys.argv[2] + '.tif')
 PY
-echo "| build after one of 64 pieces changed | run | wall s | bytes fetched |"
-echo "|---|---|---|---|"
+done
+echo "| build after 4 of 64 pieces changed | inputs | run | wall s | bytes fetched |"
+echo "|---|---|---|---|---|"
 urows=()
 for run in $(seq "$runs"); do
-  for how in whole update; do
-    flags=(); [ $how = update ] && flags=(--update "$old")
-    read -r _ wall _ _ _ < <(timed $how "$SERVER_BIN" build s3://bench/pieces/ "${flags[@]}" -o "$WORK/inputs/$how.tess" --quiet)
-    b=$(awk '/^read [0-9]+ bytes/ {print $2}' "$WORK/inputs/stdout")
-    echo "| $how | $run | $wall | $b |"
-    urows+=("$how $wall")
-    [ $how = update ] && line=$(grep '^updated ' "$WORK/inputs/stdout")
+  for src in local s3; do
+    input="$pieces/"; [ $src = s3 ] && input=s3://bench/pieces/
+    for how in whole update; do
+      flags=(); [ $how = update ] && flags=(--update "$WORK/inputs/old-$src.tess")
+      read -r _ wall _ _ _ < <(timed $how "$SERVER_BIN" build "$input" "${flags[@]}" -o "$WORK/inputs/$how.tess" --quiet)
+      b=$(awk '/^read [0-9]+ bytes/ {print $2}' "$WORK/inputs/stdout")
+      echo "| $how | $src | $run | $wall | ${b:--} |"
+      urows+=("$src-$how $wall")
+      [ $how = update ] && line=$(grep '^updated ' "$WORK/inputs/stdout")
+    done
+    cmp "$WORK/inputs/whole.tess" "$WORK/inputs/update.tess" || { echo "the update differs from the whole build" >&2; exit 1; }
   done
-  cmp "$WORK/inputs/whole.tess" "$WORK/inputs/update.tess" || { echo "the update differs from the whole build" >&2; exit 1; }
 done
-mw=$(printf '%s\n' "${urows[@]}" | awk '$1=="whole"{print $2}' | median)
-mu=$(printf '%s\n' "${urows[@]}" | awk '$1=="update"{print $2}' | median)
 echo
-echo "medians: whole $mw s, update $mu s ($(echo "scale=3; $mu / $mw" | bc)×); identical"
+for src in local s3; do
+  mw=$(printf '%s\n' "${urows[@]}" | awk -v k="$src-whole" '$1==k{print $2}' | median)
+  mu=$(printf '%s\n' "${urows[@]}" | awk -v k="$src-update" '$1==k{print $2}' | median)
+  echo "$src medians: whole $mw s, update $mu s ($(echo "scale=3; $mu / $mw" | bc)×); identical"
+done
 echo "$line"
-echo "pyramid $(stat -c %s "$old") bytes, its state $(stat -c %s "$old.state") bytes"
+echo "pyramid $(stat -c %s "$WORK/inputs/old-s3.tess") bytes, its state $(stat -c %s "$WORK/inputs/old-s3.tess.state") bytes"
 
 [ "${SCALING:-1}" = 0 ] && exit 0
 echo
