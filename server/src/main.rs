@@ -153,9 +153,10 @@ enum Command {
         /// reads only the inputs added, removed or changed since (by size and ETag or
         /// modification time), re-encodes only the tiles they touch and copies every
         /// other record byte for byte; the result is byte for byte what a whole build
-        /// of the inputs with the same options writes, and gets its own .state. When
-        /// that cannot hold (another grid or tile size, no-data, a multi-resolution
-        /// pyramid, reordered inputs, ...), it builds the whole pyramid and says why.
+        /// of the inputs with the same options writes, and gets its own .state. Other
+        /// options than OLD's (--tile-size, --to, --scale, ...) are an error; when the
+        /// data prevent an exact update (no-data, inputs reaching further, reordered
+        /// inputs, ...), it builds the whole pyramid and says why.
         #[arg(long, value_name = "OLD.tess", conflicts_with_all = ["part", "assemble"])]
         update: Option<PathBuf>,
         /// What the heights are measured from, recorded so outputs that need another

@@ -2,9 +2,10 @@
 //! GDAL into 16 COG pieces: after a piece is resurveyed, the update is byte for byte
 //! the whole build of the new pieces, reads only the changed piece's tiles, copies every
 //! record away from it (so those tiles keep their ETag and a cache revalidates them with
-//! 304 from the real server), and chains; an update that cannot be exact (a piece gone,
-//! another tile size) builds the whole pyramid and says why; a state that is missing,
-//! of another pyramid or damaged is refused, naming it.
+//! 304 from the real server), and chains; an update that cannot be exact (a piece gone)
+//! builds the whole pyramid and says why; a state that is missing,
+//! of another pyramid or damaged, and other options than the old pyramid's, are
+//! refused, naming it.
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
@@ -195,7 +196,7 @@ fn an_update_is_the_whole_build_and_copies_what_did_not_change() {
 }
 
 #[test]
-fn an_update_that_cannot_be_exact_builds_whole_and_says_why() {
+fn other_options_are_refused_and_an_inexact_update_builds_whole() {
     let tmp = tempfile::tempdir().unwrap();
     let Some(pieces) = cog_pieces(tmp.path()) else {
         return;
@@ -204,25 +205,45 @@ fn an_update_that_cannot_be_exact_builds_whole_and_says_why() {
     let old = tmp.path().join("old.tess");
     build(&[&dir, "--tile-size", "64", "--state", "-o", text(&old)]).unwrap();
 
-    // Another tile size: another grid of tiles.
-    let out = tmp.path().join("t128.tess");
-    let stdout = build(&[
-        &dir,
-        "--tile-size",
-        "128",
-        "--update",
-        text(&old),
-        "-o",
-        text(&out),
-    ])
-    .unwrap();
-    assert!(
-        stdout.contains("built the whole pyramid, not an update: the grid changed"),
-        "{stdout}"
-    );
-    let whole = tmp.path().join("whole128.tess");
-    build(&[&dir, "--tile-size", "128", "-o", text(&whole)]).unwrap();
-    assert_same_bytes(&whole, &out);
+    // Other options than the old pyramid's: an error naming it, and nothing written.
+    let out = tmp.path().join("other.tess");
+    for (flags, says) in [
+        (
+            &["--tile-size", "128"][..],
+            "built with --tile-size 64, this build asks for 128",
+        ),
+        (
+            &["--tile-size", "64", "--offset", "-10000"][..],
+            "(--scale, --offset, --height-range)",
+        ),
+        (
+            &["--tile-size", "64", "--vertical-datum", "egm96"][..],
+            "(--vertical-datum, --to-vertical)",
+        ),
+    ] {
+        let args: Vec<&str> = [dir.as_str()]
+            .into_iter()
+            .chain(flags.iter().copied())
+            .chain(["--update", text(&old), "-o", text(&out)])
+            .collect();
+        let e = build(&args).unwrap_err();
+        assert!(
+            e.contains("old.tess: ") && e.contains(says),
+            "{flags:?}: {e}"
+        );
+        assert_eq!(
+            e.trim().lines().filter(|l| l.starts_with("error")).count(),
+            1,
+            "{e}"
+        );
+        assert!(!out.exists() && !tmp.path().join("other.tess.state").exists());
+    }
+    let names: Vec<String> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains("partial"))
+        .collect();
+    assert!(names.is_empty(), "left behind: {names:?}");
 
     // A piece gone: its samples become no-data, filled from across the input.
     std::fs::rename(&pieces[10], tmp.path().join("away.tif.bak")).unwrap();

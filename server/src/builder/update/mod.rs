@@ -151,6 +151,7 @@ pub fn update(
     let warnings = prepared.warnings.clone();
     let geometry = prepared.geometry;
     let records = input_records(&prepared.input_windows)?;
+    refuse_other_options(old, &old_meta, &prepared.meta)?;
     let whole = |why: String| -> anyhow::Result<(BuildReport, UpdateReport)> {
         tracing::info!("building the whole pyramid: {why}");
         let report = super::build_inputs(
@@ -205,12 +206,14 @@ pub fn update(
         Ok((loaded, samples)) => (loaded, samples.unwrap_or(0)),
         Err(why) => return whole(why),
     };
-    if loaded.meta.quantization != old_meta.quantization {
-        return whole(format!(
-            "the heights' quantization changed ({:?}, was {:?})",
-            loaded.meta.quantization, old_meta.quantization
-        ));
-    }
+    ensure!(
+        loaded.meta.quantization == old_meta.quantization,
+        "{}: its heights are stored as {:?}, this build's as {:?} (--scale, --offset, \
+         --height-range): give the options it was built with, or build without --update",
+        old.display(),
+        old_meta.quantization,
+        loaded.meta.quantization
+    );
     let mut pyramid_out =
         super::create_output(output, geometry, super::meta_reserve(&loaded.meta))?;
     let mut state_out = StateWriter::create(&state::path_of(output), geometry)?;
@@ -296,6 +299,57 @@ pub fn update(
     ))
 }
 
+/// Refuses an update whose options differ from the old pyramid's: another tile size,
+/// CRS (`--to`, `--crs`) or vertical datum (`--vertical-datum`, `--to-vertical`).
+/// (Another quantization is refused once it is known, after the reading.) A user who
+/// means a new pyramid builds without `--update`.
+fn refuse_other_options(
+    old_path: &Path,
+    old: &tessera_shared::Metadata,
+    new: &tessera_shared::Metadata,
+) -> anyhow::Result<()> {
+    let hint = "give the options it was built with, or build without --update";
+    ensure!(
+        old.tile_size == new.tile_size,
+        "{}: built with --tile-size {}, this build asks for {}: {hint}",
+        old_path.display(),
+        old.tile_size,
+        new.tile_size
+    );
+    let crs = |m: &tessera_shared::Metadata| {
+        m.georef
+            .as_ref()
+            .map(|g| (g.epsg, g.proj.clone(), g.wkt.clone(), g.crs_name.clone()))
+    };
+    ensure!(
+        crs(old) == crs(new),
+        "{}: its grid is in {}, this build's in {} (--to, --crs, or other inputs): {hint}",
+        old_path.display(),
+        crs_name(old),
+        crs_name(new)
+    );
+    ensure!(
+        old.vertical_datum == new.vertical_datum,
+        "{}: its heights are in {}, this build's in {} (--vertical-datum, \
+         --to-vertical): {hint}",
+        old_path.display(),
+        old.vertical_datum.name(),
+        new.vertical_datum.name()
+    );
+    Ok(())
+}
+
+fn crs_name(m: &tessera_shared::Metadata) -> String {
+    m.georef
+        .as_ref()
+        .and_then(|g| {
+            g.epsg
+                .map(|e| format!("EPSG:{e}"))
+                .or_else(|| g.crs_name.clone())
+        })
+        .unwrap_or_else(|| "no named CRS".into())
+}
+
 /// Why `old` cannot be updated to the pyramid `new` describes: `None` when it can.
 fn cannot_update(
     old: &tessera_shared::Metadata,
@@ -305,8 +359,8 @@ fn cannot_update(
     records: &[InputRecord],
     opts: &BuildOptions,
 ) -> Option<String> {
-    if (old.width, old.height, old.tile_size) != (g.width(), g.height(), g.tile_size())
-        || (state.width, state.height, state.tile_size) != (g.width(), g.height(), g.tile_size())
+    if (old.width, old.height) != (g.width(), g.height())
+        || (state.width, state.height) != (g.width(), g.height())
     {
         return Some(format!(
             "the grid changed ({}×{} samples in tiles of {}, was {}×{} in tiles of {})",
@@ -319,10 +373,7 @@ fn cannot_update(
         ));
     }
     if old.georef != new.georef {
-        return Some("the georeferencing changed".into());
-    }
-    if old.vertical_datum != new.vertical_datum {
-        return Some("the vertical datum changed".into());
+        return Some("the georeferencing changed (the inputs reach elsewhere)".into());
     }
     if old.generator != new.generator {
         return Some(format!(
