@@ -9,39 +9,17 @@
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
+#[allow(dead_code)] // each test binary uses its own subset
+mod cli_support;
 mod gdal;
 #[allow(dead_code)] // the serve tests' support, of which this binary uses the server
 mod serve_support;
 
+use cli_support::{assert_same_bytes, build_args as build, text};
 use gdal::pieces::{cog_pieces, resurvey};
 use std::path::Path;
-use std::process::Command;
 use tessera_shared::reader::Pyramid;
 use tessera_shared::{Level, Morton, TileId};
-
-/// Runs `tessera-server build ARGS…`; its stdout, or its stderr as the error.
-fn build(args: &[&str]) -> Result<String, String> {
-    let o = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
-        .arg("build")
-        .args(args)
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    if o.status.success() {
-        Ok(String::from_utf8_lossy(&o.stdout).into_owned())
-    } else {
-        Err(String::from_utf8_lossy(&o.stderr).into_owned())
-    }
-}
-
-fn text(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn assert_same_bytes(a: &Path, b: &Path) {
-    let (x, y) = (std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
-    assert!(x == y, "{} and {} differ", a.display(), b.display());
-}
 
 /// The numbers of the "updated … from …" line: tiles with new bytes, tiles copied,
 /// samples read, samples in all.
@@ -122,18 +100,14 @@ fn an_update_is_the_whole_build_and_copies_what_did_not_change() {
     let mut changed = 0;
     for (b, a) in before.iter().zip(&after) {
         assert_eq!((b.0, b.1), (a.0, a.1));
-        if b.2 != a.2 {
-            changed += 1;
-            assert!(
-                meets(a.0, a.1, 1024, 512),
-                "tile {a:?} changed, away from the piece"
-            );
-        } else {
-            assert!(
-                !meets(a.0, a.1, 1024, 512),
-                "tile {a:?} over the piece kept its bytes"
-            );
-        }
+        // A tile's bytes change exactly when its footprint meets the piece.
+        let differs = b.2 != a.2;
+        assert_eq!(
+            differs,
+            meets(a.0, a.1, 1024, 512),
+            "tile {a:?}: new bytes {differs}"
+        );
+        changed += u64::from(differs);
     }
     assert_eq!(changed, rewritten);
 

@@ -7,32 +7,16 @@
 
 #![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
 
+#[allow(dead_code)] // each test binary uses its own subset
+mod cli_support;
 mod gdal;
 
+use cli_support::{assert_same_bytes, build_args as build, text};
 use gdal::pieces::cog_pieces;
 
 use std::path::Path;
 use std::process::Command;
 use tessera_shared::testdata;
-
-/// Runs `tessera-server build ARGS… --quiet`; its stdout, or its stderr as the error.
-fn build(args: &[&str]) -> Result<String, String> {
-    let o = Command::new(env!("CARGO_BIN_EXE_tessera-server"))
-        .arg("build")
-        .args(args)
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    if o.status.success() {
-        Ok(String::from_utf8_lossy(&o.stdout).into_owned())
-    } else {
-        Err(String::from_utf8_lossy(&o.stderr).into_owned())
-    }
-}
-
-fn text(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 /// How a part's stdout says it read: `Some((samples, of))` for its share, `None` for the
 /// whole input (the line must say why).
@@ -78,18 +62,6 @@ fn parts(
         .collect();
     build(&["--assemble", text(dir), "-o", text(out)]).unwrap();
     reads
-}
-
-fn assert_same_bytes(a: &Path, b: &Path) {
-    let (x, y) = (std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
-    assert!(
-        x == y,
-        "{} and {} differ ({} and {} bytes)",
-        a.display(),
-        b.display(),
-        x.len(),
-        y.len()
-    );
 }
 
 #[test]

@@ -139,6 +139,54 @@ pub fn expand(spec: &InputSpec) -> anyhow::Result<Expanded> {
     Ok(Expanded::Files(files))
 }
 
+/// A digest of which inputs `spec` names: each file's path and size, and an object's
+/// ETag (from its opening, which comes first). What the parts of a distributed build
+/// compare without reading a sample: each reads only its share.
+pub fn identity(spec: &InputSpec) -> anyhow::Result<u64> {
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    match expand(spec)? {
+        Expanded::Synthetic(s) => h.update(s.as_bytes()),
+        Expanded::Files(files) => {
+            for f in files {
+                let name = f.to_string_lossy();
+                h.update(name.as_bytes());
+                h.update(b"\0");
+                if let Some(url) = super::remote::url_of(&f) {
+                    if let Some((size, etag)) = super::remote::identity(url) {
+                        h.update(&size.to_le_bytes());
+                        h.update(etag.unwrap_or_default().as_bytes());
+                    }
+                } else {
+                    let size = std::fs::metadata(&f)
+                        .with_context(|| format!("{}: cannot read its size", f.display()))?
+                        .len();
+                    h.update(&size.to_le_bytes());
+                }
+                h.update(b"\0");
+            }
+        }
+    }
+    Ok(h.digest())
+}
+
+/// What identifies one input file's content without reading it: its size, and an
+/// object's ETag or a file's modification time (nanoseconds since 1970).
+pub fn file_identity(path: &Path) -> anyhow::Result<(u64, String)> {
+    if let Some(url) = super::remote::url_of(path) {
+        return Ok(super::remote::identity(url)
+            .map(|(size, etag)| (size, etag.unwrap_or_default()))
+            .unwrap_or_default());
+    }
+    let m = std::fs::metadata(path)
+        .with_context(|| format!("{}: cannot read its size", path.display()))?;
+    let modified = m
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map_or(0, |d| d.as_nanos());
+    Ok((m.len(), format!("mtime {modified}")))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -210,52 +258,4 @@ mod tests {
             Expanded::Files(vec![PathBuf::from("/no/such.tif")])
         );
     }
-}
-
-/// A digest of which inputs `spec` names: each file's path and size, and an object's
-/// ETag (from its opening, which comes first). What the parts of a distributed build
-/// compare without reading a sample: each reads only its share.
-pub fn identity(spec: &InputSpec) -> anyhow::Result<u64> {
-    let mut h = xxhash_rust::xxh3::Xxh3::new();
-    match expand(spec)? {
-        Expanded::Synthetic(s) => h.update(s.as_bytes()),
-        Expanded::Files(files) => {
-            for f in files {
-                let name = f.to_string_lossy();
-                h.update(name.as_bytes());
-                h.update(b"\0");
-                if let Some(url) = super::remote::url_of(&f) {
-                    if let Some((size, etag)) = super::remote::identity(url) {
-                        h.update(&size.to_le_bytes());
-                        h.update(etag.unwrap_or_default().as_bytes());
-                    }
-                } else {
-                    let size = std::fs::metadata(&f)
-                        .with_context(|| format!("{}: cannot read its size", f.display()))?
-                        .len();
-                    h.update(&size.to_le_bytes());
-                }
-                h.update(b"\0");
-            }
-        }
-    }
-    Ok(h.digest())
-}
-
-/// What identifies one input file's content without reading it: its size, and an
-/// object's ETag or a file's modification time (nanoseconds since 1970).
-pub fn file_identity(path: &Path) -> anyhow::Result<(u64, String)> {
-    if let Some(url) = super::remote::url_of(path) {
-        return Ok(super::remote::identity(url)
-            .map(|(size, etag)| (size, etag.unwrap_or_default()))
-            .unwrap_or_default());
-    }
-    let m = std::fs::metadata(path)
-        .with_context(|| format!("{}: cannot read its size", path.display()))?;
-    let modified = m
-        .modified()
-        .ok()
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map_or(0, |d| d.as_nanos());
-    Ok((m.len(), format!("mtime {modified}")))
 }

@@ -180,13 +180,12 @@ impl RowSource for VerticalShift {
     fn read_rows(&mut self, out: &mut [f32]) -> anyhow::Result<()> {
         self.inner.read_rows(out)?;
         let w = self.info.width as usize;
-        let all = [0..self.info.width];
-        let columns = std::mem::take(&mut self.columns);
-        let spans = if columns.is_empty() {
-            &all[..]
-        } else {
-            &columns[..]
-        };
+        let mut columns = std::mem::take(&mut self.columns);
+        let whole = columns.is_empty();
+        if whole {
+            columns.push(0..self.info.width);
+        }
+        let spans = &columns[..];
         for line in out.chunks_exact_mut(w) {
             for span in spans {
                 self.shifts_at(self.row, span.clone()).with_context(|| {
@@ -208,7 +207,9 @@ impl RowSource for VerticalShift {
             }
             self.row += 1;
         }
-        self.columns = columns;
+        if !whole {
+            self.columns = columns;
+        }
         Ok(())
     }
 

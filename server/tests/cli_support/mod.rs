@@ -17,6 +17,39 @@ pub fn tmpdir(tag: &str) -> tempfile::TempDir {
         .unwrap()
 }
 
+/// Runs `tessera-server build ARGS… --quiet`: its stdout, or its stderr as the error.
+pub fn build_args(args: &[&str]) -> Result<String, String> {
+    let o = bin()
+        .arg("build")
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    if o.status.success() {
+        Ok(String::from_utf8_lossy(&o.stdout).into_owned())
+    } else {
+        Err(String::from_utf8_lossy(&o.stderr).into_owned())
+    }
+}
+
+/// A path as a `&str` argument.
+pub fn text(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Asserts two files hold the same bytes.
+pub fn assert_same_bytes(a: &Path, b: &Path) {
+    let (x, y) = (std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
+    assert!(
+        x == y,
+        "{} and {} differ ({} and {} bytes)",
+        a.display(),
+        b.display(),
+        x.len(),
+        y.len()
+    );
+}
+
 pub fn build(input: &Path, out: &Path, extra: &[&str]) -> Output {
     bin()
         .arg("build")

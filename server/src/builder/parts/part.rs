@@ -37,7 +37,8 @@ pub struct PartReport {
     pub fetched: ingest::remote::Fetched,
 }
 
-/// How much of its input a part read ([`super::share_read`]).
+/// How much of its input a part read (a share, or the whole when its share cannot
+/// stand alone: no-data in it, or float samples without `--height-range`).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum PartRead {
     /// Only its share: `samples` of the input's `of`.

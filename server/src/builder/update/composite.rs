@@ -9,6 +9,9 @@ use std::sync::Mutex;
 use tessera_shared::reader::{FileSource, Pyramid};
 use tessera_shared::{TileGeometry, TileId};
 
+/// A decoded finest record's `(T+1)²` heights.
+type Heights = std::sync::Arc<Vec<u16>>;
+
 /// Decoded finest tiles kept at once (the tiler reads in Morton order, and each
 /// tile's coarse corners from a few tiles around it).
 const CACHED_TILES: usize = 64;
@@ -20,7 +23,7 @@ pub(super) struct Composite<'a> {
     pub(super) old: &'a Pyramid<FileSource>,
     /// Rectangles `[x0, y0, x1, y1)` of samples that may have changed.
     pub(super) changed: &'a [[u32; 4]],
-    cache: Mutex<HashMap<(u32, u32), std::sync::Arc<Vec<u16>>>>,
+    cache: Mutex<HashMap<(u32, u32), Heights>>,
 }
 
 impl<'a> Composite<'a> {
@@ -40,7 +43,7 @@ impl<'a> Composite<'a> {
     }
 
     /// The old finest tile holding sample `(x, y)` as its `(T+1)²` heights.
-    fn old_tile(&self, tx: u32, ty: u32) -> anyhow::Result<std::sync::Arc<Vec<u16>>> {
+    fn old_tile(&self, tx: u32, ty: u32) -> anyhow::Result<Heights> {
         let mut cache = self
             .cache
             .lock()

@@ -252,7 +252,7 @@ pub fn update(
         opts,
         dirty_finest: dirty
             .iter()
-            .flat_map(|r| r.clone())
+            .flat_map(Clone::clone)
             .filter(|&c| {
                 geometry.is_present(
                     TileId::from_morton(geometry.finest(), Morton::from_raw(c)).expect("c < 4^L"),
