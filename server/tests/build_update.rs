@@ -21,6 +21,19 @@ use std::path::Path;
 use tessera_shared::reader::Pyramid;
 use tessera_shared::{Level, Morton, TileId};
 
+/// `build DIR --tile-size 64 --update OLD -o NEW`.
+fn update(dir: &str, old: &Path, new: &Path) -> Result<String, String> {
+    build(&[
+        dir,
+        "--tile-size",
+        "64",
+        "--update",
+        text(old),
+        "-o",
+        text(new),
+    ])
+}
+
 /// The numbers of the "updated … from …" line: tiles with new bytes, tiles copied,
 /// samples read, samples in all.
 fn update_line(stdout: &str) -> [u64; 4] {
@@ -77,16 +90,7 @@ fn an_update_is_the_whole_build_and_copies_what_did_not_change() {
     let whole = tmp.path().join("whole.tess");
     build(&[&dir, "--tile-size", "64", "-o", text(&whole)]).unwrap();
     let new = tmp.path().join("new.tess");
-    let stdout = build(&[
-        &dir,
-        "--tile-size",
-        "64",
-        "--update",
-        text(&old),
-        "-o",
-        text(&new),
-    ])
-    .unwrap();
+    let stdout = update(&dir, &old, &new).unwrap();
     assert_same_bytes(&whole, &new);
     let [rewritten, copied, read, all] = update_line(&stdout);
     // The piece is 1/16 of the samples; its tiles' windows reach one sample past it.
@@ -139,31 +143,13 @@ fn an_update_is_the_whole_build_and_copies_what_did_not_change() {
     resurvey(&tmp.path().join("p30.tif"));
     build(&[&dir, "--tile-size", "64", "-o", text(&whole)]).unwrap();
     let newer = tmp.path().join("newer.tess");
-    let stdout = build(&[
-        &dir,
-        "--tile-size",
-        "64",
-        "--update",
-        text(&new),
-        "-o",
-        text(&newer),
-    ])
-    .unwrap();
+    let stdout = update(&dir, &new, &newer).unwrap();
     assert!(stdout.contains("updated "), "{stdout}");
     assert_same_bytes(&whole, &newer);
 
     // Nothing changed: everything copied, nothing read.
     let same = tmp.path().join("same.tess");
-    let stdout = build(&[
-        &dir,
-        "--tile-size",
-        "64",
-        "--update",
-        text(&newer),
-        "-o",
-        text(&same),
-    ])
-    .unwrap();
+    let stdout = update(&dir, &newer, &same).unwrap();
     let [rewritten, _, read, _] = update_line(&stdout);
     assert_eq!((rewritten, read), (0, 0), "{stdout}");
     assert_same_bytes(&newer, &same);
@@ -222,16 +208,7 @@ fn other_options_are_refused_and_an_inexact_update_builds_whole() {
     // A piece gone: its samples become no-data, filled from across the input.
     std::fs::rename(&pieces[10], tmp.path().join("away.tif.bak")).unwrap();
     let out = tmp.path().join("gone.tess");
-    let stdout = build(&[
-        &dir,
-        "--tile-size",
-        "64",
-        "--update",
-        text(&old),
-        "-o",
-        text(&out),
-    ])
-    .unwrap();
+    let stdout = update(&dir, &old, &out).unwrap();
     assert!(
         stdout.contains("built the whole pyramid, not an update: its share holds no-data"),
         "{stdout}"
@@ -346,16 +323,7 @@ fn an_update_of_a_dem_ending_on_a_tile_edge() {
     let whole = t.join("whole.tess");
     build(&[&dir, "--tile-size", "64", "-o", text(&whole)]).unwrap();
     let new = t.join("new.tess");
-    let stdout = build(&[
-        &dir,
-        "--tile-size",
-        "64",
-        "--update",
-        text(&old),
-        "-o",
-        text(&new),
-    ])
-    .unwrap();
+    let stdout = update(&dir, &old, &new).unwrap();
     assert!(stdout.contains("updated "), "{stdout}");
     assert_same_bytes(&whole, &new);
 }
