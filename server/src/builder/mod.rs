@@ -30,6 +30,7 @@ pub mod parts;
 pub mod plausible;
 mod prepare;
 pub mod provenance;
+pub mod share;
 mod sink;
 pub mod spool;
 pub mod support;

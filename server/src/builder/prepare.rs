@@ -2,7 +2,7 @@
 //! `--to`, the memory plan, the plausibility checks), then read: spooled, or
 //! generated on demand for synthetic terrain.
 
-use super::{BuildOptions, bar, datum, memory, parts, plausible, spool};
+use super::{BuildOptions, bar, datum, memory, plausible, share, spool};
 use crate::ingest::raster::Raster;
 use crate::ingest::{self, Input};
 use anyhow::Context;
@@ -235,7 +235,7 @@ pub(super) fn prepare(
         TileGeometry::new(width, height, opts.tile_size).with_context(|| input.to_string())?;
     let spool = match &source {
         // A part spools its share at least, and the whole input when its share
-        // cannot stand alone (`parts::share_read`): a warning if that cannot fit.
+        // cannot stand alone (`share::read`): a warning if that cannot fit.
         Input::Rows(_) if share > 1 => {
             let whole = plausible::spool_need(size);
             plausible::DiskNeed {
@@ -391,14 +391,14 @@ impl Prepared {
     }
 
     /// Reads only `footprint` of the input, for a part of a distributed build
-    /// ([`parts::share_read`]): the whole build's samples and quantization there, or
+    /// ([`share::read`]): the whole build's samples and quantization there, or
     /// why the share cannot stand alone (the caller then prepares and reads the whole
     /// input); with the samples read, `None` for synthetic terrain, generated where
     /// it is read.
     pub(super) fn load_share(
         self,
         dir: &Path,
-        footprint: &parts::footprint::Footprint,
+        footprint: &share::footprint::Footprint,
         opts: &BuildOptions,
         started: Instant,
     ) -> anyhow::Result<Result<(Loaded, Option<u64>), String>> {
@@ -407,7 +407,7 @@ impl Prepared {
             Input::Synthetic(_) => return self.load(dir, opts, started).map(|l| Ok((l, None))),
             Input::Rows(rows) => rows,
         };
-        if let Some(why) = parts::share_read::needs_whole(rows.as_ref(), stated.as_ref()) {
+        if let Some(why) = share::read::needs_whole(rows.as_ref(), stated.as_ref()) {
             return Ok(Err(why));
         }
         let Prepared {
@@ -425,9 +425,9 @@ impl Prepared {
         let Input::Rows(mut rows) = source else {
             unreachable!("synthetic terrain returned above")
         };
-        let quantizer = parts::share_read::quantizer(rows.as_ref(), stated.as_ref());
+        let quantizer = share::read::quantizer(rows.as_ref(), stated.as_ref());
         let info = rows.info().clone();
-        let share = parts::share_read::read(
+        let share = share::read::read(
             rows.as_mut(),
             footprint,
             dir,
@@ -438,8 +438,8 @@ impl Prepared {
         )
         .with_context(|| label.clone())?;
         let (file, samples) = match share {
-            parts::share_read::Share::Read { file, samples } => (file, samples),
-            parts::share_read::Share::Whole(why) => return Ok(Err(why)),
+            share::read::Share::Read { file, samples } => (file, samples),
+            share::read::Share::Whole(why) => return Ok(Err(why)),
         };
         tracing::debug!(
             seconds = started.elapsed().as_secs_f64(),

@@ -324,7 +324,7 @@ impl SpooledRaster {
 }
 
 impl SpooledRaster {
-    /// The spool of a part's share (`parts::share_read`): `file` holds the samples
+    /// The spool of a part's share (`share::read`): `file` holds the samples
     /// the part reads where a whole spool holds them, and no void (a share with one is
     /// read whole); the rest is never asked for. The depth counts are the whole
     /// raster's as if all valid: a part counts its own (`parts::split::share`).

@@ -32,11 +32,9 @@
 //! pyramid from its parts).
 
 pub mod assemble;
-pub mod footprint;
 pub mod layout;
 pub mod part;
 pub mod reader;
-pub(crate) mod share_read;
 pub mod split;
 pub mod writer;
 

@@ -1,11 +1,11 @@
 //! Building one part (`build INPUT --part K/N -o PARTS/`): the input spooled whole,
 //! the part's subtrees cut, and its fingerprint of input, metadata and options.
 
-use super::footprint::Footprint;
 use super::layout::{Section, Trailer};
 use super::split::{PartSpec, Split, share};
 use super::writer::PartWriter;
 use crate::builder::prepare::Loaded;
+use crate::builder::share::footprint::Footprint;
 use crate::builder::tiling::Tiling;
 use crate::builder::{BuildOptions, bar, meta_reserve};
 use crate::ingest;

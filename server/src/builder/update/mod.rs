@@ -11,7 +11,7 @@
 //!   to re-encode are exactly those whose footprint meets the changed area: the
 //!   finest ones and their ancestors. Their finest samples (and the coarse-cell corners
 //!   their errors are measured against) are read as a part reads its share
-//!   (`parts::share_read`).
+//!   (`share::read`).
 //! - **What is copied.** Every other record is copied byte for byte with its index
 //!   entry (so its checksum, the per-tile ETag, stays), and a tile that did not change
 //!   but whose parent did becomes a node again from its record and its state entry.
@@ -189,12 +189,12 @@ pub fn update(
     let dirty = dirty_ranges(&geometry, &area, &changed);
     // Only the changed area is read: every other sample a re-measured tile needs is
     // in the old pyramid's finest records (`composite`).
-    let footprint = super::parts::footprint::Footprint {
+    let footprint = super::share::footprint::Footprint {
         windows: area
             .iter()
             .filter_map(|&[x0, y0, x1, y1]| {
                 let (x1, y1) = (x1.min(geometry.width()), y1.min(geometry.height()));
-                (x0 < x1 && y0 < y1).then_some(super::parts::footprint::Window {
+                (x0 < x1 && y0 < y1).then_some(super::share::footprint::Window {
                     x: x0..x1,
                     y: y0..y1,
                 })

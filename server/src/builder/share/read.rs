@@ -12,7 +12,7 @@
 //!   only a whole read knows, unless `--height-range` states it (checked against
 //!   every sample read). Integer samples are stored exactly, needing no range.
 
-use super::footprint::Footprint;
+use crate::builder::share::footprint::Footprint;
 use crate::builder::spool::{RawQuantizer, SPOOL_BUFFER, StatedRange};
 use crate::ingest::RowSource;
 use anyhow::Context;

@@ -146,7 +146,6 @@ impl Footprint {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::builder::parts::Split;
 
     /// Every sample the tiler reads for one finest tile: the tile (its padding clamped
     /// to the DEM) and the coarse corners around it, as `finest.rs` reads them.
@@ -173,20 +172,31 @@ mod tests {
 
     #[test]
     fn a_part_reads_every_sample_its_tiles_read_and_little_else() {
-        for (w, h, t, n) in [(1025, 1025, 64, 16), (1201, 700, 64, 4), (300, 1000, 64, 7)] {
+        for (w, h, t, n) in [
+            (1025, 1025, 64, 16u32),
+            (1201, 700, 64, 4),
+            (300, 1000, 64, 7),
+        ] {
             let g = TileGeometry::new(w, h, t).unwrap();
-            let split = Split::new(&g, n);
+            // As a distributed build splits: the smallest level with 4^S ≥ 4N, its codes
+            // cut into N runs (here evenly; the build balances present tiles).
+            let s = (1..=g.finest().get())
+                .find(|&l| 1u64 << (2 * u32::from(l)) >= 4 * u64::from(n))
+                .unwrap_or(g.finest().get());
+            let level = Level::new(s).unwrap();
+            let codes = 1u64 << (2 * u32::from(s));
             let mut total = 0;
             for k in 0..n {
-                let tops = split.tops(k);
-                let fp = Footprint::of(&g, split.level, tops.clone());
+                let tops =
+                    codes * u64::from(k) / u64::from(n)..codes * u64::from(k + 1) / u64::from(n);
+                let fp = Footprint::of(&g, level, tops.clone());
                 let runs = fp.runs();
                 let read = |(x, y): (u32, u32)| {
                     runs.iter()
                         .any(|r| r.rows.contains(&y) && r.columns.iter().any(|c| c.contains(&x)))
                 };
                 let finest = g.finest();
-                let depth = 2 * u32::from(finest.get() - split.level.get());
+                let depth = 2 * u32::from(finest.get() - level.get());
                 for m in tops.start << depth..tops.end << depth {
                     let tile = TileId::from_morton(finest, Morton::from_raw(m)).unwrap();
                     if !g.is_present(tile) {
