@@ -393,3 +393,46 @@ fn an_object_replaced_during_the_build_stops_it_naming_the_url() {
     let left: Vec<_> = std::fs::read_dir(out.path()).unwrap().collect();
     assert!(left.is_empty(), "left behind: {left:?}");
 }
+
+/// An input that must be fetched whole (not a tiled GeoTIFF) and is larger than the
+/// free space of TMPDIR is refused before a byte of it is fetched, naming the URL and
+/// the space, with nothing left in TMPDIR. The object is a sparse file twice the size
+/// of the free space, served by a real nginx (its blocks are never written).
+#[test]
+fn a_non_cog_larger_than_tmpdir_is_refused_before_fetching() {
+    let www = tempfile::tempdir().unwrap();
+    let scratch = tempfile::tempdir().unwrap();
+    let st = rustix::fs::statvfs(scratch.path()).unwrap();
+    let free = st.f_bavail * st.f_frsize;
+    let huge = std::fs::File::create(www.path().join("N46E008.hgt")).unwrap();
+    if huge.set_len(2 * free).is_err() {
+        eprintln!(
+            "SKIPPED: the file system holds no sparse file of {} bytes",
+            2 * free
+        );
+        return;
+    }
+    let Some(web) = nginx::Nginx::serve(www.path()) else {
+        return;
+    };
+    let url = format!("http://{}/N46E008.hgt", web.addr());
+    let out = scratch.path().join("out.tess");
+    let env = [(
+        "TMPDIR".to_string(),
+        scratch.path().to_string_lossy().into_owned(),
+    )];
+    let o = build(&[&url], &out, &env);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "built from {url}: {err}");
+    let lines: Vec<&str> = err.trim().lines().collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains(&url) && lines[0].contains("bytes free") && lines[0].contains("TMPDIR"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(scratch.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(left.is_empty(), "left in TMPDIR: {left:?}");
+}
