@@ -270,7 +270,6 @@ pub fn update(
     u.visit(&mut sink, Level::ROOT, Morton::from_raw(0))?;
     let differ = sink.old.map_or(0, |(_, d)| d);
     tiles_bar.finish_and_clear();
-    let total = super::count_tiles(&geometry, geometry.levels());
     let copied = u.copied;
     let (min_q, max_q) = (
         u.agg.min_q.min(u.copied_range.0),
@@ -283,7 +282,6 @@ pub fn update(
     meta.level_counts = super::level_counts(&geometry, &loaded.dem.raster().depth_counts());
     let report = super::finish_output(pyramid_out, meta, &geometry, opts, started)?;
     state_out.finish(&report.metadata.content_hash, records)?;
-    let _ = total;
     Ok((
         BuildReport {
             warnings,
