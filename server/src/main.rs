@@ -147,7 +147,7 @@ enum Command {
         /// Also write OUT.tess.state (about 1-2 % of the pyramid at --tile-size 512):
         /// the errors a record does not keep and the inputs read, which `--update` needs
         /// to update this pyramid later. Not with --part or a multi-resolution pyramid.
-        #[arg(long)]
+        #[arg(long, conflicts_with_all = ["part", "assemble"])]
         state: bool,
         /// Update OLD.tess (built with --state) to the pyramid of the inputs given now:
         /// reads only the inputs added, removed or changed since (by size and ETag or
