@@ -11,9 +11,11 @@
 //!   parts hold about as many present finest tiles each ([`Split`]). A subtree is
 //!   one contiguous Morton range at every level below `S`, so the pyramid's levels
 //!   `≥ S` are the parts' records concatenated in part order.
-//! - **Same numbers everywhere.** Every part reads (spools) the whole input, so its
-//!   quantization and no-data fill are the single build's: the input is read `N`
-//!   times, the known cost of this design. It then cuts and encodes only its own
+//! - **Same numbers everywhere.** A part reads only its share of the input (its
+//!   subtrees' samples and the coarse-cell corners around them: `share`), whose
+//!   samples and quantization are the single build's, unless its share holds no-data
+//!   or its float samples have no `--height-range`: it then reads (spools) the whole
+//!   input, as the fill and the quantization need. It cuts and encodes only its own
 //!   finest tiles, through the same code as a whole build (the builder's `Tiling`).
 //! - **Counts.** A part records its share of the DEM-wide numbers: the samples its
 //!   level-`S` tiles own, by depth, valid and filled (`split::share`), and the range of
@@ -22,8 +24,8 @@
 //! - **Safety.** A part file is written beside its final name and renamed into
 //!   place only when complete and re-read, so a part that died leaves nothing under
 //!   its name and is simply rerun. Assembling refuses a missing part, a duplicate, a
-//!   part of another `N` or of other input or options (a fingerprint of the input's
-//!   samples, metadata and options), and a truncated or corrupt one (header and
+//!   part of another `N` or of other input or options (a fingerprint of the inputs'
+//!   identity, metadata and options), and a truncated or corrupt one (header and
 //!   trailer checksum, per-record and per-root checksums), naming the file.
 //!
 //! Modules: [`split`] (`--part K/N` and how the parts divide the pyramid), [`part`]
