@@ -56,14 +56,11 @@ import re
 import shlex
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 import traceback
-import urllib.error
-import urllib.request
 
 DEPLOY = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(DEPLOY)
@@ -73,6 +70,7 @@ from commands import arg_after, unescape_compose  # noqa: E402
 from compose_rules import compose_model  # noqa: E402
 from deploy_paths import COMPOSE, DOCKERFILE, NGINX_CONF  # noqa: E402
 from dockerfile_rules import image_args, parse_dockerfile  # noqa: E402
+from processes import free_port, http_get  # noqa: E402
 
 STATE = os.path.join(ROOT, "target", "image")
 CACHE = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "tessera", "image")
@@ -196,24 +194,6 @@ def container(name: str, *, keep_log: bool = True) -> str:
 
     CLEANUP.add(f"container {name}", remove)
     return name
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def http_get(url: str, headers: dict | None = None, timeout: float = 20) -> tuple[int, dict, bytes]:
-    """(status, headers with lower-case names, body); 0 when nothing answered."""
-    req = urllib.request.Request(url, headers=headers or {})
-    try:
-        with urllib.request.urlopen(req, timeout=timeout) as r:
-            return r.status, {k.lower(): v for k, v in r.headers.items()}, r.read()
-    except urllib.error.HTTPError as e:
-        return e.code, {k.lower(): v for k, v in e.headers.items()}, e.read()
-    except (urllib.error.URLError, OSError) as e:
-        return 0, {}, str(e).encode()
 
 
 def wait_for(what: str, probe, timeout: float, detail=None) -> float:
@@ -661,8 +641,8 @@ def tile_paths(doc: dict) -> list[str]:
 def same_answer(front: str, ref: str, path: str, headers: dict | None = None) -> tuple[int, dict, bytes]:
     """GET path from the front and from the reference server: both 200 with the same body
     (and the same X-Tessera-Checksum where the reference sends one); the front's answer."""
-    s1, h1, b1 = http_get(front + path, headers)
-    s2, h2, b2 = http_get(ref + path, headers)
+    s1, h1, b1 = http_get(front + path, headers, timeout=20)
+    s2, h2, b2 = http_get(ref + path, headers, timeout=20)
     if s2 != 200:
         raise Failure(f"GET {path} from the local serve: {s2} {b2[:120]!r}")
     if s1 != 200:
@@ -739,7 +719,7 @@ def stack_test(image: str, work: str) -> dict:
     res["image_healthcheck"] = "healthy"
 
     # A user's checks through nginx.
-    status, _, body = http_get(f"{front}/v1/datasets/{dataset}")
+    status, _, body = http_get(f"{front}/v1/datasets/{dataset}", timeout=20)
     if status != 200:
         raise Failure(f"GET /v1/datasets/{dataset} through nginx: {status} {body[:200]!r}")
     doc = json.loads(body)
