@@ -27,6 +27,35 @@ pub(super) struct Aggregator<'a> {
     pub(super) support: Option<&'a super::support::Support>,
 }
 
+/// Mesh spacings a node's block errors hold, `0 ..= t + L_max`: from the data itself
+/// to the root's single cell.
+pub(super) fn spacings(g: &TileGeometry) -> u32 {
+    g.tile_log2() + u32::from(g.finest().get()) + 1
+}
+
+impl<'a> Aggregator<'a> {
+    /// An aggregator with nothing waiting, up to level `top`.
+    pub(super) fn new(
+        geometry: TileGeometry,
+        top: Level,
+        bar: &'a ProgressBar,
+        support: Option<&'a super::support::Support>,
+    ) -> Self {
+        Self {
+            geometry,
+            spacings: spacings(&geometry),
+            top,
+            pending: (0..=geometry.finest().get())
+                .map(|_| [None, None, None, None])
+                .collect(),
+            min_q: u16::MAX,
+            max_q: 0,
+            bar,
+            support,
+        }
+    }
+}
+
 impl Aggregator<'_> {
     /// A tile (`None`: absent) and its encoded record, which goes to `sink` before the
     /// tile joins its siblings.

@@ -48,24 +48,11 @@ impl Tiling<'_> {
             support,
         } = *self;
         let finest = geometry.finest();
-        let t = geometry.tile_log2();
-        // Spacings 0 ..= t + L_max: from the data itself to the root's single cell.
-        let spacings = t + u32::from(finest.get()) + 1;
+        let mut agg = Aggregator::new(geometry, top, bar, support);
+        let spacings = agg.spacings;
         let batch = plan.batch;
         let depth = 2 * u32::from(finest.get() - top.get());
         let (first, end) = (tops.start << depth, tops.end << depth);
-        let mut agg = Aggregator {
-            geometry,
-            spacings,
-            top,
-            pending: (0..=finest.get())
-                .map(|_| [None, None, None, None])
-                .collect(),
-            min_q: u16::MAX,
-            max_q: 0,
-            bar,
-            support,
-        };
         std::thread::scope(|scope| -> anyhow::Result<()> {
             let (tx, rx) =
                 std::sync::mpsc::sync_channel::<anyhow::Result<Vec<Option<(Node, Encoded)>>>>(1);

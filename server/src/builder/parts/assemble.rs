@@ -2,7 +2,6 @@
 //! other, the levels above the split made from their roots, and the pyramid written.
 
 use super::EXTENSION;
-use super::part::spacings;
 use super::reader::PartFile;
 use super::split::{PartSpec, Split};
 use crate::builder::coarse::Aggregator;
@@ -236,20 +235,9 @@ pub fn assemble(dir: &Path, output: &Path, opts: &BuildOptions) -> anyhow::Resul
         }
     }
     // Above it: the parts' roots, through the same aggregation as a whole build.
-    let mut agg = Aggregator {
-        geometry,
-        spacings: spacings(&geometry),
-        top: Level::ROOT,
-        pending: (0..=finest.get())
-            .map(|_| [None, None, None, None])
-            .collect(),
-        min_q: u16::MAX,
-        max_q: 0,
-        bar: &tiles_bar,
-        // Above the split every tile is stored (the parts refuse a split below the
-        // levels a multi-resolution pyramid stores everywhere).
-        support: None,
-    };
+    // Above the split every tile is stored (the parts refuse a split below the levels
+    // a multi-resolution pyramid stores everywhere).
+    let mut agg = Aggregator::new(geometry, Level::ROOT, &tiles_bar, None);
     for p in &parts {
         let named = || p.path.display().to_string();
         ensure!(

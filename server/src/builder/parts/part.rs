@@ -14,7 +14,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tessera_shared::format;
-use tessera_shared::{Level, Metadata, Morton, TileGeometry, TileId};
+use tessera_shared::{Level, Metadata, Morton, TileId};
 use xxhash_rust::xxh3::Xxh3;
 
 /// What a part build did.
@@ -149,7 +149,7 @@ pub fn build_part(
         fingerprint: fingerprint(&loaded, opts, reserve, ingest::inputs::identity(inputs)?),
         tops: tops.clone(),
         meta_reserve: reserve,
-        spacings: spacings(&geometry),
+        spacings: crate::builder::coarse::spacings(&geometry),
         min_q,
         max_q,
         nodata: depths.iter().map(|d| d[1]).sum(),
@@ -179,11 +179,6 @@ pub fn build_part(
         read,
         fetched: ingest::remote::fetched().since(fetched_before),
     })
-}
-
-/// Mesh spacings a node's block errors hold: `t + L_max + 1`.
-pub(super) fn spacings(g: &TileGeometry) -> u32 {
-    g.tile_log2() + u32::from(g.finest().get()) + 1
 }
 
 /// A digest of everything that shapes the pyramid's bytes and that every part knows

@@ -222,7 +222,6 @@ pub fn update(
         super::count_tiles(&geometry, geometry.levels()),
         "updating",
     );
-    let spacings = geometry.tile_log2() + u32::from(geometry.finest().get()) + 1;
     let composite = composite::Composite::new(geometry, loaded.dem.raster(), &pyramid, &area);
     let mut u = Updater {
         g: geometry,
@@ -233,19 +232,7 @@ pub fn update(
         area: &area,
         raster: &composite,
         quant: loaded.meta.quantization,
-        spacings,
-        agg: Aggregator {
-            geometry,
-            spacings,
-            top: Level::ROOT,
-            pending: (0..=geometry.finest().get())
-                .map(|_| [None, None, None, None])
-                .collect(),
-            min_q: u16::MAX,
-            max_q: 0,
-            bar: &tiles_bar,
-            support: None,
-        },
+        agg: Aggregator::new(geometry, Level::ROOT, &tiles_bar, None),
         copied: 0,
         copied_range: (u16::MAX, 0),
         measured: 0,
@@ -417,7 +404,6 @@ struct Updater<'a> {
     area: &'a [[u32; 4]],
     raster: &'a dyn ingest::raster::Raster,
     quant: tessera_shared::Quantization,
-    spacings: u32,
     agg: Aggregator<'a>,
     copied: u64,
     copied_range: (u16, u16),
@@ -499,7 +485,7 @@ impl Updater<'_> {
         let g = &self.g;
         let tile = TileId::from_morton(g.finest(), m).expect("m < 4^L");
         if self.changed.binary_search(&m.get()).is_ok() {
-            return finest_node(self.raster, g, tile, self.spacings, &self.quant);
+            return finest_node(self.raster, g, tile, self.agg.spacings, &self.quant);
         }
         let mut node = self.node_from_old(g.finest(), m)?;
         let (gx0, gy0) = g.origin(tile);
@@ -517,17 +503,17 @@ impl Updater<'_> {
                 })
         };
         let t = g.tile_log2();
-        let corners = super::finest::coarse_corners(self.raster, g, gx0, gy0, self.spacings)?;
+        let corners = super::finest::coarse_corners(self.raster, g, gx0, gy0, self.agg.spacings)?;
         let errors = super::mesh_error::finest_tile_errors_at(
             &node.heights,
             t,
             gx0,
             gy0,
             &corners,
-            self.spacings,
+            self.agg.spacings,
             |k| k > t && moved(k),
         );
-        for k in (t + 1..self.spacings).filter(|&k| moved(k)) {
+        for k in (t + 1..self.agg.spacings).filter(|&k| moved(k)) {
             for by in 0..BLOCKS {
                 for bx in 0..BLOCKS {
                     *node.errors.slot_mut(k, bx, by) =
@@ -589,7 +575,7 @@ impl Updater<'_> {
         let below = u32::from(self.g.finest().get() - level.get());
         let mut node = Node {
             heights: rec.heights,
-            errors: BlockErrors::zeros(self.spacings as usize),
+            errors: BlockErrors::zeros(self.agg.spacings as usize),
             min: [u16::MAX; 64],
             max: [0; 64],
             mask: rec.mask,
