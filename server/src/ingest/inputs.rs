@@ -151,16 +151,12 @@ pub fn identity(spec: &InputSpec) -> anyhow::Result<u64> {
                 let name = f.to_string_lossy();
                 h.update(name.as_bytes());
                 h.update(b"\0");
-                if let Some(url) = super::remote::url_of(&f) {
-                    if let Some((size, etag)) = super::remote::identity(url) {
-                        h.update(&size.to_le_bytes());
-                        h.update(etag.unwrap_or_default().as_bytes());
-                    }
-                } else {
-                    let size = std::fs::metadata(&f)
-                        .with_context(|| format!("{}: cannot read its size", f.display()))?
-                        .len();
-                    h.update(&size.to_le_bytes());
+                let (size, tag) = file_identity(&f)?;
+                h.update(&size.to_le_bytes());
+                // An object's ETag; not a file's modification time, which differs
+                // between the copies that parts on different nodes may read.
+                if super::remote::url_of(&f).is_some() {
+                    h.update(tag.as_bytes());
                 }
                 h.update(b"\0");
             }
