@@ -12,12 +12,16 @@ mod serve_support;
 
 use serve_support::{Server, bin, parse_metrics};
 use std::io::Read;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 use std::sync::{Arc, OnceLock};
 use tessera_server::cesium::quantized_mesh::{Extensions, encode};
+use tessera_server::cesium::terrain::availability::{Availability, Stored};
 use tessera_server::cesium::terrain::{PyramidLevels, Terrain};
 use tessera_server::cesium::tiling::CesiumTile;
 use tessera_server::geoid::Geoid;
+use tessera_server::serve::routes::cesium::metadata_json;
+use tessera_shared::format::FLAG_PARTIAL;
 use tessera_shared::{Pyramid, testdata};
 
 const ACCEPT_ALL: &str = "application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata,application/octet-stream;q=0.9,*/*;q=0.01";
@@ -69,6 +73,19 @@ fn gunzip(bytes: &[u8]) -> Vec<u8> {
     out
 }
 
+/// The availability of a pyramid made in-process, from its index and masks.
+fn availability_of(path: &Path) -> Availability {
+    let p = Pyramid::open_file(path).unwrap();
+    let terrain = Terrain::new(p.metadata(), None).unwrap();
+    let levels = PyramidLevels::new(&p);
+    let stored = |t| match p.entry(t) {
+        Some(e) if e.flags & FLAG_PARTIAL != 0 => Stored::Partial,
+        Some(_) => Stored::Full,
+        None => Stored::Absent,
+    };
+    terrain.availability(stored, &levels).unwrap()
+}
+
 /// The tile as the mesher and encoder make it here, with the server's geoid.
 fn expected(b: &Built, tile: CesiumTile, normals: bool, metadata: bool) -> Vec<u8> {
     let p = Pyramid::open_file(&b.srtm).unwrap();
@@ -77,14 +94,66 @@ fn expected(b: &Built, tile: CesiumTile, normals: bool, metadata: bool) -> Vec<u
     let levels = PyramidLevels::new(&p);
     let plan = terrain.plan(tile.z, &levels).unwrap();
     let mesh = terrain.mesh(tile, &levels).unwrap();
+    let available = availability_of(&b.srtm);
     let ext = Extensions {
         normals,
-        metadata: metadata.then(|| {
-            serde_json::json!({"geometricError": plan.geometric_error, "level": plan.level.get()})
-                .to_string()
-        }),
+        water_mask: None,
+        metadata: metadata
+            .then(|| metadata_json(&available, tile, plan.geometric_error, plan.level)),
     };
     encode(&mesh, tile.rect(), &terrain.ellipsoid, &ext).unwrap()
+}
+
+/// The extensions of a quantized-mesh tile: `(id, bytes)` in order.
+fn extensions_of(tile: &[u8]) -> Vec<(u8, Vec<u8>)> {
+    let u32_at = |p: usize| u32::from_le_bytes(tile[p..p + 4].try_into().unwrap()) as usize;
+    let mut p = 88;
+    let n = u32_at(p);
+    p += 4 + 6 * n;
+    let width = if n > 65_536 { 4 } else { 2 };
+    p = p.next_multiple_of(width);
+    let triangles = u32_at(p);
+    p += 4 + 3 * triangles * width;
+    for _ in 0..4 {
+        let k = u32_at(p);
+        p += 4 + k * width;
+    }
+    let mut out = Vec::new();
+    while p < tile.len() {
+        let id = tile[p];
+        let len = u32_at(p + 1);
+        out.push((id, tile[p + 5..p + 5 + len].to_vec()));
+        p += 5 + len;
+    }
+    out
+}
+
+/// The metadata extension's JSON.
+fn metadata_of(tile: &[u8]) -> serde_json::Value {
+    let (_, m) = extensions_of(tile)
+        .into_iter()
+        .find(|(id, _)| *id == 4)
+        .expect("a metadata extension");
+    serde_json::from_slice(&m[4..]).unwrap()
+}
+
+/// Whether a tile's `available` ranges (one level) hold `(x, y)`.
+fn listed(ranges: &serde_json::Value, x: u32, y: u32) -> bool {
+    ranges.as_array().unwrap().iter().any(|r| {
+        let v = |k: &str| r[k].as_u64().unwrap() as u32;
+        (v("startX")..=v("endX")).contains(&x) && (v("startY")..=v("endY")).contains(&y)
+    })
+}
+
+/// The zoom-`z` tile holding a point.
+fn tile_at(z: u8, lon: f64, lat: f64) -> CesiumTile {
+    let span = CesiumTile::span(z);
+    CesiumTile::new(
+        z,
+        ((lon + 180.0) / span) as u32,
+        ((lat + 90.0) / span) as u32,
+    )
+    .unwrap()
 }
 
 #[test]
@@ -112,11 +181,14 @@ fn layer_json_describes_the_terrain_as_cesium_reads_it() {
         doc["tiles"][0],
         format!("{{z}}/{{x}}/{{y}}.terrain?v={hash}")
     );
+    // Metadata availability: layer.json lists zooms 0-10, tiles the rest.
+    assert_eq!(doc["metadataAvailability"], 10);
     let available = doc["available"].as_array().unwrap();
-    assert_eq!(available.len(), 17);
+    assert_eq!(available.len(), 11);
+    // Both roots, as CesiumJS assumes with metadataAvailability.
     assert_eq!(
         available[0],
-        serde_json::json!([{"startX": 1, "startY": 0, "endX": 1, "endY": 0}])
+        serde_json::json!([{"startX": 0, "startY": 0, "endX": 1, "endY": 0}])
     );
     // 0.703125° tiles at zoom 8: 8–9° E, 46–47° N.
     assert_eq!(
@@ -129,7 +201,8 @@ fn layer_json_describes_the_terrain_as_cesium_reads_it() {
         .iter()
         .map(|v| v.as_str().unwrap())
         .collect();
-    assert_eq!(ext, ["octvertexnormals"]);
+    // No water rule given: no water mask.
+    assert_eq!(ext, ["octvertexnormals", "metadata"]);
     assert_eq!(doc["metadata"]["verticalDatum"], "egm96");
     let e0 = doc["metadata"]["levelZeroGeometricError"].as_f64().unwrap();
     assert!((e0 - 77_067.34).abs() < 0.01, "{e0}");
@@ -243,4 +316,357 @@ fn bad_terrain_requests_get_reasons() {
         let reason = r.json_error();
         assert!(reason.contains(needle), "{path}: {reason}");
     }
+}
+
+#[test]
+fn tiles_carry_the_availability_of_the_zooms_below_them() {
+    let Some(b) = built() else { return };
+    let s = Server::start(&[&b.srtm], &[]);
+    let doc = s
+        .get("/v1/datasets/N46E008/cesium/layer.json")
+        .expect(200)
+        .json();
+    let meta = |z: u8, x: u32, y: u32| {
+        let r = s
+            .get_with(
+                &format!("/v1/datasets/N46E008/cesium/{z}/{x}/{y}.terrain"),
+                &[("Accept", ACCEPT_ALL)],
+            )
+            .expect(200);
+        metadata_of(&r.body)
+    };
+    // The eastern root carries zooms 1-10, as layer.json lists them.
+    let root = meta(0, 1, 0);
+    let carried = root["available"].as_array().unwrap();
+    assert_eq!(carried.len(), 10);
+    for (k, ranges) in carried.iter().enumerate() {
+        assert_eq!(ranges, &doc["available"][k + 1], "zoom {}", k + 1);
+    }
+    // The western root holds no data but exists (CesiumJS assumes both roots):
+    // nothing under it.
+    let west = meta(0, 0, 0);
+    assert!(
+        west["available"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|r| r.as_array().unwrap().is_empty()),
+        "{west}"
+    );
+    // A zoom-10 tile carries zooms 11-16 under it; a zoom-8 one nothing.
+    let t = tile_at(10, 8.5, 46.5);
+    let m = meta(10, t.x, t.y);
+    let carried = m["available"].as_array().unwrap();
+    assert_eq!(carried.len(), 6);
+    assert!(listed(&carried[5], t.x << 6, t.y << 6), "{m}");
+    assert!(meta(8, 267, 193).get("available").is_none());
+    // The server's availability is the pyramid's.
+    let a = availability_of(&b.srtm);
+    for z in 0..=10 {
+        let ranges: Vec<serde_json::Value> = a
+            .ranges(z)
+            .iter()
+            .map(|&[x0, y0, x1, y1]| {
+                serde_json::json!({"startX": x0, "startY": y0, "endX": x1, "endY": y1})
+            })
+            .collect();
+        assert_eq!(doc["available"][usize::from(z)], serde_json::json!(ranges));
+    }
+}
+
+fn run(cmd: &mut Command) {
+    let o = cmd.output().unwrap();
+    assert!(
+        o.status.success(),
+        "{cmd:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn gdal() -> bool {
+    Command::new("gdal_translate")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+#[test]
+fn a_hole_in_a_mosaic_is_no_tile() {
+    let Some(_) = built() else { return };
+    if !gdal() {
+        eprintln!("skipped: no gdal_translate");
+        return;
+    }
+    // N46E008 (1201² samples, 3″) in two pieces with 199 columns (0.1658°,
+    // 8.4167–8.5833° E) missing.
+    let dir = tempfile::tempdir().unwrap();
+    let dem = testdata::dem_or_skip("N46E008.tif").unwrap();
+    let (west, east) = (dir.path().join("west.tif"), dir.path().join("east.tif"));
+    for (win, out) in [
+        (["0", "0", "501", "1201"], &west),
+        (["700", "0", "501", "1201"], &east),
+    ] {
+        run(Command::new("gdal_translate")
+            .args(["-q", "-srcwin"])
+            .args(win)
+            .arg(&dem)
+            .arg(out));
+    }
+    let holed = dir.path().join("holed.tess");
+    run(bin()
+        .args(["build"])
+        .arg(&west)
+        .arg(&east)
+        .arg("-o")
+        .arg(&holed)
+        .args(["--tile-size", "256", "--quiet", "--vertical-datum", "egm96"]));
+    let s = Server::start(&[&holed], &[]);
+    let doc = s
+        .get("/v1/datasets/holed/cesium/layer.json")
+        .expect(200)
+        .json();
+    let gap = tile_at(12, 8.5, 46.5);
+    let beside = tile_at(12, 8.6, 46.5);
+    let parent = tile_at(10, 8.5, 46.5);
+    assert_eq!((gap.x >> 2, gap.y >> 2), (parent.x, parent.y));
+    assert_eq!((beside.x >> 2, beside.y >> 2), (parent.x, parent.y));
+    // Over the hole: not listed by the zoom-10 tile that carries zoom 12, and 404.
+    let r = s
+        .get_with(
+            &format!(
+                "/v1/datasets/holed/cesium/10/{}/{}.terrain",
+                parent.x, parent.y
+            ),
+            &[("Accept", ACCEPT_ALL)],
+        )
+        .expect(200);
+    let m = metadata_of(&r.body);
+    assert!(!listed(&m["available"][1], gap.x, gap.y), "{m}");
+    assert!(listed(&m["available"][1], beside.x, beside.y), "{m}");
+    let r = s.get(&format!(
+        "/v1/datasets/holed/cesium/12/{}/{}.terrain",
+        gap.x, gap.y
+    ));
+    assert_eq!(r.status, 404);
+    assert!(
+        r.json_error().contains("holds no data"),
+        "{}",
+        r.json_error()
+    );
+    s.get(&format!(
+        "/v1/datasets/holed/cesium/12/{}/{}.terrain",
+        beside.x, beside.y
+    ))
+    .expect(200);
+    // Zoom 10 tiles wholly in the hole: none (0.176° tiles, a 0.167° hole); zoom 9's
+    // available ranges are one rectangle, zoom 12's (from the tiles) leave the hole.
+    assert_eq!(doc["available"][9].as_array().unwrap().len(), 1);
+    let a = availability_of(&holed);
+    assert!(!a.contains(gap) && a.contains(beside));
+    let holes_12 = a.ranges(12).len();
+    assert!(holes_12 > 1, "zoom 12: {holes_12} ranges");
+}
+
+/// The water-mask cell holding a point, and the mask's bytes: 1 or 65 536.
+fn water_at(s: &Server, lon: f64, lat: f64) -> (bool, usize) {
+    let t = tile_at(11, lon, lat);
+    let r = s
+        .get_with(
+            &format!("/v1/datasets/N46E008/cesium/11/{}/{}.terrain", t.x, t.y),
+            &[("Accept", ACCEPT_ALL)],
+        )
+        .expect(200);
+    assert_eq!(
+        r.must("content-type"),
+        "application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata"
+    );
+    let ext = extensions_of(&r.body);
+    let ids: Vec<u8> = ext.iter().map(|(id, _)| *id).collect();
+    assert_eq!(ids, [1, 2, 4], "extensions in spec order");
+    let mask = &ext[1].1;
+    let [w, so, e, n] = t.rect();
+    let i = ((lon - w) / (e - w) * 256.0) as usize;
+    let j = ((n - lat) / (n - so) * 256.0) as usize;
+    let v = match mask.len() {
+        1 => mask[0],
+        65_536 => mask[j * 256 + i],
+        other => panic!("water mask of {other} bytes"),
+    };
+    assert!(v == 0 || v == 255, "{v}");
+    (v == 255, mask.len())
+}
+
+// Urnersee (Lake Lucerne's south arm) is 431 m in this SRTM tile (EGM96); the slopes
+// beside it are land.
+const LAKE: [[f64; 2]; 2] = [[8.61, 46.93], [8.50, 46.99]];
+const LAND: [[f64; 2]; 2] = [[8.65, 46.93], [8.58, 46.98]];
+
+#[test]
+fn water_masks_mark_the_lake_and_not_the_land() {
+    let Some(b) = built() else { return };
+    let dem = testdata::dem_or_skip("N46E008.tif").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut servers = vec![(
+        "--sea-level 431",
+        Server::start(&[&b.srtm], &["--sea-level", "431"]),
+    )];
+    if gdal() {
+        // A water raster: the lake's 431 m cells around Urnersee, EPSG:4326.
+        let crop = dir.path().join("crop.tif");
+        let water = dir.path().join("water.tif");
+        run(Command::new("gdal_translate")
+            .args(["-q", "-projwin", "8.40", "47.06", "8.70", "46.85"])
+            .arg(&dem)
+            .arg(&crop));
+        run(Command::new("gdal_calc.py")
+            .arg("--quiet")
+            .arg("-A")
+            .arg(&crop)
+            .arg("--outfile")
+            .arg(&water)
+            .args(["--calc", "A==431", "--type", "Int16"]));
+        servers.push((
+            "--water",
+            Server::start(&[&b.srtm], &["--water", water.to_str().unwrap()]),
+        ));
+    }
+    for (rule, s) in &servers {
+        let doc = s
+            .get("/v1/datasets/N46E008/cesium/layer.json")
+            .expect(200)
+            .json();
+        assert_eq!(
+            doc["extensions"],
+            serde_json::json!(["octvertexnormals", "watermask", "metadata"])
+        );
+        for [lon, lat] in LAKE {
+            let (water, bytes) = water_at(s, lon, lat);
+            assert!(water, "{rule}: {lon}, {lat} is the lake");
+            assert_eq!(bytes, 65_536, "{rule}: lake and shore in one tile");
+        }
+        for [lon, lat] in LAND {
+            assert!(!water_at(s, lon, lat).0, "{rule}: {lon}, {lat} is land");
+        }
+        // Finsteraarhorn: all land, the one-byte form.
+        assert_eq!(water_at(s, 8.1258, 46.5367), (false, 1), "{rule}");
+        let t = tile_at(11, LAKE[0][0], LAKE[0][1]);
+        let path = format!("/v1/datasets/N46E008/cesium/11/{}/{}.terrain", t.x, t.y);
+        let plain = s
+            .get_with(
+                &path,
+                &[(
+                    "Accept",
+                    "application/vnd.quantized-mesh;extensions=octvertexnormals-metadata",
+                )],
+            )
+            .expect(200);
+        let wet = s.get_with(&path, &[("Accept", ACCEPT_ALL)]).expect(200);
+        assert_ne!(plain.must("etag"), wet.must("etag"));
+        eprintln!(
+            "{rule}: tile 11/{}/{} is {} bytes without the water mask, {} with it (uncompressed)",
+            t.x,
+            t.y,
+            plain.body.len(),
+            wet.body.len()
+        );
+    }
+}
+
+#[test]
+fn accept_headers_without_quantized_mesh_get_406() {
+    let Some(b) = built() else { return };
+    let s = Server::start(&[&b.srtm], &[]);
+    let path = "/v1/datasets/N46E008/cesium/8/267/193.terrain";
+    for accept in ["image/png", "application/vnd.quantized-mesh;q=0, text/html"] {
+        let r = s.get_with(path, &[("Accept", accept)]);
+        assert_eq!(r.status, 406, "{accept}: {}", r.text());
+        assert!(
+            r.json_error().contains("application/vnd.quantized-mesh"),
+            "{}",
+            r.json_error()
+        );
+    }
+    // Unknown extension names are ignored (CesiumJS asks only for listed ones), and
+    // the water mask without a water rule is not made.
+    let r = s
+        .get_with(
+            path,
+            &[(
+                "Accept",
+                "application/vnd.quantized-mesh;extensions=bogus-watermask",
+            )],
+        )
+        .expect(200);
+    assert_eq!(r.must("content-type"), "application/vnd.quantized-mesh");
+    s.get_with(path, &[("Accept", "*/*")]).expect(200);
+}
+
+/// Runs `serve` expecting it to stop at start-up; its stderr.
+fn serve_fails(flags: &[&str]) -> String {
+    let Some(b) = built() else {
+        return String::new();
+    };
+    let mut child = bin()
+        .arg("serve")
+        .arg(&b.srtm)
+        .args(["--listen", "127.0.0.1:0"])
+        .args(flags)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // A server that starts instead would run forever: stop it (and fail).
+    for _ in 0..600 {
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    if child.try_wait().unwrap().is_none() {
+        child.kill().unwrap();
+        panic!("serve {flags:?} started");
+    }
+    let o = child.wait_with_output().unwrap();
+    assert!(!o.status.success());
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn bad_water_inputs_stop_the_server_with_one_line() {
+    let Some(_) = built() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let junk = dir.path().join("junk.tif");
+    std::fs::write(&junk, "not a GeoTIFF\n").unwrap();
+    let mut cases = vec![(junk, "junk.tif")];
+    if gdal() {
+        let dem = testdata::dem_or_skip("N46E008.tif").unwrap();
+        let merc = dir.path().join("mercator.tif");
+        run(Command::new("gdalwarp")
+            .args([
+                "-q",
+                "-t_srs",
+                "EPSG:3857",
+                "-te_srs",
+                "EPSG:4326",
+                "-te",
+                "8.5",
+                "46.9",
+                "8.7",
+                "47.0",
+            ])
+            .arg(&dem)
+            .arg(&merc));
+        cases.push((merc, "EPSG:4326"));
+    }
+    for (file, needle) in cases {
+        let err = serve_fails(&["--water", file.to_str().unwrap()]);
+        let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert_eq!(lines.len(), 1, "{err}");
+        assert!(
+            lines[0].contains(&*file.to_string_lossy()) && lines[0].contains(needle),
+            "{err}"
+        );
+    }
+    let err = serve_fails(&["--sea-level", "NaN"]);
+    assert!(err.contains("--sea-level"), "{err}");
 }

@@ -47,6 +47,7 @@ fn main() {
     let mut rng = Rng(seed);
     let ext = Extensions {
         normals: true,
+        water_mask: None,
         metadata: None,
     };
     let true_error = |tile: CesiumTile, mesh: &TerrainMesh| {

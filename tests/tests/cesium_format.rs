@@ -301,6 +301,7 @@ fn a_hand_made_mesh_round_trips() {
     let json = r#"{"available":[[{"startX":0,"startY":0,"endX":1,"endY":1}]]}"#;
     let full = Extensions {
         normals: true,
+        water_mask: None,
         metadata: Some(json.to_string()),
     };
     let d = round_trip(&mesh, ALPS, &Ellipsoid::WGS84, &full);
@@ -324,6 +325,7 @@ fn a_hand_made_mesh_round_trips() {
     round_trip(&mesh, ALPS, &Ellipsoid::WGS84, &Extensions::default());
     let normals_only = Extensions {
         normals: true,
+        water_mask: None,
         metadata: None,
     };
     let moon = Ellipsoid::sphere(1_737_400.0).unwrap();
@@ -378,6 +380,7 @@ fn a_random_mesh_past_65536_vertices_round_trips_with_32_bit_indices() {
     let mesh = random_grid(257, &mut rng);
     let ext = Extensions {
         normals: true,
+        water_mask: None,
         metadata: Some(r#"{"tile":"random"}"#.to_string()),
     };
     let d = round_trip(&mesh, [-120.0, 35.0, -119.0, 36.0], &Ellipsoid::WGS84, &ext);
@@ -403,6 +406,7 @@ fn flat_and_whole_hemisphere_tiles_round_trip() {
     let mesh = random_grid(9, &mut Rng(2));
     let ext = Extensions {
         normals: true,
+        water_mask: None,
         metadata: None,
     };
     round_trip(&mesh, [-180.0, -90.0, 0.0, 90.0], &Ellipsoid::WGS84, &ext);
@@ -417,6 +421,7 @@ fn truncated_tiles_are_errors() {
         Extensions::default(),
         Extensions {
             normals: true,
+            water_mask: None,
             metadata: Some("{}".to_string()),
         },
     ] {
@@ -451,6 +456,7 @@ fn truncated_tiles_are_errors() {
 fn damaged_tiles_never_panic() {
     let ext = Extensions {
         normals: true,
+        water_mask: None,
         metadata: Some("{\"a\":1}".to_string()),
     };
     let bytes = encode(&hand_made(), ALPS, &Ellipsoid::WGS84, &ext).unwrap();

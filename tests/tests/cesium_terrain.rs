@@ -122,6 +122,7 @@ fn worst_error(
     let rect = tile.rect();
     let ext = Extensions {
         normals: true,
+        water_mask: None,
         metadata: None,
     };
     let bytes = encode(mesh, rect, &case.terrain.ellipsoid, &ext).unwrap();

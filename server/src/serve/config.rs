@@ -14,6 +14,7 @@ use std::time::Duration;
 
 /// `tessera-server serve` flags (each also readable from a `TESSERA_*` variable).
 #[derive(Debug, Clone, clap::Args)]
+#[allow(clippy::struct_excessive_bools)] // a command line's switches are bools
 pub struct ServeArgs {
     /// Pyramid files (.tess), directories holding them, or object URLs
     /// (s3://BUCKET/KEY.tess, gs://, az://, file://, or http(s):// to any server that
@@ -132,6 +133,24 @@ pub struct ServeArgs {
     /// Debian's proj-data; without one, such heights are served as-is with a warning].
     #[arg(long, value_name = "GTX")]
     pub geoid: Option<PathBuf>,
+    /// Cesium terrain's water mask: water where this raster (a GeoTIFF in EPSG:4326,
+    /// nonzero = water) says so [default: none].
+    #[arg(long, env = "TESSERA_WATER", value_name = "FILE")]
+    pub water: Option<PathBuf>,
+    /// Cesium terrain's water mask: water where heights are at or below METRES (the
+    /// dataset's own heights) and connected to the tile's edge or to no-data
+    /// [default: none].
+    #[arg(
+        long,
+        env = "TESSERA_SEA_LEVEL",
+        value_name = "METRES",
+        allow_negative_numbers = true
+    )]
+    pub sea_level: Option<f64>,
+    /// Cesium terrain's water mask: water where the dataset has no data (no-data
+    /// samples, beyond its edge), for a DEM whose sea is no-data.
+    #[arg(long, env = "TESSERA_NO_DATA_WATER")]
+    pub no_data_water: bool,
     /// Turn the built-in viewer off: `/` and `/viewer/...` then answer 404 like any
     /// unknown path (the API is unchanged).
     #[arg(long, env = "TESSERA_NO_VIEWER")]
@@ -175,6 +194,9 @@ struct FileConfig {
     tile_cache_mib: Option<u64>,
     block_cache_mib: Option<u64>,
     geoid: Option<PathBuf>,
+    water: Option<PathBuf>,
+    sea_level: Option<f64>,
+    no_data_water: Option<bool>,
     no_viewer: Option<bool>,
     viewer_assets: Option<PathBuf>,
 }
@@ -474,6 +496,11 @@ impl Settings {
                         dw.tile_cache_bytes,
                     )?,
                     geoid: geoid(args.geoid.clone().or(file.geoid).as_deref())?,
+                    water: water_rule(
+                        args.water.clone().or(file.water).as_deref(),
+                        args.sea_level.or(file.sea_level),
+                        args.no_data_water || file.no_data_water.unwrap_or(false),
+                    )?,
                 }
             },
             // 0 is allowed here: it turns the cache off (every read goes to the store).
@@ -488,6 +515,29 @@ impl Settings {
         };
         Ok(s)
     }
+}
+
+/// What Cesium terrain's water masks mark as water: the `--water` raster is read
+/// here, so a bad one stops the server with one line naming it.
+fn water_rule(
+    raster: Option<&std::path::Path>,
+    sea_level: Option<f64>,
+    no_data: bool,
+) -> anyhow::Result<crate::cesium::terrain::water::WaterRule> {
+    use crate::cesium::terrain::water::{WaterRaster, WaterRule};
+    if let Some(s) = sea_level
+        && !s.is_finite()
+    {
+        anyhow::bail!("--sea-level {s}: want a finite number of metres");
+    }
+    Ok(WaterRule {
+        raster: raster
+            .map(WaterRaster::open)
+            .transpose()?
+            .map(std::sync::Arc::new),
+        no_data,
+        sea_level,
+    })
 }
 
 /// The geoid grid: the one named (which must open), else the first default found

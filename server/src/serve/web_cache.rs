@@ -4,6 +4,7 @@
 //! source tile once — and a bounded LRU of made tiles. Both caches are weighed in bytes;
 //! their sizes, hits and misses are in `/metrics`.
 
+use crate::cesium::terrain::water::WaterRule;
 use crate::cesium::terrain::{Terrain, TerrainError};
 use crate::cesium::tiling::CesiumTile;
 use crate::geoid::Geoid;
@@ -43,6 +44,9 @@ pub struct WebConfig {
     pub tile_cache_bytes: u64,
     /// The EPSG96 geoid grid for Cesium terrain heights (`--geoid`), when found.
     pub geoid: Option<Arc<Geoid>>,
+    /// What Cesium terrain's water masks mark as water (`--water`, `--no-data-water`,
+    /// `--sea-level`); none set: no masks.
+    pub water: WaterRule,
 }
 
 impl Default for WebConfig {
@@ -53,6 +57,7 @@ impl Default for WebConfig {
             source_cache_bytes: 256 << 20,
             tile_cache_bytes: 64 << 20,
             geoid: None,
+            water: WaterRule::default(),
         }
     }
 }
@@ -80,6 +85,7 @@ pub struct TerrainKey {
     pub dataset: u64,
     pub tile: CesiumTile,
     pub normals: bool,
+    pub water_mask: bool,
     pub metadata: bool,
 }
 

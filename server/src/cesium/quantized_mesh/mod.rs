@@ -9,8 +9,8 @@
 //! 3. the index data, padded to its element size: triangle count, then
 //!    high-water-mark-coded indices, 16-bit unless there are more than 65536 vertices;
 //! 4. the west, south, east and north edge lists (plain indices, same width);
-//! 5. extensions, each an id byte and a 32-bit length: oct-encoded vertex normals
-//!    (id 1) and metadata (id 4) when asked for.
+//! 5. extensions, each an id byte and a 32-bit length, in id order: oct-encoded
+//!    vertex normals (id 1), the water mask (id 2) and metadata (id 4) when asked for.
 //!
 //! The tile is built uncompressed; the server gzips it. Every number in the header is
 //! computed from the values a client decodes (quantized positions and heights), not
@@ -54,11 +54,59 @@ pub struct TerrainMesh {
 pub struct Extensions {
     /// Oct-encoded per-vertex normals (id 1, `octvertexnormals`).
     pub normals: bool,
+    /// The water mask (id 2, `watermask`).
+    pub water_mask: Option<WaterMask>,
     /// A JSON object for the metadata extension (id 4, `metadata`), e.g. child
     /// availability.
     pub metadata: Option<String>,
-    // The water mask (id 2) is not produced: it would be one more field here and one
-    // more extension between the normals and the metadata in `encode`.
+}
+
+/// A tile's water mask (spec, "Water Mask"): one byte for a tile that is all land (0)
+/// or all water (255), else 256 × 256 bytes, row by row from the tile's north-west
+/// corner (north row first, west to east), 0 land to 255 water.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct WaterMask(Vec<u8>);
+
+/// Cells per side of a full water mask.
+pub const WATER_MASK_SIDE: usize = 256;
+
+impl WaterMask {
+    /// A tile without water.
+    pub fn land() -> Self {
+        Self(vec![0])
+    }
+
+    /// A tile all water.
+    pub fn water() -> Self {
+        Self(vec![255])
+    }
+
+    /// The mask of a 256 × 256 grid (north row first): the one-byte form when every
+    /// cell is 0 or every cell is 255. `None` for a grid of another size.
+    pub fn from_grid(grid: Vec<u8>) -> Option<Self> {
+        if grid.len() != WATER_MASK_SIDE * WATER_MASK_SIDE {
+            return None;
+        }
+        Some(match grid[0] {
+            v @ (0 | 255) if grid.iter().all(|&c| c == v) => Self(vec![v]),
+            _ => Self(grid),
+        })
+    }
+
+    /// The extension's bytes: 1 or 65 536.
+    pub fn bytes(&self) -> &[u8] {
+        &self.0
+    }
+
+    /// Whether cell `(column, row)` (row 0 north) is water (≥ 128), for either form.
+    pub fn is_water(&self, column: usize, row: usize) -> bool {
+        let v = if self.0.len() == 1 {
+            self.0[0]
+        } else {
+            self.0[row * WATER_MASK_SIDE + column]
+        };
+        v >= 128
+    }
 }
 
 /// The largest quantized coordinate: u, v and heights run over 0..=32767 (spec,
@@ -245,6 +293,7 @@ pub fn encode(
             } else {
                 0
             }
+            + ext.water_mask.as_ref().map_or(0, |m| 5 + m.bytes().len())
             + ext.metadata.as_ref().map_or(0, |m| 9 + m.len()),
     ));
 
@@ -303,6 +352,11 @@ pub fn encode(
         for n in normals {
             out.0.extend_from_slice(&header_geometry::oct_encode(n));
         }
+    }
+    if let Some(mask) = &ext.water_mask {
+        out.u8(EXTENSION_WATER_MASK);
+        out.u32(mask.bytes().len() as u32);
+        out.0.extend_from_slice(mask.bytes());
     }
     if let Some(json) = &ext.metadata {
         // The extension's data is itself a length and the JSON (spec, "Metadata").

@@ -258,8 +258,8 @@ fn bad_input_is_an_error() {
     assert!(encode(&huge, RECT, &e, &none).is_err());
     for json in ["[1, 2]", "{\"a\":", "\"x\""] {
         let ext = Extensions {
-            normals: false,
             metadata: Some(json.into()),
+            ..Extensions::default()
         };
         assert!(
             encode(&mesh, RECT, &e, &ext)
@@ -279,6 +279,7 @@ fn extensions_follow_the_edges() {
     let json = r#"{"available":[[{"startX":0,"startY":0,"endX":1,"endY":1}]]}"#;
     let ext = Extensions {
         normals: true,
+        water_mask: None,
         metadata: Some(json.into()),
     };
     let full = encode(&mesh, RECT, &e, &ext).unwrap();
@@ -304,6 +305,51 @@ fn extensions_follow_the_edges() {
         json.len()
     );
     assert_eq!(&m[9..], json.as_bytes());
+}
+
+#[test]
+fn the_water_mask_sits_between_the_normals_and_the_metadata() {
+    let mesh = grid(3, |i, j| f64::from(i * 10 + j));
+    let e = Ellipsoid::WGS84;
+    let with_normals = Extensions {
+        normals: true,
+        ..Extensions::default()
+    };
+    let normals = encode(&mesh, RECT, &e, &with_normals).unwrap();
+    // A grid with water in its north-west cell only: 65 536 bytes, north row first.
+    let mut cells = vec![0u8; WATER_MASK_SIDE * WATER_MASK_SIDE];
+    cells[0] = 255;
+    let mask = WaterMask::from_grid(cells.clone()).unwrap();
+    assert!(mask.is_water(0, 0) && !mask.is_water(1, 0) && !mask.is_water(0, 1));
+    let json = r#"{"level":0}"#;
+    let ext = Extensions {
+        normals: true,
+        water_mask: Some(mask),
+        metadata: Some(json.into()),
+    };
+    let full = encode(&mesh, RECT, &e, &ext).unwrap();
+    assert_eq!(full[..normals.len()], normals[..]);
+    let rest = &full[normals.len()..];
+    assert_eq!(rest[0], EXTENSION_WATER_MASK);
+    assert_eq!(u32::from_le_bytes(rest[1..5].try_into().unwrap()), 65_536);
+    assert_eq!(&rest[5..5 + 65_536], &cells[..]);
+    let m = &rest[5 + 65_536..];
+    assert_eq!(m[0], EXTENSION_METADATA);
+    assert_eq!(&m[9..], json.as_bytes());
+    // Uniform grids take the one-byte form; other sizes are refused.
+    for (v, one) in [(0u8, WaterMask::land()), (255, WaterMask::water())] {
+        let m = WaterMask::from_grid(vec![v; 65_536]).unwrap();
+        assert_eq!(m, one);
+        assert_eq!(m.bytes(), [v]);
+        let ext = Extensions {
+            water_mask: Some(m),
+            ..Extensions::default()
+        };
+        let plain = encode(&mesh, RECT, &e, &Extensions::default()).unwrap();
+        let t = encode(&mesh, RECT, &e, &ext).unwrap();
+        assert_eq!(t[plain.len()..], [EXTENSION_WATER_MASK, 1, 0, 0, 0, v]);
+    }
+    assert!(WaterMask::from_grid(vec![0; 255 * 256]).is_none());
 }
 
 #[test]

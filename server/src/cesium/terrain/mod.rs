@@ -30,14 +30,17 @@
 //! level and threshold of each zoom), [`tile`] (one tile's mesh), [`clip`] (its
 //! triangles clipped to the tile and the data), [`tile_builder`] (its vertices and
 //! triangles collected, the rest of the tile filled), [`pyramid`] (a pyramid read
-//! directly, for tests and tools).
+//! directly, for tests and tools), [`availability`] (which tiles hold data),
+//! [`water`] (a tile's water mask).
 
+pub mod availability;
 pub mod clip;
 pub mod mapping;
 pub mod plan;
 pub mod pyramid;
 pub mod tile;
 pub mod tile_builder;
+pub mod water;
 
 pub use plan::ZoomPlan;
 pub use pyramid::{PyramidLevels, TileReadError};

@@ -5,11 +5,17 @@
 //! - `GET /v1/datasets/{name}/cesium/layer.json`
 //! - `GET /v1/datasets/{name}/cesium/{z}/{x}/{y}.terrain` — extensions as CesiumJS
 //!   asks for them in `Accept: application/vnd.quantized-mesh;extensions=a-b`.
+//!
+//! Which tiles exist is the dataset's [`Availability`], made once per dataset (its
+//! content hash) from the pyramid's index and masks and kept here.
 
 use super::base_url;
 use super::web_grid::{Failure, failure_error, source};
 use super::{Params, Segments, dataset, xml_escape};
 use crate::cesium::quantized_mesh::{Extensions, encode};
+use crate::cesium::terrain::availability::{
+    AVAILABILITY_LEVELS, Availability, Stored, ranges_json,
+};
 use crate::cesium::terrain::{LevelData, Terrain};
 use crate::cesium::tiling::CesiumTile;
 use crate::http::cache;
@@ -21,10 +27,11 @@ use crate::serve::{AppState, TilesServed};
 use crate::web::resample::SourceTile;
 use axum::Json;
 use axum::extract::State;
-use axum::http::{HeaderMap, HeaderValue, header};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+use tessera_shared::format::FLAG_PARTIAL;
 use tessera_shared::{Level, TileId, codec};
 
 /// The media type of quantized-mesh tiles.
@@ -42,12 +49,65 @@ fn terrain(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Terrain>> {
         })
 }
 
+/// Availabilities made, by dataset content hash. Small (rows of runs of tiles); at
+/// most [`KEPT_AVAILABILITIES`], the oldest dropped first (a reloaded dataset has a
+/// new hash).
+static AVAILABILITIES: Mutex<Vec<(u64, Arc<Availability>)>> = Mutex::new(Vec::new());
+const KEPT_AVAILABILITIES: usize = 64;
+
+/// The dataset's availability: made once (reading the index and the masks of its
+/// partial finest tiles, off the runtime), then kept.
+async fn availability(
+    state: &Arc<AppState>,
+    ds: &Arc<Dataset>,
+    terrain: &Arc<Terrain>,
+) -> ApiResult<Arc<Availability>> {
+    let key = dataset_key(ds.content_hash());
+    let lock = || {
+        AVAILABILITIES
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    };
+    if let Some((_, a)) = lock().iter().find(|(k, _)| *k == key) {
+        return Ok(a.clone());
+    }
+    let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
+    let made = tokio::task::spawn_blocking(move || {
+        let data = Pyramid {
+            state: &st,
+            ds: &d,
+            ticket: None,
+        };
+        let stored = |tile: TileId| match d.pyramid.entry(tile) {
+            Some(e) if e.flags & FLAG_PARTIAL != 0 => Stored::Partial,
+            Some(_) => Stored::Full,
+            // In a multi-resolution pyramid an absent tile may show a coarser one's
+            // surface: its mask (through `source`) says.
+            None if d.multi_resolution => Stored::Partial,
+            None => Stored::Absent,
+        };
+        tr.availability(stored, &data)
+            .map_err(|f| failure_error(&st, &d, "terrain availability", f))
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("terrain availability: {e}")))??;
+    let made = Arc::new(made);
+    let mut kept = lock();
+    if !kept.iter().any(|(k, _)| *k == key) {
+        if kept.len() >= KEPT_AVAILABILITIES {
+            kept.remove(0);
+        }
+        kept.push((key, made.clone()));
+    }
+    Ok(made)
+}
+
 /// The pyramid as the mesher reads it: decoded tiles through the shared cache,
-/// stopping when the computation's requesters are gone.
+/// stopping when the computation's requesters are gone (when it has a ticket).
 struct Pyramid<'a> {
     state: &'a AppState,
     ds: &'a Dataset,
-    ticket: &'a Ticket,
+    ticket: Option<&'a Ticket>,
 }
 
 impl LevelData for Pyramid<'_> {
@@ -59,7 +119,10 @@ impl LevelData for Pyramid<'_> {
     }
 
     fn check(&self) -> Result<(), Failure> {
-        self.ticket.check().map_err(Failure::Stopped)
+        match self.ticket {
+            Some(t) => t.check().map_err(Failure::Stopped),
+            None => Ok(()),
+        }
     }
 
     fn level_error(&self, level: Level) -> Result<f64, Failure> {
@@ -81,35 +144,73 @@ impl LevelData for Pyramid<'_> {
     }
 }
 
-/// The extensions an `Accept` header asks for, among those we have.
-fn extensions(headers: &HeaderMap) -> (bool, bool) {
-    let mut normals = false;
-    let mut metadata = false;
+/// The extensions a request asks for, among those this server makes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Asked {
+    normals: bool,
+    water_mask: bool,
+    metadata: bool,
+}
+
+/// Media ranges of an `Accept` header a quantized-mesh tile satisfies.
+const ACCEPTABLE: [&str; 4] = [
+    MEDIA_TYPE,
+    "application/octet-stream",
+    "application/*",
+    "*/*",
+];
+
+/// The extensions an `Accept` header asks for (names this server does not make are
+/// ignored, as CesiumJS asks only for those `layer.json` lists), or 406 when the
+/// header accepts no quantized-mesh tile at all (every range another type, or
+/// `q=0`). No `Accept` accepts anything.
+fn extensions(headers: &HeaderMap) -> ApiResult<Asked> {
+    let mut asked = Asked::default();
+    let mut any_header = false;
+    let mut acceptable = false;
     for accept in headers.get_all(header::ACCEPT) {
+        any_header = true;
         let Ok(v) = accept.to_str() else { continue };
         for range in v.split(',') {
             let mut parts = range.split(';').map(str::trim);
-            if !parts
-                .next()
-                .is_some_and(|t| t.eq_ignore_ascii_case(MEDIA_TYPE))
-            {
+            let Some(media) = parts.next() else { continue };
+            let params: Vec<&str> = parts.collect();
+            let refused = params.iter().any(|p| {
+                p.strip_prefix("q=")
+                    .and_then(|q| q.trim().parse::<f64>().ok())
+                    .is_some_and(|q| q <= 0.0)
+            });
+            if !refused && ACCEPTABLE.iter().any(|a| media.eq_ignore_ascii_case(a)) {
+                acceptable = true;
+            }
+            if !media.eq_ignore_ascii_case(MEDIA_TYPE) || refused {
                 continue;
             }
-            for p in parts {
+            for p in params {
                 let Some(list) = p.strip_prefix("extensions=") else {
                     continue;
                 };
                 for ext in list.trim_matches('"').split('-') {
                     match ext {
-                        "octvertexnormals" => normals = true,
-                        "metadata" => metadata = true,
+                        "octvertexnormals" => asked.normals = true,
+                        "watermask" => asked.water_mask = true,
+                        "metadata" => asked.metadata = true,
                         _ => {}
                     }
                 }
             }
         }
     }
-    (normals, metadata)
+    if any_header && !acceptable {
+        return Err(ApiError::new(
+            StatusCode::NOT_ACCEPTABLE,
+            format!(
+                "terrain tiles are {MEDIA_TYPE} (extensions octvertexnormals, watermask, metadata); the Accept header accepts none of {}",
+                ACCEPTABLE.join(", ")
+            ),
+        ));
+    }
+    Ok(asked)
 }
 
 /// `GET /v1/datasets/{name}/cesium/{z}/{x}/{y}.terrain`.
@@ -138,16 +239,19 @@ pub async fn tile(
             crate::cesium::tiling::MAX_ZOOM
         )));
     };
-    let (normals, metadata) = extensions(&headers);
+    let mut asked = extensions(&headers)?;
+    // No water rule, no mask: `layer.json` does not list it then.
+    asked.water_mask &= state.web.config.water.is_set();
     let pin = super::pinned(&ds, &query);
     // What the tile depends on besides the dataset: its ETag and its flight's key.
     let variant = format!(
-        "terrain {}/{}/{} n{} m{}",
+        "terrain {}/{}/{} n{} w{} m{}",
         t.z,
         t.x,
         t.y,
-        u8::from(normals),
-        u8::from(metadata)
+        u8::from(asked.normals),
+        u8::from(asked.water_mask),
+        u8::from(asked.metadata)
     );
     let etag = cache::etag(ds.content_hash(), &variant);
     let vary = |r: &mut Response| {
@@ -161,29 +265,32 @@ pub async fn tile(
         return Ok(r);
     }
     let terrain = terrain(&state, &ds)?;
-    if !terrain.is_available(t) {
+    let available = availability(&state, &ds, &terrain).await?;
+    if !available.contains(t) {
         return Err(ApiError::not_found(format!(
-            "{t} holds no data of dataset {:?} (layer.json lists the tiles that do)",
+            "{t} holds no data of dataset {:?} (layer.json and the tiles' metadata list the tiles that do)",
             ds.name
         )));
     }
     let key = TerrainKey {
         dataset: dataset_key(ds.content_hash()),
         tile: t,
-        normals,
-        metadata,
+        normals: asked.normals,
+        water_mask: asked.water_mask,
+        metadata: asked.metadata,
     };
     let made = if let Some(b) = state.web.terrain_tile(&key) {
         state.compute.hit(Kind::Terrain, b, 1)?
     } else {
         let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
+        let av = available.clone();
         let flight = format!("{} {variant}", ds.content_hash());
         // One mesh per distinct tile at a time, admitted and cancellable; meshing
         // takes milliseconds to a second: keep it off the runtime.
         state
             .compute
             .run_blocking(Kind::Terrain, flight, move |ticket| {
-                let b = make(&st, &d, &tr, key, ticket)
+                let b = make(&st, &d, &tr, &av, key, ticket)
                     .map_err(|f| failure_error(&st, &d, &t.to_string(), f))?;
                 st.web.keep_terrain(key, b.clone());
                 Ok(ticket.made(b, 1))
@@ -193,10 +300,14 @@ pub async fn tile(
     let len = made.bytes.len();
     let mut r = Response::new(made.body());
     let mut ctype = MEDIA_TYPE.to_string();
-    let names: Vec<&str> = [(normals, "octvertexnormals"), (metadata, "metadata")]
-        .into_iter()
-        .filter_map(|(on, n)| on.then_some(n))
-        .collect();
+    let names: Vec<&str> = [
+        (asked.normals, "octvertexnormals"),
+        (asked.water_mask, "watermask"),
+        (asked.metadata, "metadata"),
+    ]
+    .into_iter()
+    .filter_map(|(on, n)| on.then_some(n))
+    .collect();
     if !names.is_empty() {
         ctype = format!("{ctype};extensions={}", names.join("-"));
     }
@@ -217,42 +328,75 @@ fn make(
     state: &AppState,
     ds: &Dataset,
     terrain: &Terrain,
+    available: &Availability,
     key: TerrainKey,
     ticket: &Ticket,
 ) -> Result<Bytes, Failure> {
-    let data = Pyramid { state, ds, ticket };
+    let data = Pyramid {
+        state,
+        ds,
+        ticket: Some(ticket),
+    };
     let plan = terrain.plan(key.tile.z, &data)?;
     let _memory = ticket
         .reserve(terrain.mesh_bytes(key.tile, &plan))
         .map_err(Failure::Stopped)?;
     let mesh = terrain.mesh_with(key.tile, &plan, &data)?;
     data.check()?;
+    let water_mask = if key.water_mask {
+        Some(terrain.water_mask(key.tile, &state.web.config.water, &data)?)
+    } else {
+        None
+    };
     let ext = Extensions {
         normals: key.normals,
-        metadata: key.metadata.then(|| {
-            serde_json::json!({
-                "geometricError": plan.geometric_error,
-                "level": plan.level.get(),
-            })
-            .to_string()
-        }),
+        water_mask,
+        metadata: key
+            .metadata
+            .then(|| metadata_json(available, key.tile, plan.geometric_error, plan.level)),
     };
     encode(&mesh, key.tile.rect(), &terrain.ellipsoid, &ext)
         .map(Bytes::from)
         .map_err(Failure::EncodeMesh)
 }
 
+/// A tile's metadata extension: its geometric error and pyramid level, and, on a
+/// tile whose zoom is a multiple of [`AVAILABILITY_LEVELS`], `available`: the tiles
+/// under it for the next zooms (entry `k` for zoom `z + 1 + k`), as CesiumJS reads it.
+pub fn metadata_json(
+    available: &Availability,
+    tile: CesiumTile,
+    geometric_error: f64,
+    level: Level,
+) -> String {
+    let mut m = serde_json::json!({
+        "geometricError": geometric_error,
+        "level": level.get(),
+    });
+    if let Some(carried) = available.carried(tile) {
+        m["available"] = carried.iter().map(|r| ranges_json(r)).collect();
+    }
+    m.to_string()
+}
+
 /// The `layer.json` document (quantized-mesh-1.0, TileJSON 2.1.0 fields).
-pub fn layer_doc(ds: &Dataset, terrain: &Terrain, attribution: Option<&str>) -> serde_json::Value {
+pub fn layer_doc(
+    ds: &Dataset,
+    terrain: &Terrain,
+    availability: &Availability,
+    water_mask: bool,
+    attribution: Option<&str>,
+) -> serde_json::Value {
     let m = ds.pyramid.metadata();
-    let available: Vec<serde_json::Value> = (0..=terrain.max_zoom)
-        .map(|z| match terrain.available(z) {
-            Some([x0, y0, x1, y1]) => serde_json::json!([
-                {"startX": x0, "startY": y0, "endX": x1, "endY": y1}
-            ]),
-            None => serde_json::json!([]),
-        })
+    // The first zooms only: the root tiles carry the next ones, and so on down.
+    let available: Vec<serde_json::Value> = (0..=terrain.max_zoom.min(AVAILABILITY_LEVELS))
+        .map(|z| ranges_json(&availability.ranges(z)))
         .collect();
+    let mut extensions = vec!["octvertexnormals"];
+    if water_mask {
+        extensions.push("watermask");
+    }
+    extensions.push("metadata");
     let mut meta = serde_json::json!({
         "generator": m.generator,
         "contentHash": m.content_hash,
@@ -280,10 +424,10 @@ pub fn layer_doc(ds: &Dataset, terrain: &Terrain, attribution: Option<&str>) -> 
         "maxzoom": terrain.max_zoom,
         "bounds": [w, s, e, n],
         "available": available,
-        // Not "metadata": CesiumJS (1.145) then expects `metadataAvailability` and
-        // tile-carried availability, which this server does not make; tiles still
-        // carry the metadata extension when a client asks for it in `Accept`.
-        "extensions": ["octvertexnormals"],
+        // Tiles at zooms 0, 10, 20 carry the availability of the ten zooms below them
+        // (CesiumJS then asks for no tile that is not available).
+        "metadataAvailability": AVAILABILITY_LEVELS,
+        "extensions": extensions,
         "metadata": meta,
     });
     if let Some(a) = attribution {
@@ -304,16 +448,28 @@ pub async fn layer(
     // keeps a bad Host/X-Forwarded-Host answered as everywhere else.
     base_url::configured(&state, &headers)?;
     let pin = super::pinned(&ds, &query);
+    let water_mask = state.web.config.water.is_set();
     let etag = cache::etag(
         ds.content_hash(),
-        &format!("cesium layer {:?}", state.web.config.attribution),
+        &format!(
+            "cesium layer {:?} w{}",
+            state.web.config.attribution,
+            u8::from(water_mask)
+        ),
     );
     if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
     {
         return Ok(r);
     }
     let terrain = terrain(&state, &ds)?;
-    let doc = layer_doc(&ds, &terrain, state.web.config.attribution.as_deref());
+    let available = availability(&state, &ds, &terrain).await?;
+    let doc = layer_doc(
+        &ds,
+        &terrain,
+        &available,
+        water_mask,
+        state.web.config.attribution.as_deref(),
+    );
     let mut r = Json(doc).into_response();
     cache::set_headers(
         r.headers_mut(),
