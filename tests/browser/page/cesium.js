@@ -9,7 +9,7 @@ let widget, provider;
 // `baseColor`), no sky box, sun or moon textures (`skyBox: false`); the terrain provider comes
 // from our layer.json with both extensions. Lighting is on so the octvertexnormals shade the
 // slopes: the sun stands where it does over the Alps on a June morning (the clock is stopped).
-async function open({ server, dataset }) {
+async function open({ server, dataset, requestWaterMask = false }) {
   // fromUrl takes the terrain's directory and reads `layer.json` in it (it appends a slash and
   // the name: given …/layer.json itself it would ask for …/layer.json/layer.json, and on that 404
   // fall back silently to a default layer)
@@ -17,7 +17,7 @@ async function open({ server, dataset }) {
   // the document as the page gets it (a cross-origin fetch: fails without CORS)
   const response = await fetch(`${base}layer.json`);
   const layer = { status: response.status, doc: await response.json() };
-  provider = await Cesium.CesiumTerrainProvider.fromUrl(base, { requestVertexNormals: true, requestMetadata: true });
+  provider = await Cesium.CesiumTerrainProvider.fromUrl(base, { requestVertexNormals: true, requestMetadata: true, requestWaterMask });
   provider.errorEvent.addEventListener((e) => console.error(`terrain provider error: ${e.message}`));
   const time = Cesium.JulianDate.fromIso8601('2026-06-21T08:00:00Z');
   widget = new Cesium.CesiumWidget('globe', {
@@ -31,16 +31,72 @@ async function open({ server, dataset }) {
   globe.enableLighting = true;
   globe.depthTestAgainstTerrain = true;
   return { layer, hasVertexNormals: provider.hasVertexNormals, hasMetadata: provider.hasMetadata,
-    availability: Boolean(provider.availability) };
+    hasWaterMask: provider.hasWaterMask, availability: Boolean(provider.availability) };
 }
 
 // sampleTerrainMostDetailed at [lon, lat] degrees: heights (m above the ellipsoid) from the
 // deepest tile layer.json lists there, and that level.
 async function sample(lonLats) {
   const positions = lonLats.map(([lon, lat]) => Cesium.Cartographic.fromDegrees(lon, lat));
-  const levels = positions.map((p) => provider.availability.computeMaximumLevelAtPosition(p));
   const done = await Cesium.sampleTerrainMostDetailed(provider, positions, true);
+  // With metadata availability the provider learns the deeper zooms from the tiles it loaded:
+  // the level is known after sampling.
+  const levels = positions.map((p) => provider.availability.computeMaximumLevelAtPosition(p));
   return done.map((p, k) => ({ height: p.height, level: levels[k] }));
+}
+
+// Waits for `n` rendered frames.
+function frames(n) {
+  const scene = widget.scene;
+  return new Promise((resolve) => {
+    let k = 0;
+    const remove = scene.postRender.addEventListener(() => { if (++k >= n) { remove(); resolve(); } });
+    scene.requestRender();
+  });
+}
+
+// The canvas's RGB pixels (the drawing buffer is preserved).
+function pixels() {
+  const canvas = widget.canvas;
+  const c2 = document.createElement('canvas');
+  c2.width = canvas.width; c2.height = canvas.height;
+  const ctx = c2.getContext('2d');
+  ctx.drawImage(canvas, 0, 0);
+  return ctx.getImageData(0, 0, canvas.width, canvas.height).data;
+}
+
+// How much the globe's water effect changes the picture around each probe [lon, lat]: the mean
+// absolute RGB difference over a 9 × 9 pixel box at the probe's screen position between a frame
+// with `globe.showWaterEffect` and one without (tiles and camera unchanged), and the probe's
+// screen position. Where the water mask says land, nothing changes.
+async function waterEffect(probes) {
+  const scene = widget.scene, globe = scene.globe, canvas = widget.canvas;
+  const scale = canvas.width / canvas.clientWidth;
+  const at = probes.map(([lon, lat]) => {
+    const h = globe.getHeight(Cesium.Cartographic.fromDegrees(lon, lat)) ?? 0;
+    const p = Cesium.SceneTransforms.worldToWindowCoordinates(scene, Cesium.Cartesian3.fromDegrees(lon, lat, h));
+    return p && { x: Math.round(p.x * scale), y: Math.round(p.y * scale) };
+  });
+  globe.showWaterEffect = true;
+  await frames(10);
+  const wet = pixels();
+  globe.showWaterEffect = false;
+  await frames(10);
+  const dry = pixels();
+  globe.showWaterEffect = true;
+  await frames(10);
+  return at.map((p) => {
+    if (!p) return { diff: null };
+    let sum = 0, n = 0;
+    for (let dy = -4; dy <= 4; dy++) for (let dx = -4; dx <= 4; dx++) {
+      const x = p.x + dx, y = p.y + dy;
+      if (x < 0 || y < 0 || x >= canvas.width || y >= canvas.height) continue;
+      const k = 4 * (y * canvas.width + x);
+      sum += Math.abs(wet[k] - dry[k]) + Math.abs(wet[k + 1] - dry[k + 1]) + Math.abs(wet[k + 2] - dry[k + 2]);
+      n++;
+    }
+    return { x: p.x, y: p.y, diff: n ? sum / n : null };
+  });
 }
 
 // Flies (2 s) to look at `target` [lon, lat, h] from `range` m at `heading`/`pitch` degrees.
@@ -104,4 +160,4 @@ function view(probes) {
   };
 }
 
-window.tessera = { open, sample, fly, tilesLoaded, view, version: Cesium.VERSION, ready: true };
+window.tessera = { open, sample, fly, tilesLoaded, view, waterEffect, version: Cesium.VERSION, ready: true };
