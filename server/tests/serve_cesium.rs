@@ -10,11 +10,14 @@
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
+#[allow(dead_code)] // each test binary uses some of the shared helpers
+mod cesium_support;
+
 use serve_support::{Server, bin, parse_metrics};
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 use tessera_server::cesium::quantized_mesh::{Extensions, encode};
 use tessera_server::cesium::terrain::availability::{Availability, Stored};
 use tessera_server::cesium::terrain::{PyramidLevels, Terrain};
@@ -24,46 +27,7 @@ use tessera_server::serve::routes::cesium::metadata_json;
 use tessera_shared::format::FLAG_PARTIAL;
 use tessera_shared::{Pyramid, testdata};
 
-const ACCEPT_ALL: &str = "application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata,application/octet-stream;q=0.9,*/*;q=0.01";
-
-struct Built {
-    _dir: tempfile::TempDir,
-    srtm: PathBuf,
-    synthetic: PathBuf,
-}
-
-fn built() -> Option<&'static Built> {
-    static B: OnceLock<Option<Built>> = OnceLock::new();
-    B.get_or_init(|| {
-        let dem = testdata::dem_or_skip("N46E008.tif")?;
-        let dir = tempfile::tempdir().unwrap();
-        let srtm = dir.path().join("N46E008.tess");
-        let synthetic = dir.path().join("synthetic.tess");
-        for (input, out, extra) in [
-            (
-                dem.to_str().unwrap(),
-                &srtm,
-                &["--vertical-datum", "egm96"][..],
-            ),
-            ("synthetic:257", &synthetic, &[][..]),
-        ] {
-            let o = bin()
-                .args(["build", input, "-o"])
-                .arg(out)
-                .args(["--tile-size", "256", "--quiet"])
-                .args(extra)
-                .output()
-                .unwrap();
-            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        }
-        Some(Built {
-            _dir: dir,
-            srtm,
-            synthetic,
-        })
-    })
-    .as_ref()
-}
+use cesium_support::{ACCEPT_ALL, Built, built, gdal, listed, metadata_of, run, tile_at};
 
 fn gunzip(bytes: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
@@ -102,58 +66,6 @@ fn expected(b: &Built, tile: CesiumTile, normals: bool, metadata: bool) -> Vec<u
             .then(|| metadata_json(&available, tile, plan.geometric_error, plan.level)),
     };
     encode(&mesh, tile.rect(), &terrain.ellipsoid, &ext).unwrap()
-}
-
-/// The extensions of a quantized-mesh tile: `(id, bytes)` in order.
-fn extensions_of(tile: &[u8]) -> Vec<(u8, Vec<u8>)> {
-    let u32_at = |p: usize| u32::from_le_bytes(tile[p..p + 4].try_into().unwrap()) as usize;
-    let mut p = 88;
-    let n = u32_at(p);
-    p += 4 + 6 * n;
-    let width = if n > 65_536 { 4 } else { 2 };
-    p = p.next_multiple_of(width);
-    let triangles = u32_at(p);
-    p += 4 + 3 * triangles * width;
-    for _ in 0..4 {
-        let k = u32_at(p);
-        p += 4 + k * width;
-    }
-    let mut out = Vec::new();
-    while p < tile.len() {
-        let id = tile[p];
-        let len = u32_at(p + 1);
-        out.push((id, tile[p + 5..p + 5 + len].to_vec()));
-        p += 5 + len;
-    }
-    out
-}
-
-/// The metadata extension's JSON.
-fn metadata_of(tile: &[u8]) -> serde_json::Value {
-    let (_, m) = extensions_of(tile)
-        .into_iter()
-        .find(|(id, _)| *id == 4)
-        .expect("a metadata extension");
-    serde_json::from_slice(&m[4..]).unwrap()
-}
-
-/// Whether a tile's `available` ranges (one level) hold `(x, y)`.
-fn listed(ranges: &serde_json::Value, x: u32, y: u32) -> bool {
-    ranges.as_array().unwrap().iter().any(|r| {
-        let v = |k: &str| r[k].as_u64().unwrap() as u32;
-        (v("startX")..=v("endX")).contains(&x) && (v("startY")..=v("endY")).contains(&y)
-    })
-}
-
-/// The zoom-`z` tile holding a point.
-fn tile_at(z: u8, lon: f64, lat: f64) -> CesiumTile {
-    let span = CesiumTile::span(z);
-    CesiumTile::new(
-        z,
-        ((lon + 180.0) / span) as u32,
-        ((lat + 90.0) / span) as u32,
-    )
-    .unwrap()
 }
 
 #[test]
@@ -374,22 +286,6 @@ fn tiles_carry_the_availability_of_the_zooms_below_them() {
     }
 }
 
-fn run(cmd: &mut Command) {
-    let o = cmd.output().unwrap();
-    assert!(
-        o.status.success(),
-        "{cmd:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
-fn gdal() -> bool {
-    Command::new("gdal_translate")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success())
-}
-
 #[test]
 fn a_hole_in_a_mosaic_is_no_tile() {
     let Some(_) = built() else { return };
@@ -467,111 +363,6 @@ fn a_hole_in_a_mosaic_is_no_tile() {
     assert!(holes_12 > 1, "zoom 12: {holes_12} ranges");
 }
 
-/// The water-mask cell holding a point, and the mask's bytes: 1 or 65 536.
-fn water_at(s: &Server, lon: f64, lat: f64) -> (bool, usize) {
-    let t = tile_at(11, lon, lat);
-    let r = s
-        .get_with(
-            &format!("/v1/datasets/N46E008/cesium/11/{}/{}.terrain", t.x, t.y),
-            &[("Accept", ACCEPT_ALL)],
-        )
-        .expect(200);
-    assert_eq!(
-        r.must("content-type"),
-        "application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata"
-    );
-    let ext = extensions_of(&r.body);
-    let ids: Vec<u8> = ext.iter().map(|(id, _)| *id).collect();
-    assert_eq!(ids, [1, 2, 4], "extensions in spec order");
-    let mask = &ext[1].1;
-    let [w, so, e, n] = t.rect();
-    let i = ((lon - w) / (e - w) * 256.0) as usize;
-    let j = ((n - lat) / (n - so) * 256.0) as usize;
-    let v = match mask.len() {
-        1 => mask[0],
-        65_536 => mask[j * 256 + i],
-        other => panic!("water mask of {other} bytes"),
-    };
-    assert!(v == 0 || v == 255, "{v}");
-    (v == 255, mask.len())
-}
-
-// Urnersee (Lake Lucerne's south arm) is 431 m in this SRTM tile (EGM96); the slopes
-// beside it are land.
-const LAKE: [[f64; 2]; 2] = [[8.61, 46.93], [8.50, 46.99]];
-const LAND: [[f64; 2]; 2] = [[8.65, 46.93], [8.58, 46.98]];
-
-#[test]
-fn water_masks_mark_the_lake_and_not_the_land() {
-    let Some(b) = built() else { return };
-    let dem = testdata::dem_or_skip("N46E008.tif").unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let mut servers = vec![(
-        "--sea-level 431",
-        Server::start(&[&b.srtm], &["--sea-level", "431"]),
-    )];
-    if gdal() {
-        // A water raster: the lake's 431 m cells around Urnersee, EPSG:4326.
-        let crop = dir.path().join("crop.tif");
-        let water = dir.path().join("water.tif");
-        run(Command::new("gdal_translate")
-            .args(["-q", "-projwin", "8.40", "47.06", "8.70", "46.85"])
-            .arg(&dem)
-            .arg(&crop));
-        run(Command::new("gdal_calc.py")
-            .arg("--quiet")
-            .arg("-A")
-            .arg(&crop)
-            .arg("--outfile")
-            .arg(&water)
-            .args(["--calc", "A==431", "--type", "Int16"]));
-        servers.push((
-            "--water",
-            Server::start(&[&b.srtm], &["--water", water.to_str().unwrap()]),
-        ));
-    }
-    for (rule, s) in &servers {
-        let doc = s
-            .get("/v1/datasets/N46E008/cesium/layer.json")
-            .expect(200)
-            .json();
-        assert_eq!(
-            doc["extensions"],
-            serde_json::json!(["octvertexnormals", "watermask", "metadata"])
-        );
-        for [lon, lat] in LAKE {
-            let (water, bytes) = water_at(s, lon, lat);
-            assert!(water, "{rule}: {lon}, {lat} is the lake");
-            assert_eq!(bytes, 65_536, "{rule}: lake and shore in one tile");
-        }
-        for [lon, lat] in LAND {
-            assert!(!water_at(s, lon, lat).0, "{rule}: {lon}, {lat} is land");
-        }
-        // Finsteraarhorn: all land, the one-byte form.
-        assert_eq!(water_at(s, 8.1258, 46.5367), (false, 1), "{rule}");
-        let t = tile_at(11, LAKE[0][0], LAKE[0][1]);
-        let path = format!("/v1/datasets/N46E008/cesium/11/{}/{}.terrain", t.x, t.y);
-        let plain = s
-            .get_with(
-                &path,
-                &[(
-                    "Accept",
-                    "application/vnd.quantized-mesh;extensions=octvertexnormals-metadata",
-                )],
-            )
-            .expect(200);
-        let wet = s.get_with(&path, &[("Accept", ACCEPT_ALL)]).expect(200);
-        assert_ne!(plain.must("etag"), wet.must("etag"));
-        eprintln!(
-            "{rule}: tile 11/{}/{} is {} bytes without the water mask, {} with it (uncompressed)",
-            t.x,
-            t.y,
-            plain.body.len(),
-            wet.body.len()
-        );
-    }
-}
-
 #[test]
 fn accept_headers_without_quantized_mesh_get_406() {
     let Some(b) = built() else { return };
@@ -599,74 +390,4 @@ fn accept_headers_without_quantized_mesh_get_406() {
         .expect(200);
     assert_eq!(r.must("content-type"), "application/vnd.quantized-mesh");
     s.get_with(path, &[("Accept", "*/*")]).expect(200);
-}
-
-/// Runs `serve` expecting it to stop at start-up; its stderr.
-fn serve_fails(flags: &[&str]) -> String {
-    let Some(b) = built() else {
-        return String::new();
-    };
-    let mut child = bin()
-        .arg("serve")
-        .arg(&b.srtm)
-        .args(["--listen", "127.0.0.1:0"])
-        .args(flags)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // A server that starts instead would run forever: stop it (and fail).
-    for _ in 0..600 {
-        if child.try_wait().unwrap().is_some() {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    }
-    if child.try_wait().unwrap().is_none() {
-        child.kill().unwrap();
-        panic!("serve {flags:?} started");
-    }
-    let o = child.wait_with_output().unwrap();
-    assert!(!o.status.success());
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-#[test]
-fn bad_water_inputs_stop_the_server_with_one_line() {
-    let Some(_) = built() else { return };
-    let dir = tempfile::tempdir().unwrap();
-    let junk = dir.path().join("junk.tif");
-    std::fs::write(&junk, "not a GeoTIFF\n").unwrap();
-    let mut cases = vec![(junk, "junk.tif")];
-    if gdal() {
-        let dem = testdata::dem_or_skip("N46E008.tif").unwrap();
-        let merc = dir.path().join("mercator.tif");
-        run(Command::new("gdalwarp")
-            .args([
-                "-q",
-                "-t_srs",
-                "EPSG:3857",
-                "-te_srs",
-                "EPSG:4326",
-                "-te",
-                "8.5",
-                "46.9",
-                "8.7",
-                "47.0",
-            ])
-            .arg(&dem)
-            .arg(&merc));
-        cases.push((merc, "EPSG:4326"));
-    }
-    for (file, needle) in cases {
-        let err = serve_fails(&["--water", file.to_str().unwrap()]);
-        let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
-        assert_eq!(lines.len(), 1, "{err}");
-        assert!(
-            lines[0].contains(&*file.to_string_lossy()) && lines[0].contains(needle),
-            "{err}"
-        );
-    }
-    let err = serve_fails(&["--sea-level", "NaN"]);
-    assert!(err.contains("--sea-level"), "{err}");
 }
