@@ -7,6 +7,12 @@
 //!
 //! `cargo run --release -p tessera-e2e --example terrain_mesh -- PYRAMID ZOOM TILES [SEED]`
 //! (EGM96 pyramids get the geoid from `tessera_server::geoid::find`).
+//!
+//! With `TERRAIN_WINDOWS=DIR`, each tile wholly inside the data also gets its window
+//! of finest samples (the samples the tile covers, heights on the ellipsoid) written
+//! as `DIR/Z_X_Y.f32` (little-endian, row-major from the north-west), named in the
+//! line as `window` with its `window_size` `[columns, rows]`, for the peer meshers
+//! (bench/mesh_peers.py) to mesh the same samples.
 
 #![allow(clippy::unwrap_used)] // a measuring tool: a failed unwrap is a failed run
 
@@ -45,6 +51,7 @@ fn main() {
     let plan = terrain.plan(z, &levels).unwrap();
     let [x0, y0, x1, y1] = terrain.available(z).expect("zoom has tiles");
     let mut rng = Rng(seed);
+    let windows = std::env::var_os("TERRAIN_WINDOWS").map(std::path::PathBuf::from);
     let ext = Extensions {
         normals: true,
         water_mask: None,
@@ -78,6 +85,7 @@ fn main() {
         let bytes = encode(&mesh, tile.rect(), &terrain.ellipsoid, &ext).unwrap();
         let encode_us = t.elapsed().as_secs_f64() * 1e6;
         let check = true_error(tile, &mesh);
+        let window = windows.as_ref().and_then(|dir| write_window(&grid, tile, dir));
         let (rpos, rtris) = grid.regular_grid(tile.rect(), 65);
         let regular = grid.worst_error(tile.rect(), &rpos, &rtris);
         // Our mesh at the regular grid's error: the same 5 % margin as the served
@@ -106,7 +114,39 @@ fn main() {
                 "regular_error_m": regular.worst,
                 "at_regular_triangles": at_regular.triangles.len(),
                 "at_regular_error_m": at_regular_check.worst,
+                "window": window.as_ref().map(|w| w.0.clone()),
+                "window_size": window.as_ref().map(|w| w.1),
             })
         );
     }
+}
+
+/// Writes the finest samples `tile` covers (when it lies wholly inside the data):
+/// the file's path and `[columns, rows]`.
+fn write_window(
+    grid: &SampleGrid,
+    tile: CesiumTile,
+    dir: &std::path::Path,
+) -> Option<(String, [u32; 2])> {
+    let [w, s, e, n] = tile.rect();
+    let cols = |a: f64, b: f64| ((a - grid.lon0) / grid.dlon, (b - grid.lon0) / grid.dlon);
+    let rows = |a: f64, b: f64| ((a - grid.lat0) / grid.dlat, (b - grid.lat0) / grid.dlat);
+    let (c0, c1) = cols(w, e);
+    let (r0, r1) = rows(n, s);
+    let (c0, c1) = (c0.min(c1).ceil(), c0.max(c1).floor());
+    let (r0, r1) = (r0.min(r1).ceil(), r0.max(r1).floor());
+    if c0 < 0.0 || r0 < 0.0 || c1 > f64::from(grid.width - 1) || r1 > f64::from(grid.height - 1) {
+        return None;
+    }
+    let (c0, c1, r0, r1) = (c0 as u32, c1 as u32, r0 as u32, r1 as u32);
+    let mut bytes = Vec::new();
+    for r in r0..=r1 {
+        for c in c0..=c1 {
+            let h = grid.heights[(r * grid.width + c) as usize] as f32;
+            bytes.extend_from_slice(&h.to_le_bytes());
+        }
+    }
+    let path = dir.join(format!("{}_{}_{}.f32", tile.z, tile.x, tile.y));
+    std::fs::write(&path, bytes).unwrap();
+    Some((path.to_string_lossy().into_owned(), [c1 - c0 + 1, r1 - r0 + 1]))
 }

@@ -5,8 +5,11 @@
 //! format says ([`quantized_mesh`], with the header's bounds and the normals' codes in
 //! [`header_geometry`]); [`terrain`] puts one tile together.
 
+pub mod greedy;
 pub mod header_geometry;
 pub mod mesh;
 pub mod quantized_mesh;
+pub mod side;
+pub mod surface;
 pub mod terrain;
 pub mod tiling;

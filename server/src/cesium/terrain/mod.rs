@@ -35,6 +35,7 @@
 
 pub mod availability;
 pub mod clip;
+pub mod lean;
 pub mod mapping;
 pub mod plan;
 pub mod pyramid;

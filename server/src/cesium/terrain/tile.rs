@@ -8,6 +8,7 @@ use super::tile_builder::Builder;
 use super::{LevelData, Terrain};
 use crate::cesium::mesh::Window;
 use crate::cesium::quantized_mesh::TerrainMesh;
+use crate::cesium::surface::HeightGrid;
 use crate::cesium::tiling::CesiumTile;
 use tessera_shared::{Level, TileId};
 
@@ -35,6 +36,10 @@ impl Terrain {
         let rect = tile.rect();
         let (stride, cells, data_box) = self.level_frame(plan.level);
         let mut builder = Builder::new(rect);
+        if self.is_lean(&plan) {
+            self.mesh_greedy(rect, &plan, data, &mut builder)?;
+            return Ok(builder.finish(self));
+        }
         if let Some(squares) = self.squares(rect, &plan, stride, cells, data_box) {
             let window = self.window(&plan, cells, squares, stride, data)?;
             let [ix0, iy0, ix1, iy1] = squares.inner;
@@ -59,7 +64,7 @@ impl Terrain {
 
     /// A level's stride (finest samples per level sample), its cells per side, and
     /// the data region in level coordinates (the DEM's finest sample centres).
-    fn level_frame(&self, level: Level) -> (f64, u32, [f64; 4]) {
+    pub(super) fn level_frame(&self, level: Level) -> (f64, u32, [f64; 4]) {
         let stride = self.geometry.spacing(level) as f64;
         let cells = (1u32 << level.get()) * self.geometry.tile_size();
         let data_box = [
@@ -75,6 +80,9 @@ impl Terrain {
     /// window of samples and the source tiles it holds (admission control reserves
     /// it before meshing: serve/compute/).
     pub fn mesh_bytes(&self, tile: CesiumTile, plan: &ZoomPlan) -> u64 {
+        if self.is_lean(plan) {
+            return self.lean_bytes(tile, plan).unwrap_or(0);
+        }
         let (stride, cells, data_box) = self.level_frame(plan.level);
         let Some(sq) = self.squares(tile.rect(), plan, stride, cells, data_box) else {
             return 0;
@@ -151,6 +159,29 @@ impl Terrain {
         stride: f64,
         data: &D,
     ) -> Result<Window, D::Error> {
+        let [ox0, oy0, ox1, oy1] = squares.outer;
+        let s = plan.square;
+        let grid = self.heights(
+            plan.level,
+            stride,
+            [ox0 * s, oy0 * s, ox1 * s, oy1 * s],
+            data,
+        )?;
+        let mut w = Window::new(s, cells, squares.outer, |x, y| grid.at(x, y))
+            .expect("squares inside the grid");
+        w.compute_errors(plan.truth);
+        Ok(w)
+    }
+
+    /// The heights (above the ellipsoid) of a level's samples `[x0, x1] × [y0, y1]`
+    /// (inclusive, global).
+    pub(super) fn heights<D: LevelData>(
+        &self,
+        level: Level,
+        stride: f64,
+        [x0, y0, x1, y1]: [u32; 4],
+        data: &D,
+    ) -> Result<HeightGrid, D::Error> {
         let t = self.geometry.tile_size();
         // Absent tiles lie wholly beyond the DEM: read the nearest present sample
         // (the padding repeats the DEM's edge), so every tile sees the same heights.
@@ -160,15 +191,13 @@ impl Terrain {
         // (a sample on a tile border belongs to the tile before it too).
         let max_tx = (last_x.max(1) - 1) / t;
         let max_ty = (last_y.max(1) - 1) / t;
-        let [ox0, oy0, ox1, oy1] = squares.outer;
-        let s = plan.square;
-        let (tx0, tx1) = ((ox0 * s / t).min(max_tx), (ox1 * s / t).min(max_tx));
-        let (ty0, ty1) = ((oy0 * s / t).min(max_ty), (oy1 * s / t).min(max_ty));
+        let (tx0, tx1) = ((x0 / t).min(max_tx), (x1 / t).min(max_tx));
+        let (ty0, ty1) = ((y0 / t).min(max_ty), (y1 / t).min(max_ty));
         let ntx = tx1 - tx0 + 1;
         let mut tiles = Vec::with_capacity((ntx * (ty1 - ty0 + 1)) as usize);
         for ty in ty0..=ty1 {
             for tx in tx0..=tx1 {
-                let id = TileId::new(plan.level, tx, ty).expect("inside the level");
+                let id = TileId::new(level, tx, ty).expect("inside the level");
                 tiles.push(data.tile(id)?);
             }
         }
@@ -176,9 +205,8 @@ impl Terrain {
         let quant = self.quantization;
         let geoid = self.geoid.as_deref();
         let mapping = &self.mapping;
-        let x_first = ox0 * s;
         let lons: Vec<f64> = match (geoid, mapping) {
-            (Some(_), Mapping::Affine { .. }) => (x_first..=ox1 * s)
+            (Some(_), Mapping::Affine { .. }) => (x0..=x1)
                 .map(|x| {
                     mapping
                         .lon_lat(f64::from(x) * stride, 0.0)
@@ -212,16 +240,14 @@ impl Terrain {
                             r
                         }
                     };
-                    z + r.undulation(lons[(x - x_first) as usize])
+                    z + r.undulation(lons[(x - x0) as usize])
                 }
                 Mapping::Projected { .. } => mapping
                     .lon_lat(f64::from(x) * stride, f64::from(y) * stride)
                     .map_or(z, |[lon, lat]| z + g.undulation(lon, lat)),
             }
         };
-        let mut w = Window::new(s, cells, squares.outer, height).expect("squares inside the grid");
-        w.compute_errors(plan.truth);
-        Ok(w)
+        Ok(HeightGrid::new([x0, y0, x1, y1], height).expect("a non-empty window"))
     }
 }
 

@@ -110,6 +110,13 @@ impl Builder {
         }
     }
 
+    /// A triangle already inside the tile and the data (longitude/latitude), its
+    /// points on the tile's edges exactly on them.
+    pub(super) fn add_exact(&mut self, t: [Pt; 3]) {
+        let ids = t.map(|p| self.vertex(p));
+        self.triangle(ids[0], ids[1], ids[2]);
+    }
+
     /// A triangle, counter-clockwise in longitude/latitude; degenerate ones dropped.
     fn triangle(&mut self, a: u32, b: u32, c: u32) {
         let [pa, pb, pc] = [a, b, c].map(|i| self.points[i as usize]);

@@ -1,0 +1,165 @@
+//! A level's samples over a window, and the surface `F` they define: every cell
+//! split from its north-west to its south-east corner (`tessera_shared::triangulation`,
+//! what the error tables measure). A tile's sides ([`super::side`]) follow `F`'s
+//! profile, and the greedy mesher ([`super::greedy`]) reads the samples.
+//!
+//! Coordinates are the level's global sample coordinates (column east, row south),
+//! as `f64`, so two tiles that evaluate `F` at the same point get the same bits.
+
+/// Heights of a rectangle of a level's samples, `[x0, x0 + w) × [y0, y0 + h)`.
+#[derive(Debug, Clone)]
+pub struct HeightGrid {
+    x0: u32,
+    y0: u32,
+    w: u32,
+    h: u32,
+    heights: Vec<f64>,
+}
+
+impl HeightGrid {
+    /// The samples `[x0, x1] × [y0, y1]` (inclusive), read through `height(x, y)`;
+    /// `None` for an empty rectangle.
+    pub fn new(
+        [x0, y0, x1, y1]: [u32; 4],
+        mut height: impl FnMut(u32, u32) -> f64,
+    ) -> Option<Self> {
+        if x1 < x0 || y1 < y0 {
+            return None;
+        }
+        let (w, h) = (x1 - x0 + 1, y1 - y0 + 1);
+        let mut heights = Vec::with_capacity(w as usize * h as usize);
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                heights.push(height(x, y));
+            }
+        }
+        Some(Self {
+            x0,
+            y0,
+            w,
+            h,
+            heights,
+        })
+    }
+
+    /// The first sample (global) and the samples per side.
+    pub fn frame(&self) -> [u32; 4] {
+        [self.x0, self.y0, self.w, self.h]
+    }
+
+    /// The height of sample `(x, y)` (global; inside the grid).
+    pub fn at(&self, x: u32, y: u32) -> f64 {
+        self.heights[self.index(x, y)]
+    }
+
+    /// The index of sample `(x, y)` in row-major order.
+    pub fn index(&self, x: u32, y: u32) -> usize {
+        (y - self.y0) as usize * self.w as usize + (x - self.x0) as usize
+    }
+
+    /// `F` at `(x, y)`, a point inside the grid's samples (its cell's triangle's plane).
+    pub fn surface(&self, x: f64, y: f64) -> f64 {
+        let last_x = self.x0 + self.w - 1;
+        let last_y = self.y0 + self.h - 1;
+        // The cell whose north-west corner is at or before the point; a point on the
+        // grid's last line belongs to the cell before it.
+        let i = (x.floor() as u32).clamp(self.x0, last_x.saturating_sub(1).max(self.x0));
+        let j = (y.floor() as u32).clamp(self.y0, last_y.saturating_sub(1).max(self.y0));
+        let (a, b) = (x - f64::from(i), y - f64::from(j));
+        let (i1, j1) = ((i + 1).min(last_x), (j + 1).min(last_y));
+        let q00 = self.at(i, j);
+        let q11 = self.at(i1, j1);
+        if a >= b {
+            let q10 = self.at(i1, j);
+            q00 + (q10 - q00) * a + (q11 - q10) * b
+        } else {
+            let q01 = self.at(i, j1);
+            q00 + (q11 - q01) * a + (q01 - q00) * b
+        }
+    }
+
+    /// The largest `|line − F|` along the segment from `p` (height `hp`) to `q`
+    /// (height `hq`), where the line is linear in between, and where it is. Exact:
+    /// both are linear between the points where the segment crosses `F`'s edges
+    /// (grid lines and north-west diagonals), and those are the points measured.
+    #[cfg(test)]
+    pub(crate) fn segment_error(&self, p: [f64; 2], hp: f64, q: [f64; 2], hq: f64) -> (f64, [f64; 2]) {
+        let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
+        let mut worst = (0.0_f64, p);
+        let mut at = |t: f64| {
+            if t > 0.0 && t < 1.0 {
+                let (x, y) = (p[0] + t * dx, p[1] + t * dy);
+                let line = hp + t * (hq - hp);
+                let e = (line - self.surface(x, y)).abs();
+                if e > worst.0 {
+                    worst = (e, [x, y]);
+                }
+            }
+        };
+        // Crossings of `coordinate(t) = start + t·delta` with the integers.
+        let crossings = |start: f64, delta: f64, at: &mut dyn FnMut(f64)| {
+            if delta == 0.0 {
+                return;
+            }
+            let end = start + delta;
+            let (lo, hi) = (start.min(end), start.max(end));
+            let mut k = lo.floor() + 1.0;
+            while k < hi {
+                at((k - start) / delta);
+                k += 1.0;
+            }
+        };
+        crossings(p[0], dx, &mut at);
+        crossings(p[1], dy, &mut at);
+        // North-west diagonals: x − y is an integer.
+        crossings(p[0] - p[1], dx - dy, &mut at);
+        worst
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn saddle() -> HeightGrid {
+        // q00 = 0, q10 = 10, q01 = 10, q11 = 0 on one cell, flat around.
+        HeightGrid::new([0, 0, 1, 1], |x, y| if x == y { 0.0 } else { 10.0 }).unwrap()
+    }
+
+    #[test]
+    fn the_surface_is_the_north_west_diagonal_triangulation() {
+        let g = saddle();
+        assert_eq!(g.surface(0.0, 0.0), 0.0);
+        assert_eq!(g.surface(1.0, 0.0), 10.0);
+        // On the diagonal: the mean of its ends, 0 (the other diagonal would give 10).
+        assert_eq!(g.surface(0.5, 0.5), 0.0);
+        assert_eq!(g.surface(0.75, 0.25), 5.0);
+        // The grid's last line belongs to the cell before it.
+        assert_eq!(g.surface(1.0, 1.0), 0.0);
+        assert_eq!(g.surface(0.0, 1.0), 10.0);
+        // Agrees with the shared integer triangulation.
+        let c = tessera_shared::triangulation::Cell {
+            q00: 0,
+            q10: 10,
+            q01: 10,
+            q11: 0,
+        };
+        for (a, b) in [(1_i32, 3_i32), (3, 1), (2, 2), (0, 4)] {
+            let want = c.scaled_height(4, a.into(), b.into()) as f64 / 4.0;
+            assert_eq!(g.surface(f64::from(a) / 4.0, f64::from(b) / 4.0), want);
+        }
+    }
+
+    #[test]
+    fn segment_error_finds_the_kink_between_samples() {
+        let g = saddle();
+        // Along the anti-diagonal from (1,0) to (0,1): the line stays at 10 while F
+        // dips to 0 where it crosses the north-west diagonal, at (0.5, 0.5).
+        let e = g.segment_error([1.0, 0.0], 10.0, [0.0, 1.0], 10.0);
+        assert_eq!(e, (10.0, [0.5, 0.5]));
+        // Along the diagonal itself F is linear: no error.
+        assert_eq!(g.segment_error([0.0, 0.0], 0.0, [1.0, 1.0], 0.0).0, 0.0);
+        // A segment along a grid line between samples: exact at its ends only.
+        assert_eq!(g.segment_error([0.0, 0.0], 0.0, [1.0, 0.0], 10.0).0, 0.0);
+    }
+}
