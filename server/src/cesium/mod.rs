@@ -12,4 +12,5 @@ pub mod quantized_mesh;
 pub mod side;
 pub mod surface;
 pub mod terrain;
+pub mod tiles3d;
 pub mod tiling;
