@@ -14,7 +14,8 @@ DEM=${TESSERA_DEM_DIR:-$ROOT/../shared/data/dem}
 RESULTS=${RESULTS:-$ROOT/target/bench/results}
 RUNS=${RUNS:-3}
 QUICK=${QUICK:-0}
-SERVER_BIN=$ROOT/target/release/tessera-server
+# SERVER_BIN: another server binary to measure (e.g. an older build, side by side).
+SERVER_BIN=${SERVER_BIN:-$ROOT/target/release/tessera-server}
 CLIENT_BIN=$ROOT/target/release/tessera
 # The latency proxy of bench/stream.sh (which checks for it).
 PROXY_BIN=$ROOT/target/release/tessera-proxy

@@ -9,7 +9,10 @@ samples, little-endian f32, row-major from the north-west), meshes the same samp
   so both meshes keep the same maximum error;
 - pymartini (Martini: RTIN, which needs a (2^k + 1)² grid: the window padded by
   repeating its last row and column, which adds flat area that costs Martini few
-  triangles) at the same max_error.
+  triangles). Martini's max_error is not a bound (it measures each vertex's own
+  midpoint error, not its children's), so its threshold is bisected (8 steps) to
+  the largest whose true worst error over the window's samples is within
+  `error_m`; `martini_param` is that threshold.
 
 Prints one JSON line per tile: the input line's dataset/zoom/tile/samples/triangles/
 mesh_us and delatin_triangles, delatin_error_m, delatin_us, martini_triangles,
@@ -35,6 +38,30 @@ def timed(f, runs=5):
     return statistics.median(times), out
 
 
+def true_error(grid, vertices, triangles, w, h):
+    """The worst |mesh − sample| over the window's samples (the padding excluded)."""
+    v = vertices.reshape(-1, 2).astype(np.float64)
+    worst = 0.0
+    for tri in triangles.reshape(-1, 3):
+        p = v[tri]
+        z = grid[p[:, 1].astype(int), p[:, 0].astype(int)].astype(np.float64)
+        x0, x1 = int(p[:, 0].min()), min(int(p[:, 0].max()), w - 1)
+        y0, y1 = int(p[:, 1].min()), min(int(p[:, 1].max()), h - 1)
+        if x0 > x1 or y0 > y1:
+            continue
+        xs, ys = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1))
+        (ax, ay), (bx, by), (cx, cy) = p
+        d = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
+        l0 = ((by - cy) * (xs - cx) + (cx - bx) * (ys - cy)) / d
+        l1 = ((cy - ay) * (xs - cx) + (ax - cx) * (ys - cy)) / d
+        l2 = 1 - l0 - l1
+        inside = (l0 >= -1e-9) & (l1 >= -1e-9) & (l2 >= -1e-9)
+        if inside.any():
+            e = np.abs(l0 * z[0] + l1 * z[1] + l2 * z[2] - grid[ys, xs])[inside]
+            worst = max(worst, float(e.max()))
+    return worst
+
+
 def main():
     for line in sys.stdin:
         r = json.loads(line)
@@ -50,11 +77,23 @@ def main():
         padded = np.pad(a, ((0, n + 1 - h), (0, n + 1 - w)), mode="edge")
         martini = Martini(n + 1)
 
+        martini_tile = martini.create_tile(padded)
+        lo, hi = 0.0, tol
+        for _ in range(8):
+            mid = (lo + hi) / 2
+            v, t = martini_tile.get_mesh(mid)
+            if true_error(padded, v, t, w, h) <= tol:
+                lo = mid
+            else:
+                hi = mid
+        param = lo
+
         def run_martini():
             tile = martini.create_tile(padded)
-            return tile.get_mesh(tol)
+            return tile.get_mesh(param)
 
-        m_us, (_, m_tris) = timed(run_martini)
+        m_us, (m_v, m_tris) = timed(run_martini)
+        m_err = true_error(padded, m_v, m_tris, w, h)
         out = {k: r[k] for k in ("dataset", "zoom", "tile", "samples", "triangles",
                                   "mesh_us", "error_m", "level") if k in r}
         out.update(
@@ -64,6 +103,8 @@ def main():
             delatin_us=d_us,
             martini_triangles=int(len(m_tris) // 3),
             martini_grid=n + 1,
+            martini_param=param,
+            martini_error_m=m_err,
             martini_us=m_us,
         )
         print(json.dumps(out), flush=True)

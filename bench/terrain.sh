@@ -31,7 +31,7 @@
 #    request headers (Accept: application/vnd.quantized-mesh;extensions=… with the
 #    extensions CesiumJS asks for among those layer.json lists, octvertexnormals and
 #    metadata, as `accept` in the records; Accept-Encoding: gzip), 64 connections, N46E008 zoom 12
-#    and the moon zoom 9. The tile list is the zoom's `available` tiles from layer.json,
+#    and the moon zoom 9. The tile list is the zoom's tiles over layer.json's `bounds`,
 #    at most $TERRAIN_SERVE_TILES (default 600) of them (the ones nearest the middle),
 #    in rows, with the `?v=` pin of layer.json's template; a throwaway server checks that
 #    every one answers 200. For each run of $RUNS, a fresh server (--tile-cache-mib sized
@@ -203,12 +203,17 @@ serve_case() {
   ACCEPT="Accept: application/vnd.quantized-mesh;extensions=$(jq -r '[.extensions[]
     | select(. == "octvertexnormals" or . == "metadata")] | sort_by(. != "octvertexnormals")
     | join("-")' <<< "$layer"),application/octet-stream;q=0.9,*/*;q=0.01"
-  jq -c --argjson z "$zoom" '.available[$z]' <<< "$layer" | python3 -c '
-import json, sys
-ranges, most, name, template = json.load(sys.stdin), int(sys.argv[1]), sys.argv[2], sys.argv[3]
+  # The tiles over the data's bounds (layer.json lists availability only down to its
+  # metadataAvailability zoom; deeper tiles carry it), every one checked below.
+  jq -c '.bounds' <<< "$layer" | python3 -c '
+import json, math, sys
+(w, s, e, n), most, name, template = json.load(sys.stdin), int(sys.argv[1]), sys.argv[2], sys.argv[3]
 z = sys.argv[4]
-tiles = sorted({(x, y) for r in ranges for x in range(r["startX"], r["endX"] + 1)
-                for y in range(r["startY"], r["endY"] + 1)})
+span = 180 / 2 ** int(z)
+# A tile meets the open box when its open interior overlaps it.
+x0, x1 = math.floor((w + 180) / span), math.ceil((e + 180) / span) - 1
+y0, y1 = math.floor((s + 90) / span), math.ceil((n + 90) / span) - 1
+tiles = sorted((x, y) for x in range(x0, x1 + 1) for y in range(y0, y1 + 1))
 if not tiles:
     sys.exit(f"{name}: no available tiles at zoom {z}")
 if len(tiles) > most:

@@ -11,6 +11,8 @@
 //!   cover every sample: no holes.
 //! - **Edges.** Two tiles side by side at one zoom have the same edge points: the
 //!   same latitudes (longitudes) and bit-identical heights before quantization.
+//! - **Aprons.** Beyond the data a tile is flat: each vertex there repeats a side
+//!   point's height straight across.
 //!
 //! N46E008 (3″ SRTM, 1201², EGM96) is built with 128-cell tiles so that coarse zooms
 //! mesh coarse levels (measured against their north-west triangulation plus the error
@@ -225,6 +227,113 @@ fn shared_edges(case: &Case) {
         case.name
     );
     assert!(pairs > 50, "too few pairs checked: {pairs}");
+}
+
+/// The mesh's height at `(u, v)` (its triangles, linear in `u` and `v`), if a
+/// triangle holds the point.
+fn mesh_at(mesh: &TerrainMesh, u: f64, v: f64) -> Option<f64> {
+    mesh.triangles.iter().find_map(|t| {
+        let [a, b, c] = t.map(|i| &mesh.vertices[i as usize]);
+        let (ax, ay, bx, by, cx, cy) = (
+            f64::from(a.u),
+            f64::from(a.v),
+            f64::from(b.u),
+            f64::from(b.v),
+            f64::from(c.u),
+            f64::from(c.v),
+        );
+        let det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay);
+        let l1 = ((u - ax) * (cy - ay) - (cx - ax) * (v - ay)) / det;
+        let l2 = ((bx - ax) * (v - ay) - (u - ax) * (by - ay)) / det;
+        let l0 = 1.0 - l1 - l2;
+        (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9)
+            .then(|| l0 * a.height + l1 * b.height + l2 * c.height)
+    })
+}
+
+/// Beyond the data a tile is a flat apron: at every point outside the data's
+/// rectangle the surface has the height of the data's side straight across from it
+/// (the nearest point of the rectangle: same latitude beyond the west or east side,
+/// same longitude beyond the north or south, the data's corner beyond a corner). A
+/// fill that ramps to sea level or fans out from the tile's corners fails.
+fn flat_aprons(case: &Case) {
+    let levels = PyramidLevels::new(&case.pyramid);
+    let [bw, bs, be, bn] = case.terrain.bounds;
+    let (mut edge_tiles, mut points) = (0, 0);
+    for z in 3..=case.terrain.max_zoom.min(13) {
+        let Some([x0, y0, x1, y1]) = case.terrain.available(z) else {
+            continue;
+        };
+        // Tiles along the data's edge: corners and middles of the available range.
+        let ring = [
+            (x0, y0),
+            (x1, y1),
+            (x0, y1),
+            (x1, y0),
+            (x0.midpoint(x1), y0),
+            (x0, y0.midpoint(y1)),
+        ];
+        for (x, y) in ring {
+            let tile = CesiumTile::new(z, x, y).unwrap();
+            let [w, s, e, n] = tile.rect();
+            let u = |lon: f64| (lon - w) / (e - w) * 32767.0;
+            let v = |lat: f64| (lat - s) / (n - s) * 32767.0;
+            let (dw, de, ds, dn) = (u(bw), u(be), v(bs), v(bn));
+            if !(dw > 2.0 || de < 32765.0 || ds > 2.0 || dn < 32765.0) {
+                continue; // the data covers the tile
+            }
+            edge_tiles += 1;
+            let mesh = case.terrain.mesh(tile, &levels).unwrap();
+            for j in 0..=64 {
+                for i in 0..=64 {
+                    let (pu, pv) = (f64::from(i) * 32767.0 / 64.0, f64::from(j) * 32767.0 / 64.0);
+                    let beyond = pu < dw - 2.0 || pu > de + 2.0 || pv < ds - 2.0 || pv > dn + 2.0;
+                    if !beyond {
+                        continue;
+                    }
+                    // On the data's side, straight across (the side's points are
+                    // quantized to the nearest unit, as the apron's are).
+                    let (qu, qv) = (
+                        pu.clamp(dw.round(), de.round()),
+                        pv.clamp(ds.round(), dn.round()),
+                    );
+                    let (Some(h), Some(want)) = (mesh_at(&mesh, pu, pv), mesh_at(&mesh, qu, qv))
+                    else {
+                        panic!(
+                            "{}: {tile}: no triangle at ({pu}, {pv}) or ({qu}, {qv})",
+                            case.name
+                        );
+                    };
+                    assert!(
+                        (h - want).abs() <= 1e-3,
+                        "{}: {tile}: {h:.3} m at ({pu:.0}, {pv:.0}) beyond the data, {want:.3} m straight across",
+                        case.name
+                    );
+                    points += 1;
+                }
+            }
+        }
+    }
+    eprintln!(
+        "{}: {edge_tiles} tiles along the data's edge, {points} points beyond it, flat",
+        case.name
+    );
+    assert!(
+        edge_tiles >= 10 && points > 1000,
+        "too few checked: {edge_tiles} tiles, {points} points"
+    );
+}
+
+#[test]
+fn srtm_tiles_beyond_the_data_are_flat_aprons() {
+    let Some(c) = srtm() else { return };
+    flat_aprons(&c);
+}
+
+#[test]
+fn moon_tiles_beyond_the_data_are_flat_aprons() {
+    let Some(c) = moon() else { return };
+    flat_aprons(&c);
 }
 
 #[test]

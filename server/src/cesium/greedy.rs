@@ -341,26 +341,35 @@ impl<'a> Greedy<'a> {
             if xl > xr {
                 continue;
             }
-            let xs = ((xl + ox - 1e-6).ceil() as i64).max(cx0);
-            let xe = ((xr + ox + 1e-6).floor() as i64).min(cx1);
-            for gx_ in xs..=xe {
-                let x = gx_ as f64 - ox;
-                // Near the interval's ends, the exact test decides.
-                if (gx_ == xs || gx_ == xe)
-                    && (orient(pa, pb, [x, y]) < 0.0
-                        || orient(pb, pc, [x, y]) < 0.0
-                        || orient(pc, pa, [x, y]) < 0.0)
-                {
+            let mut xs = ((xl + ox - 1e-6).ceil() as i64).max(cx0);
+            let mut xe = ((xr + ox + 1e-6).floor() as i64).min(cx1);
+            // Near the interval's ends, the exact test decides.
+            let outside = |gx_: i64| {
+                let p = [gx_ as f64 - ox, y];
+                orient(pa, pb, p) < 0.0 || orient(pb, pc, p) < 0.0 || orient(pc, pa, p) < 0.0
+            };
+            if xs <= xe && outside(xs) {
+                xs += 1;
+            }
+            if xs <= xe && outside(xe) {
+                xe -= 1;
+            }
+            if xs > xe {
+                continue;
+            }
+            let first = self.grid.index(xs as u32, gy_ as u32);
+            let n = (xe - xs + 1) as usize;
+            let heights = &self.grid.samples()[first..first + n];
+            let used = &self.used[first..first + n];
+            let row_plane = za + gy * (y - pa[1]);
+            for (k, (&h, &u)) in heights.iter().zip(used).enumerate() {
+                if u {
                     continue;
                 }
-                let i = self.grid.index(gx_ as u32, gy_ as u32);
-                if self.used[i] {
-                    continue;
-                }
-                let plane = za + gx * (x - pa[0]) + gy * (y - pa[1]);
-                let err = (plane - self.grid.at(gx_ as u32, gy_ as u32)).abs();
+                let x = (xs + k as i64) as f64 - ox;
+                let err = (row_plane + gx * (x - pa[0]) - h).abs();
                 if err > worst.0 {
-                    worst = (err, i as u32);
+                    worst = (err, (first + k) as u32);
                 }
             }
         }

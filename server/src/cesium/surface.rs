@@ -52,6 +52,11 @@ impl HeightGrid {
         self.heights[self.index(x, y)]
     }
 
+    /// Every height, row-major from `(x0, y0)`.
+    pub fn samples(&self) -> &[f64] {
+        &self.heights
+    }
+
     /// The index of sample `(x, y)` in row-major order.
     pub fn index(&self, x: u32, y: u32) -> usize {
         (y - self.y0) as usize * self.w as usize + (x - self.x0) as usize
@@ -83,7 +88,13 @@ impl HeightGrid {
     /// both are linear between the points where the segment crosses `F`'s edges
     /// (grid lines and north-west diagonals), and those are the points measured.
     #[cfg(test)]
-    pub(crate) fn segment_error(&self, p: [f64; 2], hp: f64, q: [f64; 2], hq: f64) -> (f64, [f64; 2]) {
+    pub(crate) fn segment_error(
+        &self,
+        p: [f64; 2],
+        hp: f64,
+        q: [f64; 2],
+        hq: f64,
+    ) -> (f64, [f64; 2]) {
         let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
         let mut worst = (0.0_f64, p);
         let mut at = |t: f64| {

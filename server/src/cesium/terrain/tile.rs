@@ -38,7 +38,7 @@ impl Terrain {
         let mut builder = Builder::new(rect);
         if self.is_lean(&plan) {
             self.mesh_greedy(rect, &plan, data, &mut builder)?;
-            return Ok(builder.finish(self));
+            return Ok(builder.finish(self, self.data_lon_lat(stride, data_box)));
         }
         if let Some(squares) = self.squares(rect, &plan, stride, cells, data_box) {
             let window = self.window(&plan, cells, squares, stride, data)?;
@@ -59,7 +59,7 @@ impl Terrain {
                 builder.add_triangle(self, pts, stride, data_box);
             }
         }
-        Ok(builder.finish(self))
+        Ok(builder.finish(self, self.data_lon_lat(stride, data_box)))
     }
 
     /// A level's stride (finest samples per level sample), its cells per side, and
@@ -74,6 +74,22 @@ impl Terrain {
             f64::from(self.geometry.height() - 1) / stride,
         ];
         (stride, cells, data_box)
+    }
+
+    /// The data's rectangle `[w, s, e, n]` in longitude and latitude on a geographic
+    /// grid, computed as the data's side points are (from level coordinates times
+    /// the stride), so they compare equal.
+    fn data_lon_lat(&self, stride: f64, data_box: [f64; 4]) -> Option<[f64; 4]> {
+        let Mapping::Affine { .. } = self.mapping else {
+            return None;
+        };
+        let [a, b] = self
+            .mapping
+            .lon_lat(data_box[0] * stride, data_box[1] * stride)?;
+        let [c, d] = self
+            .mapping
+            .lon_lat(data_box[2] * stride, data_box[3] * stride)?;
+        Some([a.min(c), b.min(d), a.max(c), b.max(d)])
     }
 
     /// An upper estimate of the memory [`Terrain::mesh_with`] uses for `tile`: its

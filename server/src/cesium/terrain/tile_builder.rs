@@ -128,9 +128,14 @@ impl Builder {
         }
     }
 
-    /// Fills what the data leaves of the tile, then quantizes positions.
-    pub(super) fn finish(mut self, terrain: &Terrain) -> TerrainMesh {
-        self.fill(terrain);
+    /// Fills what the data leaves of the tile, then quantizes positions. `data` is
+    /// the data's rectangle in longitude and latitude where the grid is geographic
+    /// (computed as the data's side points are): the rest is then a flat apron.
+    pub(super) fn finish(mut self, terrain: &Terrain, data: Option<[f64; 4]>) -> TerrainMesh {
+        match data {
+            Some(d) if !self.triangles.is_empty() => self.apron(d),
+            _ => self.fill(terrain),
+        }
         let [w, s, e, n] = self.rect;
         let q = |v: f64, lo: f64, hi: f64| -> u16 {
             if v == lo {
@@ -157,8 +162,107 @@ impl Builder {
         }
     }
 
-    /// The rest of the rectangle: a constrained Delaunay triangulation of the data
-    /// mesh's boundary and the tile's corners, keeping the faces outside the data.
+    /// The rest of the rectangle, where the data is a rectangle `[w, s, e, n]` of
+    /// it: each side of the data inside the tile is carried out flat to the tile's
+    /// edge (every side point's height straight out), and each corner of the data
+    /// inside the tile fills its corner of the tile at the corner's height. No
+    /// slope that is not in the data, and the points on the tile's edges depend only
+    /// on the data's side points there, which the tile beside computes alike.
+    fn apron(&mut self, [dw, ds, de, dn]: [f64; 4]) {
+        let [w, s, e, n] = self.rect;
+        let (dw, ds, de, dn) = (dw.max(w), ds.max(s), de.min(e), dn.min(n));
+        let side = |pts: &[Pt], on: &dyn Fn(&Pt) -> Option<f64>| -> Vec<(f64, Pt)> {
+            let mut v: Vec<(f64, Pt)> = pts.iter().filter_map(|p| on(p).map(|t| (t, *p))).collect();
+            v.sort_by(|a, b| a.0.total_cmp(&b.0));
+            v.dedup_by(|a, b| a.0 == b.0);
+            v
+        };
+        let within = |t: f64, lo: f64, hi: f64| t >= lo && t <= hi;
+        // (side points along it, where the apron reaches, whether it is vertical)
+        let mut strips = Vec::new();
+        if dw > w {
+            strips.push((
+                side(&self.points, &|p| {
+                    (p.x == dw && within(p.y, ds, dn)).then_some(p.y)
+                }),
+                w,
+                true,
+            ));
+        }
+        if de < e {
+            strips.push((
+                side(&self.points, &|p| {
+                    (p.x == de && within(p.y, ds, dn)).then_some(p.y)
+                }),
+                e,
+                true,
+            ));
+        }
+        if ds > s {
+            strips.push((
+                side(&self.points, &|p| {
+                    (p.y == ds && within(p.x, dw, de)).then_some(p.x)
+                }),
+                s,
+                false,
+            ));
+        }
+        if dn < n {
+            strips.push((
+                side(&self.points, &|p| {
+                    (p.y == dn && within(p.x, dw, de)).then_some(p.x)
+                }),
+                n,
+                false,
+            ));
+        }
+        let out = |p: Pt, to: f64, vertical: bool| {
+            if vertical {
+                Pt { x: to, ..p }
+            } else {
+                Pt { y: to, ..p }
+            }
+        };
+        for (pts, to, vertical) in &strips {
+            for pair in pts.windows(2) {
+                let (a, b) = (pair[0].1, pair[1].1);
+                let ids =
+                    [a, b, out(b, *to, *vertical), out(a, *to, *vertical)].map(|p| self.vertex(p));
+                self.triangle(ids[0], ids[1], ids[2]);
+                self.triangle(ids[0], ids[2], ids[3]);
+            }
+        }
+        // Corners of the tile beyond two sides of the data: flat at the data's corner.
+        for (cx, cy, tx, ty) in [
+            (dw, dn, w, n),
+            (de, dn, e, n),
+            (de, ds, e, s),
+            (dw, ds, w, s),
+        ] {
+            if cx == tx || cy == ty {
+                continue;
+            }
+            let Some(c) = self.points.iter().find(|p| p.x == cx && p.y == cy).copied() else {
+                continue;
+            };
+            let h = c.h;
+            let quad = [
+                c,
+                Pt { x: tx, y: cy, h },
+                Pt { x: tx, y: ty, h },
+                Pt { x: cx, y: ty, h },
+            ];
+            let ids = quad.map(|p| self.vertex(p));
+            self.triangle(ids[0], ids[1], ids[2]);
+            self.triangle(ids[0], ids[2], ids[3]);
+        }
+    }
+
+    /// The rest of the rectangle where the data is not a rectangle of it (a
+    /// projected grid, or no data at all): a constrained Delaunay triangulation of
+    /// the data mesh's boundary and the tile's corners, keeping the faces outside
+    /// the data; a corner takes the height of the boundary point nearest it, or sea
+    /// level when the tile holds no data.
     fn fill(&mut self, terrain: &Terrain) {
         use spade::{ConstrainedDelaunayTriangulation, Point2, Triangulation};
         let [w, s, e, n] = self.rect;
@@ -191,12 +295,23 @@ impl Builder {
         let mut handle_of: HashMap<u32, spade::handles::FixedVertexHandle> = HashMap::new();
         let mut id_of: HashMap<spade::handles::FixedVertexHandle, u32> = HashMap::new();
         let corners = [[w, s], [e, s], [e, n], [w, n]];
-        for [x, y] in corners {
-            let p = Pt {
-                x,
-                y,
-                h: terrain.sea_level(x, y),
-            };
+        let nearest = |x: f64, y: f64| {
+            boundary
+                .iter()
+                .flat_map(|&(a, b)| [a, b])
+                .map(|i| self.points[i as usize])
+                .min_by(|p, q| {
+                    let d = |r: &Pt| (r.x - x).hypot(r.y - y);
+                    d(p).total_cmp(&d(q))
+                })
+                .map(|p| p.h)
+        };
+        let corner_heights: Vec<f64> = corners
+            .iter()
+            .map(|&[x, y]| nearest(x, y).unwrap_or_else(|| terrain.sea_level(x, y)))
+            .collect();
+        for ([x, y], h) in corners.into_iter().zip(corner_heights) {
+            let p = Pt { x, y, h };
             let id = self.vertex(p);
             if let Ok(hd) = cdt.insert(Point2::new(x, y)) {
                 handle_of.insert(id, hd);
