@@ -85,7 +85,9 @@ fn main() {
         let bytes = encode(&mesh, tile.rect(), &terrain.ellipsoid, &ext).unwrap();
         let encode_us = t.elapsed().as_secs_f64() * 1e6;
         let check = true_error(tile, &mesh);
-        let window = windows.as_ref().and_then(|dir| write_window(&grid, tile, dir));
+        let window = windows
+            .as_ref()
+            .and_then(|dir| write_window(&grid, tile, dir));
         let (rpos, rtris) = grid.regular_grid(tile.rect(), 65);
         let regular = grid.worst_error(tile.rect(), &rpos, &rtris);
         // Our mesh at the regular grid's error: the same 5 % margin as the served
@@ -148,5 +150,8 @@ fn write_window(
     }
     let path = dir.join(format!("{}_{}_{}.f32", tile.z, tile.x, tile.y));
     std::fs::write(&path, bytes).unwrap();
-    Some((path.to_string_lossy().into_owned(), [c1 - c0 + 1, r1 - r0 + 1]))
+    Some((
+        path.to_string_lossy().into_owned(),
+        [c1 - c0 + 1, r1 - r0 + 1],
+    ))
 }
