@@ -39,6 +39,11 @@ pub mod routes {
     pub const CESIUM_LAYER: &str = "/v1/datasets/{name}/cesium/layer.json";
     /// Cesium terrain tiles; the last segment is `{y}.terrain`.
     pub const CESIUM_TILE: &str = "/v1/datasets/{name}/cesium/{z}/{x}/{y}";
+    /// Cesium terrain as 3D Tiles 1.1: `tileset.json` (two implicit quadtrees).
+    pub const TILES3D_TILESET: &str = "/v1/datasets/{name}/3dtiles/tileset.json";
+    /// Its GLB tiles and subtree files: `{root}` 0 (west) or 1 (east), `{level}/{x}/{y}`
+    /// of that root's quadtree; the last segment is `{y}.glb` or `{y}.subtree`.
+    pub const TILES3D_TILE: &str = "/v1/datasets/{name}/3dtiles/{root}/{level}/{x}/{y}";
     /// Standard-grid tiles; the last segment is `{y}.png` or `{y}.webp`.
     pub const GRID_TILE: &str = "/v1/datasets/{name}/{grid}/{z}/{x}/{y}";
     /// WMTS 1.0.0 capabilities (RESTful) of every dataset with a place on a map.

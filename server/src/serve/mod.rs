@@ -107,6 +107,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::WEB_TILE, get(routes::web_tiles::png))
         .route(paths::GRID_TILE, get(routes::web_grid::tile))
         .route(paths::CESIUM_TILE, get(routes::cesium::tile))
+        .route(paths::TILES3D_TILE, get(routes::cesium_tiles3d::tile))
         .route(paths::OGC_TILE, get(routes::ogc_api::tile))
         .route(paths::PREVIEW, get(viewer::preview::get))
         .route_layer(GlobalConcurrencyLimitLayer::with_semaphore(computed_slots));
@@ -126,6 +127,7 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::TILE, get(routes::tiles::single))
         .route(paths::GRID_TILEJSON, get(routes::web_grid::tilejson))
         .route(paths::CESIUM_LAYER, get(routes::cesium::layer))
+        .route(paths::TILES3D_TILESET, get(routes::cesium_tiles3d::tileset))
         .route(paths::WMTS, get(routes::wmts::all))
         .route(paths::DATASET_WMTS, get(routes::wmts::one))
         .route(paths::OGC_LANDING, get(routes::ogc_api::landing))

@@ -63,13 +63,6 @@ impl Cursor<'_> {
             self.take(4, what)?.try_into().expect("4 bytes"),
         ))
     }
-    fn f64s<const N: usize>(&mut self, what: &'static str) -> Result<[f64; N], ReadError> {
-        let mut out = [0.0; N];
-        for o in &mut out {
-            *o = f64::from_le_bytes(self.take(8, what)?.try_into().expect("8 bytes"));
-        }
-        Ok(out)
-    }
     fn u16s(&mut self, n: usize, what: &'static str) -> Result<Vec<u16>, ReadError> {
         Ok(self
             .take(n.checked_mul(2).ok_or(ReadError::Truncated(0, what))?, what)?

@@ -38,7 +38,7 @@ use tessera_shared::{Level, TileId, codec};
 pub const MEDIA_TYPE: &str = "application/vnd.quantized-mesh";
 
 /// The dataset's terrain plan, or 404 saying why it cannot be terrain.
-fn terrain(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Terrain>> {
+pub(super) fn terrain(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Terrain>> {
     state
         .web
         .terrain(ds.content_hash(), || {
@@ -57,7 +57,7 @@ const KEPT_AVAILABILITIES: usize = 64;
 
 /// The dataset's availability: made once (reading the index and the masks of its
 /// partial finest tiles, off the runtime), then kept.
-async fn availability(
+pub(super) async fn availability(
     state: &Arc<AppState>,
     ds: &Arc<Dataset>,
     terrain: &Arc<Terrain>,
@@ -324,7 +324,7 @@ pub async fn tile(
 }
 
 /// Meshes and encodes one tile, within the memory the ticket reserves for it.
-fn make(
+pub(super) fn make(
     state: &AppState,
     ds: &Dataset,
     terrain: &Terrain,
