@@ -27,6 +27,13 @@
 #    {dataset, zoom, seed, run: 1, measured, commit, loadavg_1m}. One run: every tile's
 #    time is already a median of 5.
 #
+# 1b. The peers (part of 1): every measured tile wholly inside the data has its window of
+#    finest samples written by the tool (TERRAIN_WINDOWS) and meshed by bench/mesh_peers.py
+#    with pydelatin and pymartini (PyPI, in $MESH_PEERS_VENV, default
+#    ${XDG_CACHE_HOME:-~/.cache}/tessera/mesh-venv, made once) at the tile's own true
+#    worst error (Martini's threshold bisected until its true error is within it), one line per
+#    tile to $RESULTS/terrain_peers.jsonl: triangles and µs (median of 5) for each.
+#
 # 2. Serving (TERRAIN_SERVE=1): `tessera-server serve` on both pyramids, the CesiumJS
 #    request headers (Accept: application/vnd.quantized-mesh;extensions=… with the
 #    extensions CesiumJS asks for among those layer.json lists, octvertexnormals and
@@ -83,7 +90,9 @@ log "terrain: pyramids"
 mesh_case() {
   local name=$1 zoom=$2 seed=1
   log "terrain: meshing $mesh_tiles tiles of $name zoom $zoom"
-  "$MESH_BIN" "$WORK/$name.tess" "$zoom" $((mesh_tiles * 5)) "$seed" > "$WORK/mesh.jsonl" \
+  mkdir -p "$WORK/windows"
+  TERRAIN_WINDOWS=$WORK/windows \
+    "$MESH_BIN" "$WORK/$name.tess" "$zoom" $((mesh_tiles * 5)) "$seed" > "$WORK/mesh.jsonl" \
     2> "$WORK/mesh.err" || { cat "$WORK/mesh.err" >&2; exit 1; }
   jq -c -s --argjson n "$mesh_tiles" --arg name "$name" --argjson zoom "$zoom" \
     --argjson seed "$seed" --arg commit "$commit" --arg measured "$(now)" \
@@ -92,6 +101,14 @@ mesh_case() {
     | .[] | . + {dataset: $name, zoom: $zoom, seed: $seed, run: 1, measured: $measured,
                  commit: $commit, loadavg_1m: $load}' "$WORK/mesh.jsonl" \
     >> "$RESULTS/terrain_mesh.jsonl"
+  # 1b. The peers on the same windows (the tiles wholly inside the data).
+  jq -c --arg name "$name" 'select(.dataset == $name and .window != null)' \
+    "$RESULTS/terrain_mesh.jsonl" | jq -c --argjson zoom "$zoom" 'select(.zoom == $zoom)' \
+    | "$PEERS_VENV/bin/python" bench/mesh_peers.py \
+    | jq -c --arg commit "$commit" --arg measured "$(now)" --argjson load "$(load1)" \
+      '. + {measured: $measured, commit: $commit, loadavg_1m: $load}' \
+    >> "$RESULTS/terrain_peers.jsonl"
+  rm -rf "$WORK/windows"
 }
 
 if [ "${TERRAIN_MESH:-1}" = 1 ]; then
@@ -100,7 +117,14 @@ if [ "${TERRAIN_MESH:-1}" = 1 ]; then
     cargo build --release --locked -q -p tessera-e2e --example terrain_mesh
   fi
   [ -x "$MESH_BIN" ] || { echo "no $MESH_BIN (cargo build --release -p tessera-e2e --example terrain_mesh)" >&2; exit 1; }
-  rm -f "$RESULTS/terrain_mesh.jsonl"
+  # pydelatin and pymartini (PyPI wheels) in a venv of their own, made once.
+  PEERS_VENV=${MESH_PEERS_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/tessera/mesh-venv}
+  if ! "$PEERS_VENV/bin/python" -c 'import pydelatin, pymartini, numpy' 2> /dev/null; then
+    log "terrain: installing pydelatin and pymartini into $PEERS_VENV"
+    python3 -m venv "$PEERS_VENV"
+    "$PEERS_VENV/bin/pip" install -q pydelatin pymartini numpy
+  fi
+  rm -f "$RESULTS/terrain_mesh.jsonl" "$RESULTS/terrain_peers.jsonl"
   mesh_case N46E008 10
   mesh_case N46E008 12
   mesh_case N46E008 14
