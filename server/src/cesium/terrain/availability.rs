@@ -82,7 +82,7 @@ impl Terrain {
             match stored(tile) {
                 Stored::Absent => {}
                 Stored::Full => {
-                    if let Some(r) = self.cells_covering(z, [ox, oy, cx1, cy1]) {
+                    for r in self.cells_covering(z, [ox, oy, cx1, cy1]) {
                         rows.add(r);
                     }
                 }
@@ -103,7 +103,7 @@ impl Terrain {
                                 cx += 1;
                             }
                             let cells = [ox + start, oy + cy, ox + cx, oy + cy + 1];
-                            if let Some(r) = self.cells_covering(z, cells) {
+                            for r in self.cells_covering(z, cells) {
                                 rows.add(r);
                             }
                         }
@@ -123,7 +123,7 @@ impl Terrain {
 
     /// The tiles of zoom `z` whose open rectangle meets the open box of finest cells
     /// `[c0, r0, c1, r1)` (their corner samples `c0..=c1`, `r0..=r1`).
-    fn cells_covering(&self, z: u8, [c0, r0, c1, r1]: [u32; 4]) -> Option<Range> {
+    fn cells_covering(&self, z: u8, [c0, r0, c1, r1]: [u32; 4]) -> Vec<Range> {
         let corners: Vec<[f64; 2]> = match self.mapping {
             Mapping::Affine { .. } => vec![[c0, r0], [c1, r1]]
                 .into_iter()
@@ -156,7 +156,12 @@ impl Terrain {
         for [lon, lat] in corners {
             (w, s, e, n) = (w.min(lon), s.min(lat), e.max(lon), n.max(lat));
         }
-        CesiumTile::covering(z, [w, s, e, n])
+        // East of the antimeridian (a geographic grid crossing it): the tiles from −180.
+        let mut out: Vec<Range> = CesiumTile::covering(z, [w, s, e, n]).into_iter().collect();
+        if e > 180.0 {
+            out.extend(CesiumTile::covering(z, [w - 360.0, s, e - 360.0, n]));
+        }
+        out
     }
 }
 

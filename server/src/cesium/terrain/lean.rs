@@ -78,7 +78,7 @@ impl Terrain {
 
     /// An upper estimate of the memory [`Terrain::mesh_greedy`] uses for `tile`.
     pub(super) fn lean_bytes(&self, tile: CesiumTile, plan: &ZoomPlan) -> Option<u64> {
-        let f = self.lean_frame(tile.rect(), plan)?;
+        let f = self.lean_frame(self.frame_rect(tile), plan)?;
         let w = (f.rect[2].ceil() - f.rect[0].floor() + 2.0) as u64;
         let h = (f.rect[3].ceil() - f.rect[1].floor() + 2.0) as u64;
         let t = u64::from(self.geometry.tile_size());

@@ -121,7 +121,7 @@ pub enum TerrainError {
     CornersDoNotTransform,
     /// `[west, south, east, north]` of its corners.
     #[error(
-        "it spans longitudes {:.6}..{:.6} and latitudes {:.6}..{:.6}, outside −180..180 × −90..90 (the antimeridian is not handled)",
+        "it spans longitudes {:.6}..{:.6} and latitudes {:.6}..{:.6}, outside −180..180 × −90..90 (a grid in longitude and latitude may cross the antimeridian; a projected one may not)",
         .0[0], .0[2], .0[1], .0[3]
     )]
     OutsideLonLat([f64; 4]),
@@ -145,8 +145,14 @@ impl Terrain {
         let gt = georef.geotransform;
         let plain_lon_lat = crs.is_geographic() && (!earth || crs.epsg() == Some(4326));
         let mapping = if plain_lon_lat && gt[2] == 0.0 && gt[4] == 0.0 {
+            let lon0 = gt[0] + 0.5 * gt[1];
+            // Longitudes as the data's west edge has them in −180..180: a grid
+            // stated from 0 to 360, or past 180, keeps its samples, and those east of
+            // 180 are found by tiles at −180 + their longitude (see `frame_rect`).
+            let west = lon0.min(lon0 + f64::from(m.width - 1) * gt[1]);
+            let turns = ((west + 180.0) / 360.0).floor();
             Mapping::Affine {
-                lon0: gt[0] + 0.5 * gt[1],
+                lon0: lon0 - 360.0 * turns,
                 dlon: gt[1],
                 lat0: gt[3] + 0.5 * gt[5],
                 dlat: gt[5],
@@ -187,7 +193,15 @@ impl Terrain {
                 ];
             }
         }
-        if !(bounds[0] >= -180.0 && bounds[2] <= 180.0 && bounds[1] >= -90.0 && bounds[3] <= 90.0) {
+        // A geographic grid may cross the antimeridian (west in −180..180, east up to
+        // 360° further); any other must lie in −180..180 as its corners transform.
+        let lon_ok = match mapping {
+            Mapping::Affine { .. } => {
+                bounds[0] >= -180.0 && bounds[0] < 180.0 && bounds[2] - bounds[0] <= 360.0
+            }
+            Mapping::Projected { .. } => bounds[0] >= -180.0 && bounds[2] <= 180.0,
+        };
+        if !(lon_ok && bounds[1] >= -90.0 && bounds[3] <= 90.0) {
             return Err(TerrainError::OutsideLonLat(bounds));
         }
         let (geoid, datum_warning) = match (m.vertical_datum, geoid) {
@@ -239,18 +253,52 @@ impl Terrain {
         })
     }
 
-    /// The tiles of zoom `z` holding data: `[x0, y0, x1, y1]` inclusive.
+    /// The tiles of zoom `z` over the data's bounds: `[x0, y0, x1, y1]` inclusive,
+    /// the part west of the antimeridian where the data crosses it
+    /// ([`Terrain::available_ranges`] has both parts).
     pub fn available(&self, z: u8) -> Option<[u32; 4]> {
-        (z <= self.max_zoom)
-            .then(|| CesiumTile::covering(z, self.bounds))
-            .flatten()
+        self.available_ranges(z).into_iter().next()
     }
 
-    /// Whether `tile` is one `layer.json` lists.
+    /// The tiles of zoom `z` over the data's bounds: one range, or two where the
+    /// data crosses the antimeridian (east of it, the tiles from −180).
+    pub fn available_ranges(&self, z: u8) -> Vec<[u32; 4]> {
+        if z > self.max_zoom {
+            return Vec::new();
+        }
+        let [w, s, e, n] = self.bounds;
+        let mut out: Vec<[u32; 4]> = CesiumTile::covering(z, self.bounds).into_iter().collect();
+        if e > 180.0 {
+            out.extend(CesiumTile::covering(z, [w - 360.0, s, e - 360.0, n]));
+        }
+        out
+    }
+
+    /// Whether `tile` is over the data's bounds.
     pub fn is_available(&self, tile: CesiumTile) -> bool {
-        self.available(tile.z).is_some_and(|[x0, y0, x1, y1]| {
-            (x0..=x1).contains(&tile.x) && (y0..=y1).contains(&tile.y)
-        })
+        self.available_ranges(tile.z)
+            .into_iter()
+            .any(|[x0, y0, x1, y1]| (x0..=x1).contains(&tile.x) && (y0..=y1).contains(&tile.y))
+    }
+
+    /// `tile`'s rectangle in the data's longitudes: as it is, or 360° east where the
+    /// data crosses the antimeridian and the tile is east of it (so every
+    /// computation of the tile is in the frame its samples are in; `−180 + 360` is
+    /// exactly `180`, so the two tiles at the antimeridian still share their edge).
+    /// A tile meeting the data in both frames (a dataset wider than a tile that
+    /// crosses it, at zooms 0–1) is meshed in the frame holding more of it.
+    pub fn frame_rect(&self, tile: CesiumTile) -> [f64; 4] {
+        let r = tile.rect();
+        let [w, _, e, _] = self.bounds;
+        if e <= 180.0 {
+            return r;
+        }
+        let overlap = |a: f64, b: f64| (b.min(e) - a.max(w)).max(0.0);
+        if overlap(r[0] + 360.0, r[2] + 360.0) > overlap(r[0], r[2]) {
+            [r[0] + 360.0, r[1], r[2] + 360.0, r[3]]
+        } else {
+            r
+        }
     }
 
     /// Degrees between a level's samples (the smaller axis, at the centre).

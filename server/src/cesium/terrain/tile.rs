@@ -33,7 +33,7 @@ impl Terrain {
         data: &D,
     ) -> Result<TerrainMesh, D::Error> {
         let plan = *plan;
-        let rect = tile.rect();
+        let rect = self.frame_rect(tile);
         let (stride, cells, data_box) = self.level_frame(plan.level);
         let mut builder = Builder::new(rect);
         if self.is_lean(&plan) {
@@ -100,7 +100,7 @@ impl Terrain {
             return self.lean_bytes(tile, plan).unwrap_or(0);
         }
         let (stride, cells, data_box) = self.level_frame(plan.level);
-        let Some(sq) = self.squares(tile.rect(), plan, stride, cells, data_box) else {
+        let Some(sq) = self.squares(self.frame_rect(tile), plan, stride, cells, data_box) else {
             return 0;
         };
         let [x0, y0, x1, y1] = sq.outer;

@@ -178,7 +178,8 @@ impl Terrain {
         data: &D,
     ) -> Result<WaterMask, D::Error> {
         let n = WATER_MASK_SIDE;
-        let [w, s, e, nn] = tile.rect();
+        // In the data's longitudes (east of the antimeridian, +360° where it crosses).
+        let [w, s, e, nn] = self.frame_rect(tile);
         let centre = |i: usize, j: usize| {
             let t = |k: usize| (k as f64 + 0.5) / n as f64;
             [w + t(i) * (e - w), nn - t(j) * (nn - s)]
@@ -194,7 +195,10 @@ impl Terrain {
             for j in 0..n {
                 for i in 0..n {
                     let [lon, lat] = centre(i, j);
-                    water[j * n + i] = r.is_water(lon, lat) == Some(true);
+                    let wet = r
+                        .is_water(lon, lat)
+                        .or_else(|| r.is_water(lon - 360.0, lat));
+                    water[j * n + i] = wet == Some(true);
                 }
             }
         }

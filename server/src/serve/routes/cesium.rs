@@ -411,6 +411,9 @@ pub fn layer_doc(
         meta["warning"] = serde_json::Value::String(w.clone());
     }
     let [w, s, e, n] = terrain.bounds;
+    // Across the antimeridian, east is given in −180..180 and is less than west
+    // (TileJSON's convention for a box that crosses it).
+    let e = if e > 180.0 { e - 360.0 } else { e };
     let mut doc = serde_json::json!({
         "tilejson": "2.1.0",
         "name": ds.name,
