@@ -78,6 +78,12 @@ impl Dem {
     /// Bilinear at CRS point `(x, y)` over the four surrounding samples, `None`
     /// outside the sample grid or where any of the four is no-data.
     fn bilinear(&self, x: f64, y: f64) -> Option<f64> {
+        // A longitude/latitude DEM east of the antimeridian: −179° is its 181°.
+        let x = if self.epsg == "EPSG:4326" && x < self.gt[0] {
+            x + 360.0
+        } else {
+            x
+        };
         let c = (x - self.gt[0]) / self.gt[1] - 0.5;
         let r = (y - self.gt[3]) / self.gt[5] - 0.5;
         if !(c >= 0.0 && r >= 0.0 && c <= (self.width - 1) as f64 && r <= (self.height - 1) as f64)
@@ -271,6 +277,69 @@ fn crs84_tiles_carry_the_dem_heights_exactly() {
     // slopes) can put a height either side of a 1/256 m step.
     assert!(c.worst <= 1.0 / 256.0 + 1e-6, "worst {} m: {c:?}", c.worst);
     assert_eq!(c.only_reference, 0, "{c:?}");
+}
+
+/// N46E008 moved by GDAL to 179.5° E – 180.5° E (half of it east of the
+/// antimeridian) is served on both sides of it: the tiles at the world's east edge
+/// and those at its west edge carry the DEM's heights at every pixel, in both
+/// grids; TileJSON states every longitude (a box whose east is less than its west
+/// is not one MapLibre reads).
+#[test]
+fn a_dem_across_the_antimeridian_is_served_on_both_sides() {
+    if !gdal::gdal_or_skip() {
+        return;
+    }
+    let Some(src) = testdata::dem_or_skip("N46E008.tif") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let moved = dir.path().join("N46E179.tif");
+    let h = 0.5 / 1200.0;
+    let ullr = [179.5 - h, 47.0 + h, 180.5 + h, 46.0 - h].map(|v| v.to_string());
+    let mut args = vec!["-q", "-a_ullr"];
+    args.extend(ullr.iter().map(String::as_str));
+    args.extend([gdal::path_str(&src), gdal::path_str(&moved)]);
+    gdal::run("gdal_translate", &args);
+    let pyramid = dir.path().join("N46E179.tess");
+    serve_support::build_pyramid(moved.to_str().unwrap(), &pyramid, 256);
+    let dem = Dem::read(&moved, "EPSG:4326");
+    let srv = Server::start(&[&pyramid], &[]);
+    let bounds = tilejson_bounds(&srv, "N46E179");
+    assert_eq!((bounds[0], bounds[2]), (-180.0, 180.0), "{bounds:?}");
+    // At each grid's deepest zoom (where tiles are the DEM's samples), the tiles
+    // either side of the antimeridian at 46.5° N.
+    for (grid, px, precision) in [
+        ("crs84", 256, 1.0 / 256.0 + 1e-6),
+        ("webmercator", 256, 1.0 / 256.0 + 1e-4),
+    ] {
+        let tj = srv
+            .get(&format!(
+                "/v1/datasets/N46E179/{grid}/tilejson.json?size={px}"
+            ))
+            .expect(200)
+            .json();
+        let z = tj["maxzoom"].as_u64().unwrap() as u8;
+        for lon in [179.95, -179.95] {
+            let (x, y) = if grid == "crs84" {
+                let n = f64::from(1u32 << z);
+                (
+                    ((lon + 180.0) / 180.0 * n) as u32,
+                    ((90.0 - 46.5) / 180.0 * n) as u32,
+                )
+            } else {
+                xyz_tile(lon, 46.5, z)
+            };
+            let c = compare_tile(&srv, &dem, "N46E179", grid, (z, x, y), px, "terrarium");
+            eprintln!("{grid} z{z}/{x}/{y}: {c:?}");
+            assert!(c.both > 10_000, "{grid} {lon}: {c:?}");
+            assert!(
+                c.worst <= precision,
+                "{grid} {lon}: worst {} m: {c:?}",
+                c.worst
+            );
+            assert_eq!(c.only_reference, 0, "{grid} {lon}: {c:?}");
+        }
+    }
 }
 
 /// A DEM in Swiss LV95 (EPSG:2056) lands in the Bernese Alps with its heights, not

@@ -22,10 +22,18 @@ pub struct Footprint {
     width: u32,
     height: u32,
     /// `[west, south, east, north]` of the pixel area (each sample standing for
-    /// its pixel, as GDAL counts extents) in degrees (WGS 84).
+    /// its pixel, as GDAL counts extents) in degrees (WGS 84), as documents state
+    /// it: all longitudes where the data crosses the antimeridian (a box whose east is
+    /// less than its west is not one every client reads).
     pub lon_lat: [f64; 4],
-    /// The pixel area's bounding box in each grid's CRS, [`TileMatrixSet::ALL`] order.
+    /// The pixel area's bounding box in each grid's CRS, [`TileMatrixSet::ALL`] order,
+    /// as documents state it (all longitudes where the data crosses the antimeridian).
     grid_bounds: [[f64; 4]; 2],
+    /// The same in the data's own longitudes: east past 180° where it crosses the
+    /// antimeridian, which tiles from −180 then find one world east (`tile_bounds`).
+    data_bounds: [[f64; 4]; 2],
+    /// Whether the data is a longitude/latitude grid that crosses the antimeridian.
+    wrap: bool,
     /// Metres between samples at the dataset's centre, the finer of x and y.
     spacing_m: f64,
 }
@@ -91,23 +99,53 @@ impl Footprint {
             height: m.height,
             lon_lat: [0.0; 4],
             grid_bounds: [[0.0; 4]; 2],
+            data_bounds: [[0.0; 4]; 2],
+            wrap: false,
             spacing_m: spacing.x.min(spacing.y),
         };
         me.lon_lat = me.border_bounds(|x, y| me.crs.to_lon_lat(x, y).ok(), g)?;
-        let [w, s, e, n] = me.lon_lat;
-        for tms in TileMatrixSet::ALL {
-            let b = match tms {
-                TileMatrixSet::WorldCrs84Quad => me.lon_lat,
+        // A longitude/latitude grid's own longitudes, from its geotransform: the
+        // projection library folds those past 180° back to −180, which would make a
+        // grid crossing the antimeridian look as wide as the world.
+        if me.crs.is_geographic() && gt[2] == 0.0 {
+            let (a, b) = (gt[0], gt[0] + f64::from(m.width) * gt[1]);
+            let turns = ((a.min(b) + 180.0) / 360.0).floor();
+            let (w, e) = (a.min(b) - 360.0 * turns, a.max(b) - 360.0 * turns);
+            if e > 180.0 && e - w <= 360.0 {
+                me.wrap = true;
+                me.lon_lat = [w, me.lon_lat[1], e, me.lon_lat[3]];
+            }
+        }
+        let data = me.lon_lat;
+        let documents = if me.wrap {
+            [-180.0, data[1], 180.0, data[3]]
+        } else {
+            data
+        };
+        let merc = Crs::from_epsg(3857)?;
+        let world = TileMatrixSet::WebMercatorQuad.extent();
+        let in_grid = |tms: TileMatrixSet, [w, s, e, n]: [f64; 4]| -> anyhow::Result<[f64; 4]> {
+            Ok(match tms {
+                TileMatrixSet::WorldCrs84Quad => [w, s, e, n],
                 TileMatrixSet::WebMercatorQuad => {
-                    let merc = Crs::from_epsg(3857)?;
                     let clamp = |lat: f64| lat.clamp(-MERCATOR_MAX_LAT, MERCATOR_MAX_LAT);
                     let lo = merc.from_lon_lat(w, clamp(s))?;
-                    let hi = merc.from_lon_lat(e, clamp(n))?;
-                    [lo[0], lo[1], hi[0], hi[1]]
+                    // East of the antimeridian: one world east of its point from −180.
+                    let (east, shift) = if e > 180.0 {
+                        (e - 360.0, world[2] - world[0])
+                    } else {
+                        (e, 0.0)
+                    };
+                    let hi = merc.from_lon_lat(east, clamp(n))?;
+                    [lo[0], lo[1], hi[0] + shift, hi[1]]
                 }
-            };
-            me.grid_bounds[index(tms)] = b;
+            })
+        };
+        for tms in TileMatrixSet::ALL {
+            me.grid_bounds[index(tms)] = in_grid(tms, documents)?;
+            me.data_bounds[index(tms)] = in_grid(tms, data)?;
         }
+        me.lon_lat = documents;
         Ok(me)
     }
 
@@ -152,6 +190,13 @@ impl Footprint {
             Some(grid) => grid.transform_to(&self.crs, x, y).ok()?,
             None => [x, y],
         };
+        // A grid across the antimeridian: longitudes into its own range.
+        let dx = if self.wrap {
+            let west = self.data_bounds[index(TileMatrixSet::WorldCrs84Quad)][0];
+            dx - 360.0 * ((dx - west) / 360.0).floor()
+        } else {
+            dx
+        };
         let [a, b, c, d, x0, y0] = self.inverse;
         let (ex, ey) = (dx - x0, dy - y0);
         let p = [a * ex + b * ey - 0.5, c * ex + d * ey - 0.5];
@@ -163,11 +208,36 @@ impl Footprint {
         self.grid_bounds[index(tms)]
     }
 
+    /// The data's bounding box in `tms`'s CRS, in its own longitudes (east past
+    /// the antimeridian where it crosses it: see [`Footprint::tile_bounds`]).
+    pub fn data_bounds(&self, tms: TileMatrixSet) -> [f64; 4] {
+        self.data_bounds[index(tms)]
+    }
+
+    /// A tile's bounds in the frame of [`Footprint::data_bounds`]: as they are, or
+    /// one world east for a tile west of the data that the data reaches across the
+    /// antimeridian (whichever frame holds more of the data).
+    pub fn tile_bounds(&self, tile: WebTile) -> [f64; 4] {
+        let b = tile.bounds();
+        if !self.wrap {
+            return b;
+        }
+        let [ex0, _, ex1, _] = tile.tms.extent();
+        let world = ex1 - ex0;
+        let [dx0, _, dx1, _] = self.data_bounds(tile.tms);
+        let overlap = |a: f64, c: f64| (c.min(dx1) - a.max(dx0)).max(0.0);
+        if overlap(b[0] + world, b[2] + world) > overlap(b[0], b[2]) {
+            [b[0] + world, b[1], b[2] + world, b[3]]
+        } else {
+            b
+        }
+    }
+
     /// Whether a tile's bounds meet the dataset's bounding box (a tile that does
     /// may still hold no sample: the box is wider than a slanted footprint).
     pub fn meets(&self, tile: WebTile) -> bool {
-        let [x0, y0, x1, y1] = tile.bounds();
-        let [bx0, by0, bx1, by1] = self.grid_bounds(tile.tms);
+        let [x0, y0, x1, y1] = self.tile_bounds(tile);
+        let [bx0, by0, bx1, by1] = self.data_bounds(tile.tms);
         x0 <= bx1 && bx0 <= x1 && y0 <= by1 && by0 <= y1
     }
 
@@ -203,10 +273,14 @@ impl Footprint {
         }
     }
 
-    /// `[lon, lat]` of the centre of the dataset's WGS 84 bounds.
+    /// `[lon, lat]` of the centre of the dataset's WGS 84 bounds (in −180..180).
     pub fn centre(&self) -> [f64; 2] {
-        let [w, s, e, n] = self.lon_lat;
-        [f64::midpoint(w, e), f64::midpoint(s, n)]
+        let [w, s, e, n] = self.data_bounds(TileMatrixSet::WorldCrs84Quad);
+        let lon = f64::midpoint(w, e);
+        [
+            if lon > 180.0 { lon - 360.0 } else { lon },
+            f64::midpoint(s, n),
+        ]
     }
 
     /// Metres on the ground of one zoom-0 pixel of `tms` at the dataset's centre,

@@ -257,8 +257,8 @@ pub fn plan(fp: &Footprint, geometry: &TileGeometry, tile: WebTile, px: u32) -> 
 /// margin of one pixel and the [`APRON`], reaching beyond the tile by the apron;
 /// `None` when it covers no pixel of the tile.
 fn window(fp: &Footprint, tile: WebTile, px: u32) -> Option<[i64; 4]> {
-    let [x0, _, _, y1] = tile.bounds();
-    let [bx0, by0, bx1, by1] = fp.grid_bounds(tile.tms);
+    let [x0, _, _, y1] = fp.tile_bounds(tile);
+    let [bx0, by0, bx1, by1] = fp.data_bounds(tile.tms);
     let c = tile.tms.cell_size(tile.z, px);
     let side = f64::from(px);
     let a = APRON as f64;
@@ -274,8 +274,8 @@ fn window(fp: &Footprint, tile: WebTile, px: u32) -> Option<[i64; 4]> {
 /// One pixel step east and one south in finest samples (column, row), at the point
 /// of `tile` nearest the dataset's centre; `None` where the projection fails there.
 fn pixel_steps(fp: &Footprint, tile: WebTile, px: u32) -> Option<[[f64; 2]; 2]> {
-    let [x0, y0, x1, y1] = tile.bounds();
-    let [bx0, by0, bx1, by1] = fp.grid_bounds(tile.tms);
+    let [x0, y0, x1, y1] = fp.tile_bounds(tile);
+    let [bx0, by0, bx1, by1] = fp.data_bounds(tile.tms);
     let c = tile.tms.cell_size(tile.z, px);
     let cx = f64::midpoint(bx0, bx1).clamp(x0 + c, x1 - c);
     let cy = f64::midpoint(by0, by1).clamp(y0 + c, y1 - c);
