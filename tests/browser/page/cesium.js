@@ -9,15 +9,25 @@ let widget, provider;
 // `baseColor`), no sky box, sun or moon textures (`skyBox: false`); the terrain provider comes
 // from our layer.json with both extensions. Lighting is on so the octvertexnormals shade the
 // slopes: the sun stands where it does over the Alps on a June morning (the clock is stopped).
-async function open({ server, dataset, requestWaterMask = false }) {
-  // fromUrl takes the terrain's directory and reads `layer.json` in it (it appends a slash and
-  // the name: given …/layer.json itself it would ask for …/layer.json/layer.json, and on that 404
-  // fall back silently to a default layer)
-  const base = `${server}/v1/datasets/${encodeURIComponent(dataset)}/cesium/`;
-  // the document as the page gets it (a cross-origin fetch: fails without CORS)
-  const response = await fetch(`${base}layer.json`);
-  const layer = { status: response.status, doc: await response.json() };
-  provider = await Cesium.CesiumTerrainProvider.fromUrl(base, { requestVertexNormals: true, requestMetadata: true, requestWaterMask });
+async function open({ server, dataset, requestWaterMask = false, format = 'quantized-mesh' }) {
+  const root = `${server}/v1/datasets/${encodeURIComponent(dataset)}`;
+  let layer, tileset;
+  if (format === '3dtiles') {
+    // 3D Tiles 1.1 (cesium3dtiles.test.mjs): fromUrl takes tileset.json itself
+    const url = `${root}/3dtiles/tileset.json`;
+    const response = await fetch(url);
+    tileset = { status: response.status, doc: await response.json() };
+    provider = await Cesium.Cesium3DTilesTerrainProvider.fromUrl(url, { requestVertexNormals: true });
+  } else {
+    // fromUrl takes the terrain's directory and reads `layer.json` in it (it appends a slash and
+    // the name: given …/layer.json itself it would ask for …/layer.json/layer.json, and on that 404
+    // fall back silently to a default layer)
+    const base = `${root}/cesium/`;
+    // the document as the page gets it (a cross-origin fetch: fails without CORS)
+    const response = await fetch(`${base}layer.json`);
+    layer = { status: response.status, doc: await response.json() };
+    provider = await Cesium.CesiumTerrainProvider.fromUrl(base, { requestVertexNormals: true, requestMetadata: true, requestWaterMask });
+  }
   provider.errorEvent.addEventListener((e) => console.error(`terrain provider error: ${e.message}`));
   const time = Cesium.JulianDate.fromIso8601('2026-06-21T08:00:00Z');
   widget = new Cesium.CesiumWidget('globe', {
@@ -30,7 +40,7 @@ async function open({ server, dataset, requestWaterMask = false }) {
   globe.baseColor = Cesium.Color.fromCssColorString('#b8b8a8');
   globe.enableLighting = true;
   globe.depthTestAgainstTerrain = true;
-  return { layer, hasVertexNormals: provider.hasVertexNormals, hasMetadata: provider.hasMetadata,
+  return { layer, tileset, hasVertexNormals: provider.hasVertexNormals, hasMetadata: provider.hasMetadata,
     hasWaterMask: provider.hasWaterMask, availability: Boolean(provider.availability) };
 }
 
@@ -42,6 +52,16 @@ async function sample(lonLats) {
   // With metadata availability the provider learns the deeper zooms from the tiles it loaded:
   // the level is known after sampling.
   const levels = positions.map((p) => provider.availability.computeMaximumLevelAtPosition(p));
+  return done.map((p, k) => ({ height: p.height, level: levels[k] }));
+}
+
+// sampleTerrainMostDetailed at [lon, lat] degrees from the server's quantized-mesh terrain,
+// whatever the globe draws: the reference the 3D Tiles terrain is compared with.
+async function sampleQuantizedMesh({ server, dataset, lonLats }) {
+  const qm = await Cesium.CesiumTerrainProvider.fromUrl(`${server}/v1/datasets/${encodeURIComponent(dataset)}/cesium/`, { requestMetadata: true });
+  const positions = lonLats.map(([lon, lat]) => Cesium.Cartographic.fromDegrees(lon, lat));
+  const done = await Cesium.sampleTerrainMostDetailed(qm, positions, true);
+  const levels = positions.map((p) => qm.availability.computeMaximumLevelAtPosition(p));
   return done.map((p, k) => ({ height: p.height, level: levels[k] }));
 }
 
@@ -160,4 +180,4 @@ function view(probes) {
   };
 }
 
-window.tessera = { open, sample, fly, tilesLoaded, view, waterEffect, version: Cesium.VERSION, ready: true };
+window.tessera = { open, sample, sampleQuantizedMesh, fly, tilesLoaded, view, waterEffect, version: Cesium.VERSION, ready: true };

@@ -133,7 +133,7 @@ impl SubtreeAvailability {
             f64s(&mut bounds.iter().flat_map(|b| b.horizon_occlusion_point)),
         ];
         let mut properties = serde_json::Map::new();
-        for ((name, _, _), column) in TILE_PROPERTIES.iter().zip(&columns) {
+        for ((name, _, _, _), column) in TILE_PROPERTIES.iter().zip(&columns) {
             let v = view(&mut bin, column);
             properties.insert((*name).to_string(), json!({"values": v}));
         }

@@ -11,15 +11,19 @@ use std::f64::consts::{FRAC_PI_2, PI};
 /// The class of the subtrees' tile metadata.
 pub const TILE_CLASS: &str = "tile";
 
-/// The tile properties, their types and semantics, in the order the subtrees store
-/// them: `(name, type, semantic)` (all FLOAT64).
-pub const TILE_PROPERTIES: [(&str, &str, &str); 4] = [
-    ("minimumHeight", "SCALAR", "TILE_MINIMUM_HEIGHT"),
-    ("maximumHeight", "SCALAR", "TILE_MAXIMUM_HEIGHT"),
-    ("boundingSphere", "VEC4", "TILE_BOUNDING_SPHERE"),
+/// The tile properties, their types, array lengths and semantics, in the order the
+/// subtrees store them: `(name, type, count, semantic)`, all FLOAT64. The bounding
+/// sphere is a fixed-length array of 4 SCALARs, as the 3D Tiles metadata semantics
+/// define `TILE_BOUNDING_SPHERE` (CesiumJS unpacks it as an array: a VEC4 reads as
+/// nothing); the horizon-occlusion point is a VEC3.
+pub const TILE_PROPERTIES: [(&str, &str, Option<u8>, &str); 4] = [
+    ("minimumHeight", "SCALAR", None, "TILE_MINIMUM_HEIGHT"),
+    ("maximumHeight", "SCALAR", None, "TILE_MAXIMUM_HEIGHT"),
+    ("boundingSphere", "SCALAR", Some(4), "TILE_BOUNDING_SPHERE"),
     (
         "horizonOcclusionPoint",
         "VEC3",
+        None,
         "TILE_HORIZON_OCCLUSION_POINT",
     ),
 ];
@@ -45,11 +49,13 @@ impl Tileset<'_> {
         let [lo, hi] = self.heights;
         let properties: serde_json::Map<String, Value> = TILE_PROPERTIES
             .iter()
-            .map(|&(name, ty, semantic)| {
-                (
-                    name.to_string(),
-                    json!({"type": ty, "componentType": "FLOAT64", "semantic": semantic}),
-                )
+            .map(|&(name, ty, count, semantic)| {
+                let mut p = json!({"type": ty, "componentType": "FLOAT64", "semantic": semantic});
+                if let Some(n) = count {
+                    p["array"] = json!(true);
+                    p["count"] = json!(n);
+                }
+                (name.to_string(), p)
             })
             .collect();
         let half = |r: u8| {
@@ -120,9 +126,11 @@ mod tests {
             assert_eq!(region[4].as_f64().unwrap(), -100.0);
         }
         let props = &doc["schema"]["classes"][TILE_CLASS]["properties"];
-        for (name, ty, semantic) in TILE_PROPERTIES {
+        for (name, ty, _, semantic) in TILE_PROPERTIES {
             assert_eq!(props[name]["type"], ty);
             assert_eq!(props[name]["semantic"], semantic);
         }
+        assert_eq!(props["boundingSphere"]["array"], true);
+        assert_eq!(props["boundingSphere"]["count"], 4);
     }
 }
