@@ -27,6 +27,8 @@ rc=0
 node --test maplibre.test.mjs || rc=$?
 echo "== CesiumJS terrain (cesium.test.mjs, $(elapsed) s so far)" >&2
 node --test cesium.test.mjs || rc=$?
+echo "== CesiumJS 3D Tiles terrain (cesium3dtiles.test.mjs, $(elapsed) s so far)" >&2
+node --test cesium3dtiles.test.mjs || rc=$?
 echo "== the built-in viewer (viewer.test.mjs, $(elapsed) s so far)" >&2
 node --test viewer.test.mjs || rc=$?
 echo "browser tests took $(elapsed) s, npm ci included (screenshots in out/browser/)" >&2

@@ -239,7 +239,7 @@ mod tests {
             vertices,
             triangles,
         };
-        let rect = [8.4375, 46.40625, 8.7890625, 46.7578125];
+        let rect = [8.4375, 46.40625, 8.789_062_5, 46.757_812_5];
         let e = Ellipsoid::WGS84;
         let ext = Extensions {
             normals: true,

@@ -205,14 +205,13 @@ fn quantized(
         water_mask: false,
         metadata: false,
     };
-    let bytes = match state.web.terrain_tile(&key) {
-        Some(b) => b,
-        None => {
-            let b = make(state, ds, terrain, available, key, ticket)
-                .map_err(|f| failure_error(state, ds, &key.tile.to_string(), f))?;
-            state.web.keep_terrain(key, b.clone());
-            b
-        }
+    let bytes = if let Some(b) = state.web.terrain_tile(&key) {
+        b
+    } else {
+        let b = make(state, ds, terrain, available, key, ticket)
+            .map_err(|f| failure_error(state, ds, &key.tile.to_string(), f))?;
+        state.web.keep_terrain(key, b.clone());
+        b
     };
     QuantizedTile::decode(&bytes).map_err(|e| {
         ApiError::internal(format!(
