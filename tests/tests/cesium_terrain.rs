@@ -247,7 +247,7 @@ fn mesh_at(mesh: &TerrainMesh, u: f64, v: f64) -> Option<f64> {
         let l2 = ((bx - ax) * (v - ay) - (u - ax) * (by - ay)) / det;
         let l0 = 1.0 - l1 - l2;
         (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9)
-            .then(|| l0 * a.height + l1 * b.height + l2 * c.height)
+            .then_some(l0 * a.height + l1 * b.height + l2 * c.height)
     })
 }
 
