@@ -1,14 +1,44 @@
 //! Brute-force checks of Cesium terrain tiles against a DEM's finest samples,
-//! shared by tests/tests/cesium_terrain.rs and the terrain benchmark
-//! (`examples/terrain_mesh.rs`).
+//! shared by tests/tests/cesium_terrain.rs, tests/tests/cesium_globe.rs and the
+//! terrain benchmark (`examples/terrain_mesh.rs`).
 //!
 //! The truth is every stored finest sample of a pyramid whose grid is longitude and
 //! latitude (placed from the georeferencing alone), in metres above the ellipsoid
 //! (plus the geoid's undulation when one is given). A tile's surface is its
 //! decoded triangles, linear in longitude and latitude as quantized-mesh defines it.
 
+use tessera_server::cesium::quantized_mesh::TerrainMesh;
 use tessera_server::geoid::Geoid;
 use tessera_shared::{ByteSource, Pyramid};
+
+/// The EGM96 grid (Debian's `proj-data`), or `None` (skipped) where it is missing
+/// outside CI.
+pub fn egm96_or_skip() -> Option<std::sync::Arc<Geoid>> {
+    let Some(path) = tessera_server::geoid::find(None) else {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "no EGM96 grid (install proj-data)"
+        );
+        eprintln!("SKIPPED: no EGM96 geoid grid (apt-get install proj-data)");
+        return None;
+    };
+    Some(std::sync::Arc::new(
+        Geoid::open(&path).expect("the EGM96 grid reads"),
+    ))
+}
+
+/// The points of a mesh on one of its edges (`u` = 0 or 32767 for west or east, or
+/// `v` for south or north): `(position along the edge, height bits)`, in order.
+pub fn edge_points(mesh: &TerrainMesh, u: Option<u16>, v: Option<u16>) -> Vec<(u16, u64)> {
+    let mut pts: Vec<(u16, u64)> = mesh
+        .vertices
+        .iter()
+        .filter(|p| u.is_none_or(|u| p.u == u) && v.is_none_or(|v| p.v == v))
+        .map(|p| (if u.is_some() { p.v } else { p.u }, p.height.to_bits()))
+        .collect();
+    pts.sort_unstable();
+    pts
+}
 
 /// The finest samples of a geographic pyramid, on the ellipsoid.
 #[derive(Debug)]

@@ -11,7 +11,7 @@ use std::path::Path;
 use std::process::Command;
 use tessera_e2e::Rng;
 use tessera_e2e::quantized_mesh::decode;
-use tessera_e2e::terrain_check::SampleGrid;
+use tessera_e2e::terrain_check::{SampleGrid, edge_points, egm96_or_skip};
 use tessera_server::builder::{BuildOptions, build};
 use tessera_server::cesium::quantized_mesh::{Extensions, TerrainMesh, encode};
 use tessera_server::cesium::terrain::{PyramidLevels, Terrain};
@@ -78,14 +78,7 @@ fn built(
 /// N46E008 (3″ SRTM, EGM96) with its corners moved to 179.5° E – 180.5° E.
 fn across_the_antimeridian() -> Option<Case> {
     let src = testdata::dem_or_skip("N46E008.tif")?;
-    let Some(geoid) = tessera_server::geoid::find(None) else {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "no EGM96 grid (install proj-data)"
-        );
-        eprintln!("SKIPPED: no EGM96 geoid grid (apt-get install proj-data)");
-        return None;
-    };
+    let geoid = egm96_or_skip()?;
     if !gdal() {
         return None;
     }
@@ -103,12 +96,7 @@ fn across_the_antimeridian() -> Option<Case> {
         vertical_datum: Some(VerticalDatum::Egm96),
         ..BuildOptions::default()
     };
-    Some(built(
-        dir,
-        &moved,
-        &opts,
-        Some(std::sync::Arc::new(Geoid::open(&geoid).unwrap())),
-    ))
+    Some(built(dir, &moved, &opts, Some(geoid)))
 }
 
 /// The moon 4096² resampled by GDAL to a global 0.25° grid whose sample centres
@@ -177,18 +165,6 @@ fn checked(
     mesh
 }
 
-/// Edge points of a mesh side: `(position along the edge, height bits)`.
-fn side(mesh: &TerrainMesh, u: u16) -> Vec<(u16, u64)> {
-    let mut pts: Vec<(u16, u64)> = mesh
-        .vertices
-        .iter()
-        .filter(|p| p.u == u)
-        .map(|p| (p.v, p.height.to_bits()))
-        .collect();
-    pts.sort_unstable();
-    pts
-}
-
 #[test]
 fn srtm_across_the_antimeridian_is_whole_and_seamless() {
     let Some(case) = across_the_antimeridian() else {
@@ -227,7 +203,10 @@ fn srtm_across_the_antimeridian_is_whole_and_seamless() {
         for y in y0..=y1 {
             let a = checked(&case, &grid, CesiumTile::new(z, last, y).unwrap(), &levels);
             let b = checked(&case, &grid, CesiumTile::new(z, 0, y).unwrap(), &levels);
-            let (ea, eb) = (side(&a, 32767), side(&b, 0));
+            let (ea, eb) = (
+                edge_points(&a, Some(32767), None),
+                edge_points(&b, Some(0), None),
+            );
             assert!(ea.len() >= 2, "zoom {z} row {y}: no edge points");
             assert_eq!(
                 ea, eb,

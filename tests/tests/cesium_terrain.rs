@@ -25,7 +25,7 @@
 use std::collections::HashMap;
 use tessera_e2e::Rng;
 use tessera_e2e::quantized_mesh::decode;
-use tessera_e2e::terrain_check::SampleGrid;
+use tessera_e2e::terrain_check::{SampleGrid, edge_points, egm96_or_skip};
 use tessera_server::builder::{BuildOptions, build};
 use tessera_server::cesium::quantized_mesh::{Extensions, TerrainMesh, encode};
 use tessera_server::cesium::terrain::{PyramidLevels, Terrain};
@@ -66,15 +66,7 @@ fn built(
 }
 
 fn srtm() -> Option<Case> {
-    let Some(path) = tessera_server::geoid::find(None) else {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "no EGM96 grid (install proj-data)"
-        );
-        eprintln!("SKIPPED: no EGM96 geoid grid (apt-get install proj-data)");
-        return None;
-    };
-    let geoid = std::sync::Arc::new(Geoid::open(&path).unwrap());
+    let geoid = egm96_or_skip()?;
     let opts = BuildOptions {
         tile_size: 128,
         vertical_datum: Some(VerticalDatum::Egm96),
@@ -174,18 +166,6 @@ fn brute_force(case: &Case) {
     }
 }
 
-/// Edge points of a mesh side: `(position along the edge, height bits)`.
-fn side(mesh: &TerrainMesh, u: Option<u16>, v: Option<u16>) -> Vec<(u16, u64)> {
-    let mut pts: Vec<(u16, u64)> = mesh
-        .vertices
-        .iter()
-        .filter(|p| u.is_none_or(|u| p.u == u) && v.is_none_or(|v| p.v == v))
-        .map(|p| (if u.is_some() { p.v } else { p.u }, p.height.to_bits()))
-        .collect();
-    pts.sort_unstable();
-    pts
-}
-
 fn shared_edges(case: &Case) {
     let levels = PyramidLevels::new(&case.pyramid);
     let mut rng = Rng(150);
@@ -208,9 +188,15 @@ fn shared_edges(case: &Case) {
                 }
                 let (ma, mb) = (get(a), get(b));
                 let (ea, eb) = if dx == 1 {
-                    (side(&ma, Some(32767), None), side(&mb, Some(0), None))
+                    (
+                        edge_points(&ma, Some(32767), None),
+                        edge_points(&mb, Some(0), None),
+                    )
                 } else {
-                    (side(&ma, None, Some(32767)), side(&mb, None, Some(0)))
+                    (
+                        edge_points(&ma, None, Some(32767)),
+                        edge_points(&mb, None, Some(0)),
+                    )
                 };
                 assert!(!ea.is_empty(), "{}: {a} has no edge vertices", case.name);
                 assert_eq!(
