@@ -11,11 +11,18 @@
 //! neighbours also choose ([`super::side`]), which insertions never move (a side is
 //! a hull edge, and hull edges are never flipped); only samples strictly inside the
 //! outline are candidates. The bound is at the samples, which is exact where the
-//! samples are the data (the finest level). A coarser level's surface between its
-//! samples is not followed: near a side that cuts through cells, edges between the
-//! side's points and the first samples can stray from it by more than `tau`, and
-//! inserting the points where they stray does not converge (tried: each insertion
-//! makes a new, shorter stray), so coarser levels keep the RTIN of [`super::mesh`].
+//! samples are the data (the finest level: the only level this mesher is used at).
+//! And between samples: G&H measure only samples, so a long edge can pass over a
+//! cell far from it (3.6 m on a 1.18 m threshold at a landmark in the Alps); each
+//! inner edge is walked across the samples' north-west-diagonal surface `F`
+//! ([`HeightGrid::segment_error`]) and where it strays by more than `tau` the
+//! nearest corner of that cell that is not yet a vertex is inserted, until no edge
+//! strays. That leaves two places unbounded against `F`: a cell whose four corners are
+//! all vertices, where the mesh took the other diagonal (within a quarter of the
+//! cell's twist of the bilinear surface, as `F` is), and the cells a side cuts or
+//! touches, whose corners on or beyond the side are not candidates. Coarser levels,
+//! where `F` is the truth everywhere and strays at the sides cannot be left, keep
+//! the RTIN of [`super::mesh`].
 //!
 //! Positions are local to the grid (small numbers, exact for samples) and the
 //! orientation and in-circle tests are Shewchuk's exact predicates (`robust`), so
@@ -46,6 +53,16 @@ pub struct GreedyMesh {
 pub fn mesh(grid: &HeightGrid, rect: [f64; 4], outline: &[SidePoint], tau: f64) -> GreedyMesh {
     let mut g = Greedy::new(grid, rect, outline);
     g.run(tau);
+    let n = (g.tris.len() / 3) as u32;
+    g.changed = (0..n).collect();
+    g.is_changed = vec![true; n as usize];
+    // Between samples: where an edge strays more than `tau` from the samples'
+    // north-west-diagonal surface, a corner of the cell where it strays most
+    // becomes a vertex, until none does (or the cell's corners are all vertices, or
+    // beyond the rectangle's inside). Each pass adds a sample or stops.
+    while g.refine_between(tau) {
+        g.run(tau);
+    }
     g.finish(tau)
 }
 
@@ -69,6 +86,10 @@ struct Greedy<'a> {
     pending: Vec<u32>,
     stamp: Vec<u32>,
     round: u32,
+    /// Triangles changed since the last pass between samples (`refine_between`
+    /// walks only their edges), marked per triangle.
+    changed: Vec<u32>,
+    is_changed: Vec<bool>,
 }
 
 fn orient(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
@@ -114,6 +135,8 @@ impl<'a> Greedy<'a> {
             pending: Vec::new(),
             stamp: Vec::new(),
             round: 0,
+            changed: Vec::new(),
+            is_changed: Vec::new(),
         };
         for p in outline {
             g.pts.push([p.x - origin[0], p.y - origin[1]]);
@@ -169,6 +192,7 @@ impl<'a> Greedy<'a> {
         self.best.push((0.0, NONE));
         self.generation.push(0);
         self.stamp.push(0);
+        self.is_changed.push(false);
         t
     }
 
@@ -190,6 +214,10 @@ impl<'a> Greedy<'a> {
         if self.stamp[t as usize] != self.round {
             self.stamp[t as usize] = self.round;
             self.pending.push(t);
+        }
+        if !self.is_changed[t as usize] {
+            self.is_changed[t as usize] = true;
+            self.changed.push(t);
         }
     }
 
@@ -407,6 +435,107 @@ impl<'a> Greedy<'a> {
         }
     }
 
+    /// One pass of [`mesh`]'s refinement between samples: whether a sample was added.
+    fn refine_between(&mut self, tau: f64) -> bool {
+        let [gx, gy, _, _] = self.grid.frame();
+        let [cx0, cy0, cx1, cy1] = self.cand;
+        let mut wanted = Vec::new();
+        // The edges of the triangles changed since the last pass (all, the first
+        // time): the others were walked and have not moved.
+        let changed = std::mem::take(&mut self.changed);
+        for &t in &changed {
+            self.is_changed[t as usize] = false;
+        }
+        let mut walked = rustc_hash::FxHashSet::default();
+        for e in changed.iter().flat_map(|&t| 3 * t..3 * t + 3) {
+            let f = self.half[e as usize];
+            // Hull edges are the sides, within `tau` by their own rule.
+            if f == NONE || !walked.insert(e.min(f)) {
+                continue;
+            }
+            let (a, b) = (self.tris[e as usize], self.tris[next(e) as usize]);
+            let (err, at) = self.grid.segment_error(
+                self.global(a),
+                self.z[a as usize],
+                self.global(b),
+                self.z[b as usize],
+            );
+            if err <= tau {
+                continue;
+            }
+            // The cell's corners that are candidates and not yet vertices, nearest
+            // the stray point first.
+            let (i, j) = (at[0].floor() as i64, at[1].floor() as i64);
+            let mut corners: Vec<(f64, i64, i64)> =
+                [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)]
+                    .into_iter()
+                    .filter(|&(x, y)| x >= cx0 && x <= cx1 && y >= cy0 && y <= cy1)
+                    .filter(|&(x, y)| !self.used[self.grid.index(x as u32, y as u32)])
+                    .map(|(x, y)| ((x as f64 - at[0]).hypot(y as f64 - at[1]), x, y))
+                    .collect();
+            corners.sort_by(|p, q| p.0.total_cmp(&q.0));
+            if let Some(&(_, x, y)) = corners.first() {
+                wanted.push((e / 3, x, y));
+            }
+        }
+        let mut any = false;
+        for (t, x, y) in wanted {
+            let i = self.grid.index(x as u32, y as u32);
+            if self.used[i] {
+                continue;
+            }
+            let p = [x as f64 - f64::from(gx), y as f64 - f64::from(gy)];
+            let Some(t) = self.locate(t, p) else {
+                continue;
+            };
+            self.used[i] = true;
+            let v = self.pts.len() as u32;
+            self.pts.push(p);
+            self.z.push(self.grid.at(x as u32, y as u32));
+            self.round += 1;
+            self.insert(t, v);
+            any = true;
+            let pending = std::mem::take(&mut self.pending);
+            for &k in &pending {
+                self.scan(k, tau);
+            }
+            self.pending = pending;
+            self.pending.clear();
+        }
+        any
+    }
+
+    /// The triangle holding `p` (inside or on an edge), walking from triangle `t`
+    /// across the edge `p` lies beyond (a Delaunay triangulation's walk ends).
+    fn locate(&self, mut t: u32, p: [f64; 2]) -> Option<u32> {
+        for _ in 0..self.tris.len() {
+            let e0 = 3 * t;
+            let beyond = (e0..e0 + 3).find(|&e| {
+                orient(
+                    self.pos(self.tris[e as usize]),
+                    self.pos(self.tris[next(e) as usize]),
+                    p,
+                ) < 0.0
+            });
+            match beyond {
+                None => return Some(t),
+                Some(e) => {
+                    let f = self.half[e as usize];
+                    if f == NONE {
+                        return None;
+                    }
+                    t = f / 3;
+                }
+            }
+        }
+        None
+    }
+
+    fn global(&self, v: u32) -> [f64; 2] {
+        let p = self.pos(v);
+        [p[0] + self.origin[0], p[1] + self.origin[1]]
+    }
+
     fn finish(self, tau: f64) -> GreedyMesh {
         let [ox, oy] = self.origin;
         GreedyMesh {
@@ -494,6 +623,37 @@ mod tests {
                 assert!(err <= tau + 1e-9, "tau {tau}: {err} at ({x}, {y})");
             }
         }
+        // Between samples too, on a lattice of quarter cells in every cell whose four
+        // corners are candidates (cells a side cuts or touches are left out: see
+        // `mesh`): within `tau` of the north-west-diagonal surface, so within
+        // `tau + twist / 4` of the bilinear one; where all four corners are vertices
+        // and the mesh took the other diagonal, within `twist / 4` of the bilinear.
+        let (x0, y0) = (r[0].floor() + 1.0, r[1].floor() + 1.0);
+        let (x1, y1) = (r[2].ceil() - 1.0, r[3].ceil() - 1.0);
+        let mut y = y0;
+        while y <= y1 {
+            let mut x = x0;
+            while x <= x1 {
+                let (i, j) = (x.floor().min(x1 - 1.0), y.floor().min(y1 - 1.0));
+                let q = |a: f64, b: f64| grid.at((i + a) as u32, (j + b) as u32);
+                let (fx, fy) = (x - i, y - j);
+                let bilinear = (1.0 - fy) * ((1.0 - fx) * q(0.0, 0.0) + fx * q(1.0, 0.0))
+                    + fy * ((1.0 - fx) * q(0.0, 1.0) + fx * q(1.0, 1.0));
+                let twist = (q(0.0, 0.0) + q(1.0, 1.0) - q(1.0, 0.0) - q(0.0, 1.0)).abs();
+                let z = m
+                    .triangles
+                    .iter()
+                    .find_map(|t| plane_at(&m, t, [x, y]))
+                    .expect("covered");
+                let err = (z - bilinear).abs();
+                assert!(
+                    err <= tau + twist / 4.0 + 1e-9,
+                    "tau {tau}: {err} at ({x}, {y}) between samples (twist {twist})"
+                );
+                x += 0.25;
+            }
+            y += 0.25;
+        }
         m
     }
 
@@ -508,7 +668,7 @@ mod tests {
     }
 
     #[test]
-    fn a_fractional_rectangle_is_meshed_within_tau_at_its_samples() {
+    fn a_fractional_rectangle_is_meshed_within_tau_at_and_between_its_samples() {
         let grid = HeightGrid::new([3, 2, 40, 37], rough).unwrap();
         for tau in [1.0, 6.0, 25.0] {
             let m = check(&grid, [3.3, 2.75, 39.5, 36.1], tau);

@@ -1,7 +1,7 @@
 //! A level's samples over a window, and the surface `F` they define: every cell
 //! split from its north-west to its south-east corner (`tessera_shared::triangulation`,
 //! what the error tables measure). A tile's sides ([`super::side`]) follow `F`'s
-//! profile, and the greedy mesher ([`super::greedy`]) reads the samples.
+//! profile, and the greedy mesher ([`super::greedy`]) walks its edges across `F`.
 //!
 //! Coordinates are the level's global sample coordinates (column east, row south),
 //! as `f64`, so two tiles that evaluate `F` at the same point get the same bits.
@@ -87,14 +87,7 @@ impl HeightGrid {
     /// (height `hq`), where the line is linear in between, and where it is. Exact:
     /// both are linear between the points where the segment crosses `F`'s edges
     /// (grid lines and north-west diagonals), and those are the points measured.
-    #[cfg(test)]
-    pub(crate) fn segment_error(
-        &self,
-        p: [f64; 2],
-        hp: f64,
-        q: [f64; 2],
-        hq: f64,
-    ) -> (f64, [f64; 2]) {
+    pub fn segment_error(&self, p: [f64; 2], hp: f64, q: [f64; 2], hq: f64) -> (f64, [f64; 2]) {
         let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
         let mut worst = (0.0_f64, p);
         let mut at = |t: f64| {

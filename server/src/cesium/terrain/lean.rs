@@ -59,6 +59,15 @@ impl Terrain {
             ((rs, s), (rn, n))
         };
         let side = |v: f64, edge: f64, clip: f64, low: bool| -> (f64, Option<f64>) {
+            // An edge a rounding error off a sample line is on it: the tile on one
+            // side would otherwise count that line's samples as its inside and the
+            // other as beyond, and only one of them would put them on the edge. Both
+            // compute the same `v`, so both snap alike.
+            let v = if (v - v.round()).abs() < 1e-7 {
+                v.round()
+            } else {
+                v
+            };
             let beyond = if low { v <= clip } else { v >= clip };
             if beyond {
                 (clip, None)
