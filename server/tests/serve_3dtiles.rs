@@ -317,6 +317,18 @@ fn glbs_draw_the_quantized_mesh_tiles() {
             ))
             .expect(200);
         let (doc, bin) = glb_chunks(&r.body);
+        // Compressed for a client that accepts it, as quantized-mesh is.
+        let path = format!("{BASE}/3dtiles/{}/{}/{}/{}.glb", i.root, i.level, i.x, i.y);
+        let zipped = s
+            .get_with(&path, &[("accept-encoding", "gzip")])
+            .expect(200);
+        if r.body.len() > 1024 {
+            assert_eq!(zipped.must("content-encoding"), "gzip", "{t}");
+            assert!(
+                zipped.body.len() < r.body.len(),
+                "{t}: gzip made it no smaller"
+            );
+        }
         let prim = &doc["meshes"][0]["primitives"][0];
         let pos = accessor(&doc, &bin, prim["attributes"]["POSITION"].as_u64().unwrap());
         assert_eq!(pos.len(), 3 * q.u.len(), "{t}: vertex count");

@@ -124,6 +124,8 @@ fn compressible(content_type: &str) -> bool {
         || t.ends_with("+xml")
         // Quantized-mesh tiles are served gzipped, as the format's spec says.
         || t == "application/vnd.quantized-mesh"
+        // 3D Tiles terrain's GLBs: float positions and indices, 1.25–1.9× smaller.
+        || t == "model/gltf-binary"
 }
 
 /// Compress only text (see `compressible`), and only above a few hundred bytes.
