@@ -83,6 +83,91 @@ impl HeightGrid {
         }
     }
 
+    /// The bilinear surface of the samples at `(x, y)` (inside the grid), and its
+    /// cell's twist `|q00 + q11 − q10 − q01|`.
+    pub fn bilinear(&self, x: f64, y: f64) -> (f64, f64) {
+        let last_x = self.x0 + self.w - 1;
+        let last_y = self.y0 + self.h - 1;
+        let i = (x.floor() as u32).clamp(self.x0, last_x.saturating_sub(1).max(self.x0));
+        let j = (y.floor() as u32).clamp(self.y0, last_y.saturating_sub(1).max(self.y0));
+        let (a, b) = (x - f64::from(i), y - f64::from(j));
+        let (i1, j1) = ((i + 1).min(last_x), (j + 1).min(last_y));
+        let (q00, q10, q01, q11) = (
+            self.at(i, j),
+            self.at(i1, j),
+            self.at(i, j1),
+            self.at(i1, j1),
+        );
+        let top = q00 + a * (q10 - q00);
+        let bottom = q01 + a * (q11 - q01);
+        (top + b * (bottom - top), (q00 + q11 - q10 - q01).abs())
+    }
+
+    /// How far the segment from `p` (height `hp`) to `q` (height `hq`), linear in
+    /// between, goes beyond a quarter of each cell's twist from the bilinear surface:
+    /// the largest `|line − bilinear| − twist / 4` over the cells it crosses, and
+    /// where. Exact: within a cell the difference is quadratic along the segment, so
+    /// its largest size is at the piece's ends or its parabola's vertex. (Any
+    /// triangulation of a cell's four samples is within a quarter of its twist of the
+    /// bilinear surface, so this measures a mesh against every choice of diagonal.)
+    pub fn bilinear_excess(&self, p: [f64; 2], hp: f64, q: [f64; 2], hq: f64) -> (f64, [f64; 2]) {
+        let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
+        let mut ts = vec![0.0, 1.0];
+        for (start, delta) in [(p[0], dx), (p[1], dy)] {
+            if delta == 0.0 {
+                continue;
+            }
+            let end = start + delta;
+            let (lo, hi) = (start.min(end), start.max(end));
+            let mut k = lo.floor() + 1.0;
+            while k < hi {
+                ts.push((k - start) / delta);
+                k += 1.0;
+            }
+        }
+        ts.sort_by(f64::total_cmp);
+        ts.dedup();
+        let at = |t: f64| [p[0] + t * dx, p[1] + t * dy];
+        let mut worst = (f64::NEG_INFINITY, p);
+        for w in ts.windows(2) {
+            let (ta, tb) = (w[0], w[1]);
+            // The piece's cell is its middle's; the bilinear surface is continuous, so
+            // its ends read the same from either side.
+            let mid = at(0.5 * (ta + tb));
+            let (i, j) = (mid[0].floor(), mid[1].floor());
+            let in_cell = |t: f64| {
+                let [x, y] = at(t);
+                let line = hp + t * (hq - hp);
+                // The cell's bilinear surface, extended to the piece's ends.
+                let c = [x.clamp(i, i + 1.0), y.clamp(j, j + 1.0)];
+                (
+                    line - self.bilinear(c[0], c[1]).0,
+                    self.bilinear(mid[0], mid[1]).1,
+                )
+            };
+            let (d0, twist) = in_cell(ta);
+            let (dm, _) = in_cell(0.5 * (ta + tb));
+            let (d1, _) = in_cell(tb);
+            // d(s) = d0 + b·s + a·s² over the piece, s in 0..1.
+            let a = 2.0 * d0 - 4.0 * dm + 2.0 * d1;
+            let b = -3.0 * d0 + 4.0 * dm - d1;
+            let mut candidates = vec![(d0.abs(), ta), (d1.abs(), tb)];
+            if a != 0.0 {
+                let s = -b / (2.0 * a);
+                if s > 0.0 && s < 1.0 {
+                    candidates.push(((d0 + b * s + a * s * s).abs(), ta + s * (tb - ta)));
+                }
+            }
+            for (d, t) in candidates {
+                let excess = d - twist / 4.0;
+                if excess > worst.0 {
+                    worst = (excess, at(t));
+                }
+            }
+        }
+        worst
+    }
+
     /// The largest `|line − F|` along the segment from `p` (height `hp`) to `q`
     /// (height `hq`), where the line is linear in between, and where it is. Exact:
     /// both are linear between the points where the segment crosses `F`'s edges

@@ -1,6 +1,7 @@
 //! The refinement between samples (see the module doc of [`super`]): where a mesh
-//! edge strays from the samples' north-west-diagonal surface by more than the
-//! threshold, a corner of the cell where it strays most becomes a vertex.
+//! edge strays from the samples' bilinear surface by more than the threshold plus a
+//! quarter of the cell's twist (what any triangulation of the cell may differ by),
+//! a corner of the cell where it strays most becomes a vertex.
 
 use super::{Greedy, NONE, next, orient};
 
@@ -24,7 +25,7 @@ impl Greedy<'_> {
                 continue;
             }
             let (a, b) = (self.tris[e as usize], self.tris[next(e) as usize]);
-            let (err, at) = self.grid.segment_error(
+            let (err, at) = self.grid.bilinear_excess(
                 self.global(a),
                 self.z[a as usize],
                 self.global(b),

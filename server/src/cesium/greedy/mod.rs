@@ -13,16 +13,18 @@
 //! outline are candidates. The bound is at the samples, which is exact where the
 //! samples are the data (the finest level: the only level this mesher is used at).
 //! And between samples: G&H measure only samples, so a long edge can pass over a
-//! cell far from it (3.6 m on a 1.18 m threshold at a landmark in the Alps); each
-//! inner edge is walked across the samples' north-west-diagonal surface `F`
-//! ([`HeightGrid::segment_error`]) and where it strays by more than `tau` the
-//! nearest corner of that cell that is not yet a vertex is inserted, until no edge
-//! strays. That leaves two places unbounded against `F`: a cell whose four corners are
-//! all vertices, where the mesh took the other diagonal (within a quarter of the
-//! cell's twist of the bilinear surface, as `F` is), and the cells a side cuts or
+//! cell far from it (3.6 m on a 1.18 m threshold at a landmark in the Alps). Each
+//! inner edge is walked across the cells it crosses against the samples' bilinear
+//! surface ([`HeightGrid::bilinear_excess`], exact: the difference is quadratic
+//! along a piece), allowing a quarter of each cell's twist (what any choice of the
+//! cell's diagonal differs from the bilinear surface by); where it strays by more
+//! than `tau` beyond that, the nearest corner of that cell that is not yet a vertex
+//! is inserted, until no edge strays. Inside a triangle the difference is a
+//! hyperbolic paraboloid, largest on its edges, so the mesh is then within
+//! `tau + twist / 4` of the bilinear surface everywhere but in the cells a side cuts or
 //! touches, whose corners on or beyond the side are not candidates. Coarser levels,
-//! where `F` is the truth everywhere and strays at the sides cannot be left, keep
-//! the RTIN of [`super::mesh`].
+//! where the level's north-west-diagonal surface is the truth everywhere and strays
+//! at the sides cannot be left, keep the RTIN of [`super::mesh`].
 //!
 //! Positions are local to the grid (small numbers, exact for samples) and the
 //! orientation and in-circle tests are Shewchuk's exact predicates (`robust`), so
@@ -58,10 +60,11 @@ pub fn mesh(grid: &HeightGrid, rect: [f64; 4], outline: &[SidePoint], tau: f64) 
     let n = (g.tris.len() / 3) as u32;
     g.changed = (0..n).collect();
     g.is_changed = vec![true; n as usize];
-    // Between samples: where an edge strays more than `tau` from the samples'
-    // north-west-diagonal surface, a corner of the cell where it strays most
-    // becomes a vertex, until none does (or the cell's corners are all vertices, or
-    // beyond the rectangle's inside). Each pass adds a sample or stops.
+    // Between samples: where an edge strays more than `tau` (beyond a quarter of the
+    // cell's twist) from the samples' bilinear surface, a corner of the cell where
+    // it strays most becomes a vertex, until none does (or the cell's corners are
+    // all vertices, or beyond the rectangle's inside). Each pass adds a sample or
+    // stops.
     while g.refine_between(tau) {
         g.run(tau);
     }
