@@ -236,8 +236,16 @@ fn a_global_grid_reaches_both_poles() {
         );
         for y in [0, (1u32 << z) - 1] {
             for x in 0..(2u32 << z) {
-                checked(&case, &grid, CesiumTile::new(z, x, y).unwrap(), &levels);
+                let mesh = checked(&case, &grid, CesiumTile::new(z, x, y).unwrap(), &levels);
                 polar += 1;
+                // The data's edge at ±180° is the tile's: its points are on the border
+                // from corner to corner (where the skirts hang).
+                for u in [0, 32767] {
+                    let edge = edge_points(&mesh, Some(u), None);
+                    let ends = edge.first().map(|p| p.0) == Some(0)
+                        && edge.last().map(|p| p.0) == Some(32767);
+                    assert!(ends, "zoom {z} ({x}, {y}): edge u = {u} is {edge:?}");
+                }
             }
         }
     }

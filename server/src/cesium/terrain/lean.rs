@@ -68,7 +68,9 @@ impl Terrain {
             } else {
                 v
             };
-            let beyond = if low { v <= clip } else { v >= clip };
+            // A tile edge exactly on the data's edge stays the tile's edge, so its
+            // points quantize to the border and get the border's skirt.
+            let beyond = if low { v < clip } else { v > clip };
             if beyond {
                 (clip, None)
             } else {
