@@ -62,16 +62,22 @@ impl HeightGrid {
         (y - self.y0) as usize * self.w as usize + (x - self.x0) as usize
     }
 
-    /// `F` at `(x, y)`, a point inside the grid's samples (its cell's triangle's plane).
-    pub fn surface(&self, x: f64, y: f64) -> f64 {
+    /// The cell holding `(x, y)`, a point inside the grid's samples: its north-west
+    /// and south-east corners and the point's offset from the first. The cell whose
+    /// north-west corner is at or before the point; a point on the grid's last line
+    /// belongs to the cell before it.
+    fn cell(&self, x: f64, y: f64) -> ([u32; 4], f64, f64) {
         let last_x = self.x0 + self.w - 1;
         let last_y = self.y0 + self.h - 1;
-        // The cell whose north-west corner is at or before the point; a point on the
-        // grid's last line belongs to the cell before it.
         let i = (x.floor() as u32).clamp(self.x0, last_x.saturating_sub(1).max(self.x0));
         let j = (y.floor() as u32).clamp(self.y0, last_y.saturating_sub(1).max(self.y0));
         let (a, b) = (x - f64::from(i), y - f64::from(j));
-        let (i1, j1) = ((i + 1).min(last_x), (j + 1).min(last_y));
+        ([i, j, (i + 1).min(last_x), (j + 1).min(last_y)], a, b)
+    }
+
+    /// `F` at `(x, y)`, a point inside the grid's samples (its cell's triangle's plane).
+    pub fn surface(&self, x: f64, y: f64) -> f64 {
+        let ([i, j, i1, j1], a, b) = self.cell(x, y);
         let q00 = self.at(i, j);
         let q11 = self.at(i1, j1);
         if a >= b {
@@ -86,12 +92,7 @@ impl HeightGrid {
     /// The bilinear surface of the samples at `(x, y)` (inside the grid), and its
     /// cell's twist `|q00 + q11 − q10 − q01|`.
     pub fn bilinear(&self, x: f64, y: f64) -> (f64, f64) {
-        let last_x = self.x0 + self.w - 1;
-        let last_y = self.y0 + self.h - 1;
-        let i = (x.floor() as u32).clamp(self.x0, last_x.saturating_sub(1).max(self.x0));
-        let j = (y.floor() as u32).clamp(self.y0, last_y.saturating_sub(1).max(self.y0));
-        let (a, b) = (x - f64::from(i), y - f64::from(j));
-        let (i1, j1) = ((i + 1).min(last_x), (j + 1).min(last_y));
+        let ([i, j, i1, j1], a, b) = self.cell(x, y);
         let (q00, q10, q01, q11) = (
             self.at(i, j),
             self.at(i1, j),
