@@ -114,18 +114,8 @@ impl HeightGrid {
     pub fn bilinear_excess(&self, p: [f64; 2], hp: f64, q: [f64; 2], hq: f64) -> (f64, [f64; 2]) {
         let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
         let mut ts = vec![0.0, 1.0];
-        for (start, delta) in [(p[0], dx), (p[1], dy)] {
-            if delta == 0.0 {
-                continue;
-            }
-            let end = start + delta;
-            let (lo, hi) = (start.min(end), start.max(end));
-            let mut k = lo.floor() + 1.0;
-            while k < hi {
-                ts.push((k - start) / delta);
-                k += 1.0;
-            }
-        }
+        crossings(p[0], dx, &mut |t| ts.push(t));
+        crossings(p[1], dy, &mut |t| ts.push(t));
         ts.sort_by(f64::total_cmp);
         ts.dedup();
         let at = |t: f64| [p[0] + t * dx, p[1] + t * dy];
@@ -136,19 +126,14 @@ impl HeightGrid {
             // its ends read the same from either side.
             let mid = at(0.5 * (ta + tb));
             let (i, j) = (mid[0].floor(), mid[1].floor());
+            let twist = self.bilinear(mid[0], mid[1]).1;
             let in_cell = |t: f64| {
                 let [x, y] = at(t);
                 let line = hp + t * (hq - hp);
                 // The cell's bilinear surface, extended to the piece's ends.
-                let c = [x.clamp(i, i + 1.0), y.clamp(j, j + 1.0)];
-                (
-                    line - self.bilinear(c[0], c[1]).0,
-                    self.bilinear(mid[0], mid[1]).1,
-                )
+                line - self.bilinear(x.clamp(i, i + 1.0), y.clamp(j, j + 1.0)).0
             };
-            let (d0, twist) = in_cell(ta);
-            let (dm, _) = in_cell(0.5 * (ta + tb));
-            let (d1, _) = in_cell(tb);
+            let (d0, dm, d1) = (in_cell(ta), in_cell(0.5 * (ta + tb)), in_cell(tb));
             // d(s) = d0 + b·s + a·s² over the piece, s in 0..1.
             let a = 2.0 * d0 - 4.0 * dm + 2.0 * d1;
             let b = -3.0 * d0 + 4.0 * dm - d1;
@@ -173,30 +158,23 @@ impl HeightGrid {
     /// (height `hq`), where the line is linear in between, and where it is. Exact:
     /// both are linear between the points where the segment crosses `F`'s edges
     /// (grid lines and north-west diagonals), and those are the points measured.
-    pub fn segment_error(&self, p: [f64; 2], hp: f64, q: [f64; 2], hq: f64) -> (f64, [f64; 2]) {
+    /// (The tests' measure of a side against `F`.)
+    #[cfg(test)]
+    pub(crate) fn segment_error(
+        &self,
+        p: [f64; 2],
+        hp: f64,
+        q: [f64; 2],
+        hq: f64,
+    ) -> (f64, [f64; 2]) {
         let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
         let mut worst = (0.0_f64, p);
         let mut at = |t: f64| {
-            if t > 0.0 && t < 1.0 {
-                let (x, y) = (p[0] + t * dx, p[1] + t * dy);
-                let line = hp + t * (hq - hp);
-                let e = (line - self.surface(x, y)).abs();
-                if e > worst.0 {
-                    worst = (e, [x, y]);
-                }
-            }
-        };
-        // Crossings of `coordinate(t) = start + t·delta` with the integers.
-        let crossings = |start: f64, delta: f64, at: &mut dyn FnMut(f64)| {
-            if delta == 0.0 {
-                return;
-            }
-            let end = start + delta;
-            let (lo, hi) = (start.min(end), start.max(end));
-            let mut k = lo.floor() + 1.0;
-            while k < hi {
-                at((k - start) / delta);
-                k += 1.0;
+            let (x, y) = (p[0] + t * dx, p[1] + t * dy);
+            let line = hp + t * (hq - hp);
+            let e = (line - self.surface(x, y)).abs();
+            if e > worst.0 {
+                worst = (e, [x, y]);
             }
         };
         crossings(p[0], dx, &mut at);
@@ -204,6 +182,24 @@ impl HeightGrid {
         // North-west diagonals: x − y is an integer.
         crossings(p[0] - p[1], dx - dy, &mut at);
         worst
+    }
+}
+
+/// Calls `at(t)` for each `t` strictly between 0 and 1 where `start + t·delta` is an
+/// integer (where a segment crosses a family of grid lines).
+fn crossings(start: f64, delta: f64, at: &mut dyn FnMut(f64)) {
+    if delta == 0.0 {
+        return;
+    }
+    let end = start + delta;
+    let (lo, hi) = (start.min(end), start.max(end));
+    let mut k = lo.floor() + 1.0;
+    while k < hi {
+        let t = (k - start) / delta;
+        if t > 0.0 && t < 1.0 {
+            at(t);
+        }
+        k += 1.0;
     }
 }
 
@@ -238,6 +234,20 @@ mod tests {
             let want = c.scaled_height(4, a.into(), b.into()) as f64 / 4.0;
             assert_eq!(g.surface(f64::from(a) / 4.0, f64::from(b) / 4.0), want);
         }
+    }
+
+    #[test]
+    fn bilinear_excess_finds_the_parabolas_vertex_beyond_the_twist() {
+        let g = saddle();
+        // Across the anti-diagonal the bilinear surface dips to 5 at the centre; a
+        // line at 13 is 8 above it there, 3 beyond the cell's twist / 4 (20 / 4).
+        let (e, at) = g.bilinear_excess([1.0, 0.0], 13.0, [0.0, 1.0], 13.0);
+        assert!(
+            (e - 3.0).abs() < 1e-12 && (at[0] - 0.5).abs() < 1e-12,
+            "{e} at {at:?}"
+        );
+        // At the corners' heights it stays within the allowance.
+        assert!(g.bilinear_excess([1.0, 0.0], 10.0, [0.0, 1.0], 10.0).0 <= 1e-12);
     }
 
     #[test]
