@@ -10,13 +10,16 @@
 //!   admission, the built-in viewer, on the HTTP plumbing of [`http`], reading
 //!   pyramids from local files or object stores through [`storage`].
 //! - Derived outputs the routes compute: [`web`] (standard web-map tiles),
-//!   [`cesium`] (quantized-mesh terrain) with [`geoid`] heights.
+//!   [`cesium`] (quantized-mesh terrain) with [`geoid`] heights, and
+//!   [`elevation`] (heights of points and profiles with their error bounds; also
+//!   `tessera-server query`).
 //! - [`fuzzing`]: the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
 
 pub mod approx_transform;
 pub mod builder;
 pub mod cesium;
 pub mod crs;
+pub mod elevation;
 pub mod fuzzing;
 pub mod geoid;
 pub mod http;

@@ -260,6 +260,16 @@ enum Command {
         #[arg(long, default_value_t = 2048)]
         max_size: u32,
     },
+    /// Heights of points or a profile, each with its level and error bound: the
+    /// elevation API (API.md "Elevation queries") on the command line.
+    ///
+    /// Points come from --at LAT,LON (repeatable) and --points FILE (CSV with lat and
+    /// lon columns, or GeoJSON); with --samples or --spacing they are a path, sampled
+    /// along its geodesics. Writes CSV (default), GeoJSON or the API's JSON to stdout
+    /// or --output (written whole or not at all). Example:
+    ///
+    ///   tessera-server query alps.tess --at 46.5,8.1 --at 46.6,8.2 --accuracy 5
+    Query(tessera_server::elevation::cli::QueryArgs),
     /// Print a pyramid's metadata and per-level statistics.
     Info {
         /// The .tess file to describe.
@@ -635,6 +645,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let (level, w, h) = preview::preview(&file, &output, level, max_size)
                 .with_context(|| file.display().to_string())?;
             println!("wrote {}: level {level}, {w}×{h} pixels", output.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Query(args) => {
+            tessera_server::elevation::cli::run(&args)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Info { file, json } => {

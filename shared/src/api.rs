@@ -46,6 +46,9 @@ pub mod routes {
     pub const TILES3D_TILE: &str = "/v1/datasets/{name}/3dtiles/{root}/{level}/{x}/{y}";
     /// Standard-grid tiles; the last segment is `{y}.png` or `{y}.webp`.
     pub const GRID_TILE: &str = "/v1/datasets/{name}/{grid}/{z}/{x}/{y}";
+    /// Heights of points and profiles with their error bounds: `GET` with
+    /// `locations=` or `path=`, `POST` with a JSON body (API.md "Elevation queries").
+    pub const ELEVATION: &str = "/v1/datasets/{name}/elevation";
     /// WMTS 1.0.0 capabilities (RESTful) of every dataset with a place on a map.
     pub const WMTS: &str = "/wmts/1.0.0/WMTSCapabilities.xml";
     /// WMTS 1.0.0 capabilities of one dataset.

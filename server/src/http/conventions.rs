@@ -91,7 +91,7 @@ pub fn cors(origins: &CorsOrigins) -> CorsLayer {
     };
     let layer = base
         .allow_origin(allow)
-        .allow_methods([Method::GET, Method::HEAD, Method::OPTIONS])
+        .allow_methods([Method::GET, Method::HEAD, Method::POST, Method::OPTIONS])
         .allow_headers(ALLOW_HEADERS)
         .expose_headers(ExposeHeaders::list(
             EXPOSE_HEADERS.map(HeaderName::from_static),

@@ -1,6 +1,7 @@
 //! `serve` settings: command-line flags, then environment variables, then a TOML
 //! file (`--config`), then defaults — the first that says something wins.
 
+use crate::serve::routes::elevation::ElevationLimits;
 use super::compute::ComputeLimits;
 use super::viewer::ViewerConfig;
 use super::web_cache::{EmptyTiles, WebConfig};
@@ -118,6 +119,13 @@ pub struct ServeArgs {
     /// [default: none].
     #[arg(long, env = "TESSERA_ATTRIBUTION", value_name = "TEXT")]
     pub attribution: Option<String>,
+    /// Points in one elevation request, a profile's samples included (400 beyond)
+    /// [default: 100000].
+    #[arg(long, env = "TESSERA_MAX_POINTS", value_name = "N")]
+    pub max_points: Option<usize>,
+    /// MiB of an elevation POST's body (413 beyond) [default: 16].
+    #[arg(long, env = "TESSERA_MAX_BODY_MIB", value_name = "MIB")]
+    pub max_body_mib: Option<u64>,
     /// MiB of decoded pyramid tiles kept for standard-grid tiles [default: 256].
     #[arg(long, env = "TESSERA_SOURCE_CACHE_MIB", value_name = "MIB")]
     pub source_cache_mib: Option<u64>,
@@ -190,6 +198,8 @@ struct FileConfig {
     tls_key: Option<PathBuf>,
     empty_tiles: Option<EmptyTiles>,
     attribution: Option<String>,
+    max_points: Option<usize>,
+    max_body_mib: Option<u64>,
     source_cache_mib: Option<u64>,
     tile_cache_mib: Option<u64>,
     block_cache_mib: Option<u64>,
@@ -238,6 +248,8 @@ pub struct Settings {
     pub block_cache_bytes: u64,
     /// The built-in viewer (`/`, `/viewer/…`): on or off, and where its assets are.
     pub viewer: ViewerConfig,
+    /// Elevation requests: points and body size.
+    pub elevation: ElevationLimits,
 }
 
 impl Default for Settings {
@@ -262,6 +274,7 @@ impl Default for Settings {
             web: WebConfig::default(),
             block_cache_bytes: 256 << 20,
             viewer: ViewerConfig::default(),
+            elevation: ElevationLimits::default(),
         }
     }
 }
@@ -511,6 +524,18 @@ impl Settings {
             viewer: ViewerConfig {
                 enabled: !(args.no_viewer || file.no_viewer.unwrap_or(false)),
                 assets: args.viewer_assets.clone().or(file.viewer_assets),
+            },
+            elevation: ElevationLimits {
+                max_points: args
+                    .max_points
+                    .or(file.max_points)
+                    .map_or(Ok(d.elevation.max_points), |n| positive(n, "max-points"))?,
+                max_body_bytes: args
+                    .max_body_mib
+                    .or(file.max_body_mib)
+                    .map_or(Ok(d.elevation.max_body_bytes), |n| {
+                        positive(n, "max-body-mib").map(|n| n.saturating_mul(1 << 20))
+                    })?,
             },
         };
         Ok(s)

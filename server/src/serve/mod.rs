@@ -57,6 +57,8 @@ pub struct AppState {
     pub compute: Arc<compute::Compute>,
     /// The built-in viewer (`/`, `/viewer/…`): on or off, and its assets.
     pub viewer: viewer::Viewer,
+    /// Points and body size of elevation requests.
+    pub elevation: routes::elevation::ElevationLimits,
 }
 
 impl AppState {
@@ -110,6 +112,10 @@ pub fn app(state: Arc<AppState>, settings: &Settings) -> Router {
         .route(paths::TILES3D_TILE, get(routes::cesium_tiles3d::tile))
         .route(paths::OGC_TILE, get(routes::ogc_api::tile))
         .route(paths::PREVIEW, get(viewer::preview::get))
+        .route(
+            paths::ELEVATION,
+            get(routes::elevation::get).post(routes::elevation::post),
+        )
         .route_layer(GlobalConcurrencyLimitLayer::with_semaphore(computed_slots));
     let cheap = Router::new()
         .route("/healthz", get(routes::health::healthz))
@@ -339,6 +345,7 @@ pub fn state(settings: &Settings) -> anyhow::Result<Arc<AppState>> {
         web,
         compute,
         viewer: viewer::Viewer::new(&settings.viewer),
+        elevation: settings.elevation,
         limits: RangeLimits {
             max_ranges: settings.max_ranges,
             max_tiles: settings.max_tiles,

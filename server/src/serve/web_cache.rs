@@ -315,6 +315,7 @@ mod tests {
                 scale: 1.0,
                 max_error: 0.0,
             },
+            block_errors: None,
         })
     }
 

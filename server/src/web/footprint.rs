@@ -190,6 +190,31 @@ impl Footprint {
             Some(grid) => grid.transform_to(&self.crs, x, y).ok()?,
             None => [x, y],
         };
+        self.dataset_to_samples(dx, dy)
+    }
+
+    /// Many WGS 84 `[lon, lat]` as [`Footprint::to_samples`] carries them (one
+    /// PROJ call for all); `None` for those that do not transform.
+    pub fn lon_lat_to_samples(&self, lon_lat: &[[f64; 2]]) -> Vec<Option<[f64; 2]>> {
+        let tms = TileMatrixSet::WorldCrs84Quad;
+        let mut points: Vec<[f64; 3]> = lon_lat.iter().map(|&[x, y]| [x, y, 0.0]).collect();
+        if let Some(grid) = &self.grids[index(tms)] {
+            // Points PROJ cannot carry come back NaN; the rest are done.
+            let _ = grid.transform_points(&self.crs, &mut points);
+        }
+        points
+            .iter()
+            .map(|&[x, y, _]| self.dataset_to_samples(x, y))
+            .collect()
+    }
+
+    /// Metres between samples at the dataset's centre, the finer of x and y.
+    pub fn spacing_m(&self) -> f64 {
+        self.spacing_m
+    }
+
+    /// A point of the dataset's CRS as fractional sample coordinates.
+    fn dataset_to_samples(&self, dx: f64, dy: f64) -> Option<[f64; 2]> {
         // A grid across the antimeridian: longitudes into its own range.
         let dx = if self.wrap {
             let west = self.data_bounds[index(TileMatrixSet::WorldCrs84Quad)][0];

@@ -62,13 +62,27 @@ pub struct SourceTile {
     pub heights: Vec<u16>,
     pub mask: CellMask,
     pub quantization: Quantization,
+    /// The error table's row for the tile drawn at its own full resolution: the
+    /// largest distance, in metres, of its triangulated surface from the finest
+    /// stored samples in each of its 8 × 8 blocks (`by · 8 + bx`). `None` where
+    /// unknown (a tile made by upsampling an ancestor). The elevation API's error
+    /// bounds read it (elevation/bound.rs).
+    pub block_errors: Option<Box<[f32; 64]>>,
 }
 
 impl SourceTile {
     /// Heap bytes held (what a cache of these counts).
     pub fn bytes(&self) -> u64 {
-        (self.heights.len() * 2 + self.mask.encode().len().max(8)) as u64
+        let errors = if self.block_errors.is_some() { 256 } else { 0 };
+        (self.heights.len() * 2 + self.mask.encode().len().max(8) + errors) as u64
     }
+}
+
+/// The full-resolution row of a decoded record's error table, as
+/// [`SourceTile::block_errors`] keeps it.
+pub fn block_errors(table: &tessera_shared::error_table::ErrorTable) -> Option<Box<[f32; 64]>> {
+    let row: [f32; 64] = table.level_errors(table.tile_log2()).try_into().ok()?;
+    Some(Box::new(row))
 }
 
 /// What one output tile needs from the pyramid, and where each pixel reads it.
@@ -519,6 +533,7 @@ mod tests {
                 scale: 1.0,
                 max_error: 0.0,
             },
+            block_errors: None,
         }
     }
 

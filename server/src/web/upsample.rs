@@ -40,6 +40,7 @@ pub fn upsample(a: &SourceTile, t: u32, tile: TileId, ancestor: TileId, depth: u
         heights,
         mask,
         quantization: a.quantization,
+        block_errors: None,
     }
 }
 
@@ -71,6 +72,7 @@ mod tests {
                 heights,
                 mask,
                 quantization: q,
+                block_errors: None,
             },
             tile,
         )

@@ -50,6 +50,7 @@ impl<S: tessera_shared::ByteSource> LevelData for PyramidLevels<'_, S> {
             .map_err(|source| TileReadError { tile, source })?;
         let t = rec.map(|r| {
             Arc::new(SourceTile {
+                block_errors: crate::web::resample::block_errors(&r.errors),
                 heights: r.heights,
                 mask: r.mask,
                 quantization: self.pyramid.metadata().quantization,

@@ -57,15 +57,18 @@ pub enum Kind {
     Bootstrap,
     /// A dataset's preview picture (the viewer's landing page).
     Preview,
+    /// Heights of points and profiles (the elevation API).
+    Elevation,
 }
 
 impl Kind {
-    pub const ALL: [Kind; 5] = [
+    pub const ALL: [Kind; 6] = [
         Kind::Terrain,
         Kind::GridTile,
         Kind::PngTile,
         Kind::Bootstrap,
         Kind::Preview,
+        Kind::Elevation,
     ];
 
     pub fn label(self) -> &'static str {
@@ -75,6 +78,7 @@ impl Kind {
             Kind::PngTile => "png_tile",
             Kind::Bootstrap => "bootstrap",
             Kind::Preview => "preview",
+            Kind::Elevation => "elevation",
         }
     }
 }

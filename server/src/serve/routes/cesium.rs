@@ -115,7 +115,7 @@ impl LevelData for Pyramid<'_> {
 
     fn tile(&self, tile: TileId) -> Result<Option<Arc<SourceTile>>, Failure> {
         self.check()?;
-        source(self.state, self.ds, tile)
+        source(&self.state.web, self.ds, tile)
     }
 
     fn check(&self) -> Result<(), Failure> {

@@ -6,6 +6,7 @@ pub mod cesium;
 pub mod cesium_tiles3d;
 pub mod coverage;
 pub mod datasets;
+pub mod elevation;
 pub mod health;
 pub mod ogc_api;
 pub mod pyramid;

@@ -15,7 +15,7 @@ use crate::http::cache;
 use crate::http::error::{ApiError, ApiResult, quoted};
 use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::{Dataset, DatasetUnavailable, RecordError};
-use crate::serve::web_cache::{EmptyTiles, MadeKey, dataset_key};
+use crate::serve::web_cache::{EmptyTiles, MadeKey, WebTiles, dataset_key};
 use crate::serve::{AppState, TilesServed};
 use crate::web::encoding::{Encoding, ImageEncodeError, ImageFormat, NoData, rgba};
 use crate::web::footprint::Footprint;
@@ -122,7 +122,7 @@ pub enum Failure {
 /// A decoded source tile, through the cache; `None` when the pyramid has no such
 /// tile (outside the DEM, or wholly no-data).
 pub fn source(
-    state: &AppState,
+    web: &WebTiles,
     ds: &Dataset,
     tile: TileId,
 ) -> Result<Option<Arc<SourceTile>>, Failure> {
@@ -131,34 +131,33 @@ pub fn source(
     // view is its nearest stored ancestor's surface.
     if ds.pyramid.entry(tile).is_none_or(|e| e.length == 0) {
         return if ds.multi_resolution {
-            upsampled(state, ds, tile)
+            upsampled(web, ds, tile)
         } else {
             Ok(None)
         };
     }
     let layout = ds.pyramid.record_layout();
     let quantization = ds.pyramid.metadata().quantization;
-    state
-        .web
-        .source(dataset_key(ds.content_hash()), tile, || {
-            let record = match ds.record(tile) {
-                Ok(Some((_, bytes))) => bytes,
-                Ok(None) => return Err(None),
-                Err(RecordError::Corrupt(c)) => {
-                    return Err(Some(Failure::Corrupt(c.tile, c.first)));
-                }
-                Err(RecordError::Unavailable(r)) => return Err(Some(Failure::Unavailable(r))),
-            };
-            let decoded = codec::decode_record(&record, layout)
-                .map_err(|e| Some(Failure::Undecodable(tile, e)))?;
-            Ok(Arc::new(SourceTile {
-                heights: decoded.heights,
-                mask: decoded.mask,
-                quantization,
-            }))
-        })
-        .map(Some)
-        .or_else(|e| e.map_or(Ok(None), Err))
+    web.source(dataset_key(ds.content_hash()), tile, || {
+        let record = match ds.record(tile) {
+            Ok(Some((_, bytes))) => bytes,
+            Ok(None) => return Err(None),
+            Err(RecordError::Corrupt(c)) => {
+                return Err(Some(Failure::Corrupt(c.tile, c.first)));
+            }
+            Err(RecordError::Unavailable(r)) => return Err(Some(Failure::Unavailable(r))),
+        };
+        let decoded = codec::decode_record(&record, layout)
+            .map_err(|e| Some(Failure::Undecodable(tile, e)))?;
+        Ok(Arc::new(SourceTile {
+            block_errors: resample::block_errors(&decoded.errors),
+            heights: decoded.heights,
+            mask: decoded.mask,
+            quantization,
+        }))
+    })
+    .map(Some)
+    .or_else(|e| e.map_or(Ok(None), Err))
 }
 
 /// An absent tile of a multi-resolution pyramid made from its nearest stored
@@ -168,7 +167,7 @@ pub fn source(
 /// there either (a wholly no-data tile) or no ancestor is stored. Cached like a
 /// decoded tile.
 fn upsampled(
-    state: &AppState,
+    web: &WebTiles,
     ds: &Dataset,
     tile: TileId,
 ) -> Result<Option<Arc<SourceTile>>, Failure> {
@@ -184,20 +183,18 @@ fn upsampled(
             break;
         }
     }
-    let Some(a) = source(state, ds, ancestor)? else {
+    let Some(a) = source(web, ds, ancestor)? else {
         return Ok(None);
     };
     let t = ds.pyramid.geometry().tile_size();
-    let made = state
-        .web
-        .source(dataset_key(ds.content_hash()), tile, || -> Result<_, ()> {
-            let made = crate::web::upsample::upsample(&a, t, tile, ancestor, depth);
-            if made.mask.is_none_valid() {
-                Err(())
-            } else {
-                Ok(Arc::new(made))
-            }
-        });
+    let made = web.source(dataset_key(ds.content_hash()), tile, || -> Result<_, ()> {
+        let made = crate::web::upsample::upsample(&a, t, tile, ancestor, depth);
+        if made.mask.is_none_valid() {
+            Err(())
+        } else {
+            Ok(Arc::new(made))
+        }
+    });
     Ok(made.ok())
 }
 
@@ -249,7 +246,7 @@ fn make(
         .into_iter()
         .map(|t| {
             ticket.check().map_err(stop)?;
-            source(state, ds, t)
+            source(&state.web, ds, t)
         })
         .collect::<Result<Vec<_>, _>>()?;
     ticket.check().map_err(stop)?;

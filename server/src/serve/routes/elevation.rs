@@ -1,0 +1,311 @@
+//! `GET` and `POST /v1/datasets/{name}/elevation` (API.md "Elevation queries"):
+//! heights of points and profiles, each with its level and error bound, computed by
+//! the elevation engine (elevation/) from the decoded-tile cache the standard-grid
+//! tiles share, admitted and bounded like every computed response
+//! (serve/compute/).
+//!
+//! - A `GET` is cacheable: its ETag hashes the dataset's content and the query's
+//!   parameters (sorted), and identical GETs in flight share one computation.
+//! - A `POST` body is read only after its size (its `Content-Length`, or the limit
+//!   when it is chunked) is reserved on the computed responses' memory budget, so
+//!   many large bodies at once wait or get a 503 instead of growing the server;
+//!   its answer is not cached.
+
+use super::web_grid::{Failure, failure_error, footprint, source};
+use super::{Params, Segments, dataset, pinned};
+use crate::elevation::profile::Body;
+use crate::elevation::request::{self, Raw, Request};
+use crate::elevation::{self, Dem, Tiles, output};
+use crate::http::cache;
+use crate::http::error::{ApiError, ApiResult};
+use crate::serve::AppState;
+use crate::serve::compute::{Kind, Ticket};
+use crate::serve::dataset::Dataset;
+use crate::serve::web_cache::WebTiles;
+use crate::web::footprint::Footprint;
+use crate::web::resample::SourceTile;
+use axum::body::Body as HttpBody;
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::Response;
+use bytes::Bytes;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use tessera_shared::TileId;
+
+/// The limits of elevation requests (`--max-points`, `--max-body-mib`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ElevationLimits {
+    /// Points in one request (a profile's samples included).
+    pub max_points: usize,
+    /// Bytes of a `POST` body.
+    pub max_body_bytes: u64,
+}
+
+impl Default for ElevationLimits {
+    fn default() -> Self {
+        Self {
+            max_points: 100_000,
+            max_body_bytes: 16 << 20,
+        }
+    }
+}
+
+/// The engine's tiles: the pyramid's index for what is stored, the shared cache of
+/// decoded tiles for the rest, and the computation's ticket for cancellation
+/// (`None` on the command line).
+#[derive(Debug)]
+pub struct CachedTiles<'a> {
+    pub web: &'a WebTiles,
+    pub ds: &'a Dataset,
+    pub ticket: Option<&'a Ticket>,
+}
+
+impl Tiles for CachedTiles<'_> {
+    type Error = Failure;
+
+    fn stored(&self, tile: TileId) -> bool {
+        self.ds.pyramid.entry(tile).is_some_and(|e| e.length > 0)
+    }
+
+    fn load(&self, tile: TileId) -> Result<Option<Arc<SourceTile>>, Failure> {
+        source(self.web, self.ds, tile)
+    }
+
+    fn check(&self) -> Result<(), Failure> {
+        match self.ticket {
+            Some(t) => t.check().map_err(Failure::Stopped),
+            None => Ok(()),
+        }
+    }
+}
+
+impl CachedTiles<'_> {
+    /// A failure in words, for the command line.
+    pub fn describe(f: &Failure) -> String {
+        match f {
+            Failure::Corrupt(t, _) => format!("{t} fails its checksum"),
+            Failure::Undecodable(t, e) => format!("{t} does not decode: {e}"),
+            Failure::Unavailable(r) => r.to_string(),
+            other => format!("{other:?}"),
+        }
+    }
+}
+
+/// Working memory per point: its position, pending state and answer, and its JSON.
+const BYTES_PER_POINT: u64 = 96 + output::JSON_BYTES_PER_ANSWER as u64;
+
+/// The body a dataset's profiles run on.
+fn body_of(fp: &Footprint) -> Body {
+    fp.crs()
+        .body_radii()
+        .map_or(Body::WGS84, |(a, b)| Body { a, b })
+}
+
+/// The answers to `request` as the API's JSON, made under `ticket`.
+fn make(
+    state: &AppState,
+    ds: &Dataset,
+    fp: &Footprint,
+    request: &Request,
+    ticket: &Ticket,
+) -> Result<Bytes, ApiError> {
+    let m = ds.pyramid.metadata();
+    let (shift, datum) = shift(state, ds, fp, request)?;
+    let n = request.points.len() as u64;
+    let _memory = ticket
+        .reserve(n * BYTES_PER_POINT + 8 * u64::from(ds.pyramid.geometry().tile_size() + 1).pow(2))
+        .map_err(|s| s.into_error())?;
+    let tiles = CachedTiles {
+        web: &state.web,
+        ds,
+        ticket: Some(ticket),
+    };
+    let dem = Dem {
+        footprint: fp,
+        geometry: ds.pyramid.geometry(),
+        quantization: m.quantization,
+        datum: m.vertical_datum,
+    };
+    let answers = elevation::answer(&dem, &tiles, &request.points, &request.options, &shift)
+        .map_err(|f| failure_error(state, ds, "elevation", f))?;
+    let cx = output::Context {
+        dataset: &ds.name,
+        datum,
+        interpolation: request.options.interpolation.name(),
+        nodata_value: request.nodata_value,
+    };
+    Ok(Bytes::from(output::json(&answers, &cx)))
+}
+
+/// The datum shift `request` asks for, or 400.
+fn shift(
+    state: &AppState,
+    ds: &Dataset,
+    fp: &Footprint,
+    request: &Request,
+) -> ApiResult<(elevation::Shift, &'static str)> {
+    elevation::shift(
+        ds.pyramid.metadata().vertical_datum,
+        request.options.datum,
+        state.web.config.geoid.as_ref(),
+        fp.crs().is_earth(),
+    )
+    .map_err(ApiError::bad_request)
+}
+
+/// A JSON response of `made`'s bytes.
+fn json_response(made: &crate::serve::compute::Made) -> Response {
+    let mut r = Response::new(made.body());
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("application/json"),
+    );
+    h.insert(header::CONTENT_LENGTH, HeaderValue::from(made.bytes.len()));
+    r
+}
+
+/// `GET /v1/datasets/{name}/elevation?locations=…|path=…&samples=…`.
+pub async fn get(
+    State(state): State<Arc<AppState>>,
+    Segments((name,)): Segments<(String,)>,
+    Params(query): Params,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let ds = dataset(&state, &name)?;
+    let limits = state.elevation;
+    let raw = Raw::from_query(&query, limits.max_points).map_err(ApiError::bad_request)?;
+    let fp = footprint(&state, &ds)?;
+    let request = raw
+        .resolve(body_of(&fp), limits.max_points)
+        .map_err(ApiError::bad_request)?;
+    shift(&state, &ds, &fp, &request)?;
+    // The answer depends on the parameters, not on how they were spelled or ordered.
+    let mut pairs: Vec<(&String, &String)> = query
+        .iter()
+        .filter(|(k, _)| !request::IGNORED.contains(&k.as_str()))
+        .collect();
+    pairs.sort();
+    let variant = format!("elevation {pairs:?}");
+    let pin = pinned(&ds, &query);
+    let etag = cache::etag(ds.content_hash(), &variant);
+    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
+    {
+        return Ok(r);
+    }
+    let (st, d) = (state.clone(), ds.clone());
+    let flight = format!("{} {}", ds.content_hash(), cache::etag("", &variant));
+    let made = state
+        .compute
+        .run_blocking(Kind::Elevation, flight, move |ticket| {
+            let bytes = make(&st, &d, &fp, &request, ticket)?;
+            Ok(ticket.made(bytes, 0))
+        })
+        .await?;
+    let mut r = json_response(&made);
+    cache::set_headers(
+        r.headers_mut(),
+        &etag,
+        ds.last_modified,
+        pin,
+        state.cache_max_age,
+    );
+    Ok(r)
+}
+
+/// Distinct keys for `POST`s (each its own computation).
+static POSTS: AtomicU64 = AtomicU64::new(0);
+
+/// `POST /v1/datasets/{name}/elevation` with a JSON body (or a form-encoded one).
+pub async fn post(
+    State(state): State<Arc<AppState>>,
+    Segments((name,)): Segments<(String,)>,
+    Params(query): Params,
+    headers: HeaderMap,
+    body: HttpBody,
+) -> ApiResult<Response> {
+    let ds = dataset(&state, &name)?;
+    if let Some(k) = query.keys().next() {
+        return Err(ApiError::bad_request(format!(
+            "query parameter {}: a POST takes its parameters in the body",
+            crate::http::error::quoted(k)
+        )));
+    }
+    let form = match headers
+        .get(header::CONTENT_TYPE)
+        .map(|v| v.to_str().unwrap_or("").split(';').next().unwrap_or("").trim().to_ascii_lowercase())
+        .as_deref()
+    {
+        None | Some("application/json") => false,
+        Some("application/x-www-form-urlencoded") => true,
+        Some(other) => {
+            return Err(ApiError::new(
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                format!(
+                    "Content-Type {}: the body is JSON (application/json) or a form (application/x-www-form-urlencoded)",
+                    crate::http::error::quoted(other)
+                ),
+            ));
+        }
+    };
+    let limits = state.elevation;
+    let too_large = move |n: u64| {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!(
+                "body: {n} bytes, more than the {} allowed (--max-body-mib)",
+                limits.max_body_bytes
+            ),
+        )
+    };
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if let Some(n) = declared.filter(|&n| n > limits.max_body_bytes) {
+        return Err(too_large(n));
+    }
+    let fp = footprint(&state, &ds)?;
+    let (st, d) = (state.clone(), ds.clone());
+    let key = format!("post {}", POSTS.fetch_add(1, Ordering::Relaxed));
+    let made = state
+        .compute
+        .run(Kind::Elevation, key, move |ticket| async move {
+            // The body's bytes are reserved before they are read.
+            let expected = declared.unwrap_or(limits.max_body_bytes);
+            let reserved = ticket
+                .reserve_async(expected)
+                .await
+                .map_err(|s| s.into_error())?;
+            let bytes = axum::body::to_bytes(body, limits.max_body_bytes as usize)
+                .await
+                .map_err(|_| too_large(limits.max_body_bytes + 1))?;
+            let raw = if form {
+                let text = std::str::from_utf8(&bytes)
+                    .map_err(|_| ApiError::bad_request("body: the form is not UTF-8"))?;
+                let Params(map) = Params::parse(text)?;
+                Raw::from_query(&map, limits.max_points)
+            } else {
+                Raw::from_json(&bytes, limits.max_points)
+            }
+            .map_err(ApiError::bad_request)?;
+            drop(bytes);
+            drop(reserved);
+            let request = raw
+                .resolve(body_of(&fp), limits.max_points)
+                .map_err(ApiError::bad_request)?;
+            shift(&st, &d, &fp, &request)?;
+            ticket
+                .blocking(move |t| {
+                    let bytes = make(&st, &d, &fp, &request, t)?;
+                    Ok(t.made(bytes, 0))
+                })
+                .await?
+        })
+        .await?;
+    let mut r = json_response(&made);
+    r.headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    Ok(r)
+}
