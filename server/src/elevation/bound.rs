@@ -67,7 +67,10 @@ fn owners(i: i64, span: i64, n: u32) -> [Option<u32>; 2] {
     let last = i64::from(n) - 1;
     let before = ((i - 1).max(0) / span).min(last);
     let after = (i / span).min(last);
-    [Some(before as u32), (after != before).then_some(after as u32)]
+    [
+        Some(before as u32),
+        (after != before).then_some(after as u32),
+    ]
 }
 
 impl<'a> LevelView<'a> {
@@ -162,7 +165,10 @@ impl<'a> LevelView<'a> {
         let (mut c0, mut c1) = level.cols.span();
         let (mut r0, mut r1) = level.rows.span();
         // The terrain test's cells around the nearest sample.
-        let (nc, nr) = ((p[0] / s + 0.5).floor() as i64, (p[1] / s + 0.5).floor() as i64);
+        let (nc, nr) = (
+            (p[0] / s + 0.5).floor() as i64,
+            (p[1] / s + 0.5).floor() as i64,
+        );
         c0 = c0.min(nc - 1);
         c1 = c1.max(nc + 1);
         r0 = r0.min(nr - 1);

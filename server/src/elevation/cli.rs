@@ -90,7 +90,10 @@ fn csv_points(path: &Path, max: usize) -> anyhow::Result<Vec<LatLon>> {
             .iter()
             .position(|h| names.iter().any(|n| h.eq_ignore_ascii_case(n)))
     };
-    let (Some(lat), Some(lon)) = (find(&["lat", "latitude"]), find(&["lon", "lng", "longitude"])) else {
+    let (Some(lat), Some(lon)) = (
+        find(&["lat", "latitude"]),
+        find(&["lon", "lng", "longitude"]),
+    ) else {
         bail!(
             "{}: the header ({}) has no lat and lon columns (lat or latitude; lon, lng or longitude)",
             path.display(),
@@ -106,12 +109,20 @@ fn csv_points(path: &Path, max: usize) -> anyhow::Result<Vec<LatLon>> {
             v.parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| anyhow!("{}: line {line}: {what} {v:?} is not a number", path.display()))
+                .ok_or_else(|| {
+                    anyhow!(
+                        "{}: line {line}: {what} {v:?} is not a number",
+                        path.display()
+                    )
+                })
         };
         let p = LatLon::new(num(lat, "latitude")?, num(lon, "longitude")?)
             .map_err(|e| anyhow!("{}: line {line}: {e}", path.display()))?;
         if out.len() == max {
-            bail!("{}: more than the {max} points allowed (--max-points)", path.display());
+            bail!(
+                "{}: more than the {max} points allowed (--max-points)",
+                path.display()
+            );
         }
         out.push(p);
     }
@@ -121,12 +132,15 @@ fn csv_points(path: &Path, max: usize) -> anyhow::Result<Vec<LatLon>> {
 /// Points from a GeoJSON file: every Point, MultiPoint and LineString position.
 fn geojson_points(path: &Path, max: usize) -> anyhow::Result<Vec<LatLon>> {
     let text = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    let doc: serde_json::Value = serde_json::from_slice(&text)
-        .with_context(|| format!("{}: not JSON", path.display()))?;
+    let doc: serde_json::Value =
+        serde_json::from_slice(&text).with_context(|| format!("{}: not JSON", path.display()))?;
     let mut out = Vec::new();
     collect(&doc, &mut out, max).map_err(|e| anyhow!("{}: {e}", path.display()))?;
     if out.is_empty() {
-        bail!("{}: no Point, MultiPoint or LineString in it", path.display());
+        bail!(
+            "{}: no Point, MultiPoint or LineString in it",
+            path.display()
+        );
     }
     Ok(out)
 }
@@ -144,7 +158,12 @@ fn collect(v: &serde_json::Value, out: &mut Vec<LatLon>, max: usize) -> Result<(
     };
     match v.get("type").and_then(|t| t.as_str()) {
         Some("FeatureCollection") => {
-            for f in v.get("features").and_then(|f| f.as_array()).into_iter().flatten() {
+            for f in v
+                .get("features")
+                .and_then(|f| f.as_array())
+                .into_iter()
+                .flatten()
+            {
                 collect(f, out, max)?;
             }
         }
@@ -154,7 +173,12 @@ fn collect(v: &serde_json::Value, out: &mut Vec<LatLon>, max: usize) -> Result<(
             }
         }
         Some("GeometryCollection") => {
-            for g in v.get("geometries").and_then(|g| g.as_array()).into_iter().flatten() {
+            for g in v
+                .get("geometries")
+                .and_then(|g| g.as_array())
+                .into_iter()
+                .flatten()
+            {
                 collect(g, out, max)?;
             }
         }
@@ -193,7 +217,10 @@ pub fn run(args: &QueryArgs) -> anyhow::Result<()> {
         bail!("no points: give --at LAT,LON or --points FILE");
     }
     if points.len() > max {
-        bail!("{} points, more than the {max} allowed (--max-points)", points.len());
+        bail!(
+            "{} points, more than the {max} allowed (--max-points)",
+            points.len()
+        );
     }
     let format = args.format.unwrap_or_else(|| {
         match args

@@ -91,12 +91,7 @@ impl Taps {
 
     /// `(index, weight)` of each tap, indices clamped to the axis.
     pub fn iter(&self) -> impl Iterator<Item = (i64, f64)> + '_ {
-        (0..self.n).map(|k| {
-            (
-                (self.first + k as i64).clamp(0, self.last),
-                self.weights[k],
-            )
-        })
+        (0..self.n).map(|k| ((self.first + k as i64).clamp(0, self.last), self.weights[k]))
     }
 
     /// The lowest and highest index read.
@@ -190,7 +185,10 @@ mod tests {
                 let s = Stencil::new(m, p, [20, 20]);
                 let w: f64 = s.samples().map(|(_, _, w)| w).sum();
                 assert!((w - 1.0).abs() < 1e-12, "{m:?} {p:?}: {w}");
-                assert!(s.samples().all(|(c, r, _)| (0..=20).contains(&c) && (0..=20).contains(&r)));
+                assert!(
+                    s.samples()
+                        .all(|(c, r, _)| (0..=20).contains(&c) && (0..=20).contains(&r))
+                );
                 assert!(s.abs_weight() >= 1.0 - 1e-12);
             }
         }

@@ -184,7 +184,9 @@ impl<'de> Visitor<'de> for PointVisitor {
         if seq.next_element::<de::IgnoredAny>()?.is_some() {
             return Err(de::Error::custom("expected [lat, lon], got more numbers"));
         }
-        LatLon::new(lat, lon).map(JsonPoint).map_err(de::Error::custom)
+        LatLon::new(lat, lon)
+            .map(JsonPoint)
+            .map_err(de::Error::custom)
     }
 
     fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<JsonPoint, A::Error> {
@@ -206,8 +208,12 @@ impl<'de> Visitor<'de> for PointVisitor {
             *slot = Some(map.next_value::<f64>()?);
         }
         match (lat, lon) {
-            (Some(lat), Some(lon)) => LatLon::new(lat, lon).map(JsonPoint).map_err(de::Error::custom),
-            _ => Err(de::Error::custom("a point needs \"lat\" and \"lng\" (or \"lon\")")),
+            (Some(lat), Some(lon)) => LatLon::new(lat, lon)
+                .map(JsonPoint)
+                .map_err(de::Error::custom),
+            _ => Err(de::Error::custom(
+                "a point needs \"lat\" and \"lng\" (or \"lon\")",
+            )),
         }
     }
 }
@@ -244,7 +250,10 @@ mod tests {
         .unwrap();
         assert_eq!(pairs, text);
         assert_eq!(objects, text);
-        assert_eq!(json(r#""38.5,-120.2|40.7,-120.95|43.252,-126.453""#, 10).unwrap(), text);
+        assert_eq!(
+            json(r#""38.5,-120.2|40.7,-120.95|43.252,-126.453""#, 10).unwrap(),
+            text
+        );
     }
 
     #[test]
@@ -258,7 +267,11 @@ mod tests {
         let e = parse("46.5,8|46.5", 10).unwrap_err();
         assert!(e.contains("point 2"), "{e}");
         assert!(parse("46.5,NaN", 10).is_err());
-        assert!(parse("1,1|2,2|3,3", 2).unwrap_err().contains("more than the 2"));
+        assert!(
+            parse("1,1|2,2|3,3", 2)
+                .unwrap_err()
+                .contains("more than the 2")
+        );
         assert!(parse("", 2).is_err());
         assert!(parse("enc:", 2).is_err());
         let e = json("[[1, 2], [3]]", 10).unwrap_err();

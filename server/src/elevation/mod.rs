@@ -167,7 +167,11 @@ impl Window {
         if self.tiles.iter().any(|(t, _)| *t == id) {
             return Ok(());
         }
-        let tile = if tiles.stored(id) { tiles.load(id)? } else { None };
+        let tile = if tiles.stored(id) {
+            tiles.load(id)?
+        } else {
+            None
+        };
         if self.tiles.len() == WINDOW {
             self.tiles.remove(0);
         }
@@ -239,7 +243,11 @@ pub fn answer<T: Tiles>(
             out[index].height = Err(Missing::NoData);
             continue;
         };
-        let next = if options.accuracy.is_some() { 0 } else { deepest };
+        let next = if options.accuracy.is_some() {
+            0
+        } else {
+            deepest
+        };
         pending.push(Pending {
             index,
             at,
@@ -275,7 +283,8 @@ pub fn answer<T: Tiles>(
                 tile: &|_, _| None,
             };
             let [c0, r0, c1, r1] = probe.reach(options.interpolation, p.at);
-            let owner = |i: i64| (((i - 1).max(0) / i64::from(t)) as u32).min(level.tiles_per_side() - 1);
+            let owner =
+                |i: i64| (((i - 1).max(0) / i64::from(t)) as u32).min(level.tiles_per_side() - 1);
             let upto = |i: i64| ((i / i64::from(t)) as u32).min(level.tiles_per_side() - 1);
             for ty in owner(r0)..=upto(r1) {
                 for tx in owner(c0)..=upto(c1) {
@@ -320,7 +329,11 @@ pub fn answer<T: Tiles>(
     match shift {
         Shift::None => {}
         Shift::AddGeoid(g) | Shift::SubtractGeoid(g) => {
-            let sign = if matches!(shift, Shift::AddGeoid(_)) { 1.0 } else { -1.0 };
+            let sign = if matches!(shift, Shift::AddGeoid(_)) {
+                1.0
+            } else {
+                -1.0
+            };
             for a in &mut out {
                 if let Ok(h) = &mut a.height {
                     h.elevation += sign * g.undulation(a.point.lon(), a.point.lat());

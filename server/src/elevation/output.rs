@@ -174,8 +174,8 @@ pub fn geojson(answers: &[Answer], cx: &Context) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::elevation::locations::LatLon;
     use crate::elevation::Height;
+    use crate::elevation::locations::LatLon;
     use tessera_shared::Level;
 
     fn answers() -> Vec<Answer> {

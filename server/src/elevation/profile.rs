@@ -38,7 +38,12 @@ impl Body {
 
 /// The sampled points of `path` (at least two vertices), at most `max`; an error
 /// says why there are none (too many, a bad spacing, a single vertex).
-pub fn along(path: &[LatLon], sampling: Sampling, body: Body, max: usize) -> Result<Vec<LatLon>, String> {
+pub fn along(
+    path: &[LatLon],
+    sampling: Sampling,
+    body: Body,
+    max: usize,
+) -> Result<Vec<LatLon>, String> {
     if path.len() < 2 {
         return Err("a path needs at least two points".into());
     }
@@ -65,7 +70,9 @@ pub fn along(path: &[LatLon], sampling: Sampling, body: Body, max: usize) -> Res
         }
         Sampling::Spacing(step) => {
             if !(step.is_finite() && step > 0.0) {
-                return Err(format!("spacing={step}: it must be a positive number of metres"));
+                return Err(format!(
+                    "spacing={step}: it must be a positive number of metres"
+                ));
             }
             let inner = (total / step).ceil();
             if inner + 1.0 > max as f64 {
@@ -147,7 +154,11 @@ mod tests {
             let on_corner = (total / 10.0 * i as f64) < distance(path[0], path[1], w)
                 && (total / 10.0 * (i + 1) as f64) > distance(path[0], path[1], w);
             if !on_corner {
-                assert!((d - total / 10.0).abs() < 1e-3, "step {i}: {d} vs {}", total / 10.0);
+                assert!(
+                    (d - total / 10.0).abs() < 1e-3,
+                    "step {i}: {d} vs {}",
+                    total / 10.0
+                );
             }
         }
         // Spacing: every 1000 m, then the end.
@@ -165,7 +176,13 @@ mod tests {
             a: 1_737_400.0,
             b: 1_737_400.0,
         };
-        let s = along(&[p(0.0, 40.0), p(0.0, 50.0)], Sampling::Spacing(10_000.0), moon, 1000).unwrap();
+        let s = along(
+            &[p(0.0, 40.0), p(0.0, 50.0)],
+            Sampling::Spacing(10_000.0),
+            moon,
+            1000,
+        )
+        .unwrap();
         let len = 1_737_400.0 * 10f64.to_radians();
         assert_eq!(s.len(), (len / 10_000.0).ceil() as usize + 1);
         // Along the equator the longitudes step evenly.
@@ -177,10 +194,30 @@ mod tests {
     fn bad_sampling_is_refused_with_a_reason() {
         let path = [p(46.0, 8.0), p(46.5, 8.5)];
         let w = Body::WGS84;
-        assert!(along(&path[..1], Sampling::Samples(5), w, 10).unwrap_err().contains("two points"));
-        assert!(along(&path, Sampling::Samples(1), w, 10).unwrap_err().contains("at least 2"));
-        assert!(along(&path, Sampling::Samples(11), w, 10).unwrap_err().contains("more than the 10"));
-        assert!(along(&path, Sampling::Spacing(0.0), w, 10).unwrap_err().contains("positive"));
-        assert!(along(&path, Sampling::Spacing(1.0), w, 10).unwrap_err().contains("more than the 10"));
+        assert!(
+            along(&path[..1], Sampling::Samples(5), w, 10)
+                .unwrap_err()
+                .contains("two points")
+        );
+        assert!(
+            along(&path, Sampling::Samples(1), w, 10)
+                .unwrap_err()
+                .contains("at least 2")
+        );
+        assert!(
+            along(&path, Sampling::Samples(11), w, 10)
+                .unwrap_err()
+                .contains("more than the 10")
+        );
+        assert!(
+            along(&path, Sampling::Spacing(0.0), w, 10)
+                .unwrap_err()
+                .contains("positive")
+        );
+        assert!(
+            along(&path, Sampling::Spacing(1.0), w, 10)
+                .unwrap_err()
+                .contains("more than the 10")
+        );
     }
 }

@@ -79,7 +79,8 @@ pub struct Raw {
 }
 
 /// The parameters the API takes (a query naming another is refused).
-pub const PARAMETERS: &str = "locations, path, samples, spacing, interpolation, accuracy, datum, nodata_value";
+pub const PARAMETERS: &str =
+    "locations, path, samples, spacing, interpolation, accuracy, datum, nodata_value";
 
 /// Parameters a query may carry that do not change the answer: `v` (the content
 /// pin, API.md "Caching") and `key` (Google's clients always send an API key).
@@ -94,7 +95,12 @@ fn positive(name: &str, raw: &str) -> Result<f64, String> {
         .parse::<f64>()
         .ok()
         .filter(|v| v.is_finite() && *v > 0.0)
-        .ok_or_else(|| format!("{name}={}: expected a positive number of metres", quote(raw)))
+        .ok_or_else(|| {
+            format!(
+                "{name}={}: expected a positive number of metres",
+                quote(raw)
+            )
+        })
 }
 
 fn samples(raw: &str) -> Result<usize, String> {
@@ -144,7 +150,9 @@ impl Raw {
                     raw.locations =
                         Some(locations::parse(v, max).map_err(|e| format!("locations: {e}"))?);
                 }
-                "path" => raw.path = Some(locations::parse(v, max).map_err(|e| format!("path: {e}"))?),
+                "path" => {
+                    raw.path = Some(locations::parse(v, max).map_err(|e| format!("path: {e}"))?)
+                }
                 "samples" => raw.samples = Some(samples(v)?),
                 "spacing" => raw.spacing = Some(positive("spacing", v)?),
                 "interpolation" => raw.interpolation = Some(interpolation(v)?),
@@ -196,7 +204,10 @@ impl Raw {
             }
             (None, None, _) => return Err("locations= or path= is required".into()),
             (None, Some(_), None) => {
-                return Err("path: a profile needs samples= (a number of points) or spacing= (metres)".into());
+                return Err(
+                    "path: a profile needs samples= (a number of points) or spacing= (metres)"
+                        .into(),
+                );
             }
             (Some(points), None, None) => points,
             (Some(path), None, Some(s)) | (None, Some(path), Some(s)) => {
@@ -247,15 +258,18 @@ impl<'de> Visitor<'de> for BodySeed {
                 "path" => raw.path = Some(map.next_value_seed(JsonLimit(self.0))?.0),
                 "samples" => {
                     let n: u64 = map.next_value()?;
-                    raw.samples = Some(usize::try_from(n).map_err(|_| fail("samples", "too large".into()))?);
+                    raw.samples =
+                        Some(usize::try_from(n).map_err(|_| fail("samples", "too large".into()))?);
                 }
                 "spacing" => {
                     let v: f64 = map.next_value()?;
-                    raw.spacing = Some(positive("spacing", &v.to_string()).map_err(de::Error::custom)?);
+                    raw.spacing =
+                        Some(positive("spacing", &v.to_string()).map_err(de::Error::custom)?);
                 }
                 "accuracy" => {
                     let v: f64 = map.next_value()?;
-                    raw.accuracy = Some(positive("accuracy", &v.to_string()).map_err(de::Error::custom)?);
+                    raw.accuracy =
+                        Some(positive("accuracy", &v.to_string()).map_err(de::Error::custom)?);
                 }
                 "interpolation" => {
                     let s: String = map.next_value()?;
@@ -286,7 +300,10 @@ mod tests {
     use super::*;
 
     fn query(pairs: &[(&str, &str)]) -> HashMap<String, String> {
-        pairs.iter().map(|(k, v)| ((*k).into(), (*v).into())).collect()
+        pairs
+            .iter()
+            .map(|(k, v)| ((*k).into(), (*v).into()))
+            .collect()
     }
 
     fn get(pairs: &[(&str, &str)]) -> Result<Request, String> {
@@ -327,18 +344,49 @@ mod tests {
     #[test]
     fn every_refusal_names_its_parameter() {
         let cases: &[(&[(&str, &str)], &str)] = &[
-            (&[("locations", "46.5,8.1"), ("color", "red")], "unknown parameter \"color\""),
-            (&[("locations", "46.5,8.1"), ("interpolation", "spline")], "interpolation=\"spline\""),
-            (&[("locations", "46.5,8.1"), ("accuracy", "-1")], "accuracy="),
-            (&[("locations", "46.5,8.1"), ("accuracy", "NaN")], "accuracy="),
+            (
+                &[("locations", "46.5,8.1"), ("color", "red")],
+                "unknown parameter \"color\"",
+            ),
+            (
+                &[("locations", "46.5,8.1"), ("interpolation", "spline")],
+                "interpolation=\"spline\"",
+            ),
+            (
+                &[("locations", "46.5,8.1"), ("accuracy", "-1")],
+                "accuracy=",
+            ),
+            (
+                &[("locations", "46.5,8.1"), ("accuracy", "NaN")],
+                "accuracy=",
+            ),
             (&[("locations", "46.5,8.1"), ("datum", "navd88")], "datum="),
-            (&[("locations", "46.5,8.1"), ("nodata_value", "x")], "nodata_value="),
+            (
+                &[("locations", "46.5,8.1"), ("nodata_value", "x")],
+                "nodata_value=",
+            ),
             (&[("locations", "95,8.1")], "locations: point 1"),
             (&[("path", "46.5,8.1|46.6,8.2")], "path: a profile needs"),
-            (&[("path", "46.5,8.1|46.6,8.2"), ("samples", "5000")], "samples: samples=5000"),
-            (&[("path", "46.5,8.1|46.6,8.2"), ("samples", "x")], "samples=\"x\""),
-            (&[("path", "46.5,8.1|46.6,8.2"), ("samples", "3"), ("spacing", "10")], "samples and spacing"),
-            (&[("locations", "1,1"), ("path", "1,1|2,2"), ("samples", "3")], "locations and path"),
+            (
+                &[("path", "46.5,8.1|46.6,8.2"), ("samples", "5000")],
+                "samples: samples=5000",
+            ),
+            (
+                &[("path", "46.5,8.1|46.6,8.2"), ("samples", "x")],
+                "samples=\"x\"",
+            ),
+            (
+                &[
+                    ("path", "46.5,8.1|46.6,8.2"),
+                    ("samples", "3"),
+                    ("spacing", "10"),
+                ],
+                "samples and spacing",
+            ),
+            (
+                &[("locations", "1,1"), ("path", "1,1|2,2"), ("samples", "3")],
+                "locations and path",
+            ),
             (&[], "locations= or path= is required"),
         ];
         for (pairs, want) in cases {
@@ -346,8 +394,14 @@ mod tests {
             assert!(e.contains(want), "{pairs:?}: {e}");
         }
         for (body, want) in [
-            (&br#"{"locations": "1,1", "colour": 1}"#[..], "unknown parameter \"colour\""),
-            (br#"{"locations": [[1, 1]], "locations": [[2, 2]]}"#, "given twice"),
+            (
+                &br#"{"locations": "1,1", "colour": 1}"#[..],
+                "unknown parameter \"colour\"",
+            ),
+            (
+                br#"{"locations": [[1, 1]], "locations": [[2, 2]]}"#,
+                "given twice",
+            ),
             (br#"{"locations": [[1, 1], [2]]}"#, "point 2"),
             (br#"{"locations": [[1, 1]], "samples": -3}"#, "body:"),
             (br#"[1, 2]"#, "body:"),

@@ -1,12 +1,12 @@
 //! `serve` settings: command-line flags, then environment variables, then a TOML
 //! file (`--config`), then defaults — the first that says something wins.
 
-use crate::serve::routes::elevation::ElevationLimits;
 use super::compute::ComputeLimits;
 use super::viewer::ViewerConfig;
 use super::web_cache::{EmptyTiles, WebConfig};
 use crate::http::conventions::CorsOrigins;
 use crate::http::tls::TlsFiles;
+use crate::serve::routes::elevation::ElevationLimits;
 use anyhow::Context;
 use serde::Deserialize;
 use std::net::SocketAddr;

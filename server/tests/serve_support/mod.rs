@@ -285,6 +285,15 @@ const ENV_VARS: &[&str] = &[
     "TESSERA_BLOCK_CACHE_MIB",
     "TESSERA_NO_VIEWER",
     "TESSERA_VIEWER_ASSETS",
+    "TESSERA_WATER",
+    "TESSERA_SEA_LEVEL",
+    "TESSERA_NO_DATA_WATER",
+    "TESSERA_MAX_POINTS",
+    "TESSERA_MAX_BODY_MIB",
+    "TESSERA_MAX_COMPUTE",
+    "TESSERA_MAX_COMPUTE_MIB",
+    "TESSERA_COMPUTE_QUEUE",
+    "TESSERA_COMPUTE_QUEUE_SECS",
 ];
 
 impl Server {
@@ -409,7 +418,31 @@ impl Server {
     }
 
     pub fn send(&self, method: reqwest::Method, path: &str, headers: &[(&str, &str)]) -> Resp {
+        self.send_body(method, path, headers, Vec::new())
+    }
+
+    /// `POST` of `body` with its `Content-Type`.
+    pub fn post(&self, path: &str, content_type: &str, body: Vec<u8>) -> Resp {
+        self.send_body(
+            reqwest::Method::POST,
+            path,
+            &[("content-type", content_type)],
+            body,
+        )
+    }
+
+    /// A request with a body (none when empty).
+    pub fn send_body(
+        &self,
+        method: reqwest::Method,
+        path: &str,
+        headers: &[(&str, &str)],
+        body: Vec<u8>,
+    ) -> Resp {
         let mut req = self.client.request(method, self.url(path));
+        if !body.is_empty() {
+            req = req.body(body);
+        }
         for (k, v) in headers {
             req = req.header(*k, *v);
         }

@@ -88,7 +88,8 @@ fn evaluate(levels: &[Vec<Vec<SourceTile>>], l: u32, m: Interpolation, p: [f64; 
         n: 1 << l,
         tile: &get,
     };
-    view.evaluate(m, p, &tiles[0][0].quantization).expect("every tile is there")
+    view.evaluate(m, p, &tiles[0][0].quantization)
+        .expect("every tile is there")
 }
 
 /// At random points and at every finest sample of a patch, every coarse level's
@@ -100,7 +101,9 @@ fn the_bound_holds_and_is_tight() {
     let last = f64::from(NF * T);
     let mut points: Vec<[f64; 2]> = (0..4000u32)
         .map(|i| {
-            let r = |salt: u32| f64::from(i.wrapping_mul(2_246_822_519).wrapping_add(salt) % 100_000) / 100_000.0;
+            let r = |salt: u32| {
+                f64::from(i.wrapping_mul(2_246_822_519).wrapping_add(salt) % 100_000) / 100_000.0
+            };
             [r(7) * last, r(3_266_489_917) * last]
         })
         .collect();
@@ -123,7 +126,10 @@ fn the_bound_holds_and_is_tight() {
                 assert!((fine.bound - fine_bound(m, p)).abs() < 1e-12);
                 worst_ratio = worst_ratio.max(diff / coarse.bound);
             }
-            assert!(worst_ratio > 0.5, "{m:?} level {l}: the bound is loose (worst diff/bound {worst_ratio})");
+            assert!(
+                worst_ratio > 0.5,
+                "{m:?} level {l}: the bound is loose (worst diff/bound {worst_ratio})"
+            );
         }
     }
 }
@@ -148,9 +154,18 @@ fn a_missing_neighbour_gives_no_answer() {
         tile: &get,
     };
     let q = tiles[0][0].quantization;
-    assert!(view.evaluate(Interpolation::Bilinear, [3.5, 3.5], &q).is_some());
+    assert!(
+        view.evaluate(Interpolation::Bilinear, [3.5, 3.5], &q)
+            .is_some()
+    );
     // Cubic at the tile's east edge reads column 9, in the missing tile (1, 0).
-    assert!(view.evaluate(Interpolation::Cubic, [7.5, 3.5], &q).is_none());
+    assert!(
+        view.evaluate(Interpolation::Cubic, [7.5, 3.5], &q)
+            .is_none()
+    );
     // A sample on the shared edge is read from the tile that has it.
-    assert!(view.evaluate(Interpolation::Nearest, [8.0, 3.0], &q).is_some());
+    assert!(
+        view.evaluate(Interpolation::Nearest, [8.0, 3.0], &q)
+            .is_some()
+    );
 }

@@ -234,7 +234,15 @@ pub async fn post(
     }
     let form = match headers
         .get(header::CONTENT_TYPE)
-        .map(|v| v.to_str().unwrap_or("").split(';').next().unwrap_or("").trim().to_ascii_lowercase())
+        .map(|v| {
+            v.to_str()
+                .unwrap_or("")
+                .split(';')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_ascii_lowercase()
+        })
         .as_deref()
     {
         None | Some("application/json") => false,
