@@ -14,43 +14,12 @@
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use serve_support::{Sample, Server, dem_pyramid, parse_metrics};
+use serve_support::{Sample, Server, compute, dem_pyramid, metrics, until};
 use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::time::{Duration, Instant};
 
 /// A Cesium tile of N46E008 that takes a real mesh (zoom 5: the whole DEM's level).
 const TERRAIN: &str = "/v1/datasets/N46E008/cesium/5/33/24.terrain";
-
-/// `tessera_compute_total{kind, outcome}`, or a labelled gauge with `kind` alone.
-fn compute(samples: &[Sample], name: &str, kind: &str, outcome: Option<&str>) -> f64 {
-    samples
-        .iter()
-        .filter(|s| {
-            s.name == name
-                && s.labels.get("kind").is_some_and(|k| k == kind)
-                && outcome.is_none_or(|o| s.labels.get("outcome").is_some_and(|v| v == o))
-        })
-        .map(|s| s.value)
-        .sum()
-}
-
-fn metrics(srv: &Server) -> Vec<Sample> {
-    parse_metrics(&srv.get("/metrics").expect(200).text())
-}
-
-/// Waits (at most a minute) until `/metrics` satisfies `ok`.
-fn until(srv: &Server, what: &str, ok: impl Fn(&[Sample]) -> bool) -> Vec<Sample> {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    loop {
-        let m = metrics(srv);
-        if ok(&m) {
-            return m;
-        }
-        assert!(Instant::now() < deadline, "never: {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
 
 /// The single unlabelled value of `name`.
 fn gauge(samples: &[Sample], name: &str) -> f64 {

@@ -12,7 +12,7 @@
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use serve_support::{Server, fixtures, raw_get};
+use serve_support::{Server, fixtures, raw_get, rss_kib};
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
@@ -224,16 +224,6 @@ fn read_keep_alive_response(s: &mut TcpStream) -> u16 {
     let mut body = vec![0u8; len];
     s.read_exact(&mut body).unwrap();
     status
-}
-
-/// Kilobytes of the process's resident memory (`VmRSS` or `VmHWM`).
-fn rss_kib(pid: u32, field: &str) -> u64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix(field)?.trim().strip_suffix("kB"))
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap()
 }
 
 const CONNECTIONS: usize = 1024;

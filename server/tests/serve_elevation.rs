@@ -258,7 +258,7 @@ fn every_error_bound_holds_against_the_finest_data() {
             .collect();
         // A patch on the finest samples near the middle, where kernels read samples
         // exactly (N46E008's samples are at whole 1/1200 degrees).
-        let (clat, clon) = ((s + n) / 2.0, (w + e) / 2.0);
+        let (clat, clon) = (f64::midpoint(s, n), f64::midpoint(w, e));
         for j in 0..30 {
             for i in 0..30 {
                 let (lat, lon) = (

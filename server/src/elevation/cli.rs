@@ -293,8 +293,16 @@ pub fn run(args: &QueryArgs) -> anyhow::Result<()> {
         quantization: metadata.quantization,
         datum: metadata.vertical_datum,
     };
-    let answers = super::answer(&dem, &tiles, &request.points, &request.options, &shift)
-        .map_err(|f| anyhow!("{}: {}", args.file.display(), CachedTiles::describe(&f)))?;
+    let hold = crate::serve::routes::elevation::tiles_held(ds, request.points.len() as u64);
+    let answers = super::answer(
+        &dem,
+        &tiles,
+        &request.points,
+        &request.options,
+        &shift,
+        hold,
+    )
+    .map_err(|f| anyhow!("{}: {}", args.file.display(), CachedTiles::describe(&f)))?;
     let cx = output::Context {
         dataset: &ds.name,
         datum,

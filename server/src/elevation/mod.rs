@@ -17,8 +17,10 @@
 //!    is a corner of a valid cell, as the tiles decide it; a void there is tried at
 //!    finer levels, then answered `null` with the reason.
 //! 5. **Each tile once.** Points are grouped level by level and, within a level, by
-//!    tile in Morton order, so a batch of 100 000 points decodes each tile it needs
-//!    once (through the server's cache of decoded tiles, or the command's own).
+//!    tile in row-major order, and the tiles they read are held while later points
+//!    may need them (within a memory bound: [`answer`]'s `hold`), so a batch of
+//!    100 000 points decodes each tile it needs once, whatever the server's cache of
+//!    decoded tiles holds.
 
 pub mod bound;
 pub mod cli;
@@ -154,17 +156,21 @@ pub fn shift(
     ))
 }
 
-/// A few decoded tiles of one level, the most recent kept (a batch sorted by tile
-/// reads each once; a kernel at a tile's edge reads its neighbour).
+/// The decoded tiles of one level that points read, by `(row, column)`, at most
+/// `cap` of them. Points come in row-major order of their tiles, and a point reads
+/// at most its tile's neighbours (every kernel reaches less than a tile), so
+/// dropping the tiles of the earliest rows first keeps every tile until no point
+/// needs it: while the tiles of three consecutive rows fit in `cap`, each is
+/// decoded once.
 struct Window {
-    tiles: Vec<(TileId, Option<Arc<SourceTile>>)>,
+    tiles: std::collections::BTreeMap<(u32, u32), Option<Arc<SourceTile>>>,
+    cap: usize,
 }
-
-const WINDOW: usize = 16;
 
 impl Window {
     fn ensure<T: Tiles>(&mut self, tiles: &T, id: TileId) -> Result<(), T::Error> {
-        if self.tiles.iter().any(|(t, _)| *t == id) {
+        let key = (id.y(), id.x());
+        if self.tiles.contains_key(&key) {
             return Ok(());
         }
         let tile = if tiles.stored(id) {
@@ -172,18 +178,15 @@ impl Window {
         } else {
             None
         };
-        if self.tiles.len() == WINDOW {
-            self.tiles.remove(0);
+        if self.tiles.len() >= self.cap {
+            self.tiles.pop_first();
         }
-        self.tiles.push((id, tile));
+        self.tiles.insert(key, tile);
         Ok(())
     }
 
-    fn get(&self, level: Level, x: u32, y: u32) -> Option<&SourceTile> {
-        self.tiles
-            .iter()
-            .find(|(t, _)| t.level() == level && t.x() == x && t.y() == y)
-            .and_then(|(_, s)| s.as_deref())
+    fn get(&self, x: u32, y: u32) -> Option<&SourceTile> {
+        self.tiles.get(&(y, x)).and_then(|s| s.as_deref())
     }
 }
 
@@ -196,7 +199,7 @@ struct Pending {
     /// The level to try next, and the deepest stored at the point.
     next: u8,
     deepest: u8,
-    /// Sort key within a level: the tile's Morton code.
+    /// Sort key within a level: its tile's row, then column.
     key: u64,
 }
 
@@ -209,19 +212,23 @@ fn tile_at(geometry: &TileGeometry, level: Level, at: [f64; 2]) -> TileId {
     TileId::new(level, of(at[0]), of(at[1])).expect("clamped to the level")
 }
 
-/// Every point's answer, in order.
+/// Every point's answer, in order, holding at most `hold` decoded tiles at once
+/// (at least 9: a point's tile and its neighbours).
 pub fn answer<T: Tiles>(
     dem: &Dem,
     tiles: &T,
     points: &[LatLon],
     options: &Options,
     shift: &Shift,
+    hold: usize,
 ) -> Result<Vec<Answer>, T::Error> {
     let geometry = dem.geometry;
     let finest = geometry.finest();
     let (w, h) = (f64::from(geometry.width()), f64::from(geometry.height()));
-    let lon_lat: Vec<[f64; 2]> = points.iter().map(|p| [p.lon(), p.lat()]).collect();
-    let positions = dem.footprint.lon_lat_to_samples(&lon_lat);
+    let positions = {
+        let lon_lat: Vec<[f64; 2]> = points.iter().map(|p| [p.lon(), p.lat()]).collect();
+        dem.footprint.lon_lat_to_samples(&lon_lat)
+    };
     let mut out: Vec<Answer> = points
         .iter()
         .map(|&point| Answer {
@@ -259,16 +266,19 @@ pub fn answer<T: Tiles>(
     let t = geometry.tile_size();
     for l in 0..=finest.get() {
         let level = Level::new(l).expect("a level");
-        let (mut here, rest): (Vec<Pending>, Vec<Pending>) =
-            pending.into_iter().partition(|p| p.next == l);
-        pending = rest;
+        // Moved out, not copied: the batch's points are in one of the two vectors.
+        let mut here: Vec<Pending> = pending.extract_if(.., |p| p.next == l).collect();
         for p in &mut here {
-            p.key = tile_at(geometry, level, p.at).morton().get();
+            let tile = tile_at(geometry, level, p.at);
+            p.key = (u64::from(tile.y()) << 32) | u64::from(tile.x());
         }
         here.sort_unstable_by_key(|p| p.key);
         let k = finest.get() - l;
         let resolution = dem.footprint.spacing_m() * f64::from(1u32 << k);
-        let mut window = Window { tiles: Vec::new() };
+        let mut window = Window {
+            tiles: std::collections::BTreeMap::new(),
+            cap: hold.max(9),
+        };
         let mut last_key = None;
         for mut p in here {
             if last_key != Some(p.key) {
@@ -292,7 +302,7 @@ pub fn answer<T: Tiles>(
                     window.ensure(tiles, id)?;
                 }
             }
-            let get = |x: u32, y: u32| window.get(level, x, y);
+            let get = |x: u32, y: u32| window.get(x, y);
             let view = LevelView {
                 k: u32::from(k),
                 t,

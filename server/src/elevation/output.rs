@@ -42,12 +42,13 @@ fn json_string(out: &mut String, s: &str) {
     out.push_str(&serde_json::Value::from(s).to_string());
 }
 
-/// Bytes of JSON per answer, about (for reserving memory before writing).
-pub const JSON_BYTES_PER_ANSWER: usize = 240;
+/// Bytes of JSON per answer, at most about (for reserving memory before writing,
+/// and sizing the string once: a full-precision point, height and bound take 230).
+pub const JSON_BYTES_PER_ANSWER: usize = 256;
 
 /// `{"status": "OK", "results": [...]}` with one object per answer.
 pub fn json(answers: &[Answer], cx: &Context) -> String {
-    let mut out = String::with_capacity(128 + answers.len() * 200);
+    let mut out = String::with_capacity(128 + answers.len() * JSON_BYTES_PER_ANSWER);
     out.push_str("{\"status\":\"OK\",\"dataset\":");
     json_string(&mut out, cx.dataset);
     out.push_str(",\"interpolation\":");
@@ -73,21 +74,18 @@ pub fn json(answers: &[Answer], cx: &Context) -> String {
         out.push_str(",\"lng\":");
         number(&mut out, lon);
         out.push_str("},\"elevation\":");
-        match &a.height {
-            Ok(h) => {
-                number(&mut out, micro(h.elevation));
-                let _ = write!(out, ",\"level\":{},\"error_bound\":", h.level.get());
-                number(&mut out, micro_up(h.error_bound));
-                out.push_str(",\"resolution\":");
-                number(&mut out, h.resolution);
+        if let Ok(h) = &a.height {
+            number(&mut out, micro(h.elevation));
+            let _ = write!(out, ",\"level\":{},\"error_bound\":", h.level.get());
+            number(&mut out, micro_up(h.error_bound));
+            out.push_str(",\"resolution\":");
+            number(&mut out, h.resolution);
+        } else {
+            match cx.nodata_value {
+                Some(v) => number(&mut out, v),
+                None => out.push_str("null"),
             }
-            Err(_) => {
-                match cx.nodata_value {
-                    Some(v) => number(&mut out, v),
-                    None => out.push_str("null"),
-                }
-                out.push_str(",\"level\":null,\"error_bound\":null,\"resolution\":null");
-            }
+            out.push_str(",\"level\":null,\"error_bound\":null,\"resolution\":null");
         }
         out.push_str(",\"datum\":");
         out.push_str(&datum);

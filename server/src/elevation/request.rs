@@ -151,7 +151,7 @@ impl Raw {
                         Some(locations::parse(v, max).map_err(|e| format!("locations: {e}"))?);
                 }
                 "path" => {
-                    raw.path = Some(locations::parse(v, max).map_err(|e| format!("path: {e}"))?)
+                    raw.path = Some(locations::parse(v, max).map_err(|e| format!("path: {e}"))?);
                 }
                 "samples" => raw.samples = Some(samples(v)?),
                 "spacing" => raw.spacing = Some(positive("spacing", v)?),
@@ -404,7 +404,7 @@ mod tests {
             ),
             (br#"{"locations": [[1, 1], [2]]}"#, "point 2"),
             (br#"{"locations": [[1, 1]], "samples": -3}"#, "body:"),
-            (br#"[1, 2]"#, "body:"),
+            (b"[1, 2]", "body:"),
             (br#"{"locations": [[1, 1]]} trailing"#, "body:"),
         ] {
             let e = Raw::from_json(body, 1000).unwrap_err();

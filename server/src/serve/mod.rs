@@ -1,5 +1,6 @@
 //! `tessera-server serve`: pyramids over HTTP (docs/ARCHITECTURE.md#serving, API.md).
 
+pub mod allocator;
 pub mod attached_imagery;
 pub mod compute;
 pub mod config;
@@ -416,6 +417,7 @@ fn reload_on_sighup(state: Arc<AppState>) -> anyhow::Result<()> {
 /// Loads the datasets and serves until SIGINT/SIGTERM, letting in-flight responses
 /// finish; SIGHUP reloads the datasets.
 pub async fn run(settings: Settings) -> anyhow::Result<()> {
+    allocator::return_large_buffers();
     // Certificate problems stop the server before it says it is listening.
     let tls = settings.tls.as_ref().map(tls::server_config).transpose()?;
     let state = state(&settings)?;

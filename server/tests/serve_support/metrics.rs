@@ -45,6 +45,19 @@ pub fn parse_metrics(text: &str) -> Vec<Sample> {
     out
 }
 
+/// `tessera_compute_total{kind, outcome}`, or a labelled gauge with `kind` alone.
+pub fn compute(samples: &[Sample], name: &str, kind: &str, outcome: Option<&str>) -> f64 {
+    samples
+        .iter()
+        .filter(|s| {
+            s.name == name
+                && s.labels.get("kind").is_some_and(|k| k == kind)
+                && outcome.is_none_or(|o| s.labels.get("outcome").is_some_and(|v| v == o))
+        })
+        .map(|s| s.value)
+        .sum()
+}
+
 /// The value of an unlabelled metric (0 when absent).
 pub fn metric(samples: &[Sample], name: &str) -> f64 {
     samples

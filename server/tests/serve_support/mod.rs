@@ -13,7 +13,7 @@ mod stream;
 #[allow(unused_imports)]
 pub use http::{CACHEABLE, RawResp, Resp, find, gunzip, parse_head, raw_get, raw_request};
 #[allow(unused_imports)]
-pub use metrics::{Sample, metric, parse_metrics};
+pub use metrics::{Sample, compute, metric, parse_metrics};
 #[allow(unused_imports)]
 pub use stream::{decode_stream, etag_is_strong, level, open, split_trailer};
 
@@ -561,4 +561,33 @@ pub fn take_stderr(child: &mut Child) -> String {
         .read_to_string(&mut err)
         .unwrap();
     err
+}
+
+/// The server's `/metrics`, parsed.
+pub fn metrics(srv: &Server) -> Vec<Sample> {
+    parse_metrics(&srv.get("/metrics").expect(200).text())
+}
+
+/// Waits (at most a minute) until `/metrics` satisfies `ok`: tests wait for states,
+/// they never time them.
+pub fn until(srv: &Server, what: &str, ok: impl Fn(&[Sample]) -> bool) -> Vec<Sample> {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let m = metrics(srv);
+        if ok(&m) {
+            return m;
+        }
+        assert!(Instant::now() < deadline, "never: {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Kilobytes of a process's resident memory (`VmRSS:`, or its peak `VmHWM:`).
+pub fn rss_kib(pid: u32, field: &str) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix(field)?.trim().strip_suffix("kB"))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap()
 }

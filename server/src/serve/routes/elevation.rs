@@ -19,7 +19,7 @@ use crate::elevation::{self, Dem, Tiles, output};
 use crate::http::cache;
 use crate::http::error::{ApiError, ApiResult};
 use crate::serve::AppState;
-use crate::serve::compute::{Kind, Ticket};
+use crate::serve::compute::{Kind, Stop, Ticket};
 use crate::serve::dataset::Dataset;
 use crate::serve::web_cache::WebTiles;
 use crate::web::footprint::Footprint;
@@ -95,6 +95,25 @@ impl CachedTiles<'_> {
 /// Working memory per point: its position, pending state and answer, and its JSON.
 const BYTES_PER_POINT: u64 = 96 + output::JSON_BYTES_PER_ANSWER as u64;
 
+/// The memory a batch's held tiles may take.
+const HELD_BYTES: u64 = 64 << 20;
+
+/// Decoded tiles a batch holds at once (elevation/mod.rs `Window`): at most 64 MiB
+/// of them, no more than a level of the pyramid has, nor more than 9 a point.
+pub fn tiles_held(ds: &Dataset, points: u64) -> usize {
+    let g = ds.pyramid.geometry();
+    let tile_bytes = 2 * u64::from(g.tile_size() + 1).pow(2);
+    let present = g
+        .levels()
+        .map(|l| g.present_tiles(l).count() as u64)
+        .max()
+        .unwrap_or(1);
+    (HELD_BYTES / tile_bytes)
+        .min(present)
+        .min(points.saturating_mul(9))
+        .max(9) as usize
+}
+
 /// The body a dataset's profiles run on.
 fn body_of(fp: &Footprint) -> Body {
     fp.crs()
@@ -113,9 +132,11 @@ fn make(
     let m = ds.pyramid.metadata();
     let (shift, datum) = shift(state, ds, fp, request)?;
     let n = request.points.len() as u64;
+    let hold = tiles_held(ds, n);
+    let tile_bytes = 2 * u64::from(ds.pyramid.geometry().tile_size() + 1).pow(2);
     let _memory = ticket
-        .reserve(n * BYTES_PER_POINT + 8 * u64::from(ds.pyramid.geometry().tile_size() + 1).pow(2))
-        .map_err(|s| s.into_error())?;
+        .reserve(n * BYTES_PER_POINT + hold as u64 * tile_bytes)
+        .map_err(Stop::into_error)?;
     let tiles = CachedTiles {
         web: &state.web,
         ds,
@@ -127,8 +148,15 @@ fn make(
         quantization: m.quantization,
         datum: m.vertical_datum,
     };
-    let answers = elevation::answer(&dem, &tiles, &request.points, &request.options, &shift)
-        .map_err(|f| failure_error(state, ds, "elevation", f))?;
+    let answers = elevation::answer(
+        &dem,
+        &tiles,
+        &request.points,
+        &request.options,
+        &shift,
+        hold,
+    )
+    .map_err(|f| failure_error(state, ds, "elevation", f))?;
     let cx = output::Context {
         dataset: &ds.name,
         datum,
@@ -285,7 +313,7 @@ pub async fn post(
             let reserved = ticket
                 .reserve_async(expected)
                 .await
-                .map_err(|s| s.into_error())?;
+                .map_err(Stop::into_error)?;
             let bytes = axum::body::to_bytes(body, limits.max_body_bytes as usize)
                 .await
                 .map_err(|_| too_large(limits.max_body_bytes + 1))?;
