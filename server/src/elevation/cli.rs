@@ -44,7 +44,7 @@ pub struct QueryArgs {
     /// Treat the points as a path and sample one point every METRES along its geodesics, then its end.
     #[arg(long, value_name = "METRES")]
     pub spacing: Option<f64>,
-    /// How heights are interpolated between samples.
+    /// How heights are interpolated between samples: nearest, bilinear (as GDAL's -r bilinear) or cubic (GDAL's -r cubic).
     #[arg(long, default_value = "bilinear", value_parser = parse_interpolation)]
     pub interpolation: Interpolation,
     /// Answer each point from the coarsest level whose error bound there is within METRES (default: the finest data).
