@@ -22,6 +22,7 @@
 
 use super::kernel::{Interpolation, Stencil};
 use crate::web::resample::SourceTile;
+use std::cell::Cell;
 use tessera_shared::Quantization;
 
 /// Added to every bound: the floating-point arithmetic of the two interpolations
@@ -39,6 +40,9 @@ pub struct LevelView<'a> {
     pub n: u32,
     /// The tile `(x, y)` of the level, if stored and loaded.
     pub tile: &'a dyn Fn(u32, u32) -> Option<&'a SourceTile>,
+    /// The tile the last sample came from: most reads fall in it (a quarter of a
+    /// 100-point request's time went to looking tiles up).
+    last_tile: Cell<Option<(i64, i64, &'a SourceTile)>>,
 }
 
 impl std::fmt::Debug for LevelView<'_> {
@@ -74,6 +78,22 @@ fn owners(i: i64, span: i64, n: u32) -> [Option<u32>; 2] {
 }
 
 impl<'a> LevelView<'a> {
+    /// The view of a level with stride `2^k`, tiles of `t` cells, `n` tiles a side.
+    pub fn new(
+        k: u32,
+        t: u32,
+        n: u32,
+        tile: &'a dyn Fn(u32, u32) -> Option<&'a SourceTile>,
+    ) -> Self {
+        Self {
+            k,
+            t,
+            n,
+            tile,
+            last_tile: Cell::new(None),
+        }
+    }
+
     /// The last sample index of the level's (padded) grid.
     pub fn last(&self) -> i64 {
         i64::from(self.n) * i64::from(self.t)
@@ -82,12 +102,20 @@ impl<'a> LevelView<'a> {
     /// The tile holding level sample `(c, r)` and the sample's place in it.
     fn holder(&self, c: i64, r: i64) -> Option<(&'a SourceTile, usize)> {
         let span = i64::from(self.t);
+        let side = self.t as usize + 1;
+        // A sample two tiles share has the same height in both (decimation).
+        if let Some((x0, y0, tile)) = self.last_tile.get()
+            && (x0..=x0 + span).contains(&c)
+            && (y0..=y0 + span).contains(&r)
+        {
+            return Some((tile, (r - y0) as usize * side + (c - x0) as usize));
+        }
         for tx in owners(c, span, self.n).into_iter().flatten() {
             for ty in owners(r, span, self.n).into_iter().flatten() {
                 if let Some(tile) = (self.tile)(tx, ty) {
-                    let u = (c - i64::from(tx) * span) as usize;
-                    let v = (r - i64::from(ty) * span) as usize;
-                    return Some((tile, v * (self.t as usize + 1) + u));
+                    let (x0, y0) = (i64::from(tx) * span, i64::from(ty) * span);
+                    self.last_tile.set(Some((x0, y0, tile)));
+                    return Some((tile, (r - y0) as usize * side + (c - x0) as usize));
                 }
             }
         }

@@ -286,12 +286,7 @@ pub fn answer<T: Tiles>(
                 last_key = Some(p.key);
             }
             // Load what the point reads, then read it.
-            let probe = LevelView {
-                k: u32::from(k),
-                t,
-                n: level.tiles_per_side(),
-                tile: &|_, _| None,
-            };
+            let probe = LevelView::new(u32::from(k), t, level.tiles_per_side(), &|_, _| None);
             let [c0, r0, c1, r1] = probe.reach(options.interpolation, p.at);
             let owner =
                 |i: i64| (((i - 1).max(0) / i64::from(t)) as u32).min(level.tiles_per_side() - 1);
@@ -303,12 +298,7 @@ pub fn answer<T: Tiles>(
                 }
             }
             let get = |x: u32, y: u32| window.get(x, y);
-            let view = LevelView {
-                k: u32::from(k),
-                t,
-                n: level.tiles_per_side(),
-                tile: &get,
-            };
+            let view = LevelView::new(u32::from(k), t, level.tiles_per_side(), &get);
             let s = f64::from(1u32 << k);
             let nearest = [
                 (p.at[0] / s + 0.5).floor() as i64,

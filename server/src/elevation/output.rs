@@ -32,7 +32,7 @@ pub fn micro_up(v: f64) -> f64 {
 fn number(out: &mut String, v: f64) {
     // Finite by construction; `null` rather than invalid JSON if not.
     if v.is_finite() {
-        let _ = write!(out, "{v}");
+        out.push_str(ryu::Buffer::new().format_finite(v));
     } else {
         out.push_str("null");
     }
@@ -64,15 +64,22 @@ pub fn json(answers: &[Answer], cx: &Context) -> String {
         if i > 0 {
             out.push(',');
         }
-        let (lat, lon) = (a.point.lat(), a.point.lon());
-        out.push_str("{\"lat\":");
-        number(&mut out, lat);
-        out.push_str(",\"lon\":");
-        number(&mut out, lon);
-        out.push_str(",\"location\":{\"lat\":");
-        number(&mut out, lat);
-        out.push_str(",\"lng\":");
-        number(&mut out, lon);
+        // Each coordinate formatted once, written twice.
+        let (mut a_lat, mut a_lon) = (ryu::Buffer::new(), ryu::Buffer::new());
+        let lat = a_lat.format_finite(a.point.lat());
+        let lon = a_lon.format_finite(a.point.lon());
+        for piece in [
+            "{\"lat\":",
+            lat,
+            ",\"lon\":",
+            lon,
+            ",\"location\":{\"lat\":",
+            lat,
+            ",\"lng\":",
+            lon,
+        ] {
+            out.push_str(piece);
+        }
         out.push_str("},\"elevation\":");
         if let Ok(h) = &a.height {
             number(&mut out, micro(h.elevation));
