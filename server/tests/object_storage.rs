@@ -10,7 +10,7 @@
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use serve_support::{Server, bin, fixtures, metric, parse_metrics};
+use serve_support::{Server, bin, dem_pyramid, fixtures, metric, parse_metrics};
 use std::path::Path;
 use std::time::Duration;
 use tessera_shared::s3_server::S3Server;
@@ -360,4 +360,62 @@ fn http_and_file_urls_serve_the_same_records() {
         }
         remote.get("/healthz/ready").expect(200);
     }
+}
+
+/// Elevation queries read a pyramid in object storage as they read a local one: the
+/// server's answers and `tessera-server query s3://…`'s equal the local file's.
+#[test]
+fn elevations_from_s3_equal_the_local_files() {
+    let Some(local_file) = dem_pyramid("N46E008.tif", 512) else {
+        return;
+    };
+    let Some(s3) = S3Server::start_or_skip() else {
+        return;
+    };
+    s3.create_bucket(BUCKET);
+    s3.put(BUCKET, "N46E008.tess", &std::fs::read(&local_file).unwrap());
+    let e = s3.env();
+    let remote = Server::start_with(&[Path::new("s3://tessera/N46E008.tess")], &[], &refs(&e));
+    let local = Server::start(&[&local_file], &[]);
+    let points: Vec<[f64; 2]> = (0..1000)
+        .map(|i| {
+            [
+                46.0 + f64::from(i) * 0.000_997,
+                8.0 + f64::from(i * 7 % 1000) * 0.000_999,
+            ]
+        })
+        .collect();
+    let body =
+        serde_json::to_vec(&serde_json::json!({"locations": points, "interpolation": "cubic"}))
+            .unwrap();
+    let path = "/v1/datasets/N46E008/elevation";
+    let a = remote
+        .post(path, "application/json", body.clone())
+        .expect(200)
+        .json();
+    let b = local
+        .post(path, "application/json", body)
+        .expect(200)
+        .json();
+    assert_eq!(a, b, "S3 and the local file answer differently");
+    assert!(gets(&remote) >= 1.0, "nothing was read from the store");
+    let o = bin()
+        .args([
+            "query",
+            "s3://tessera/N46E008.tess",
+            "--at",
+            "46.5,8.1|46.61,8.237",
+            "--format",
+            "json",
+        ])
+        .envs(e.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cli: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let http = local
+        .get(&format!("{path}?locations=46.5,8.1|46.61,8.237"))
+        .expect(200)
+        .json();
+    assert_eq!(cli, http);
 }

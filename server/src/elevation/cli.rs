@@ -6,7 +6,7 @@
 use super::locations::{self, LatLon};
 use super::profile::Body;
 use super::request::{Datum, Raw};
-use super::{Dem, kernel::Interpolation, output};
+use super::{kernel::Interpolation, output};
 use crate::serve::registry::Registry;
 use crate::serve::routes::elevation::CachedTiles;
 use crate::serve::web_cache::{WebConfig, WebTiles};
@@ -282,27 +282,9 @@ pub fn run(args: &QueryArgs) -> anyhow::Result<()> {
     )
     .map_err(|e| anyhow!("--{e}"))?;
     let web = WebTiles::new(WebConfig::default(), &prometheus::Registry::new());
-    let tiles = CachedTiles {
-        web: &web,
-        ds,
-        ticket: None,
-    };
-    let dem = Dem {
-        footprint: &footprint,
-        geometry: ds.pyramid.geometry(),
-        quantization: metadata.quantization,
-        datum: metadata.vertical_datum,
-    };
-    let hold = crate::serve::routes::elevation::tiles_held(ds, request.points.len() as u64);
-    let answers = super::answer(
-        &dem,
-        &tiles,
-        &request.points,
-        &request.options,
-        &shift,
-        hold,
-    )
-    .map_err(|f| anyhow!("{}: {}", args.file.display(), CachedTiles::describe(&f)))?;
+    let answers =
+        crate::serve::routes::elevation::answers(&web, ds, &footprint, &request, &shift, None)
+            .map_err(|f| anyhow!("{}: {}", args.file.display(), CachedTiles::describe(&f)))?;
     let cx = output::Context {
         dataset: &ds.name,
         datum,

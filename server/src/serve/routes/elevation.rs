@@ -114,6 +114,28 @@ pub fn tiles_held(ds: &Dataset, points: u64) -> usize {
         .max(9) as usize
 }
 
+/// Every point's answer for `request` on `ds`, through the decoded-tile cache `web`
+/// (the server's, or the command's own), cancellable through `ticket`.
+pub fn answers(
+    web: &WebTiles,
+    ds: &Dataset,
+    fp: &Footprint,
+    request: &Request,
+    shift: &elevation::Shift,
+    ticket: Option<&Ticket>,
+) -> Result<Vec<elevation::Answer>, Failure> {
+    let m = ds.pyramid.metadata();
+    let tiles = CachedTiles { web, ds, ticket };
+    let dem = Dem {
+        footprint: fp,
+        geometry: ds.pyramid.geometry(),
+        quantization: m.quantization,
+        datum: m.vertical_datum,
+    };
+    let hold = tiles_held(ds, request.points.len() as u64);
+    elevation::answer(&dem, &tiles, &request.points, &request.options, shift, hold)
+}
+
 /// The body a dataset's profiles run on.
 fn body_of(fp: &Footprint) -> Body {
     fp.crs()
@@ -129,7 +151,6 @@ fn make(
     request: &Request,
     ticket: &Ticket,
 ) -> Result<Bytes, ApiError> {
-    let m = ds.pyramid.metadata();
     let (shift, datum) = shift(state, ds, fp, request)?;
     let n = request.points.len() as u64;
     let hold = tiles_held(ds, n);
@@ -137,26 +158,8 @@ fn make(
     let _memory = ticket
         .reserve(n * BYTES_PER_POINT + hold as u64 * tile_bytes)
         .map_err(Stop::into_error)?;
-    let tiles = CachedTiles {
-        web: &state.web,
-        ds,
-        ticket: Some(ticket),
-    };
-    let dem = Dem {
-        footprint: fp,
-        geometry: ds.pyramid.geometry(),
-        quantization: m.quantization,
-        datum: m.vertical_datum,
-    };
-    let answers = elevation::answer(
-        &dem,
-        &tiles,
-        &request.points,
-        &request.options,
-        &shift,
-        hold,
-    )
-    .map_err(|f| failure_error(state, ds, "elevation", f))?;
+    let answers = answers(&state.web, ds, fp, request, &shift, Some(ticket))
+        .map_err(|f| failure_error(state, ds, "elevation", f))?;
     let cx = output::Context {
         dataset: &ds.name,
         datum,
