@@ -11,8 +11,8 @@
 //!   pyramids from local files or object stores through [`storage`].
 //! - Derived outputs the routes compute: [`web`] (standard web-map tiles),
 //!   [`cesium`] (quantized-mesh terrain) with [`geoid`] heights, and
-//!   [`elevation`] (heights of points and profiles with their error bounds; also
-//!   `tessera-server query`).
+//!   [`elevation`] (heights of points and profiles with their error bounds), which
+//!   [`query`] (`tessera-server query`) answers on the command line.
 //! - [`fuzzing`]: the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
 
 pub mod approx_transform;
@@ -27,6 +27,7 @@ pub mod imagery;
 pub mod info;
 pub mod ingest;
 pub mod preview;
+pub mod query;
 pub mod serve;
 pub mod storage;
 pub mod verify;

@@ -269,7 +269,7 @@ enum Command {
     /// or --output (written whole or not at all). Example:
     ///
     ///   tessera-server query alps.tess --at 46.5,8.1 --at 46.6,8.2 --accuracy 5
-    Query(tessera_server::elevation::cli::QueryArgs),
+    Query(tessera_server::query::QueryArgs),
     /// Print a pyramid's metadata and per-level statistics.
     Info {
         /// The .tess file to describe.
@@ -648,7 +648,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Query(args) => {
-            tessera_server::elevation::cli::run(&args)?;
+            tessera_server::query::run(&args)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Info { file, json } => {

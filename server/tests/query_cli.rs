@@ -148,10 +148,11 @@ fn datum_conversion_agrees_with_proj() {
     .unwrap();
     assert_eq!(native["datum"], "egm96");
     assert_eq!(ellipsoid["datum"], "ellipsoid");
-    let input: String = pts
-        .iter()
-        .map(|p| format!("{} {} 0\n", p[1], p[0]))
-        .collect();
+    let input = pts.iter().fold(String::new(), |mut s, p| {
+        use std::fmt::Write as _;
+        let _ = writeln!(s, "{} {} 0", p[1], p[0]);
+        s
+    });
     let proj = gdal::run_stdin(
         "gdaltransform",
         &["-s_srs", "EPSG:4326+5773", "-t_srs", "EPSG:4979"],

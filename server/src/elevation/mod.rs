@@ -1,7 +1,7 @@
 //! Heights on demand: the elevation of points and profiles, each with the error
 //! bound of the level that answers it (API.md "Elevation queries", DECISIONS.md
 //! "Elevation queries"). One engine serves `GET`/`POST /v1/datasets/{name}/elevation`
-//! (serve/routes/elevation.rs) and `tessera-server query` ([`cli`]).
+//! (serve/routes/elevation.rs) and `tessera-server query` (query.rs).
 //!
 //! 1. **Where.** Each WGS 84 point goes to the dataset's finest sample coordinates
 //!    through the projection library (one PROJ call for the batch), as the
@@ -23,7 +23,6 @@
 //!    decoded tiles holds.
 
 pub mod bound;
-pub mod cli;
 pub mod kernel;
 pub mod locations;
 pub mod output;

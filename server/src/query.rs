@@ -3,10 +3,10 @@
 //! reading points from flags, a CSV or a GeoJSON file and writing CSV, GeoJSON or
 //! the API's JSON. The output file is written whole or not at all.
 
-use super::locations::{self, LatLon};
-use super::profile::Body;
-use super::request::{Datum, Raw};
-use super::{kernel::Interpolation, output};
+use crate::elevation::locations::{self, LatLon};
+use crate::elevation::profile::Body;
+use crate::elevation::request::{Datum, Raw};
+use crate::elevation::{self, kernel::Interpolation, output};
 use crate::serve::registry::Registry;
 use crate::serve::routes::elevation::CachedTiles;
 use crate::serve::web_cache::{WebConfig, WebTiles};
@@ -68,7 +68,8 @@ pub struct QueryArgs {
 }
 
 fn parse_interpolation(s: &str) -> Result<Interpolation, String> {
-    Interpolation::parse(s).ok_or_else(|| format!("{s:?}: the methods are {}", super::methods()))
+    Interpolation::parse(s)
+        .ok_or_else(|| format!("{s:?}: the methods are {}", elevation::methods()))
 }
 
 fn parse_datum(s: &str) -> Result<Datum, String> {
@@ -274,7 +275,7 @@ pub fn run(args: &QueryArgs) -> anyhow::Result<()> {
             .map(|p| crate::geoid::Geoid::open(&p).map(Arc::new))
             .transpose()?
     };
-    let (shift, datum) = super::shift(
+    let (shift, datum) = elevation::shift(
         metadata.vertical_datum,
         args.datum,
         geoid.as_ref(),
