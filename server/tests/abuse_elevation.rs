@@ -267,6 +267,26 @@ fn gets_are_cacheable_and_posts_cross_origin() {
         &[("if-none-match", &etag)],
     )
     .expect(304);
+    // A converted datum's answer depends on the geoid grid the server has: another
+    // grid file, another tag; the native answer's tag stays.
+    let grid = std::path::Path::new("/usr/share/proj/egm96_15.gtx");
+    if grid.is_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let copy = dir.path().join("other_egm96.gtx");
+        std::fs::copy(grid, &copy).unwrap();
+        let other = Server::start(&[&pyramid], &["--geoid", copy.to_str().unwrap()]);
+        let tag = |s: &Server, q: &str| {
+            s.get(&format!("{URL}?locations=46.5,8.1{q}"))
+                .expect(200)
+                .must("etag")
+                .to_string()
+        };
+        assert_ne!(
+            tag(&srv, "&datum=ellipsoid"),
+            tag(&other, "&datum=ellipsoid")
+        );
+        assert_eq!(tag(&srv, ""), tag(&other, ""));
+    }
     let p = srv.post(URL, "application/json", body(3, 5)).expect(200);
     assert_eq!(p.must("cache-control"), "no-store");
     let pre = srv.send(

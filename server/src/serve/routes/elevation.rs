@@ -245,7 +245,17 @@ pub async fn get(
         .filter(|(k, _)| !request::IGNORED.contains(&k.as_str()))
         .collect();
     pairs.sort();
-    let variant = format!("elevation {pairs:?}");
+    // A converted datum also depends on the server's geoid grid.
+    let geoid = match request.options.datum {
+        request::Datum::Native => None,
+        _ => state
+            .web
+            .config
+            .geoid
+            .as_ref()
+            .map(|g| g.name().to_string()),
+    };
+    let variant = format!("elevation {pairs:?} {geoid:?}");
     let pin = pinned(&ds, &query);
     let etag = cache::etag(ds.content_hash(), &variant);
     if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
