@@ -65,6 +65,9 @@ fn identical_requests_for_a_terrain_tile_make_one_mesh() {
         bodies.iter().all(|(_, b)| *b == bodies[0].1),
         "one mesh, the same bytes"
     );
+    // The dataset's availability, which every first tile needs, was made once too.
+    let made = srv.log().matches("terrain availability made").count();
+    assert_eq!(made, 1, "availability made {made} times");
     let m = metrics(&srv);
     // One computation: the other 63 waited on it, or found it in the cache after.
     assert_eq!(

@@ -33,6 +33,7 @@ use bytes::Bytes;
 use std::sync::{Arc, Mutex};
 use tessera_shared::format::FLAG_PARTIAL;
 use tessera_shared::{Level, TileId, codec};
+use tokio::sync::OnceCell;
 
 /// The media type of quantized-mesh tiles.
 pub const MEDIA_TYPE: &str = "application/vnd.quantized-mesh";
@@ -52,54 +53,70 @@ pub(super) fn terrain(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Terrain>>
 /// Availabilities made, by dataset content hash. Small (rows of runs of tiles); at
 /// most [`KEPT_AVAILABILITIES`], the oldest dropped first (a reloaded dataset has a
 /// new hash).
-static AVAILABILITIES: Mutex<Vec<(u64, Arc<Availability>)>> = Mutex::new(Vec::new());
+static AVAILABILITIES: Mutex<Vec<(u64, Arc<OnceCell<Arc<Availability>>>)>> = Mutex::new(Vec::new());
 const KEPT_AVAILABILITIES: usize = 64;
 
 /// The dataset's availability: made once (reading the index and the masks of its
-/// partial finest tiles, off the runtime), then kept.
+/// partial finest tiles, off the runtime), then kept. Requests that arrive while it
+/// is being made wait for that one computation (a flood of first requests on a
+/// fresh server made it once per request, each on its own blocking thread: 240
+/// threads and 1.9 CPU-s for 240 reset streams); if every one of them goes away,
+/// the next request makes it.
 pub(super) async fn availability(
     state: &Arc<AppState>,
     ds: &Arc<Dataset>,
     terrain: &Arc<Terrain>,
 ) -> ApiResult<Arc<Availability>> {
     let key = dataset_key(ds.content_hash());
-    let lock = || {
-        AVAILABILITIES
+    let cell = {
+        let mut kept = AVAILABILITIES
             .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-    };
-    if let Some((_, a)) = lock().iter().find(|(k, _)| *k == key) {
-        return Ok(a.clone());
-    }
-    let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
-    let made = tokio::task::spawn_blocking(move || {
-        let data = Pyramid {
-            state: &st,
-            ds: &d,
-            ticket: None,
-        };
-        let stored = |tile: TileId| match d.pyramid.entry(tile) {
-            Some(e) if e.flags & FLAG_PARTIAL != 0 => Stored::Partial,
-            Some(_) => Stored::Full,
-            // In a multi-resolution pyramid an absent tile may show a coarser one's
-            // surface: its mask (through `source`) says.
-            None if d.multi_resolution => Stored::Partial,
-            None => Stored::Absent,
-        };
-        tr.availability(stored, &data)
-            .map_err(|f| failure_error(&st, &d, "terrain availability", f))
-    })
-    .await
-    .map_err(|e| ApiError::internal(format!("terrain availability: {e}")))??;
-    let made = Arc::new(made);
-    let mut kept = lock();
-    if !kept.iter().any(|(k, _)| *k == key) {
-        if kept.len() >= KEPT_AVAILABILITIES {
-            kept.remove(0);
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((_, c)) = kept.iter().find(|(k, _)| *k == key) {
+            c.clone()
+        } else {
+            if kept.len() >= KEPT_AVAILABILITIES {
+                kept.remove(0);
+            }
+            let c = Arc::new(OnceCell::new());
+            kept.push((key, c.clone()));
+            c
         }
-        kept.push((key, made.clone()));
-    }
-    Ok(made)
+    };
+    let made = cell
+        .get_or_try_init(|| async {
+            let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
+            let made = tokio::task::spawn_blocking(move || {
+                let data = Pyramid {
+                    state: &st,
+                    ds: &d,
+                    ticket: None,
+                };
+                let stored = |tile: TileId| match d.pyramid.entry(tile) {
+                    Some(e) if e.flags & FLAG_PARTIAL != 0 => Stored::Partial,
+                    Some(_) => Stored::Full,
+                    // In a multi-resolution pyramid an absent tile may show a coarser
+                    // one's surface: its mask (through `source`) says.
+                    None if d.multi_resolution => Stored::Partial,
+                    None => Stored::Absent,
+                };
+                let started = std::time::Instant::now();
+                let made = tr
+                    .availability(stored, &data)
+                    .map_err(|f| failure_error(&st, &d, "terrain availability", f));
+                tracing::info!(
+                    dataset = %d.name,
+                    ms = started.elapsed().as_secs_f64() * 1e3,
+                    "terrain availability made"
+                );
+                made
+            })
+            .await
+            .map_err(|e| ApiError::internal(format!("terrain availability: {e}")))??;
+            Ok::<_, ApiError>(Arc::new(made))
+        })
+        .await?;
+    Ok(made.clone())
 }
 
 /// The pyramid as the mesher reads it: decoded tiles through the shared cache,
