@@ -30,10 +30,11 @@ use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
+use futures_util::FutureExt;
+use futures_util::future::{BoxFuture, Shared};
 use std::sync::{Arc, Mutex};
 use tessera_shared::format::FLAG_PARTIAL;
 use tessera_shared::{Level, TileId, codec};
-use tokio::sync::OnceCell;
 
 /// The media type of quantized-mesh tiles.
 pub const MEDIA_TYPE: &str = "application/vnd.quantized-mesh";
@@ -53,70 +54,86 @@ pub(super) fn terrain(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Terrain>>
 /// Availabilities made, by dataset content hash. Small (rows of runs of tiles); at
 /// most [`KEPT_AVAILABILITIES`], the oldest dropped first (a reloaded dataset has a
 /// new hash).
-static AVAILABILITIES: Mutex<Vec<(u64, Arc<OnceCell<Arc<Availability>>>)>> = Mutex::new(Vec::new());
+/// One dataset's availability: made once on a blocking thread, awaited by every
+/// request that needs it.
+type Making = Shared<BoxFuture<'static, Result<Arc<Availability>, ApiError>>>;
+
+static AVAILABILITIES: Mutex<Vec<(u64, Making)>> = Mutex::new(Vec::new());
 const KEPT_AVAILABILITIES: usize = 64;
 
 /// The dataset's availability: made once (reading the index and the masks of its
-/// partial finest tiles, off the runtime), then kept. Requests that arrive while it
-/// is being made wait for that one computation (a flood of first requests on a
-/// fresh server made it once per request, each on its own blocking thread: 240
-/// threads and 1.9 CPU-s for 240 reset streams); if every one of them goes away,
-/// the next request makes it.
+/// partial finest tiles, off the runtime), then kept. The build starts with the
+/// first request and runs to its end whatever happens to the requests: those that
+/// arrive meanwhile await it, and a request after they have all gone finds it made.
+/// (A flood of first requests on a fresh server used to make it once per request,
+/// each on its own blocking thread: 243 threads and 1.9 CPU-s after 240 reset
+/// streams.) A build that fails is forgotten, so the next request tries again.
 pub(super) async fn availability(
     state: &Arc<AppState>,
     ds: &Arc<Dataset>,
     terrain: &Arc<Terrain>,
 ) -> ApiResult<Arc<Availability>> {
     let key = dataset_key(ds.content_hash());
-    let cell = {
-        let mut kept = AVAILABILITIES
+    let lock = || {
+        AVAILABILITIES
             .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some((_, c)) = kept.iter().find(|(k, _)| *k == key) {
-            c.clone()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    };
+    let making = {
+        let mut kept = lock();
+        if let Some((_, m)) = kept.iter().find(|(k, _)| *k == key) {
+            m.clone()
         } else {
             if kept.len() >= KEPT_AVAILABILITIES {
-                kept.remove(0);
+                drop(kept.remove(0));
             }
-            let c = Arc::new(OnceCell::new());
-            kept.push((key, c.clone()));
-            c
+            let m = start_availability(state, ds, terrain);
+            kept.push((key, m.clone()));
+            m
         }
     };
-    let made = cell
-        .get_or_try_init(|| async {
-            let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
-            let made = tokio::task::spawn_blocking(move || {
-                let data = Pyramid {
-                    state: &st,
-                    ds: &d,
-                    ticket: None,
-                };
-                let stored = |tile: TileId| match d.pyramid.entry(tile) {
-                    Some(e) if e.flags & FLAG_PARTIAL != 0 => Stored::Partial,
-                    Some(_) => Stored::Full,
-                    // In a multi-resolution pyramid an absent tile may show a coarser
-                    // one's surface: its mask (through `source`) says.
-                    None if d.multi_resolution => Stored::Partial,
-                    None => Stored::Absent,
-                };
-                let started = std::time::Instant::now();
-                let made = tr
-                    .availability(stored, &data)
-                    .map_err(|f| failure_error(&st, &d, "terrain availability", f));
-                tracing::info!(
-                    dataset = %d.name,
-                    ms = started.elapsed().as_secs_f64() * 1e3,
-                    "terrain availability made"
-                );
-                made
-            })
-            .await
-            .map_err(|e| ApiError::internal(format!("terrain availability: {e}")))??;
-            Ok::<_, ApiError>(Arc::new(made))
-        })
-        .await?;
-    Ok(made.clone())
+    let made = making.await;
+    if made.is_err() {
+        lock().retain(|(k, _)| *k != key);
+    }
+    made
+}
+
+/// Starts making a dataset's availability on a blocking thread (now, not when first
+/// polled).
+fn start_availability(state: &Arc<AppState>, ds: &Arc<Dataset>, terrain: &Arc<Terrain>) -> Making {
+    let (st, d, tr) = (state.clone(), ds.clone(), terrain.clone());
+    let task = tokio::task::spawn_blocking(move || {
+        let data = Pyramid {
+            state: &st,
+            ds: &d,
+            ticket: None,
+        };
+        let stored = |tile: TileId| match d.pyramid.entry(tile) {
+            Some(e) if e.flags & FLAG_PARTIAL != 0 => Stored::Partial,
+            Some(_) => Stored::Full,
+            // In a multi-resolution pyramid an absent tile may show a coarser one's
+            // surface: its mask (through `source`) says.
+            None if d.multi_resolution => Stored::Partial,
+            None => Stored::Absent,
+        };
+        let started = std::time::Instant::now();
+        let made = tr
+            .availability(stored, &data)
+            .map_err(|f| failure_error(&st, &d, "terrain availability", f));
+        tracing::info!(
+            dataset = %d.name,
+            ms = started.elapsed().as_secs_f64() * 1e3,
+            "terrain availability made"
+        );
+        made.map(Arc::new)
+    });
+    async move {
+        task.await
+            .map_err(|e| ApiError::internal(format!("terrain availability: {e}")))?
+    }
+    .boxed()
+    .shared()
 }
 
 /// The pyramid as the mesher reads it: decoded tiles through the shared cache,
