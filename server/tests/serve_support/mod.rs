@@ -383,6 +383,10 @@ impl Server {
         let client = reqwest::Client::builder()
             .no_proxy()
             .timeout(Duration::from_secs(60))
+            // Below the server's 10 s header timeout, which closes idle keep-alive
+            // connections: a request on a pooled connection the server is closing
+            // fails to send (a POST after 25 s of GDAL work in serve_elevation did).
+            .pool_idle_timeout(Duration::from_secs(5))
             .build()
             .unwrap();
         Self {
