@@ -448,6 +448,32 @@ fn bad_requests_name_the_parameter() {
             "{text}"
         );
     }
+    // Chunked (no Content-Length): refused once more than 16 MiB has come.
+    {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(server.addr).unwrap();
+        write!(
+            s,
+            "POST {base} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n"
+        )
+        .unwrap();
+        let chunk = format!("100000\r\n{}\r\n", " ".repeat(1 << 20));
+        // The server stops reading after 16 MiB: later writes may fail.
+        for _ in 0..20 {
+            if s.write_all(chunk.as_bytes()).is_err() {
+                break;
+            }
+        }
+        let mut all = Vec::new();
+        let _ = s.read_to_end(&mut all);
+        let text = String::from_utf8_lossy(&all);
+        assert!(
+            text.starts_with("HTTP/1.1 413"),
+            "{}",
+            &text[..text.len().min(300)]
+        );
+        assert!(text.contains("--max-body-mib"), "{text}");
+    }
     for (body, want) in [
         (
             r#"{"locations": [[46.5, 8.1]], "colour": 1}"#,

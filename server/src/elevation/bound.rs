@@ -30,14 +30,20 @@ use tessera_shared::Quantization;
 /// in all, far below any DEM's precision.
 pub const ROUNDING: f64 = 1e-5;
 
-/// One level of the pyramid as far as a point needs it.
-pub struct LevelView<'a> {
+/// A level's grid: stride `2^k` finest samples, tiles of `t` cells, `n` tiles a side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LevelGrid {
     /// `log₂` of the level's stride in finest samples.
     pub k: u32,
     /// Cells per tile side.
     pub t: u32,
     /// Tiles per side.
     pub n: u32,
+}
+
+/// One level of the pyramid as far as a point needs it.
+pub struct LevelView<'a> {
+    pub grid: LevelGrid,
     /// The tile `(x, y)` of the level, if stored and loaded.
     pub tile: &'a dyn Fn(u32, u32) -> Option<&'a SourceTile>,
     /// The tile the last sample came from: most reads fall in it (a quarter of a
@@ -48,9 +54,7 @@ pub struct LevelView<'a> {
 impl std::fmt::Debug for LevelView<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("LevelView")
-            .field("k", &self.k)
-            .field("t", &self.t)
-            .field("n", &self.n)
+            .field("grid", &self.grid)
             .finish_non_exhaustive()
     }
 }
@@ -77,115 +81,20 @@ fn owners(i: i64, span: i64, n: u32) -> [Option<u32>; 2] {
     ]
 }
 
-impl<'a> LevelView<'a> {
-    /// The view of a level with stride `2^k`, tiles of `t` cells, `n` tiles a side.
-    pub fn new(
-        k: u32,
-        t: u32,
-        n: u32,
-        tile: &'a dyn Fn(u32, u32) -> Option<&'a SourceTile>,
-    ) -> Self {
-        Self {
-            k,
-            t,
-            n,
-            tile,
-            last_tile: Cell::new(None),
-        }
-    }
-
+impl LevelGrid {
     /// The last sample index of the level's (padded) grid.
     pub fn last(&self) -> i64 {
         i64::from(self.n) * i64::from(self.t)
     }
 
-    /// The tile holding level sample `(c, r)` and the sample's place in it.
-    fn holder(&self, c: i64, r: i64) -> Option<(&'a SourceTile, usize)> {
-        let span = i64::from(self.t);
-        let side = self.t as usize + 1;
-        // A sample two tiles share has the same height in both (decimation).
-        if let Some((x0, y0, tile)) = self.last_tile.get()
-            && (x0..=x0 + span).contains(&c)
-            && (y0..=y0 + span).contains(&r)
-        {
-            return Some((tile, (r - y0) as usize * side + (c - x0) as usize));
-        }
-        for tx in owners(c, span, self.n).into_iter().flatten() {
-            for ty in owners(r, span, self.n).into_iter().flatten() {
-                if let Some(tile) = (self.tile)(tx, ty) {
-                    let (x0, y0) = (i64::from(tx) * span, i64::from(ty) * span);
-                    self.last_tile.set(Some((x0, y0, tile)));
-                    return Some((tile, (r - y0) as usize * side + (c - x0) as usize));
-                }
-            }
-        }
-        None
-    }
-
-    /// The quantized height of level sample `(c, r)` (clamped to the grid).
-    pub fn sample(&self, c: i64, r: i64) -> Option<u16> {
-        let last = self.last();
-        let (tile, at) = self.holder(c.clamp(0, last), r.clamp(0, last))?;
-        tile.heights.get(at).copied()
-    }
-
-    /// Whether level sample `(c, r)` is terrain: a corner of a valid cell (the
-    /// mask is per cell), as the standard-grid tiles decide it (web/resample.rs).
-    pub fn is_terrain(&self, c: i64, r: i64) -> bool {
-        let cells = self.last();
-        let t = i64::from(self.t);
-        [(c - 1, r - 1), (c, r - 1), (c - 1, r), (c, r)]
-            .into_iter()
-            .filter(|&(x, y)| (0..cells).contains(&x) && (0..cells).contains(&y))
-            .any(|(x, y)| {
-                (self.tile)((x / t) as u32, (y / t) as u32)
-                    .is_some_and(|s| s.mask.is_valid((x % t) as u32, (y % t) as u32))
-            })
-    }
-
-    /// `T_L` at finest sample `(gx, gy)`, in quantization steps: the level's cell
-    /// around it, triangulated north-west to south-east as the error tables measure
-    /// it (builder/mesh_error.rs).
-    fn triangulated(&self, gx: i64, gy: i64) -> Option<f64> {
-        let (cx, cy) = (gx >> self.k, gy >> self.k);
+    /// The level sample nearest finest position `p`.
+    pub fn nearest(&self, p: [f64; 2]) -> [i64; 2] {
         let s = f64::from(1u32 << self.k);
-        let (a, b) = (gx - (cx << self.k), gy - (cy << self.k));
-        let q = |dc: i64, dr: i64| self.sample(cx + dc, cy + dr).map(f64::from);
-        if a == 0 && b == 0 {
-            return q(0, 0);
-        }
-        let (q00, q10, q01, q11) = (q(0, 0)?, q(1, 0)?, q(0, 1)?, q(1, 1)?);
-        let (fa, fb) = (a as f64 / s, b as f64 / s);
-        Some(if a >= b {
-            q00 + (q10 - q00) * fa + (q11 - q10) * fb
-        } else {
-            q00 + (q11 - q01) * fa + (q01 - q00) * fb
-        })
+        p.map(|v| (v / s + 0.5).floor() as i64)
     }
 
-    /// The error table's bound at finest sample `(gx, gy)`, metres (infinite where
-    /// the tile's table is unknown).
-    fn table_error(&self, gx: i64, gy: i64) -> Option<f64> {
-        let span = i64::from(self.t) << self.k;
-        let block = span / 8;
-        for tx in owners(gx, span, self.n).into_iter().flatten() {
-            for ty in owners(gy, span, self.n).into_iter().flatten() {
-                if let Some(tile) = (self.tile)(tx, ty) {
-                    let bx = ((gx - i64::from(tx) * span) / block).min(7) as usize;
-                    let by = ((gy - i64::from(ty) * span) / block).min(7) as usize;
-                    return Some(
-                        tile.block_errors
-                            .as_ref()
-                            .map_or(f64::INFINITY, |e| f64::from(e[by * 8 + bx])),
-                    );
-                }
-            }
-        }
-        None
-    }
-
-    /// The level samples (columns and rows, inclusive) that [`Self::evaluate`] at
-    /// finest position `p` reads, for loading the tiles first.
+    /// The level samples (columns and rows, inclusive) that [`LevelView::evaluate`]
+    /// and [`LevelView::is_terrain`] at finest position `p` read.
     pub fn reach(&self, method: Interpolation, p: [f64; 2]) -> [i64; 4] {
         let s = f64::from(1u32 << self.k);
         let last = self.last();
@@ -193,10 +102,7 @@ impl<'a> LevelView<'a> {
         let (mut c0, mut c1) = level.cols.span();
         let (mut r0, mut r1) = level.rows.span();
         // The terrain test's cells around the nearest sample.
-        let (nc, nr) = (
-            (p[0] / s + 0.5).floor() as i64,
-            (p[1] / s + 0.5).floor() as i64,
-        );
+        let [nc, nr] = self.nearest(p);
         c0 = c0.min(nc - 1);
         c1 = c1.max(nc + 1);
         r0 = r0.min(nr - 1);
@@ -213,6 +119,115 @@ impl<'a> LevelView<'a> {
         [c0.max(0), r0.max(0), c1.min(last), r1.min(last)]
     }
 
+    /// The tiles `[x0, y0, x1, y1]` (inclusive) holding the samples [`Self::reach`]
+    /// reads: from the first owner of the first sample to the last of the last.
+    pub fn tiles_reached(&self, method: Interpolation, p: [f64; 2]) -> [u32; 4] {
+        let [c0, r0, c1, r1] = self.reach(method, p);
+        let span = i64::from(self.t);
+        let first = |i: i64| owners(i, span, self.n)[0].expect("a sample has an owner");
+        let last = |i: i64| {
+            let [a, b] = owners(i, span, self.n);
+            b.or(a).expect("a sample has an owner")
+        };
+        [first(c0), first(r0), last(c1), last(r1)]
+    }
+}
+
+impl<'a> LevelView<'a> {
+    /// The view of a level's grid through `tile`.
+    pub fn new(grid: LevelGrid, tile: &'a dyn Fn(u32, u32) -> Option<&'a SourceTile>) -> Self {
+        Self {
+            grid,
+            tile,
+            last_tile: Cell::new(None),
+        }
+    }
+
+    /// The tile holding level sample `(c, r)` and the sample's place in it.
+    fn holder(&self, c: i64, r: i64) -> Option<(&'a SourceTile, usize)> {
+        let span = i64::from(self.grid.t);
+        let side = self.grid.t as usize + 1;
+        // A sample two tiles share has the same height in both (decimation).
+        if let Some((x0, y0, tile)) = self.last_tile.get()
+            && (x0..=x0 + span).contains(&c)
+            && (y0..=y0 + span).contains(&r)
+        {
+            return Some((tile, (r - y0) as usize * side + (c - x0) as usize));
+        }
+        for tx in owners(c, span, self.grid.n).into_iter().flatten() {
+            for ty in owners(r, span, self.grid.n).into_iter().flatten() {
+                if let Some(tile) = (self.tile)(tx, ty) {
+                    let (x0, y0) = (i64::from(tx) * span, i64::from(ty) * span);
+                    self.last_tile.set(Some((x0, y0, tile)));
+                    return Some((tile, (r - y0) as usize * side + (c - x0) as usize));
+                }
+            }
+        }
+        None
+    }
+
+    /// The quantized height of level sample `(c, r)` (clamped to the grid).
+    pub fn sample(&self, c: i64, r: i64) -> Option<u16> {
+        let last = self.grid.last();
+        let (tile, at) = self.holder(c.clamp(0, last), r.clamp(0, last))?;
+        tile.heights.get(at).copied()
+    }
+
+    /// Whether level sample `(c, r)` is terrain: a corner of a valid cell (the
+    /// mask is per cell), as the standard-grid tiles decide it (web/resample.rs).
+    pub fn is_terrain(&self, c: i64, r: i64) -> bool {
+        let cells = self.grid.last();
+        let t = i64::from(self.grid.t);
+        [(c - 1, r - 1), (c, r - 1), (c - 1, r), (c, r)]
+            .into_iter()
+            .filter(|&(x, y)| (0..cells).contains(&x) && (0..cells).contains(&y))
+            .any(|(x, y)| {
+                (self.tile)((x / t) as u32, (y / t) as u32)
+                    .is_some_and(|s| s.mask.is_valid((x % t) as u32, (y % t) as u32))
+            })
+    }
+
+    /// `T_L` at finest sample `(gx, gy)`, in quantization steps: the level's cell
+    /// around it, triangulated north-west to south-east as the error tables measure
+    /// it (builder/mesh_error.rs).
+    fn triangulated(&self, gx: i64, gy: i64) -> Option<f64> {
+        let (cx, cy) = (gx >> self.grid.k, gy >> self.grid.k);
+        let s = f64::from(1u32 << self.grid.k);
+        let (a, b) = (gx - (cx << self.grid.k), gy - (cy << self.grid.k));
+        let q = |dc: i64, dr: i64| self.sample(cx + dc, cy + dr).map(f64::from);
+        if a == 0 && b == 0 {
+            return q(0, 0);
+        }
+        let (q00, q10, q01, q11) = (q(0, 0)?, q(1, 0)?, q(0, 1)?, q(1, 1)?);
+        let (fa, fb) = (a as f64 / s, b as f64 / s);
+        Some(if a >= b {
+            q00 + (q10 - q00) * fa + (q11 - q10) * fb
+        } else {
+            q00 + (q11 - q01) * fa + (q01 - q00) * fb
+        })
+    }
+
+    /// The error table's bound at finest sample `(gx, gy)`, metres (infinite where
+    /// the tile's table is unknown).
+    fn table_error(&self, gx: i64, gy: i64) -> Option<f64> {
+        let span = i64::from(self.grid.t) << self.grid.k;
+        let block = span / 8;
+        for tx in owners(gx, span, self.grid.n).into_iter().flatten() {
+            for ty in owners(gy, span, self.grid.n).into_iter().flatten() {
+                if let Some(tile) = (self.tile)(tx, ty) {
+                    let bx = ((gx - i64::from(tx) * span) / block).min(7) as usize;
+                    let by = ((gy - i64::from(ty) * span) / block).min(7) as usize;
+                    return Some(
+                        tile.block_errors
+                            .as_ref()
+                            .map_or(f64::INFINITY, |e| f64::from(e[by * 8 + bx])),
+                    );
+                }
+            }
+        }
+        None
+    }
+
     /// The height at finest-sample position `p` (clamped to the DEM by the caller)
     /// and its bound; `None` when a sample it needs is in no stored tile.
     pub fn evaluate(
@@ -221,8 +236,8 @@ impl<'a> LevelView<'a> {
         p: [f64; 2],
         quantization: &Quantization,
     ) -> Option<Evaluated> {
-        let s = f64::from(1u32 << self.k);
-        let last = self.last();
+        let s = f64::from(1u32 << self.grid.k);
+        let last = self.grid.last();
         let level = Stencil::new(method, [p[0] / s, p[1] / s], [last, last]);
         let mut steps = 0.0;
         for (c, r, w) in level.samples() {
@@ -231,13 +246,13 @@ impl<'a> LevelView<'a> {
         let scale = quantization.scale;
         let value = quantization.offset + scale * steps;
         let q = quantization.max_error;
-        if self.k == 0 {
+        if self.grid.k == 0 {
             return Some(Evaluated {
                 value,
                 bound: level.abs_weight() * q,
             });
         }
-        let fine = Stencil::new(method, p, [last << self.k; 2]);
+        let fine = Stencil::new(method, p, [last << self.grid.k; 2]);
         let (mut reference, mut spread) = (0.0, 0.0);
         for (gx, gy, w) in fine.samples() {
             reference += w * self.triangulated(gx, gy)?;

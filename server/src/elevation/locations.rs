@@ -2,6 +2,7 @@
 //! latitude and longitude in degrees, in the forms Google's Elevation API and
 //! opentopodata accept (`lat,lon|lat,lon`, an encoded polyline) and as JSON.
 
+use crate::http::error::quoted;
 use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
 use std::fmt;
 
@@ -33,17 +34,6 @@ impl LatLon {
     }
 }
 
-/// Characters of a value quoted in a message (the rest is cut: a long request is
-/// never echoed back whole).
-const QUOTE: usize = 40;
-
-fn quote(s: &str) -> String {
-    match s.char_indices().nth(QUOTE) {
-        Some((i, _)) => format!("{:?}…", &s[..i]),
-        None => format!("{s:?}"),
-    }
-}
-
 /// Points written as text: `lat,lon|lat,lon|…`, or an encoded polyline (Google's
 /// algorithm, precision 5), either prefixed `enc:` as Google writes it or bare as
 /// opentopodata accepts it (a value without a comma). At most `max` points.
@@ -65,7 +55,7 @@ pub fn parse(text: &str, max: usize) -> Result<Vec<LatLon>, String> {
     text.split('|')
         .enumerate()
         .map(|(i, pair)| {
-            let fail = |why: &str| format!("point {} ({}): {why}", i + 1, quote(pair));
+            let fail = |why: &str| format!("point {} ({}): {why}", i + 1, quoted(pair));
             let (a, b) = pair
                 .split_once(',')
                 .ok_or_else(|| fail("not \"lat,lon\""))?;
@@ -74,7 +64,7 @@ pub fn parse(text: &str, max: usize) -> Result<Vec<LatLon>, String> {
                 s.parse::<f64>()
                     .ok()
                     .filter(|v| v.is_finite())
-                    .ok_or_else(|| fail(&format!("{what} {} is not a number", quote(s))))
+                    .ok_or_else(|| fail(&format!("{what} {} is not a number", quoted(s))))
             };
             let (lat, lon) = (num(a, "latitude")?, num(b, "longitude")?);
             LatLon::new(lat, lon).map_err(|e| fail(&e))
@@ -198,12 +188,12 @@ impl<'de> Visitor<'de> for PointVisitor {
                 other => {
                     return Err(de::Error::custom(format!(
                         "unknown key {}: a point has \"lat\" and \"lng\" (or \"lon\")",
-                        quote(other)
+                        quoted(other)
                     )));
                 }
             };
             if slot.is_some() {
-                return Err(de::Error::custom(format!("{} given twice", quote(&key))));
+                return Err(de::Error::custom(format!("{} given twice", quoted(&key))));
             }
             *slot = Some(map.next_value::<f64>()?);
         }

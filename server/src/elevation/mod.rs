@@ -32,7 +32,7 @@ pub mod request;
 use crate::geoid::Geoid;
 use crate::web::footprint::Footprint;
 use crate::web::resample::SourceTile;
-use bound::LevelView;
+use bound::{LevelGrid, LevelView};
 use kernel::Interpolation;
 use locations::LatLon;
 use request::{Datum, Options};
@@ -45,7 +45,6 @@ pub struct Dem<'a> {
     pub footprint: &'a Footprint,
     pub geometry: &'a TileGeometry,
     pub quantization: Quantization,
-    pub datum: VerticalDatum,
 }
 
 /// Where the engine reads tiles: the server's cache, or the command's.
@@ -262,7 +261,6 @@ pub fn answer<T: Tiles>(
             key: 0,
         });
     }
-    let t = geometry.tile_size();
     for l in 0..=finest.get() {
         let level = Level::new(l).expect("a level");
         // Moved out, not copied: the batch's points are in one of the two vectors.
@@ -273,6 +271,11 @@ pub fn answer<T: Tiles>(
         }
         here.sort_unstable_by_key(|p| p.key);
         let k = finest.get() - l;
+        let grid = LevelGrid {
+            k: u32::from(k),
+            t: geometry.tile_size(),
+            n: level.tiles_per_side(),
+        };
         let resolution = dem.footprint.spacing_m() * f64::from(1u32 << k);
         let mut window = Window {
             tiles: std::collections::BTreeMap::new(),
@@ -285,26 +288,18 @@ pub fn answer<T: Tiles>(
                 last_key = Some(p.key);
             }
             // Load what the point reads, then read it.
-            let probe = LevelView::new(u32::from(k), t, level.tiles_per_side(), &|_, _| None);
-            let [c0, r0, c1, r1] = probe.reach(options.interpolation, p.at);
-            let owner =
-                |i: i64| (((i - 1).max(0) / i64::from(t)) as u32).min(level.tiles_per_side() - 1);
-            let upto = |i: i64| ((i / i64::from(t)) as u32).min(level.tiles_per_side() - 1);
-            for ty in owner(r0)..=upto(r1) {
-                for tx in owner(c0)..=upto(c1) {
+            let [x0, y0, x1, y1] = grid.tiles_reached(options.interpolation, p.at);
+            for ty in y0..=y1 {
+                for tx in x0..=x1 {
                     let id = TileId::new(level, tx, ty).expect("within the level");
                     window.ensure(tiles, id)?;
                 }
             }
             let get = |x: u32, y: u32| window.get(x, y);
-            let view = LevelView::new(u32::from(k), t, level.tiles_per_side(), &get);
-            let s = f64::from(1u32 << k);
-            let nearest = [
-                (p.at[0] / s + 0.5).floor() as i64,
-                (p.at[1] / s + 0.5).floor() as i64,
-            ];
+            let view = LevelView::new(grid, &get);
+            let [nc, nr] = grid.nearest(p.at);
             let evaluated = view
-                .is_terrain(nearest[0], nearest[1])
+                .is_terrain(nc, nr)
                 .then(|| view.evaluate(options.interpolation, p.at, &dem.quantization))
                 .flatten();
             let finer = l < p.deepest;
@@ -325,19 +320,14 @@ pub fn answer<T: Tiles>(
             }
         }
     }
-    match shift {
-        Shift::None => {}
-        Shift::AddGeoid(g) | Shift::SubtractGeoid(g) => {
-            let sign = if matches!(shift, Shift::AddGeoid(_)) {
-                1.0
-            } else {
-                -1.0
-            };
-            for a in &mut out {
-                if let Ok(h) = &mut a.height {
-                    h.elevation += sign * g.undulation(a.point.lon(), a.point.lat());
-                }
-            }
+    let (geoid, sign) = match shift {
+        Shift::None => return Ok(out),
+        Shift::AddGeoid(g) => (g, 1.0),
+        Shift::SubtractGeoid(g) => (g, -1.0),
+    };
+    for a in &mut out {
+        if let Ok(h) = &mut a.height {
+            h.elevation += sign * geoid.undulation(a.point.lon(), a.point.lat());
         }
     }
     Ok(out)

@@ -4,7 +4,7 @@
 //! shortest round-trip form), so a profile's points asked for again as locations
 //! are the same points.
 
-use super::{Answer, Missing};
+use super::Answer;
 use std::fmt::Write;
 
 /// What every answer of a batch shares.
@@ -100,16 +100,12 @@ pub fn json(answers: &[Answer], cx: &Context) -> String {
         out.push_str(&dataset);
         if let Err(m) = &a.height {
             out.push_str(",\"reason\":");
-            json_string(&mut out, reason(*m));
+            json_string(&mut out, m.reason());
         }
         out.push('}');
     }
     out.push_str("]}");
     out
-}
-
-fn reason(m: Missing) -> &'static str {
-    m.reason()
 }
 
 /// A header row, then `lat,lon,elevation,level,error_bound,resolution,datum,reason`
@@ -179,8 +175,8 @@ pub fn geojson(answers: &[Answer], cx: &Context) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::elevation::Height;
     use crate::elevation::locations::LatLon;
+    use crate::elevation::{Height, Missing};
     use tessera_shared::Level;
 
     fn answers() -> Vec<Answer> {

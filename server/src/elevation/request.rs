@@ -5,6 +5,7 @@
 use super::kernel::Interpolation;
 use super::locations::{self, JsonLimit, LatLon};
 use super::profile::{self, Body, Sampling};
+use crate::http::error::quoted;
 use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, Visitor};
 use std::collections::HashMap;
 use std::fmt;
@@ -86,10 +87,6 @@ pub const PARAMETERS: &str =
 /// pin, API.md "Caching") and `key` (Google's clients always send an API key).
 pub const IGNORED: [&str; 2] = ["v", "key"];
 
-fn quote(s: &str) -> String {
-    crate::http::error::quoted(s)
-}
-
 fn positive(name: &str, raw: &str) -> Result<f64, String> {
     raw.trim()
         .parse::<f64>()
@@ -98,7 +95,7 @@ fn positive(name: &str, raw: &str) -> Result<f64, String> {
         .ok_or_else(|| {
             format!(
                 "{name}={}: expected a positive number of metres",
-                quote(raw)
+                quoted(raw)
             )
         })
 }
@@ -107,14 +104,14 @@ fn samples(raw: &str) -> Result<usize, String> {
     raw.trim()
         .parse::<usize>()
         .ok()
-        .ok_or_else(|| format!("samples={}: expected a whole number of points", quote(raw)))
+        .ok_or_else(|| format!("samples={}: expected a whole number of points", quoted(raw)))
 }
 
 fn interpolation(raw: &str) -> Result<Interpolation, String> {
     Interpolation::parse(raw).ok_or_else(|| {
         format!(
             "interpolation={}: the methods are nearest, bilinear and cubic",
-            quote(raw)
+            quoted(raw)
         )
     })
 }
@@ -123,7 +120,7 @@ fn datum(raw: &str) -> Result<Datum, String> {
     Datum::parse(raw).ok_or_else(|| {
         format!(
             "datum={}: the datums are native, egm96 and ellipsoid",
-            quote(raw)
+            quoted(raw)
         )
     })
 }
@@ -137,7 +134,7 @@ fn nodata_value(raw: &str) -> Result<Option<f64>, String> {
         .ok()
         .filter(|v| v.is_finite())
         .map(Some)
-        .ok_or_else(|| format!("nodata_value={}: expected null or a number", quote(raw)))
+        .ok_or_else(|| format!("nodata_value={}: expected null or a number", quoted(raw)))
 }
 
 impl Raw {
@@ -163,7 +160,7 @@ impl Raw {
                 other => {
                     return Err(format!(
                         "unknown parameter {}: the elevation API takes {PARAMETERS}",
-                        quote(other)
+                        quoted(other)
                     ));
                 }
             }
@@ -250,7 +247,7 @@ impl<'de> Visitor<'de> for BodySeed {
         let fail = |k: &str, e: String| de::Error::custom(format!("{k}: {e}"));
         while let Some(key) = map.next_key::<std::borrow::Cow<'de, str>>()? {
             if seen.iter().any(|s| s == key.as_ref()) {
-                return Err(de::Error::custom(format!("{} given twice", quote(&key))));
+                return Err(de::Error::custom(format!("{} given twice", quoted(&key))));
             }
             seen.push(key.to_string());
             match key.as_ref() {
@@ -286,7 +283,7 @@ impl<'de> Visitor<'de> for BodySeed {
                 other => {
                     return Err(de::Error::custom(format!(
                         "unknown parameter {}: the elevation API takes {PARAMETERS}",
-                        quote(other)
+                        quoted(other)
                     )));
                 }
             }

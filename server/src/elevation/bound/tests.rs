@@ -82,7 +82,12 @@ fn level_tiles(l: u32) -> Vec<Vec<SourceTile>> {
 fn evaluate(levels: &[Vec<Vec<SourceTile>>], l: u32, m: Interpolation, p: [f64; 2]) -> Evaluated {
     let tiles = &levels[l as usize];
     let get = |x: u32, y: u32| tiles.get(y as usize).and_then(|r| r.get(x as usize));
-    let view = LevelView::new(FINEST - l, T, 1 << l, &get);
+    let grid = LevelGrid {
+        k: FINEST - l,
+        t: T,
+        n: 1 << l,
+    };
+    let view = LevelView::new(grid, &get);
     view.evaluate(m, p, &tiles[0][0].quantization)
         .expect("every tile is there")
 }
@@ -142,7 +147,7 @@ fn a_missing_neighbour_gives_no_answer() {
     let levels: Vec<_> = (0..=FINEST).map(level_tiles).collect();
     let tiles = &levels[FINEST as usize];
     let get = |x: u32, y: u32| (x == 0 && y == 0).then(|| &tiles[0][0]);
-    let view = LevelView::new(0, T, NF, &get);
+    let view = LevelView::new(LevelGrid { k: 0, t: T, n: NF }, &get);
     let q = tiles[0][0].quantization;
     assert!(
         view.evaluate(Interpolation::Bilinear, [3.5, 3.5], &q)

@@ -103,11 +103,14 @@ const HELD_BYTES: u64 = 64 << 20;
 pub fn tiles_held(ds: &Dataset, points: u64) -> usize {
     let g = ds.pyramid.geometry();
     let tile_bytes = 2 * u64::from(g.tile_size() + 1).pow(2);
-    let present = g
-        .levels()
-        .map(|l| g.present_tiles(l).count() as u64)
-        .max()
-        .unwrap_or(1);
+    // The finest level has the most tiles: those whose origin is inside the DEM's
+    // cells (`TileGeometry::is_present`), counted without walking the level.
+    let across = |samples: u32| {
+        u64::from(samples - 1)
+            .div_ceil(u64::from(g.tile_size()))
+            .max(1)
+    };
+    let present = across(g.width()) * across(g.height());
     (HELD_BYTES / tile_bytes)
         .min(present)
         .min(points.saturating_mul(9))
@@ -130,7 +133,6 @@ pub fn answers(
         footprint: fp,
         geometry: ds.pyramid.geometry(),
         quantization: m.quantization,
-        datum: m.vertical_datum,
     };
     let hold = tiles_held(ds, request.points.len() as u64);
     elevation::answer(&dem, &tiles, &request.points, &request.options, shift, hold)
@@ -281,6 +283,24 @@ pub async fn get(
     Ok(r)
 }
 
+/// A body of at most `limit` bytes; `Ok(Err(n))` once more than that has come (`n`
+/// bytes so far), `Err` (400) when the body cannot be read (the client broke it off).
+async fn read_body(body: HttpBody, limit: u64) -> ApiResult<Result<Bytes, u64>> {
+    use futures_util::StreamExt;
+    let mut stream = body.into_data_stream();
+    let mut out = bytes::BytesMut::new();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk
+            .map_err(|e| ApiError::bad_request(format!("body: it could not be read ({e})")))?;
+        let n = (out.len() + chunk.len()) as u64;
+        if n > limit {
+            return Ok(Err(n));
+        }
+        out.extend_from_slice(&chunk);
+    }
+    Ok(Ok(out.freeze()))
+}
+
 /// Distinct keys for `POST`s (each its own computation).
 static POSTS: AtomicU64 = AtomicU64::new(0);
 
@@ -353,9 +373,9 @@ pub async fn post(
                 .reserve_async(expected)
                 .await
                 .map_err(Stop::into_error)?;
-            let bytes = axum::body::to_bytes(body, limits.max_body_bytes as usize)
-                .await
-                .map_err(|_| too_large(limits.max_body_bytes + 1))?;
+            let bytes = read_body(body, limits.max_body_bytes)
+                .await?
+                .map_err(too_large)?;
             let (max, body) = (limits.max_points, body_of(&fp));
             let parse = move || -> Result<Request, ApiError> {
                 let raw = if form {
