@@ -249,10 +249,7 @@ pub fn run(args: &QueryArgs) -> anyhow::Result<()> {
     let metadata = ds.pyramid.metadata();
     let footprint = Footprint::new(metadata)
         .map_err(|e| anyhow!("{}: no elevations: {e}", args.file.display()))?;
-    let body = footprint
-        .crs()
-        .body_radii()
-        .map_or(Body::WGS84, |(a, b)| Body { a, b });
+    let body = Body::of(&footprint);
     let raw = Raw {
         locations: Some(points),
         samples: args.samples,

@@ -31,6 +31,14 @@ impl Body {
         b: 6_356_752.314_245_179,
     };
 
+    /// The body of a dataset's CRS (WGS 84 where the CRS names none).
+    pub fn of(footprint: &crate::web::footprint::Footprint) -> Self {
+        footprint
+            .crs()
+            .body_radii()
+            .map_or(Body::WGS84, |(a, b)| Body { a, b })
+    }
+
     fn geodesic(self) -> Geodesic {
         Geodesic::new(self.a, (self.a - self.b) / self.a)
     }

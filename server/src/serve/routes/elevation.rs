@@ -138,13 +138,6 @@ pub fn answers(
     elevation::answer(&dem, &tiles, &request.points, &request.options, shift, hold)
 }
 
-/// The body a dataset's profiles run on.
-fn body_of(fp: &Footprint) -> Body {
-    fp.crs()
-        .body_radii()
-        .map_or(Body::WGS84, |(a, b)| Body { a, b })
-}
-
 /// The memory one request reserves before it computes: its points' working memory
 /// and the tiles it may hold.
 fn working_bytes(ds: &Dataset, points: usize) -> u64 {
@@ -238,7 +231,7 @@ pub async fn get(
     let raw = Raw::from_query(&query, limits.max_points).map_err(ApiError::bad_request)?;
     let fp = footprint(&state, &ds)?;
     let request = raw
-        .resolve(body_of(&fp), limits.max_points)
+        .resolve(Body::of(&fp), limits.max_points)
         .map_err(ApiError::bad_request)?;
     shift(&state, &ds, &fp, &request)?;
     // The answer depends on the parameters, not on how they were spelled or ordered.
@@ -376,7 +369,7 @@ pub async fn post(
             let bytes = read_body(body, limits.max_body_bytes)
                 .await?
                 .map_err(too_large)?;
-            let (max, body) = (limits.max_points, body_of(&fp));
+            let (max, body) = (limits.max_points, Body::of(&fp));
             let parse = move || -> Result<Request, ApiError> {
                 let raw = if form {
                     let text = std::str::from_utf8(&bytes)
