@@ -46,6 +46,11 @@ pub mod routes {
     pub const TILES3D_TILE: &str = "/v1/datasets/{name}/3dtiles/{root}/{level}/{x}/{y}";
     /// Standard-grid tiles; the last segment is `{y}.png` or `{y}.webp`.
     pub const GRID_TILE: &str = "/v1/datasets/{name}/{grid}/{z}/{x}/{y}";
+    /// A rendered terrain tile (`hillshade`, `color-relief`, `slope`) on a standard
+    /// grid (API.md "Rendered terrain tiles").
+    pub const RENDERED_TILE: &str = "/v1/datasets/{name}/{grid}/{layer}/{z}/{x}/{y}";
+    /// TileJSON of a rendered layer on a standard grid.
+    pub const RENDERED_TILEJSON: &str = "/v1/datasets/{name}/{grid}/{layer}/tilejson.json";
     /// Heights of points and profiles with their error bounds: `GET` with
     /// `locations=` or `path=`, `POST` with a JSON body (API.md "Elevation queries").
     pub const ELEVATION: &str = "/v1/datasets/{name}/elevation";

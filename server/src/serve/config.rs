@@ -7,10 +7,13 @@ use super::web_cache::{EmptyTiles, WebConfig};
 use crate::http::conventions::CorsOrigins;
 use crate::http::tls::TlsFiles;
 use crate::serve::routes::elevation::ElevationLimits;
+use crate::web::render::ramp::{self, RampSpec};
 use anyhow::Context;
 use serde::Deserialize;
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 /// `tessera-server serve` flags (each also readable from a `TESSERA_*` variable).
@@ -119,6 +122,11 @@ pub struct ServeArgs {
     /// [default: none].
     #[arg(long, env = "TESSERA_ATTRIBUTION", value_name = "TEXT")]
     pub attribution: Option<String>,
+    /// A colour ramp in gdaldem's color-relief format, named for `ramp=NAME` on the
+    /// color-relief and slope layers (repeatable; API.md "Rendered terrain tiles").
+    /// Built in: hypsometric, relative, grey, slope, slope-percent.
+    #[arg(long, value_name = "NAME=FILE")]
+    pub ramp: Vec<String>,
     /// Points in one elevation request, a profile's samples included (400 beyond)
     /// [default: 100000].
     #[arg(long, env = "TESSERA_MAX_POINTS", value_name = "N")]
@@ -198,6 +206,8 @@ struct FileConfig {
     tls_key: Option<PathBuf>,
     empty_tiles: Option<EmptyTiles>,
     attribution: Option<String>,
+    /// `[ramps]` NAME = "FILE".
+    ramps: Option<BTreeMap<String, PathBuf>>,
     max_points: Option<usize>,
     max_body_mib: Option<u64>,
     source_cache_mib: Option<u64>,
@@ -514,6 +524,7 @@ impl Settings {
                         args.sea_level.or(file.sea_level),
                         args.no_data_water || file.no_data_water.unwrap_or(false),
                     )?,
+                    ramps: Arc::new(ramps(&args.ramp, file.ramps.unwrap_or_default())?),
                 }
             },
             // 0 is allowed here: it turns the cache off (every read goes to the store).
@@ -544,6 +555,43 @@ impl Settings {
 
 /// What Cesium terrain's water masks mark as water: the `--water` raster is read
 /// here, so a bad one stops the server with one line naming it.
+/// The ramps of `--ramp NAME=FILE` (over the config file's `[ramps]`), each read and
+/// checked now: a bad file stops the server before it listens, naming the file and
+/// the line.
+fn ramps(
+    args: &[String],
+    mut file: BTreeMap<String, PathBuf>,
+) -> anyhow::Result<BTreeMap<String, RampSpec>> {
+    for a in args {
+        let Some((name, path)) = a.split_once('=') else {
+            anyhow::bail!("--ramp {a:?}: give NAME=FILE, e.g. --ramp alpine=alpine.txt");
+        };
+        file.insert(name.to_string(), PathBuf::from(path));
+    }
+    file.into_iter()
+        .map(|(name, path)| {
+            let ok = !name.is_empty()
+                && name.len() <= 64
+                && name
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_');
+            if !ok {
+                anyhow::bail!(
+                    "--ramp {name:?}: a ramp's name is 1-64 letters, digits, '-' or '_' (it goes in URLs)"
+                );
+            }
+            if ramp::built_in(&name).is_some() {
+                anyhow::bail!("--ramp {name}: {name} is a built-in ramp; give yours another name");
+            }
+            let text = std::fs::read_to_string(&path)
+                .map_err(|e| anyhow::anyhow!("--ramp {name}: cannot read {}: {e}", path.display()))?;
+            let spec = RampSpec::parse(&text)
+                .map_err(|e| anyhow::anyhow!("--ramp {name}: {}: {e}", path.display()))?;
+            Ok((name, spec))
+        })
+        .collect()
+}
+
 fn water_rule(
     raster: Option<&std::path::Path>,
     sea_level: Option<f64>,
@@ -556,10 +604,7 @@ fn water_rule(
         anyhow::bail!("--sea-level {s}: want a finite number of metres");
     }
     Ok(WaterRule {
-        raster: raster
-            .map(WaterRaster::open)
-            .transpose()?
-            .map(std::sync::Arc::new),
+        raster: raster.map(WaterRaster::open).transpose()?.map(Arc::new),
         no_data,
         sea_level,
     })
@@ -567,13 +612,11 @@ fn water_rule(
 
 /// The geoid grid: the one named (which must open), else the first default found
 /// (which may be missing: Cesium terrain then says so in `layer.json`).
-fn geoid(
-    explicit: Option<&std::path::Path>,
-) -> anyhow::Result<Option<std::sync::Arc<crate::geoid::Geoid>>> {
+fn geoid(explicit: Option<&std::path::Path>) -> anyhow::Result<Option<Arc<crate::geoid::Geoid>>> {
     let named = explicit.is_some() || std::env::var_os("TESSERA_GEOID").is_some();
     match crate::geoid::find(explicit) {
         Some(path) => match crate::geoid::Geoid::open(&path) {
-            Ok(g) => Ok(Some(std::sync::Arc::new(g))),
+            Ok(g) => Ok(Some(Arc::new(g))),
             Err(e) if named => Err(e.context("--geoid")),
             Err(e) => {
                 tracing::warn!(path = %path.display(), error = %format!("{e:#}"), "cannot read the geoid grid; EGM96 heights go to Cesium as-is");

@@ -10,13 +10,14 @@ use crate::cesium::tiling::CesiumTile;
 use crate::geoid::Geoid;
 use crate::web::encoding::{Encoding, ImageFormat, NoData};
 use crate::web::footprint::Footprint;
+use crate::web::render::ramp::RampSpec;
 use crate::web::resample::SourceTile;
 use crate::web::tile_matrix::WebTile;
 use bytes::Bytes;
 use prometheus::{IntCounterVec, IntGaugeVec, Opts, Registry};
 use quick_cache::Weighter;
 use quick_cache::sync::Cache;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, PoisonError};
 use tessera_shared::TileId;
 
@@ -47,6 +48,8 @@ pub struct WebConfig {
     /// What Cesium terrain's water masks mark as water (`--water`, `--no-data-water`,
     /// `--sea-level`); none set: no masks.
     pub water: WaterRule,
+    /// Colour ramps loaded from files (`--ramp NAME=FILE`), besides the built-in ones.
+    pub ramps: Arc<BTreeMap<String, RampSpec>>,
 }
 
 impl Default for WebConfig {
@@ -58,6 +61,7 @@ impl Default for WebConfig {
             tile_cache_bytes: 64 << 20,
             geoid: None,
             water: WaterRule::default(),
+            ramps: Arc::default(),
         }
     }
 }
@@ -74,9 +78,18 @@ pub struct MadeKey {
     pub dataset: u64,
     pub tile: WebTile,
     pub px: u32,
-    pub encoding: Encoding,
+    pub look: Look,
     pub format: ImageFormat,
-    pub nodata: NoData,
+}
+
+/// What a made tile's pixels are.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Look {
+    /// Encoded heights (routes/web_grid.rs).
+    Heights(Encoding, NoData),
+    /// Rendered terrain (routes/rendered.rs): a 128-bit hash of the layer's canonical
+    /// description, options and resolved ramp included.
+    Rendered(u128),
 }
 
 /// A made Cesium terrain tile's identity: the tile and the extensions it carries.

@@ -343,6 +343,23 @@ impl Plan {
     /// of [`Self::source_tiles`], `None` when the pyramid has no such tile (outside
     /// the DEM, or wholly no-data).
     pub fn sample<T: AsRef<SourceTile>>(&self, sources: &[Option<T>]) -> Sampled {
+        self.sample_bordered(sources, 0)
+    }
+
+    /// The tile's heights with a border of `border` pixels (at most [`APRON`]) read
+    /// from the neighbouring tiles' pixels: `(px + 2·border)²` values, row-major from
+    /// the border's north-west corner. Each border pixel is the one its neighbour
+    /// tile computes there when it reads the same level (rendered tiles' 3 × 3
+    /// windows, web/render/).
+    pub fn sample_bordered<T: AsRef<SourceTile>>(
+        &self,
+        sources: &[Option<T>],
+        border: u32,
+    ) -> Sampled {
+        assert!(
+            i64::from(border) <= APRON,
+            "the border lies within the apron's window"
+        );
         let [i0, j0, i1, j1] = self.window;
         let w = (i1 - i0) as usize;
         let [tx0, ty0, cols, rows] = self.tiles;
@@ -428,8 +445,11 @@ impl Plan {
             }
         }
         let px = i64::from(self.px);
-        let mut out = vec![f64::NAN; (px * px) as usize];
-        let mut data = vec![false; (px * px) as usize];
+        let b = i64::from(border);
+        let side = px + 2 * b;
+        let mut out = vec![f64::NAN; (side * side) as usize];
+        let mut data = vec![false; (side * side) as usize];
+        let mut is_terrain = vec![false; (side * side) as usize];
         // Window pixels with a terrain pixel within the apron: a square dilation,
         // done as a pass along rows and one down columns.
         let hi = (j1 - j0) as usize;
@@ -441,15 +461,16 @@ impl Plan {
                 along[j * w + i] = row[i.saturating_sub(a)..=(i + a).min(w - 1)].contains(&true);
             }
         }
-        for j in j0.max(0)..j1.min(px) {
+        for j in j0.max(-b)..j1.min(px + b) {
             let jj = (j - j0) as usize;
             let (top, bottom) = (jj.saturating_sub(a), (jj + a).min(hi - 1));
-            for i in i0.max(0)..i1.min(px) {
+            for i in i0.max(-b)..i1.min(px + b) {
                 let ii = (i - i0) as usize;
                 let k = jj * w + ii;
                 let h = heights[k];
                 let near = || (top..=bottom).any(|r| along[r * w + ii]);
-                let o = (j * px + i) as usize;
+                let o = ((j + b) * side + i + b) as usize;
+                is_terrain[o] = terrain[k];
                 if terrain[k] || (h.is_finite() && near()) {
                     out[o] = h;
                     data[o] = true;
@@ -459,7 +480,11 @@ impl Plan {
                 }
             }
         }
-        Sampled { heights: out, data }
+        Sampled {
+            heights: out,
+            data,
+            terrain: is_terrain,
+        }
     }
 }
 
@@ -474,6 +499,9 @@ pub struct Sampled {
     /// Whether each pixel is terrain or its apron (module doc, step 5): what
     /// `nodata=transparent` leaves opaque.
     pub data: Vec<bool>,
+    /// Whether each pixel is terrain itself (not the apron, not a void's fill): what
+    /// rendered tiles draw.
+    pub terrain: Vec<bool>,
 }
 
 impl Sampled {

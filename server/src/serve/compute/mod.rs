@@ -59,16 +59,19 @@ pub enum Kind {
     Preview,
     /// Heights of points and profiles (the elevation API).
     Elevation,
+    /// A rendered terrain tile (hillshade, colour relief, slope).
+    Rendered,
 }
 
 impl Kind {
-    pub const ALL: [Kind; 6] = [
+    pub const ALL: [Kind; 7] = [
         Kind::Terrain,
         Kind::GridTile,
         Kind::PngTile,
         Kind::Bootstrap,
         Kind::Preview,
         Kind::Elevation,
+        Kind::Rendered,
     ];
 
     pub fn label(self) -> &'static str {
@@ -79,6 +82,7 @@ impl Kind {
             Kind::Bootstrap => "bootstrap",
             Kind::Preview => "preview",
             Kind::Elevation => "elevation",
+            Kind::Rendered => "rendered",
         }
     }
 }

@@ -10,6 +10,7 @@ pub mod elevation;
 pub mod health;
 pub mod ogc_api;
 pub mod pyramid;
+pub mod rendered;
 pub mod tiles;
 pub mod web_grid;
 pub mod web_tiles;

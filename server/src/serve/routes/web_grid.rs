@@ -13,9 +13,9 @@ use super::{Params, Segments, dataset, unavailable, xml_escape};
 use crate::cesium::quantized_mesh;
 use crate::http::cache;
 use crate::http::error::{ApiError, ApiResult, quoted};
-use crate::serve::compute::{Kind, Stop, Ticket};
+use crate::serve::compute::{Kind, Made, Reservation, Stop, Ticket};
 use crate::serve::dataset::{Dataset, DatasetUnavailable, RecordError};
-use crate::serve::web_cache::{EmptyTiles, MadeKey, WebTiles, dataset_key};
+use crate::serve::web_cache::{EmptyTiles, Look, MadeKey, WebTiles, dataset_key};
 use crate::serve::{AppState, TilesServed};
 use crate::web::encoding::{Encoding, ImageEncodeError, ImageFormat, NoData, rgba};
 use crate::web::footprint::Footprint;
@@ -79,7 +79,7 @@ pub fn footprint(state: &AppState, ds: &Dataset) -> ApiResult<Arc<Footprint>> {
 }
 
 /// The web tile `z/x/y` of `tms`, or 404 naming the valid ranges.
-fn web_tile(tms: TileMatrixSet, z: &str, x: &str, y: &str) -> ApiResult<WebTile> {
+pub fn web_tile(tms: TileMatrixSet, z: &str, x: &str, y: &str) -> ApiResult<WebTile> {
     let z_ok = z.parse::<u8>().ok().filter(|z| *z <= MAX_ZOOM);
     let Some(zv) = z_ok else {
         return Err(ApiError::not_found(format!(
@@ -216,8 +216,11 @@ fn make(
     let geometry = ds.pyramid.geometry();
     let px2 = u64::from(key.px).pow(2);
     let fill = ds.pyramid.metadata().min_height;
+    let Look::Heights(encoding, nodata) = key.look else {
+        unreachable!("height tiles are made with a height look")
+    };
     let encode = |heights: &[f64], data: &[bool]| {
-        let pixels = rgba(heights, data, key.encoding, key.nodata, fill);
+        let pixels = rgba(heights, data, encoding, nodata, fill);
         key.format
             .encode(&pixels, key.px)
             .map(Bytes::from)
@@ -236,20 +239,7 @@ fn make(
     let Some(plan) = resample::plan(fp, geometry, key.tile, key.px) else {
         return flat();
     };
-    let stop = |s| Failure::Stopped(s);
-    let tiles = plan.source_tiles();
-    let t = u64::from(geometry.tile_size()) + 1;
-    let memory = ticket
-        .reserve(px2 * GRID_BYTES_PER_PIXEL + tiles.len() as u64 * t * t * 2)
-        .map_err(stop)?;
-    let sources = tiles
-        .into_iter()
-        .map(|t| {
-            ticket.check().map_err(stop)?;
-            source(&state.web, ds, t)
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    ticket.check().map_err(stop)?;
+    let (sources, memory) = plan_sources(state, ds, &plan, px2 * GRID_BYTES_PER_PIXEL, ticket)?;
     let sampled = plan.sample(&sources);
     if sampled.is_empty() {
         // The flat tile reserves its own, smaller share.
@@ -259,6 +249,35 @@ fn make(
     let encoded = encode(&sampled.heights, &sampled.data);
     drop(memory);
     encoded
+}
+
+/// A plan's decoded source tiles, in its order (`None` where the pyramid has none).
+pub type Sources = Vec<Option<Arc<SourceTile>>>;
+
+/// The decoded source tiles a plan reads, in its order, with `working` bytes (the
+/// output's own) plus the sources' reserved for the caller to hold while it works.
+pub fn plan_sources(
+    state: &AppState,
+    ds: &Dataset,
+    plan: &resample::Plan,
+    working: u64,
+    ticket: &Ticket,
+) -> Result<(Sources, Reservation), Failure> {
+    let stop = |s| Failure::Stopped(s);
+    let tiles = plan.source_tiles();
+    let t = u64::from(ds.pyramid.geometry().tile_size()) + 1;
+    let memory = ticket
+        .reserve(working + tiles.len() as u64 * t * t * 2)
+        .map_err(stop)?;
+    let sources = tiles
+        .into_iter()
+        .map(|t| {
+            ticket.check().map_err(stop)?;
+            source(&state.web, ds, t)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    ticket.check().map_err(stop)?;
+    Ok((sources, memory))
 }
 
 /// `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.{png,webp}?encoding=&size=`.
@@ -301,9 +320,8 @@ pub async fn tile(
         dataset: dataset_key(ds.content_hash()),
         tile,
         px,
-        encoding: enc,
+        look: Look::Heights(enc, nodata),
         format,
-        nodata,
     };
     let made = if let Some(b) = state.web.made(&key) {
         state.compute.hit(Kind::GridTile, b, 1)?
@@ -322,8 +340,22 @@ pub async fn tile(
             })
             .await?
     };
+    Ok(image_response(&state, &ds, tile, &made, format, &etag, pin))
+}
+
+/// The response for a made image tile: the image, or [`empty`]'s answer for an
+/// empty body (a tile beyond the dataset's bounds).
+pub fn image_response(
+    state: &AppState,
+    ds: &Dataset,
+    tile: WebTile,
+    made: &Made,
+    format: ImageFormat,
+    etag: &str,
+    pin: bool,
+) -> Response {
     if made.bytes.is_empty() {
-        return Ok(empty(&state, &ds, tile, &etag, pin));
+        return empty(state, ds, tile, etag, pin);
     }
     let len = made.bytes.len();
     let mut r = Response::new(made.body());
@@ -333,14 +365,14 @@ pub async fn tile(
         HeaderValue::from_static(format.mime()),
     );
     h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
-    cache::set_headers(h, &etag, ds.last_modified, pin, state.cache_max_age);
+    cache::set_headers(h, etag, ds.last_modified, pin, state.cache_max_age);
     r.extensions_mut().insert(TilesServed(1));
-    Ok(r)
+    r
 }
 
 /// The answer for a tile without data: 404 with a reason, or 204 (`--empty-tiles
 /// 204`); cacheable like a full tile, since it is as immutable.
-fn empty(state: &AppState, ds: &Dataset, tile: WebTile, etag: &str, pin: bool) -> Response {
+pub fn empty(state: &AppState, ds: &Dataset, tile: WebTile, etag: &str, pin: bool) -> Response {
     let mut r = match state.web.config.empty_tiles {
         EmptyTiles::NotFound => ApiError::not_found(format!(
             "{tile} holds no data of dataset {:?}: it lies outside the dataset or over no-data",
@@ -396,18 +428,34 @@ pub fn tilejson_doc(
     px: u32,
     attribution: Option<&str>,
 ) -> serde_json::Value {
-    let m = ds.pyramid.metadata();
+    let tiles = format!(
+        "{base}/v1/datasets/{}/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&size={px}&v={}",
+        ds.name,
+        tms.path(),
+        enc.name(),
+        ds.content_hash()
+    );
+    let mut doc = grid_tilejson(ds, fp, tms, px, tiles, attribution);
+    doc.other.insert("encoding".into(), enc.name().into());
+    // As a JSON value, whose keys serialize sorted as the documents always were.
+    serde_json::to_value(doc).expect("a TileJSON document serializes")
+}
+
+/// A TileJSON 3.0.0 document of `px`-pixel tiles at URL template `tiles` over the
+/// dataset's place in `tms`: bounds, centre, zooms, and the grid named.
+pub fn grid_tilejson(
+    ds: &Dataset,
+    fp: &Footprint,
+    tms: TileMatrixSet,
+    px: u32,
+    tiles: String,
+    attribution: Option<&str>,
+) -> tilejson::TileJSON {
     let max = fp.max_zoom(tms, px);
     let [w, s, e, n] = fp.lon_lat;
     let [lon, lat] = fp.centre();
     let mut doc = tilejson::tilejson! {
-        tiles: vec![format!(
-            "{base}/v1/datasets/{}/{}/{{z}}/{{x}}/{{y}}.png?encoding={}&size={px}&v={}",
-            ds.name,
-            tms.path(),
-            enc.name(),
-            m.content_hash
-        )],
+        tiles: vec![tiles],
         name: ds.name.clone(),
         scheme: "xyz".to_string(),
         minzoom: 0,
@@ -424,11 +472,9 @@ pub fn tilejson_doc(
     // Beyond TileJSON's own fields.
     let more = &mut doc.other;
     more.insert("tileSize".into(), px.into());
-    more.insert("encoding".into(), enc.name().into());
     more.insert("tileMatrixSet".into(), tms.id().into());
     more.insert("crs".into(), format!("EPSG:{}", tms.epsg()).into());
-    // As a JSON value, whose keys serialize sorted as the documents always were.
-    serde_json::to_value(doc).expect("a TileJSON document serializes")
+    doc
 }
 
 /// `GET /v1/datasets/{name}/{grid}/tilejson.json?encoding=&size=`. Its URLs are
