@@ -12,6 +12,7 @@
 //! crs84 hillshade would be another picture: the test would fail.
 
 mod gdal;
+#[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
 use gdal::{gdal_or_skip, path_str, run};

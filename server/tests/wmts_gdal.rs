@@ -71,7 +71,13 @@ fn gdalinfo_lists_every_layer_on_both_grids() {
     let cache = tempfile::tempdir().unwrap();
     let url = srv.url("/v1/datasets/N46E008/wmts/1.0.0/WMTSCapabilities.xml");
     let info = gdal_run(cache.path(), "gdalinfo", &[&format!("WMTS:{url}")]);
-    for layer in ["N46E008_terrarium", "N46E008_mapbox"] {
+    for layer in [
+        "N46E008_terrarium",
+        "N46E008_mapbox",
+        "N46E008_hillshade",
+        "N46E008_color-relief",
+        "N46E008_slope",
+    ] {
         for tms in ["WebMercatorQuad", "WorldCRS84Quad"] {
             let want = format!("WMTS:{url},layer={layer},tilematrixset={tms}");
             assert!(
@@ -84,7 +90,7 @@ fn gdalinfo_lists_every_layer_on_both_grids() {
     // The all-datasets document lists the same layers.
     let all = srv.url("/wmts/1.0.0/WMTSCapabilities.xml");
     let info = gdal_run(cache.path(), "gdalinfo", &[&format!("WMTS:{all}")]);
-    assert_eq!(info.matches("_NAME=WMTS:").count(), 4, "{info}");
+    assert_eq!(info.matches("_NAME=WMTS:").count(), 10, "{info}");
 
     // Each grid opens in its CRS, over the dataset (8°–9° E, 46°–47° N, plus half a
     // 3″ sample), at the max zoom of the TileJSON.
@@ -514,5 +520,64 @@ fn ogc_api_tiles_lead_to_the_grid_tiles() {
         o.status,
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// GDAL opens the hillshade layer from the capabilities' template and reads, at
+/// Andermatt, the grey the server's own tile has at that pixel (R = G = B, opaque).
+#[test]
+fn gdal_reads_the_hillshade_layer_as_the_server_draws_it() {
+    let Some((pyramid, _)) = setup() else { return };
+    let srv = Server::start(&[&pyramid], &[]);
+    let cache = tempfile::tempdir().unwrap();
+    let url = srv.url("/v1/datasets/N46E008/wmts/1.0.0/WMTSCapabilities.xml");
+    let ds = format!("WMTS:{url},layer=N46E008_hillshade,tilematrixset=WebMercatorQuad");
+    let (lon, lat) = (8.5937, 46.6339);
+    let out = gdal_run(
+        cache.path(),
+        "gdallocationinfo",
+        &[
+            "-valonly",
+            "-wgs84",
+            &ds,
+            &lon.to_string(),
+            &lat.to_string(),
+        ],
+    );
+    let bands: Vec<u8> = out.lines().map(|l| l.trim().parse().unwrap()).collect();
+    assert_eq!(bands.len(), 4, "{out}");
+    assert_eq!(bands[3], 255, "opaque over terrain");
+    assert!(
+        bands[0] == bands[1] && bands[1] == bands[2] && bands[0] > 0,
+        "{bands:?}"
+    );
+    // The same pixel of the server's tile at the TileJSON's max zoom.
+    let tj: serde_json::Value = serde_json::from_slice(
+        &srv.get("/v1/datasets/N46E008/webmercator/hillshade/tilejson.json")
+            .body,
+    )
+    .unwrap();
+    let z = tj["maxzoom"].as_u64().unwrap() as i32;
+    let n = f64::from(1u32 << z) * 256.0;
+    let l = f64::to_radians(lat);
+    let px = (lon + 180.0) / 360.0 * n;
+    let py = (1.0 - (l.tan() + 1.0 / l.cos()).ln() / std::f64::consts::PI) / 2.0 * n;
+    let (x, y) = ((px / 256.0) as u32, (py / 256.0) as u32);
+    let tile = srv
+        .get(&format!(
+            "/v1/datasets/N46E008/webmercator/hillshade/{z}/{x}/{y}.png"
+        ))
+        .expect(200);
+    let mut reader = png::Decoder::new(std::io::Cursor::new(&tile.body))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    reader.next_frame(&mut buf).unwrap();
+    let (i, j) = ((px as usize) % 256, (py as usize) % 256);
+    let k = (j * 256 + i) * 4;
+    assert_eq!(
+        &buf[k..k + 4],
+        &bands[..],
+        "GDAL's pixel and the server's tile at ({i}, {j})"
     );
 }

@@ -6,7 +6,9 @@
 //! - `GET /wmts/1.0.0/WMTSCapabilities.xml`: every dataset that has a place on a map;
 //! - `GET /v1/datasets/{name}/wmts/1.0.0/WMTSCapabilities.xml`: one dataset.
 //!
-//! One layer per dataset and encoding (`{name}_terrarium`, `{name}_mapbox`), each
+//! One layer per dataset and encoding (`{name}_terrarium`, `{name}_mapbox`), and one
+//! per rendered layer with its default options (`{name}_hillshade`,
+//! `{name}_color-relief`, `{name}_slope`: routes/rendered.rs), each
 //! linked to both standard grids (`WebMercatorQuad`, `WorldCRS84Quad`) with the tile
 //! ranges that hold the dataset per zoom, and a `ResourceURL` template pointing at
 //! the 256-pixel PNG tiles, pinned to the content hash. WMTS clients need absolute
@@ -22,6 +24,7 @@ use crate::serve::AppState;
 use crate::serve::dataset::Dataset;
 use crate::web::encoding::Encoding;
 use crate::web::footprint::Footprint;
+use crate::web::render;
 use crate::web::tile_matrix::TileMatrixSet;
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, Uri, header};
@@ -146,7 +149,7 @@ fn document(w: &mut Xml, layers: &[Mapped<'_>], base: &str, me: &str) -> io::Res
                     text(
                         w,
                         "ows:Abstract",
-                        "Elevation as Terrarium or Terrain-RGB PNG tiles on the standard WebMercatorQuad and WorldCRS84Quad grids; each layer's abstract says how to decode heights.",
+                        "Elevation as Terrarium or Terrain-RGB PNG tiles, and hillshade, colour relief and slope rendered as gdaldem renders them, on the standard WebMercatorQuad and WorldCRS84Quad grids; each layer's abstract says what its pixels are.",
                     )?;
                     text(w, "ows:ServiceType", "OGC WMTS")?;
                     text(w, "ows:ServiceTypeVersion", "1.0.0")
@@ -162,7 +165,10 @@ fn document(w: &mut Xml, layers: &[Mapped<'_>], base: &str, me: &str) -> io::Res
                 }
                 for m in layers {
                     for enc in ENCODINGS {
-                        layer(w, m, enc, base)?;
+                        layer(w, m, Shows::Heights(enc), base)?;
+                    }
+                    for kind in render::Kind::ALL {
+                        layer(w, m, Shows::Rendered(kind), base)?;
                     }
                 }
                 for (i, tms) in TileMatrixSet::ALL.into_iter().enumerate() {
@@ -190,7 +196,46 @@ fn corners(w: &mut Xml, [x0, y0, x1, y1]: [f64; 4]) -> io::Result<()> {
     text(w, "ows:UpperCorner", &format!("{x1} {y1}"))
 }
 
-fn layer(w: &mut Xml, m: &Mapped<'_>, enc: Encoding, base: &str) -> io::Result<()> {
+/// What a layer's tiles show.
+#[derive(Clone, Copy, Debug)]
+enum Shows {
+    Heights(Encoding),
+    /// A rendered layer with its default options (routes/rendered.rs).
+    Rendered(render::Kind),
+}
+
+impl Shows {
+    /// The layer's identifier suffix, title suffix and abstract.
+    fn describe(self) -> (&'static str, &'static str, &'static str) {
+        match self {
+            Shows::Heights(enc) => (
+                enc.name(),
+                match enc {
+                    Encoding::Terrarium => "Terrarium",
+                    Encoding::Mapbox => "Terrain-RGB",
+                },
+                decoding(enc),
+            ),
+            Shows::Rendered(render::Kind::Hillshade) => (
+                "hillshade",
+                "hillshade",
+                "Shaded relief as gdaldem hillshade computes it (light from 315 degrees, 45 degrees up): grey levels 1-255; alpha 0 marks no data. Other lights: the tile URL's azimuth, altitude, z_factor and method.",
+            ),
+            Shows::Rendered(render::Kind::ColorRelief) => (
+                "color-relief",
+                "colour relief",
+                "Heights coloured by the hypsometric ramp, as gdaldem color-relief colours them; alpha 0 marks no data. Other ramps: the tile URL's ramp.",
+            ),
+            Shows::Rendered(render::Kind::Slope) => (
+                "slope",
+                "slope",
+                "Slope in degrees as gdaldem slope computes it, coloured by the slope ramp (yellow from 25, orange at 30, red at 35, purple at 45 degrees); alpha 0 marks no data.",
+            ),
+        }
+    }
+}
+
+fn layer(w: &mut Xml, m: &Mapped<'_>, shows: Shows, base: &str) -> io::Result<()> {
     let name = &m.ds.name;
     let [west, south, east, north] = m.fp.lon_lat;
     let wgs84 = [
@@ -199,16 +244,13 @@ fn layer(w: &mut Xml, m: &Mapped<'_>, enc: Encoding, base: &str) -> io::Result<(
         east.clamp(-180.0, 180.0),
         north.clamp(-90.0, 90.0),
     ];
-    let kind = match enc {
-        Encoding::Terrarium => "Terrarium",
-        Encoding::Mapbox => "Terrain-RGB",
-    };
+    let (suffix, kind, about) = shows.describe();
     w.create_element("Layer").write_inner_content(|w| {
         text(w, "ows:Title", &format!("{name} ({kind})"))?;
-        text(w, "ows:Abstract", decoding(enc))?;
+        text(w, "ows:Abstract", about)?;
         w.create_element("ows:WGS84BoundingBox")
             .write_inner_content(|w| corners(w, wgs84))?;
-        text(w, "ows:Identifier", &format!("{name}_{}", enc.name()))?;
+        text(w, "ows:Identifier", &format!("{name}_{suffix}"))?;
         // The box in each grid's own CRS: GDAL takes the layer's extent from the one
         // whose CRS matches the chosen grid's.
         for tms in TileMatrixSet::ALL {
@@ -250,12 +292,20 @@ fn layer(w: &mut Xml, m: &Mapped<'_>, enc: Encoding, base: &str) -> io::Result<(
         // {TileMatrixSet} is the standard identifier, which the tile route accepts as
         // the grid segment (web_grid.rs `grid`).
         // GDAL and QGIS read PNG pixels exactly: alpha marks no-data for them.
-        let template = format!(
-            "{base}/v1/datasets/{}/{{TileMatrixSet}}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?encoding={}&size={TILE_PX}&nodata=transparent&v={}",
-            m.ds.name,
-            enc.name(),
-            m.ds.content_hash()
-        );
+        let template = match shows {
+            Shows::Heights(enc) => format!(
+                "{base}/v1/datasets/{}/{{TileMatrixSet}}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?encoding={}&size={TILE_PX}&nodata=transparent&v={}",
+                m.ds.name,
+                enc.name(),
+                m.ds.content_hash()
+            ),
+            Shows::Rendered(kind) => format!(
+                "{base}/v1/datasets/{}/{{TileMatrixSet}}/{}/{{TileMatrix}}/{{TileCol}}/{{TileRow}}.png?size={TILE_PX}&v={}",
+                m.ds.name,
+                kind.name(),
+                m.ds.content_hash()
+            ),
+        };
         w.create_element("ResourceURL")
             .with_attributes([
                 ("format", "image/png"),
