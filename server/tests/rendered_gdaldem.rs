@@ -308,13 +308,8 @@ fn served(srv: &Server, ds: &str, tile: WebTile, p: &Product) -> (Vec<[u8; 3]>, 
     );
     let r = srv.get(&url).expect(200);
     assert_eq!(r.must("content-type"), "image/png");
-    let mut reader = png::Decoder::new(std::io::Cursor::new(&r.body))
-        .read_info()
-        .unwrap();
-    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut buf).unwrap();
-    assert_eq!((info.width, info.height), (PX, PX));
-    assert_eq!(info.color_type, png::ColorType::Rgba);
+    let (side, buf) = serve_support::png_rgba(&r.body);
+    assert_eq!(side, PX);
     buf.chunks_exact(4)
         .take((PX * PX) as usize)
         .map(|p| {

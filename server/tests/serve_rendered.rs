@@ -8,19 +8,7 @@
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use serve_support::{Server, dem_pyramid, serve_must_refuse};
-
-/// `(width, RGBA)` of a PNG.
-fn rgba(png_bytes: &[u8]) -> (u32, Vec<u8>) {
-    let mut reader = png::Decoder::new(std::io::Cursor::new(png_bytes))
-        .read_info()
-        .unwrap();
-    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut buf).unwrap();
-    assert_eq!(info.color_type, png::ColorType::Rgba);
-    buf.truncate(info.buffer_size());
-    (info.width, buf)
-}
+use serve_support::{Server, dem_pyramid, png_rgba as rgba, serve_must_refuse};
 
 fn terrarium(p: &[u8]) -> f64 {
     f64::from(p[0]) * 256.0 + f64::from(p[1]) + f64::from(p[2]) / 256.0 - 32768.0

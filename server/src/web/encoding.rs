@@ -186,6 +186,32 @@ impl ImageFormat {
     /// `side × side` RGBA pixels in this format. PNG uses the fast deflate level:
     /// height colours compress little whatever the level, and tiles are made per
     /// request.
+    /// A `side × side` image of grey and alpha pairs (hillshade): half the bytes
+    /// of RGBA before compression.
+    pub fn encode_grey_alpha(self, la: &[u8], side: u32) -> Result<Vec<u8>, ImageEncodeError> {
+        let mut out = Vec::new();
+        match self {
+            Self::Png => {
+                let mut enc = png::Encoder::new(&mut out, side, side);
+                enc.set_color(png::ColorType::GrayscaleAlpha);
+                enc.set_depth(png::BitDepth::Eight);
+                enc.set_compression(png::Compression::Fast);
+                let mut w = enc.write_header()?;
+                w.write_image_data(la)?;
+                w.finish()?;
+            }
+            Self::Webp => {
+                image_webp::WebPEncoder::new(&mut out).encode(
+                    la,
+                    side,
+                    side,
+                    image_webp::ColorType::La8,
+                )?;
+            }
+        }
+        Ok(out)
+    }
+
     pub fn encode(self, rgba: &[u8], side: u32) -> Result<Vec<u8>, ImageEncodeError> {
         let mut out = Vec::new();
         match self {

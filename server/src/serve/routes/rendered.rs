@@ -242,7 +242,16 @@ fn make(
         terrain: &sampled.terrain,
     };
     let rgba = render::paint(layer, grid, &spacing);
-    let encoded = encode(&rgba);
+    let encoded = if matches!(layer, Layer::Hillshade(_)) {
+        // Grey: two bytes a pixel instead of four.
+        let la: Vec<u8> = rgba.chunks_exact(4).flat_map(|p| [p[0], p[3]]).collect();
+        key.format
+            .encode_grey_alpha(&la, key.px)
+            .map(Bytes::from)
+            .map_err(web_grid::Failure::EncodeImage)
+    } else {
+        encode(&rgba)
+    };
     drop(memory);
     encoded
 }
