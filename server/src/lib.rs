@@ -12,7 +12,8 @@
 //! - Derived outputs the routes compute: [`web`] (standard web-map tiles),
 //!   [`cesium`] (quantized-mesh terrain) with [`geoid`] heights, and
 //!   [`elevation`] (heights of points and profiles with their error bounds), which
-//!   [`query`] (`tessera-server query`) answers on the command line.
+//!   [`query`] (`tessera-server query`) answers on the command line; [`export`]
+//!   (`tessera-server export`) writes the standard-grid tiles into PMTiles archives.
 //! - [`fuzzing`]: the parsers' fuzz entry points (`./run fuzz`, RELIABILITY.md).
 
 pub mod approx_transform;
@@ -20,6 +21,7 @@ pub mod builder;
 pub mod cesium;
 pub mod crs;
 pub mod elevation;
+pub mod export;
 pub mod fuzzing;
 pub mod geoid;
 pub mod http;

@@ -270,6 +270,19 @@ enum Command {
     ///
     ///   tessera-server query alps.tess --at 46.5,8.1 --at 46.6,8.2 --accuracy 5
     Query(tessera_server::query::QueryArgs),
+    /// Write a dataset's Web Mercator tiles into one PMTiles v3 archive, for web maps
+    /// without a server (API.md "PMTiles export").
+    ///
+    /// Height tiles (--encoding terrarium|mapbox) or a rendered layer (--layer
+    /// hillshade|color-relief|slope, with --option KEY=VALUE as the tile URLs take
+    /// them), PNG or lossless WebP, from --minzoom to --maxzoom; each tile is the
+    /// server's tile of the same z/x/y, byte for byte (with --precision auto, heights
+    /// rounded per zoom for smaller archives). Identical tiles are stored once; the
+    /// archive is clustered. Written whole or not at all, to a file or an object URL
+    /// (s3://…, a multipart upload). Example:
+    ///
+    ///   tessera-server export alps.tess --pmtiles alps.pmtiles --format webp --size 512
+    Export(tessera_server::export::ExportArgs),
     /// Print a pyramid's metadata and per-level statistics.
     Info {
         /// The .tess file to describe.
@@ -649,6 +662,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Query(args) => {
             tessera_server::query::run(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Export(args) => {
+            tessera_server::export::run(&args)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Info { file, json } => {

@@ -11,6 +11,8 @@
 //! With `-s 111120` on the degrees, as GDAL's manual suggests near the equator, the
 //! crs84 hillshade would be another picture: the test would fail.
 
+#![allow(clippy::unwrap_used)] // test helpers: a failed unwrap is a failed test
+
 mod gdal;
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;

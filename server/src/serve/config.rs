@@ -553,12 +553,10 @@ impl Settings {
     }
 }
 
-/// What Cesium terrain's water masks mark as water: the `--water` raster is read
-/// here, so a bad one stops the server with one line naming it.
 /// The ramps of `--ramp NAME=FILE` (over the config file's `[ramps]`), each read and
 /// checked now: a bad file stops the server before it listens, naming the file and
 /// the line.
-fn ramps(
+pub fn ramps(
     args: &[String],
     mut file: BTreeMap<String, PathBuf>,
 ) -> anyhow::Result<BTreeMap<String, RampSpec>> {
@@ -592,6 +590,8 @@ fn ramps(
         .collect()
 }
 
+/// What Cesium terrain's water masks mark as water: the `--water` raster is read
+/// here, so a bad one stops the server with one line naming it.
 fn water_rule(
     raster: Option<&std::path::Path>,
     sea_level: Option<f64>,

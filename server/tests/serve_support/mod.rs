@@ -618,7 +618,7 @@ pub fn png_rgba(bytes: &[u8]) -> (u32, Vec<u8>) {
             .flat_map(|p| [p[0], p[0], p[0], p[1]])
             .collect(),
         png::ColorType::Grayscale => buf.iter().flat_map(|&g| [g, g, g, 255]).collect(),
-        other => panic!("unexpected PNG colour type {other:?}"),
+        other @ png::ColorType::Indexed => panic!("unexpected PNG colour type {other:?}"),
     };
     (info.width, rgba)
 }

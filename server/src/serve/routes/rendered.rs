@@ -17,7 +17,7 @@ use crate::http::error::{ApiError, ApiResult, quoted};
 use crate::serve::AppState;
 use crate::serve::compute::{Kind as ComputeKind, Ticket};
 use crate::serve::dataset::Dataset;
-use crate::serve::web_cache::{Look, MadeKey, dataset_key};
+use crate::serve::web_cache::{Look, MadeKey, WebTiles, dataset_key};
 use crate::web::encoding::ImageFormat;
 use crate::web::footprint::Footprint;
 use crate::web::render::ground::{self, Radii};
@@ -31,7 +31,7 @@ use axum::extract::State;
 use axum::http::{HeaderMap, Uri};
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 
 /// Query parameters every rendered route takes besides a layer's options: the
@@ -76,13 +76,13 @@ fn number(query: &HashMap<String, String>, name: &str, default: f64) -> ApiResul
 }
 
 /// A ramp by name: one loaded with `--ramp`, else a built-in one.
-fn ramp_spec(state: &AppState, name: &str) -> ApiResult<RampSpec> {
-    if let Some(r) = state.web.config.ramps.get(name) {
+fn ramp_spec(ramps: &BTreeMap<String, RampSpec>, name: &str) -> ApiResult<RampSpec> {
+    if let Some(r) = ramps.get(name) {
         return Ok(r.clone());
     }
     ramp::built_in(name).ok_or_else(|| {
         let mut names: Vec<&str> = ramp::BUILT_IN.iter().map(|(n, _, _)| *n).collect();
-        names.extend(state.web.config.ramps.keys().map(String::as_str));
+        names.extend(ramps.keys().map(String::as_str));
         ApiError::bad_request(format!(
             "ramp: unknown ramp {}; the ramps are {} (more with `serve --ramp NAME=FILE`)",
             quoted(name),
@@ -93,7 +93,7 @@ fn ramp_spec(state: &AppState, name: &str) -> ApiResult<RampSpec> {
 
 /// The layer `kind` of `ds` with the query's options, or 400 naming the option.
 pub fn style(
-    state: &AppState,
+    ramps: &BTreeMap<String, RampSpec>,
     ds: &Dataset,
     kind: Kind,
     query: &HashMap<String, String>,
@@ -150,7 +150,7 @@ pub fn style(
         }
         Kind::ColorRelief => {
             let name = query.get("ramp").map_or("hypsometric", String::as_str);
-            let r = ramp_spec(state, name)?
+            let r = ramp_spec(ramps, name)?
                 .resolve(Some((m.min_height, m.max_height)))
                 .expect("a range resolves every ramp");
             let q = format!("ramp={name}");
@@ -175,7 +175,7 @@ pub fn style(
                 slope::Unit::Percent => "slope-percent",
             };
             let name = query.get("ramp").map_or(default, String::as_str);
-            let r = ramp_spec(state, name)?.resolve(None).ok_or_else(|| {
+            let r = ramp_spec(ramps, name)?.resolve(None).ok_or_else(|| {
                 ApiError::bad_request(format!(
                     "ramp: {} gives percentages, which mean nothing for slopes; give slopes in {}",
                     quoted(name),
@@ -207,8 +207,8 @@ fn radii(fp: &Footprint) -> Radii {
 
 /// The encoded tile: empty beyond the dataset's bounds (what its TileJSON states),
 /// transparent where it has no terrain.
-fn make(
-    state: &AppState,
+pub fn make(
+    web: &WebTiles,
     ds: &Dataset,
     fp: &Footprint,
     key: MadeKey,
@@ -232,7 +232,7 @@ fn make(
             .map_err(web_grid::Failure::Stopped)?;
         return encode(&vec![0; px * px * 4]);
     };
-    let (sources, memory) = web_grid::plan_sources(state, ds, &plan, working, ticket)?;
+    let (sources, memory) = web_grid::plan_sources(web, ds, &plan, working, ticket)?;
     let sampled = plan.sample_bordered(&sources, 1);
     drop(sources);
     let spacing = ground::row_spacing(key.tile, key.px, radii(fp), 0, px);
@@ -279,7 +279,7 @@ pub async fn tile(
     let tms = grid(&grid_name)?;
     let kind = kind(&layer)?;
     let px = size(&query)?;
-    let style = style(&state, &ds, kind, &query, &[])?;
+    let style = style(&state.web.config.ramps, &ds, kind, &query, &[])?;
     let tile = web_tile(tms, &z, &x, y)?;
     let pin = pinned(&ds, &query);
     let variant = format!(
@@ -313,7 +313,7 @@ pub async fn tile(
         state
             .compute
             .run_blocking(ComputeKind::Rendered, flight, move |ticket| {
-                let b = make(&st, &d, &fp, key, &layer, ticket)
+                let b = make(&st.web, &d, &fp, key, &layer, ticket)
                     .map_err(|f| web_grid::failure_error(&st, &d, &tile.to_string(), f))?;
                 st.web.keep(key, b.clone());
                 Ok(ticket.made(b, 1))
@@ -385,7 +385,7 @@ pub async fn tilejson(
     let kind = kind(&layer)?;
     let px = size(&query)?;
     let format = format(&query)?;
-    let style = style(&state, &ds, kind, &query, &["format"])?;
+    let style = style(&state.web.config.ramps, &ds, kind, &query, &["format"])?;
     let base = base_url::absolute(&state, &headers, &uri)?;
     let (url, from_host) = base.map_or((String::new(), false), |b| (b.url, b.from_host));
     let pin = pinned(&ds, &query);

@@ -206,20 +206,31 @@ const GRID_BYTES_PER_PIXEL: u64 = 24;
 /// (what its TileJSON states). A tile within them but without data (a corner of a
 /// rotated dataset, a wholly void one) is the fill, flat: web maps ask for every
 /// tile within the bounds, and a 404 there would be an error in their console.
-fn make(
-    state: &AppState,
+/// With `round`, heights are rounded to the nearest multiple of it first (PMTiles
+/// export's `--precision auto`).
+pub fn make(
+    web: &WebTiles,
     ds: &Dataset,
     fp: &Footprint,
     key: MadeKey,
+    round: Option<f64>,
     ticket: &Ticket,
 ) -> Result<Bytes, Failure> {
     let geometry = ds.pyramid.geometry();
     let px2 = u64::from(key.px).pow(2);
     let fill = ds.pyramid.metadata().min_height;
+    let fill = round.map_or(fill, |q| (fill / q).round() * q);
     let Look::Heights(encoding, nodata) = key.look else {
         unreachable!("height tiles are made with a height look")
     };
     let encode = |heights: &[f64], data: &[bool]| {
+        let rounded: Vec<f64>;
+        let heights = if let Some(q) = round {
+            rounded = heights.iter().map(|h| (h / q).round() * q).collect();
+            &rounded
+        } else {
+            heights
+        };
         let pixels = rgba(heights, data, encoding, nodata, fill);
         key.format
             .encode(&pixels, key.px)
@@ -239,7 +250,7 @@ fn make(
     let Some(plan) = resample::plan(fp, geometry, key.tile, key.px) else {
         return flat();
     };
-    let (sources, memory) = plan_sources(state, ds, &plan, px2 * GRID_BYTES_PER_PIXEL, ticket)?;
+    let (sources, memory) = plan_sources(web, ds, &plan, px2 * GRID_BYTES_PER_PIXEL, ticket)?;
     let sampled = plan.sample(&sources);
     if sampled.is_empty() {
         // The flat tile reserves its own, smaller share.
@@ -257,7 +268,7 @@ pub type Sources = Vec<Option<Arc<SourceTile>>>;
 /// The decoded source tiles a plan reads, in its order, with `working` bytes (the
 /// output's own) plus the sources' reserved for the caller to hold while it works.
 pub fn plan_sources(
-    state: &AppState,
+    web: &WebTiles,
     ds: &Dataset,
     plan: &resample::Plan,
     working: u64,
@@ -273,7 +284,7 @@ pub fn plan_sources(
         .into_iter()
         .map(|t| {
             ticket.check().map_err(stop)?;
-            source(&state.web, ds, t)
+            source(web, ds, t)
         })
         .collect::<Result<Vec<_>, _>>()?;
     ticket.check().map_err(stop)?;
@@ -333,7 +344,7 @@ pub async fn tile(
         state
             .compute
             .run_blocking(Kind::GridTile, flight, move |ticket| {
-                let b = make(&st, &d, &fp, key, ticket)
+                let b = make(&st.web, &d, &fp, key, None, ticket)
                     .map_err(|f| failure_error(&st, &d, &tile.to_string(), f))?;
                 st.web.keep(key, b.clone());
                 Ok(ticket.made(b, 1))
