@@ -419,3 +419,60 @@ fn elevations_from_s3_equal_the_local_files() {
         .json();
     assert_eq!(cli, http);
 }
+
+/// `export s3://… --pmtiles s3://…`: read from the store, uploaded to it, byte for
+/// byte the local export of the local file; a failed export leaves no object.
+#[test]
+fn export_reads_from_and_uploads_to_the_store() {
+    let Some(local_file) = dem_pyramid("N46E008.tif", 512) else {
+        return;
+    };
+    let Some(s3) = S3Server::start_or_skip() else {
+        return;
+    };
+    s3.create_bucket(BUCKET);
+    s3.put(BUCKET, "N46E008.tess", &std::fs::read(&local_file).unwrap());
+    let e = s3.env();
+    let dir = tempfile::tempdir().unwrap();
+    let local = dir.path().join("n46.pmtiles");
+    let run = |input: &str, out: &str, more: &[&str]| {
+        bin()
+            .args([
+                "export",
+                input,
+                "--pmtiles",
+                out,
+                "--quiet",
+                "--minzoom",
+                "8",
+            ])
+            .args(more)
+            .envs(e.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+            .output()
+            .unwrap()
+    };
+    let o = run(local_file.to_str().unwrap(), local.to_str().unwrap(), &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(
+        "s3://tessera/N46E008.tess",
+        "s3://tessera/web/n46.pmtiles",
+        &[],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        s3.get(BUCKET, "web/n46.pmtiles")
+            .expect("the archive was uploaded"),
+        std::fs::read(&local).unwrap(),
+        "the uploaded archive is the local export, byte for byte"
+    );
+    let o = run(
+        "s3://tessera/N46E008.tess",
+        "s3://tessera/web/bad.pmtiles",
+        &["--maxzoom", "30"],
+    );
+    assert!(!o.status.success());
+    assert!(
+        s3.get(BUCKET, "web/bad.pmtiles").is_none(),
+        "a failed export left an object"
+    );
+}

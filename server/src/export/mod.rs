@@ -182,7 +182,8 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
                     .ok_or_else(|| anyhow!("--option {o}: give KEY=VALUE, e.g. azimuth=200"))?;
                 query.insert(k.to_string(), v.to_string());
             }
-            let ramps = crate::serve::config::ramps(&args.ramp, std::collections::BTreeMap::default())?;
+            let ramps =
+                crate::serve::config::ramps(&args.ramp, std::collections::BTreeMap::default())?;
             let style = rendered::style(&ramps, &ds, kind, &query, &[])
                 .map_err(|e| anyhow!("--option: {}", e.message))?;
             Shows::Rendered(style)
@@ -216,7 +217,7 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
         .max(1);
     let started = Instant::now();
     let out = &args.pmtiles;
-    let exported = upload::with_output(out, !args.quiet, |local| {
+    let exported = upload::with_output_of_kind(out, "pmtiles", !args.quiet, |local| {
         let made = write(local, &ds, &fp, &shows, &tiles, format, args, maxzoom, jobs)?;
         Ok(made)
     })?;

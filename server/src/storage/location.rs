@@ -107,6 +107,12 @@ pub fn is_url(raw: &str) -> bool {
 /// A local path or an object URL, with the store for it built from the environment.
 /// An object must be a pyramid (its key ends in `.tess`).
 pub fn locate(raw: &str, opts: StoreOptions) -> anyhow::Result<Location> {
+    locate_kind(raw, opts, "tess")
+}
+
+/// [`locate`] for a file of another kind: an object's key must end in `.{extension}`
+/// (`pmtiles` for `export`'s archives).
+pub fn locate_kind(raw: &str, opts: StoreOptions, extension: &str) -> anyhow::Result<Location> {
     if !is_url(raw) {
         return Ok(Location::Local(PathBuf::from(raw)));
     }
@@ -114,8 +120,8 @@ pub fn locate(raw: &str, opts: StoreOptions) -> anyhow::Result<Location> {
     anyhow::ensure!(
         std::path::Path::new(object.key.as_ref())
             .extension()
-            .is_some_and(|e| e == "tess"),
-        "{raw}: the object's key must end in .tess (got {:?})",
+            .is_some_and(|e| e == extension),
+        "{raw}: the object's key must end in .{extension} (got {:?})",
         object.key.as_ref()
     );
     Ok(Location::Object(object))

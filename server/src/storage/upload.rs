@@ -103,9 +103,19 @@ pub fn with_output<R>(
     progress: bool,
     build: impl FnOnce(&Path) -> anyhow::Result<R>,
 ) -> anyhow::Result<R> {
+    with_output_of_kind(output, "tess", progress, build)
+}
+
+/// [`with_output`] for a file whose objects' keys end in `.{extension}`.
+pub fn with_output_of_kind<R>(
+    output: &Path,
+    extension: &str,
+    progress: bool,
+    build: impl FnOnce(&Path) -> anyhow::Result<R>,
+) -> anyhow::Result<R> {
     let raw = output.to_string_lossy();
     let location::Location::Object(object) =
-        location::locate(&raw, location::StoreOptions::default())?
+        location::locate_kind(&raw, location::StoreOptions::default(), extension)?
     else {
         return build(output);
     };
@@ -113,9 +123,7 @@ pub fn with_output<R>(
         .prefix("tessera-upload-")
         .tempdir()
         .map_err(|e| anyhow::anyhow!("cannot make a temporary directory for {raw}: {e}"))?;
-    let local = dir
-        .path()
-        .join(object.key.filename().unwrap_or("pyramid.tess"));
+    let local = dir.path().join(object.key.filename().unwrap_or("output"));
     let result = build(&local)?;
     let size = std::fs::metadata(&local).map_or(0, |m| m.len());
     let bar = if progress {
