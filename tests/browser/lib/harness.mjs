@@ -18,6 +18,8 @@ const CHROMIUM = process.env.CHROMIUM ?? '/usr/bin/chromium';
 
 // Builds DATA/NAME.tif into DIR/NAME.tess for each name, with `args` added to each
 // `tessera-server build` (e.g. ['--vertical-datum', 'egm96']); returns DIR (a fresh temp dir).
+export const SERVER = SERVER_BIN;
+
 export function buildPyramids(names, { args = [] } = {}) {
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'tessera-browser-'));
   for (const name of names) {
@@ -58,11 +60,13 @@ const TYPES = { '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/ja
   '.css': 'text/css', '.map': 'application/json', '.json': 'application/json', '.wasm': 'application/wasm',
   '.png': 'image/png', '.jpg': 'image/jpeg', '.svg': 'image/svg+xml', '.ktx2': 'image/ktx2', '.glb': 'model/gltf-binary' };
 
-// Serves page/ at /, maplibre-gl's dist/ at /maplibre/ and CesiumJS's built package
+// Serves page/ at /, maplibre-gl's dist/ at /maplibre/, the pmtiles package's dist/ at /pmtiles/,
+// and CesiumJS's built package
 // (cesium's Build/Cesium: Cesium.js, Workers/, Assets/, Widgets/, ThirdParty/) at /cesium/ on
 // 127.0.0.1, another port; straight from node_modules, nothing copied.
 export async function startStaticServer() {
   const roots = { '/maplibre/': path.join(HERE, 'node_modules/maplibre-gl/dist'),
+    '/pmtiles/': path.join(HERE, 'node_modules/pmtiles/dist'),
     '/cesium/': path.join(HERE, 'node_modules/cesium/Build/Cesium'), '/': path.join(HERE, 'page') };
   const server = http.createServer((req, res) => {
     const p = decodeURIComponent(new URL(req.url, 'http://x').pathname);
