@@ -2,7 +2,7 @@
 # Every benchmark (DECISIONS.md "Benchmarks") in one run (`./run bench` calls this), then
 # `tessera-bench report`, which rewrites BENCHMARKS.md and bench/plots/*.png from the
 # results. Expects the release binaries built and the tools installed (./run does both).
-#   bench/all.sh [SECTION...]   (default: build select serve load stream policy gonzalez ingest webtiles terrain elevation upload popping)
+#   bench/all.sh [SECTION...]   (default: build select serve load stream policy gonzalez ingest webtiles rendered terrain elevation upload popping)
 # RESULTS (default target/bench/results) is emptied first, unless KEEP_RESULTS=1 (to
 # rerun one section and regenerate the report from old results of the others).
 set -euo pipefail
@@ -10,7 +10,7 @@ cd "$(dirname "$0")/.."
 export RESULTS=${RESULTS:-$PWD/target/bench/results}
 export RUNS=${RUNS:-3} QUICK=${QUICK:-0}
 sections=("$@")
-[ ${#sections[@]} -gt 0 ] || sections=(build select serve load stream policy gonzalez ingest webtiles terrain elevation upload popping)
+[ ${#sections[@]} -gt 0 ] || sections=(build select serve load stream policy gonzalez ingest webtiles rendered terrain elevation upload popping)
 [ "${KEEP_RESULTS:-0}" = 1 ] || rm -rf "$RESULTS"
 mkdir -p "$RESULTS"
 keep=$(mktemp -d "${TMPDIR:-/tmp}/tessera-bench-keep.XXXXXX")
@@ -34,10 +34,11 @@ for s in "${sections[@]}"; do
     load) rm -f "$RESULTS"/loadreplay{.jsonl,_record.json,_trace.jsonl}; bench/load.sh ;;
     # terrain writes terrain_mesh.jsonl and terrain_serve.jsonl, each replaced only by
     # the part that runs (TERRAIN_MESH=0 or TERRAIN_SERVE=0 keeps the other's).
-    # elevation's figures are a hand section of BENCHMARKS.md ("Elevation queries"):
+    # elevation's and rendered's figures are hand sections of BENCHMARKS.md ("Elevation queries",
+    # "Rendered terrain tiles and PMTiles export"):
     # the script prints its tables.
-    stream | policy | gonzalez | ingest | webtiles | terrain | elevation | upload | popping) "bench/$s.sh" ;;
-    *) echo "unknown section '$s' (build select serve load stream policy gonzalez ingest webtiles terrain elevation upload popping)" >&2; exit 2 ;;
+    stream | policy | gonzalez | ingest | webtiles | rendered | terrain | elevation | upload | popping) "bench/$s.sh" ;;
+    *) echo "unknown section '$s' (build select serve load stream policy gonzalez ingest webtiles rendered terrain elevation upload popping)" >&2; exit 2 ;;
   esac
 done
 rm -rf "$RESULTS/reference-cache"

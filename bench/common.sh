@@ -31,7 +31,8 @@ if command -v dpkg-query >/dev/null &&
   echo "warning: mesa-vulkan-drivers is not installed, so the renderer will draw through GL;" \
     "run ./run bench (as root it installs it) or: sudo apt-get install -y mesa-vulkan-drivers" >&2
 fi
-[ -x "$SERVER_BIN" ] && [ -x "$CLIENT_BIN" ] || {
+# SERVER_ONLY=1: a section that measures the server alone (rendered.sh) needs no client build.
+[ -x "$SERVER_BIN" ] && { [ "${SERVER_ONLY:-0}" = 1 ] || [ -x "$CLIENT_BIN" ]; } || {
   echo "build first: cargo build --release --locked -p tessera-server -p tessera-client" >&2
   exit 1
 }
