@@ -10,7 +10,6 @@ use crate::elevation::{self, kernel::Interpolation, output};
 use crate::serve::registry::Registry;
 use crate::serve::routes::elevation::CachedTiles;
 use crate::serve::web_cache::{WebConfig, WebTiles};
-use crate::storage::{StoreContext, StoreOptions};
 use crate::web::footprint::Footprint;
 use anyhow::{Context, anyhow, bail};
 use std::path::{Path, PathBuf};
@@ -235,17 +234,7 @@ pub fn run(args: &QueryArgs) -> anyhow::Result<()> {
             _ => Format::Csv,
         }
     });
-    let store = Arc::new(StoreContext::new(
-        64 << 20,
-        StoreOptions::default(),
-        &prometheus::Registry::new(),
-    ));
-    let registry = Registry::load(std::slice::from_ref(&args.file), &store)?;
-    let ds = registry
-        .datasets
-        .values()
-        .next()
-        .ok_or_else(|| anyhow!("{}: no pyramid", args.file.display()))?;
+    let ds = &Registry::open_one(&args.file)?;
     let metadata = ds.pyramid.metadata();
     let footprint = Footprint::new(metadata)
         .map_err(|e| anyhow!("{}: no elevations: {e}", args.file.display()))?;

@@ -22,7 +22,7 @@ use crate::serve::routes::rendered::{self, Style};
 use crate::serve::routes::web_grid;
 use crate::serve::routes::wmts::tile_limits;
 use crate::serve::web_cache::{Look, MadeKey, WebConfig, WebTiles, dataset_key};
-use crate::storage::{StoreContext, StoreOptions, upload};
+use crate::storage::upload;
 use crate::web::encoding::{Encoding, ImageFormat, NoData};
 use crate::web::footprint::Footprint;
 use crate::web::render::Kind;
@@ -132,18 +132,7 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
     if !web_grid::SIZES.contains(&args.size) {
         bail!("--size {}: sizes are 256 and 512", args.size);
     }
-    let store = Arc::new(StoreContext::new(
-        64 << 20,
-        StoreOptions::default(),
-        &prometheus::Registry::new(),
-    ));
-    let registry = Registry::load(std::slice::from_ref(&args.file), &store)?;
-    let ds = registry
-        .datasets
-        .values()
-        .next()
-        .ok_or_else(|| anyhow!("{}: no pyramid", args.file.display()))?
-        .clone();
+    let ds = Registry::open_one(&args.file)?;
     let fp = Arc::new(
         Footprint::new(ds.pyramid.metadata())
             .map_err(|e| anyhow!("{}: no place on a map: {e}", args.file.display()))?,

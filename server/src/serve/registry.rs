@@ -19,6 +19,23 @@ impl Registry {
     /// Loads every `.tess` file named, every `.tess` file directly inside each
     /// directory named, and every object URL named (`s3://…`, [`storage::locate`]),
     /// the objects read through `store` (its block cache and metrics).
+    /// The one dataset of `path` (a `.tess` file or an object URL) for a command-line
+    /// tool (`query`, `export`), read through a store of its own (a 64 MiB block cache,
+    /// the environment's credentials, metrics nobody scrapes).
+    pub fn open_one(path: &std::path::Path) -> anyhow::Result<Arc<Dataset>> {
+        let store = Arc::new(StoreContext::new(
+            64 << 20,
+            storage::StoreOptions::default(),
+            &prometheus::Registry::new(),
+        ));
+        let registry = Self::load(&[path.to_path_buf()], &store)?;
+        registry
+            .datasets
+            .into_values()
+            .next()
+            .ok_or_else(|| anyhow::anyhow!("{}: no pyramid", path.display()))
+    }
+
     pub fn load(paths: &[PathBuf], store: &Arc<StoreContext>) -> anyhow::Result<Self> {
         let mut found: Vec<(String, PathBuf, Location)> = Vec::new();
         for p in paths {

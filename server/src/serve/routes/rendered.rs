@@ -11,7 +11,7 @@
 //! silently draw the default).
 
 use super::web_grid::{self, footprint, grid, grid_tilejson, size, web_tile};
-use super::{Params, Segments, base_url, dataset, pinned};
+use super::{Params, Segments, dataset, pinned};
 use crate::http::cache;
 use crate::http::error::{ApiError, ApiResult, quoted};
 use crate::serve::AppState;
@@ -26,10 +26,9 @@ use crate::web::render::ramp::{self, RampSpec};
 use crate::web::render::{self, Bordered, Kind, Layer, slope};
 use crate::web::resample;
 use crate::web::tile_matrix::TileMatrixSet;
-use axum::Json;
 use axum::extract::State;
 use axum::http::{HeaderMap, Uri};
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use bytes::Bytes;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
@@ -386,45 +385,19 @@ pub async fn tilejson(
     let px = size(&query)?;
     let format = format(&query)?;
     let style = style(&state.web.config.ramps, &ds, kind, &query, &["format"])?;
-    let base = base_url::absolute(&state, &headers, &uri)?;
-    let (url, from_host) = base.map_or((String::new(), false), |b| (b.url, b.from_host));
-    let pin = pinned(&ds, &query);
-    let etag = cache::etag(
-        ds.content_hash(),
-        &format!(
-            "rendered tilejson {} {url} {} {px} {} {:?}",
-            tms.path(),
-            style.canonical,
-            format.extension(),
-            state.web.config.attribution
-        ),
+    let variant = format!(
+        "rendered tilejson {} {} {px} {}",
+        tms.path(),
+        style.canonical,
+        format.extension()
     );
-    let revalidated =
-        cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age);
-    let mut r = if let Some(r) = revalidated {
-        r
-    } else {
-        let fp = footprint(&state, &ds)?;
-        let doc = tilejson_doc(
-            &ds,
-            &fp,
-            tms,
-            &url,
-            &style,
-            px,
-            format,
-            state.web.config.attribution.as_deref(),
-        );
-        let mut r = Json(doc).into_response();
-        cache::set_headers(
-            r.headers_mut(),
-            &etag,
-            ds.last_modified,
-            pin,
-            state.cache_max_age,
-        );
-        r
-    };
-    base_url::private(r.headers_mut(), from_host, state.cache_max_age);
-    Ok(r)
+    web_grid::tilejson_response(
+        &state,
+        &ds,
+        &headers,
+        &uri,
+        &query,
+        &variant,
+        |fp, url, attribution| tilejson_doc(&ds, fp, tms, url, &style, px, format, attribution),
+    )
 }

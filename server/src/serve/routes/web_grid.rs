@@ -502,34 +502,45 @@ pub async fn tilejson(
     let tms = grid(&grid_name)?;
     let enc = encoding(&query)?;
     let px = size(&query)?;
-    let base = base_url::absolute(&state, &headers, &uri)?;
+    let variant = format!("grid tilejson {} {} {px}", tms.path(), enc.name());
+    tilejson_response(
+        &state,
+        &ds,
+        &headers,
+        &uri,
+        &query,
+        &variant,
+        |fp, url, attribution| tilejson_doc(&ds, fp, tms, url, enc, px, attribution),
+    )
+}
+
+/// A standard-grid TileJSON response: the document `doc` makes from the footprint, the
+/// absolute base URL and the attribution, under an ETag over the content hash,
+/// `variant`, the base URL and the attribution (304 when the client has it), private
+/// when its URLs came from the request's `Host` (routes/base_url.rs).
+pub fn tilejson_response(
+    state: &AppState,
+    ds: &Dataset,
+    headers: &HeaderMap,
+    uri: &Uri,
+    query: &HashMap<String, String>,
+    variant: &str,
+    doc: impl FnOnce(&Footprint, &str, Option<&str>) -> serde_json::Value,
+) -> ApiResult<Response> {
+    let base = base_url::absolute(state, headers, uri)?;
     let (url, from_host) = base.map_or((String::new(), false), |b| (b.url, b.from_host));
-    let pin = super::pinned(&ds, &query);
+    let pin = super::pinned(ds, query);
+    let attribution = state.web.config.attribution.as_deref();
     let etag = cache::etag(
         ds.content_hash(),
-        &format!(
-            "grid tilejson {} {url} {} {px} {:?}",
-            tms.path(),
-            enc.name(),
-            state.web.config.attribution
-        ),
+        &format!("{variant} {url} {attribution:?}"),
     );
-    let revalidated =
-        cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age);
+    let revalidated = cache::revalidate(headers, &etag, ds.last_modified, pin, state.cache_max_age);
     let mut r = if let Some(r) = revalidated {
         r
     } else {
-        let fp = footprint(&state, &ds)?;
-        let doc = tilejson_doc(
-            &ds,
-            &fp,
-            tms,
-            &url,
-            enc,
-            px,
-            state.web.config.attribution.as_deref(),
-        );
-        let mut r = Json(doc).into_response();
+        let fp = footprint(state, ds)?;
+        let mut r = Json(doc(&fp, &url, attribution)).into_response();
         cache::set_headers(
             r.headers_mut(),
             &etag,
