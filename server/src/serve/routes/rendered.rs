@@ -10,14 +10,13 @@
 //! an unknown option, or one of another layer, is a 400 naming it (a typo must not
 //! silently draw the default).
 
-use super::web_grid::{self, footprint, grid, grid_tilejson, size, web_tile};
+use super::web_grid::{self, Asked, grid, grid_tilejson, size, web_tile};
 use super::{Params, Segments, dataset, pinned};
-use crate::http::cache;
 use crate::http::error::{ApiError, ApiResult, quoted};
 use crate::serve::AppState;
 use crate::serve::compute::{Kind as ComputeKind, Ticket};
 use crate::serve::dataset::Dataset;
-use crate::serve::web_cache::{Look, MadeKey, WebTiles, dataset_key};
+use crate::serve::web_cache::{Look, MadeKey, WebTiles};
 use crate::web::encoding::ImageFormat;
 use crate::web::footprint::Footprint;
 use crate::web::render::ground::{self, Radii};
@@ -290,38 +289,24 @@ pub async fn tile(
         tile.x,
         tile.y
     );
-    let etag = cache::etag(ds.content_hash(), &variant);
-    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
-    {
-        return Ok(r);
-    }
-    let fp = footprint(&state, &ds)?;
-    let key = MadeKey {
-        dataset: dataset_key(ds.content_hash()),
+    let asked = Asked {
         tile,
         px,
         look: Look::Rendered(xxhash_rust::xxh3::xxh3_128(style.canonical.as_bytes())),
         format,
+        variant,
+        pin,
     };
-    let made = if let Some(b) = state.web.made(&key) {
-        state.compute.hit(ComputeKind::Rendered, b, 1)?
-    } else {
-        let (st, d) = (state.clone(), ds.clone());
-        let flight = format!("{} {variant}", ds.content_hash());
-        let layer = style.layer;
-        state
-            .compute
-            .run_blocking(ComputeKind::Rendered, flight, move |ticket| {
-                let b = make(&st.web, &d, &fp, key, &layer, ticket)
-                    .map_err(|f| web_grid::failure_error(&st, &d, &tile.to_string(), f))?;
-                st.web.keep(key, b.clone());
-                Ok(ticket.made(b, 1))
-            })
-            .await?
-    };
-    Ok(web_grid::image_response(
-        &state, &ds, tile, &made, format, &etag, pin,
-    ))
+    let layer = style.layer;
+    web_grid::image_tile(
+        state,
+        ds,
+        &headers,
+        asked,
+        ComputeKind::Rendered,
+        move |web, ds, fp, key, ticket| make(web, ds, fp, key, &layer, ticket),
+    )
+    .await
 }
 
 /// `?format=` of a TileJSON request: the tiles' image format (PNG when absent).

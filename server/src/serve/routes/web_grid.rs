@@ -321,9 +321,65 @@ pub async fn tile(
         tile.x,
         tile.y
     );
+    let asked = Asked {
+        tile,
+        px,
+        look: Look::Heights(enc, nodata),
+        format,
+        variant,
+        pin,
+    };
+    image_tile(
+        state,
+        ds,
+        &headers,
+        asked,
+        Kind::GridTile,
+        |web, ds, fp, key, ticket| make(web, ds, fp, key, None, ticket),
+    )
+    .await
+}
+
+/// An image tile as asked for: what keys its cache entry, its ETag and its flight.
+#[derive(Debug)]
+pub struct Asked {
+    pub tile: WebTile,
+    pub px: u32,
+    pub look: Look,
+    pub format: ImageFormat,
+    /// What the tile depends on besides the dataset (the ETag's and the flight's key).
+    pub variant: String,
+    /// Whether the URL pins the content (`?v=`).
+    pub pin: bool,
+}
+
+/// The answer to an image tile request: 304 when the client has it, else the tile
+/// from the made-tile cache, else made by `make` — once per distinct tile at a time,
+/// admitted as `kind` and cancellable, on a blocking thread (resampling and
+/// compressing take milliseconds) — and kept.
+pub async fn image_tile<F>(
+    state: Arc<AppState>,
+    ds: Arc<Dataset>,
+    headers: &HeaderMap,
+    asked: Asked,
+    kind: Kind,
+    make: F,
+) -> ApiResult<Response>
+where
+    F: FnOnce(&WebTiles, &Dataset, &Footprint, MadeKey, &Ticket) -> Result<Bytes, Failure>
+        + Send
+        + 'static,
+{
+    let Asked {
+        tile,
+        px,
+        look,
+        format,
+        variant,
+        pin,
+    } = asked;
     let etag = cache::etag(ds.content_hash(), &variant);
-    if let Some(r) = cache::revalidate(&headers, &etag, ds.last_modified, pin, state.cache_max_age)
-    {
+    if let Some(r) = cache::revalidate(headers, &etag, ds.last_modified, pin, state.cache_max_age) {
         return Ok(r);
     }
     let fp = footprint(&state, &ds)?;
@@ -331,20 +387,18 @@ pub async fn tile(
         dataset: dataset_key(ds.content_hash()),
         tile,
         px,
-        look: Look::Heights(enc, nodata),
+        look,
         format,
     };
     let made = if let Some(b) = state.web.made(&key) {
-        state.compute.hit(Kind::GridTile, b, 1)?
+        state.compute.hit(kind, b, 1)?
     } else {
         let (st, d) = (state.clone(), ds.clone());
         let flight = format!("{} {variant}", ds.content_hash());
-        // One tile per distinct key at a time, admitted and cancellable; resampling
-        // and compressing take milliseconds: keep them off the runtime.
         state
             .compute
-            .run_blocking(Kind::GridTile, flight, move |ticket| {
-                let b = make(&st.web, &d, &fp, key, None, ticket)
+            .run_blocking(kind, flight, move |ticket| {
+                let b = make(&st.web, &d, &fp, key, ticket)
                     .map_err(|f| failure_error(&st, &d, &tile.to_string(), f))?;
                 st.web.keep(key, b.clone());
                 Ok(ticket.made(b, 1))
