@@ -156,68 +156,43 @@ mod tests {
         (h, t)
     }
 
-    #[test]
-    fn every_pixel_reads_its_border_and_voids_leave_a_ring() {
-        let (h, t) = plane(None);
-        let layer = Layer::Slope(
-            slope::Unit::Degrees,
-            Arc::new(
-                ramp::RampSpec::parse("0 0 0 0\n90 180 0 0\n")
-                    .unwrap()
-                    .resolve(None)
-                    .unwrap(),
-            ),
-        );
+    /// A ramp from its text, resolved without a range.
+    fn ramp(text: &str) -> Arc<Ramp> {
+        Arc::new(ramp::RampSpec::parse(text).unwrap().resolve(None).unwrap())
+    }
+
+    /// `layer` painted on [`plane`] with 1 m pixels.
+    fn painted(layer: &Layer, void: Option<usize>) -> Vec<u8> {
+        let (h, t) = plane(void);
         let grid = Bordered {
             px: 4,
             heights: &h,
             terrain: &t,
         };
-        let out = paint(&layer, grid, &[[1.0, 1.0]; 4]);
+        paint(layer, grid, &[[1.0, 1.0]; 4])
+    }
+
+    /// The tile pixels left transparent.
+    fn blank(out: &[u8]) -> Vec<usize> {
+        (0..16).filter(|&k| out[k * 4 + 3] == 0).collect()
+    }
+
+    #[test]
+    fn every_pixel_reads_its_border_and_voids_leave_a_ring() {
+        let layer = Layer::Slope(slope::Unit::Degrees, ramp("0 0 0 0\n90 180 0 0\n"));
+        let out = painted(&layer, None);
         // 45° everywhere, edges included: 0.45 + 90 = 90.
         assert!(out.chunks(4).all(|p| p == [90, 0, 0, 255]), "{out:?}");
         // A void in the border's corner (bordered (0, 0)) blanks tile pixel (0, 0)
         // only; a void at the tile's pixel (2, 2) (bordered (3, 3)) blanks its 3 × 3.
-        let (h, t) = plane(Some(0));
-        let out = paint(
-            &layer,
-            Bordered {
-                px: 4,
-                heights: &h,
-                terrain: &t,
-            },
-            &[[1.0, 1.0]; 4],
+        assert_eq!(blank(&painted(&layer, Some(0))), vec![0]);
+        assert_eq!(
+            blank(&painted(&layer, Some(3 * 6 + 3))),
+            vec![5, 6, 7, 9, 10, 11, 13, 14, 15]
         );
-        let blank: Vec<usize> = (0..16).filter(|&k| out[k * 4 + 3] == 0).collect();
-        assert_eq!(blank, vec![0]);
-        let (h, t) = plane(Some(3 * 6 + 3));
-        let out = paint(
-            &layer,
-            Bordered {
-                px: 4,
-                heights: &h,
-                terrain: &t,
-            },
-            &[[1.0, 1.0]; 4],
-        );
-        let blank: Vec<usize> = (0..16).filter(|&k| out[k * 4 + 3] == 0).collect();
-        assert_eq!(blank, vec![5, 6, 7, 9, 10, 11, 13, 14, 15]);
         // Colour relief needs only the pixel itself.
-        let relief = Layer::ColorRelief(Arc::new(
-            ramp::RampSpec::parse("0 0 0 0\n10 250 0 0\nnv 0 0 255 255\n")
-                .unwrap()
-                .resolve(None)
-                .unwrap(),
-        ));
-        let out = paint(
-            &relief,
-            Bordered {
-                px: 4,
-                heights: &h,
-                terrain: &t,
-            },
-            &[[1.0, 1.0]; 4],
-        );
+        let relief = Layer::ColorRelief(ramp("0 0 0 0\n10 250 0 0\nnv 0 0 255 255\n"));
+        let out = painted(&relief, Some(3 * 6 + 3));
         assert_eq!(
             &out[10 * 4..11 * 4],
             &[0, 0, 255, 255],
@@ -238,15 +213,7 @@ mod tests {
             heights: &h,
             terrain: &t,
         };
-        let layer = Layer::Slope(
-            slope::Unit::Percent,
-            Arc::new(
-                ramp::RampSpec::parse("0 0 0 0\n255 255 0 0\n")
-                    .unwrap()
-                    .resolve(None)
-                    .unwrap(),
-            ),
-        );
+        let layer = Layer::Slope(slope::Unit::Percent, ramp("0 0 0 0\n255 255 0 0\n"));
         // 1 m per 2 m pixel in rows 0–1, per 0.5 m pixel in rows 2–3: 50 % and 200 %.
         let out = paint(
             &layer,

@@ -207,13 +207,6 @@ impl RampSpec {
         Ok(Self { entries, nodata })
     }
 
-    /// Whether an entry is a percentage.
-    pub fn relative(&self) -> bool {
-        self.entries
-            .iter()
-            .any(|(v, _)| matches!(v, Value::Fraction(_)))
-    }
-
     /// The ramp with percentages taken of `range` (lowest, highest); `None` when it
     /// has percentages and no range is given.
     pub fn resolve(&self, range: Option<(f64, f64)>) -> Option<Ramp> {
@@ -406,7 +399,6 @@ mod tests {
     #[test]
     fn percentages_need_a_range() {
         let spec = RampSpec::parse("0% black\n100% white\n").unwrap();
-        assert!(spec.relative());
         assert!(spec.resolve(None).is_none());
         assert_eq!(
             spec.resolve(Some((-10.0, 10.0))).unwrap().values,
