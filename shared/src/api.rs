@@ -51,6 +51,11 @@ pub mod routes {
     pub const RENDERED_TILE: &str = "/v1/datasets/{name}/{grid}/{layer}/{z}/{x}/{y}";
     /// TileJSON of a rendered layer on a standard grid.
     pub const RENDERED_TILEJSON: &str = "/v1/datasets/{name}/{grid}/{layer}/tilejson.json";
+    /// Contour lines as Mapbox Vector Tiles on a standard grid; the last segment is
+    /// `{y}.mvt` (API.md "Contour tiles").
+    pub const CONTOUR_TILE: &str = "/v1/datasets/{name}/{grid}/contours/{z}/{x}/{y}";
+    /// TileJSON of the contour tiles, with their `vector_layers`.
+    pub const CONTOUR_TILEJSON: &str = "/v1/datasets/{name}/{grid}/contours/tilejson.json";
     /// Heights of points and profiles with their error bounds: `GET` with
     /// `locations=` or `path=`, `POST` with a JSON body (API.md "Elevation queries").
     pub const ELEVATION: &str = "/v1/datasets/{name}/elevation";

@@ -1,9 +1,10 @@
 //! `tessera-server export`: a dataset's standard-grid tiles — heights (Terrarium,
-//! Terrain-RGB) or a rendered layer (hillshade, colour relief, slope) — written into
+//! Terrain-RGB), a rendered layer (hillshade, colour relief, slope) or contour lines
+//! (vector tiles) — written into
 //! one PMTiles v3 archive for serverless web maps (DECISIONS.md "PMTiles export").
 //!
 //! Each tile is made by the very code that serves it (`routes::web_grid::make`,
-//! `routes::rendered::make`), so an archive's tile is byte for byte the server's tile
+//! `routes::rendered::make`, `routes::contours::make`), so an archive's tile is byte for byte the server's tile
 //! of the same z/x/y (or, with `--precision auto`, its heights rounded: [`precision`]).
 //! Tiles are made in parallel under the server's compute admission (slots and a
 //! memory budget), read through a bounded cache of decoded pyramid tiles, and written
@@ -17,15 +18,17 @@ pub mod precision;
 
 use crate::serve::compute::{Compute, ComputeLimits, Kind as ComputeKind};
 use crate::serve::registry::Registry;
+use crate::serve::routes::contours;
 use crate::serve::routes::elevation::CachedTiles;
 use crate::serve::routes::rendered::{self, Style};
 use crate::serve::routes::web_grid;
 use crate::serve::routes::wmts::tile_limits;
 use crate::serve::web_cache::{Look, MadeKey, WebConfig, WebTiles, dataset_key};
 use crate::storage::upload;
-use crate::web::encoding::{Encoding, ImageFormat, NoData};
+use crate::web::contour::vector_tile::Levels;
+use crate::web::encoding::{Encoding, ImageFormat, NoData, TileFormat};
 use crate::web::footprint::Footprint;
-use crate::web::render::Kind;
+use crate::web::render::{Kind, Layer};
 use crate::web::tile_matrix::{TileMatrixSet, WebTile};
 use anyhow::{Context, anyhow, bail};
 use futures_util::StreamExt;
@@ -66,10 +69,10 @@ pub struct ExportArgs {
     /// Height tiles in this encoding: terrarium, or mapbox (Terrain-RGB) [default: terrarium].
     #[arg(long, conflicts_with = "layer", value_name = "ENCODING")]
     pub encoding: Option<String>,
-    /// A rendered layer instead of heights: hillshade, color-relief or slope.
+    /// A rendered layer instead of heights: hillshade, color-relief or slope; or contours (vector tiles of contour lines, 512 px, whatever --format and --size say).
     #[arg(long, value_name = "LAYER")]
     pub layer: Option<String>,
-    /// A layer option as the tile URLs take it (azimuth=200, method=multidirectional, ramp=relative, unit=percent, …); repeatable.
+    /// A layer option as the tile URLs take it (azimuth=200, method=multidirectional, ramp=relative, unit=percent, interval=20, index=5, …); repeatable.
     #[arg(long = "option", value_name = "KEY=VALUE", requires = "layer")]
     pub options: Vec<String>,
     /// A colour ramp in gdaldem's color-relief format, for `--option ramp=NAME` (repeatable), as `serve --ramp`.
@@ -112,11 +115,21 @@ pub struct Exported {
     pub seconds: f64,
 }
 
+/// How one tile is made.
+enum Maker {
+    /// Heights, rounded to a step (`--precision auto`).
+    Heights(Option<f64>),
+    Rendered(Layer),
+    /// Contours at the tile's zoom's levels (known valid before any tile is made).
+    Contours(crate::http::error::ApiResult<Levels>),
+}
+
 /// What each tile shows.
 #[derive(Debug)]
 enum Shows {
     Heights(Encoding),
     Rendered(Style),
+    Contours(contours::Style),
 }
 
 /// Runs `export`; a one-line summary on stderr.
@@ -137,13 +150,18 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
         Footprint::new(ds.pyramid.metadata())
             .map_err(|e| anyhow!("{}: no place on a map: {e}", args.file.display()))?,
     );
-    let deepest = fp.max_zoom(tms, args.size);
+    let contour_lines = args.layer.as_deref() == Some("contours");
+    let px = if contour_lines {
+        contours::GRID
+    } else {
+        args.size
+    };
+    let deepest = fp.max_zoom(tms, px);
     let maxzoom = args.maxzoom.unwrap_or(deepest);
     if maxzoom > deepest {
         bail!(
-            "--maxzoom {maxzoom}: beyond the data: {}'s finest zoom at {} px is {deepest} (deeper zooms only magnify; maps over-zoom by themselves)",
+            "--maxzoom {maxzoom}: beyond the data: {}'s finest zoom at {px} px is {deepest} (deeper zooms only magnify; maps over-zoom by themselves)",
             ds.name,
-            args.size
         );
     }
     if args.minzoom > maxzoom {
@@ -161,9 +179,6 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
                     "--precision auto rounds heights: it is for height tiles, not --layer {layer}"
                 );
             }
-            let kind = Kind::parse(layer).ok_or_else(|| {
-                anyhow!("--layer {layer}: the layers are hillshade, color-relief and slope")
-            })?;
             let mut query = HashMap::new();
             for o in &args.options {
                 let (k, v) = o
@@ -171,16 +186,32 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
                     .ok_or_else(|| anyhow!("--option {o}: give KEY=VALUE, e.g. azimuth=200"))?;
                 query.insert(k.to_string(), v.to_string());
             }
-            let ramps =
-                crate::serve::config::ramps(&args.ramp, std::collections::BTreeMap::default())?;
-            let style = rendered::style(&ramps, &ds, kind, &query, &[])
-                .map_err(|e| anyhow!("--option: {}", e.message))?;
-            Shows::Rendered(style)
+            if contour_lines {
+                let style =
+                    contours::style(&query, &[]).map_err(|e| anyhow!("--option: {}", e.message))?;
+                // Every zoom's interval is known before a tile is made.
+                for z in args.minzoom..=maxzoom {
+                    style.levels(&fp, tms, z).map_err(|e| {
+                        anyhow!("--option {}; raise --minzoom or the interval", e.message)
+                    })?;
+                }
+                Shows::Contours(style)
+            } else {
+                let kind = Kind::parse(layer).ok_or_else(|| {
+                anyhow!("--layer {layer}: the layers are hillshade, color-relief, slope and contours")
+            })?;
+                let ramps =
+                    crate::serve::config::ramps(&args.ramp, std::collections::BTreeMap::default())?;
+                let style = rendered::style(&ramps, &ds, kind, &query, &[])
+                    .map_err(|e| anyhow!("--option: {}", e.message))?;
+                Shows::Rendered(style)
+            }
         }
     };
-    let format = match args.format {
-        Format::Png => ImageFormat::Png,
-        Format::Webp => ImageFormat::Webp,
+    let format = match (&shows, args.format) {
+        (Shows::Contours(_), _) => TileFormat::Mvt,
+        (_, Format::Png) => TileFormat::Image(ImageFormat::Png),
+        (_, Format::Webp) => TileFormat::Image(ImageFormat::Webp),
     };
     // Every tile of each zoom within the dataset's bounds (what its TileJSON states),
     // in PMTiles tile-id order: the archive is clustered.
@@ -239,7 +270,7 @@ fn write(
     fp: &Arc<Footprint>,
     shows: &Shows,
     tiles: &[(u64, WebTile)],
-    format: ImageFormat,
+    format: TileFormat,
     args: &ExportArgs,
     maxzoom: u8,
     jobs: usize,
@@ -253,9 +284,14 @@ fn write(
         .tempfile_in(dir)
         .with_context(|| format!("cannot write beside {}", local.display()))?;
     let file = std::io::BufWriter::with_capacity(1 << 20, tmp.as_file().try_clone()?);
-    let tile_type = match format {
-        ImageFormat::Png => pmtiles::TileType::Png,
-        ImageFormat::Webp => pmtiles::TileType::Webp,
+    let (tile_type, format_name) = match format {
+        TileFormat::Image(ImageFormat::Png) => (pmtiles::TileType::Png, "png"),
+        TileFormat::Image(ImageFormat::Webp) => (pmtiles::TileType::Webp, "webp"),
+        TileFormat::Mvt => (pmtiles::TileType::Mvt, "pbf"),
+    };
+    let px = match shows {
+        Shows::Contours(_) => contours::GRID,
+        _ => args.size,
     };
     let [w, s, e, n] = fp.lon_lat;
     let [lon, lat] = fp.centre();
@@ -266,19 +302,26 @@ fn write(
             Some(enc.name()),
         ),
         Shows::Rendered(style) => (style.canonical.clone(), None),
+        Shows::Contours(style) => (style.canonical.clone(), None),
     };
     let mut meta = serde_json::json!({
         "name": ds.name,
         "description": format!("{} of {}, exported by tessera-server from pyramid {}", what, ds.name, m.content_hash),
-        "type": "baselayer",
-        "format": match format { ImageFormat::Png => "png", ImageFormat::Webp => "webp" },
-        "tileSize": args.size,
+        "type": if matches!(shows, Shows::Contours(_)) { "overlay" } else { "baselayer" },
+        "format": format_name,
+        "tileSize": px,
         "tessera": {
             "dataset": ds.name,
             "content_hash": m.content_hash,
             "precision": match args.precision { Precision::Exact => "exact", Precision::Auto => "auto" },
         },
     });
+    if let Shows::Contours(style) = shows {
+        // What a vector archive's readers look for: its layers and their fields.
+        let doc = contours::tilejson_doc(ds, fp, TileMatrixSet::WebMercatorQuad, "", style, None);
+        meta["vector_layers"] = doc["vector_layers"].clone();
+        meta["tessera"]["contour_intervals"] = doc["contour_intervals"].clone();
+    }
     if let Some(enc) = encoding_field {
         meta["encoding"] = enc.into();
         if args.precision == Precision::Auto
@@ -352,34 +395,44 @@ fn write(
         let mut made = futures_util::stream::iter(tiles.iter().copied())
             .map(|(_, tile)| {
                 let (web, ds, fp, compute) = (web.clone(), ds.clone(), fp.clone(), compute.clone());
+                let hash = |c: &str| xxhash_rust::xxh3::xxh3_128(c.as_bytes());
+                let (look, maker, kind) = match shows {
+                    Shows::Heights(e) => (
+                        Look::Heights(*e, NoData::Opaque),
+                        Maker::Heights(rounding(tile.z)),
+                        ComputeKind::GridTile,
+                    ),
+                    Shows::Rendered(s) => (
+                        Look::Rendered(hash(&s.canonical)),
+                        Maker::Rendered(s.layer.clone()),
+                        ComputeKind::Rendered,
+                    ),
+                    Shows::Contours(s) => (
+                        Look::Contours(hash(&s.canonical)),
+                        Maker::Contours(s.levels(&fp, tile.tms, tile.z)),
+                        ComputeKind::Contours,
+                    ),
+                };
                 let key = MadeKey {
                     dataset,
                     tile,
-                    px: args.size,
-                    look: match shows {
-                        Shows::Heights(e) => Look::Heights(*e, NoData::Opaque),
-                        Shows::Rendered(s) => {
-                            Look::Rendered(xxhash_rust::xxh3::xxh3_128(s.canonical.as_bytes()))
-                        }
-                    },
+                    px,
+                    look,
                     format,
                 };
-                let layer = match shows {
-                    Shows::Rendered(s) => Some(s.layer.clone()),
-                    Shows::Heights(_) => None,
-                };
-                let round = rounding(tile.z);
                 async move {
-                    let kind = if layer.is_some() {
-                        ComputeKind::Rendered
-                    } else {
-                        ComputeKind::GridTile
-                    };
                     let made = compute
                         .run_blocking(kind, tile.to_string(), move |ticket| {
-                            let b = match &layer {
-                                None => web_grid::make(&web, &ds, &fp, key, round, ticket),
-                                Some(l) => rendered::make(&web, &ds, &fp, key, l, ticket),
+                            let b = match maker {
+                                Maker::Heights(round) => {
+                                    web_grid::make(&web, &ds, &fp, key, round, ticket)
+                                }
+                                Maker::Rendered(l) => {
+                                    rendered::make(&web, &ds, &fp, key, &l, ticket)
+                                }
+                                Maker::Contours(levels) => {
+                                    contours::make(&web, &ds, &fp, key, levels?, ticket)
+                                }
                             }
                             .map_err(|f| {
                                 crate::http::error::ApiError::internal(format!(

@@ -8,7 +8,7 @@ use crate::cesium::terrain::water::WaterRule;
 use crate::cesium::terrain::{Terrain, TerrainError};
 use crate::cesium::tiling::CesiumTile;
 use crate::geoid::Geoid;
-use crate::web::encoding::{Encoding, ImageFormat, NoData};
+use crate::web::encoding::{Encoding, NoData, TileFormat};
 use crate::web::footprint::Footprint;
 use crate::web::render::ramp::RampSpec;
 use crate::web::resample::SourceTile;
@@ -79,7 +79,7 @@ pub struct MadeKey {
     pub tile: WebTile,
     pub px: u32,
     pub look: Look,
-    pub format: ImageFormat,
+    pub format: TileFormat,
 }
 
 /// What a made tile's pixels are.
@@ -90,6 +90,9 @@ pub enum Look {
     /// Rendered terrain (routes/rendered.rs): a 128-bit hash of the layer's canonical
     /// description, options and resolved ramp included.
     Rendered(u128),
+    /// Contour lines (routes/contours.rs): a 128-bit hash of their canonical
+    /// description.
+    Contours(u128),
 }
 
 /// A made Cesium terrain tile's identity: the tile and the extensions it carries.

@@ -159,6 +159,23 @@ pub enum ImageFormat {
     Webp,
 }
 
+/// What a made tile is: an image, or a Mapbox Vector Tile (contours,
+/// web/contour/).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum TileFormat {
+    Image(ImageFormat),
+    Mvt,
+}
+
+impl TileFormat {
+    pub const fn mime(self) -> &'static str {
+        match self {
+            Self::Image(f) => f.mime(),
+            Self::Mvt => "application/vnd.mapbox-vector-tile",
+        }
+    }
+}
+
 impl ImageFormat {
     /// `"12.png"` → (`"12"`, PNG); `None` for another extension.
     pub fn split(last_segment: &str) -> Option<(&str, Self)> {

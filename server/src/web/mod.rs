@@ -4,6 +4,7 @@
 //! tile's heights ([`resample`]), their colours ([`encoding`]), and terrain drawn
 //! from them for 2-D maps ([`render`]).
 
+pub mod contour;
 pub mod encoding;
 pub mod footprint;
 pub mod render;

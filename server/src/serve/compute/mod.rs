@@ -61,10 +61,12 @@ pub enum Kind {
     Elevation,
     /// A rendered terrain tile (hillshade, colour relief, slope).
     Rendered,
+    /// A contour vector tile.
+    Contours,
 }
 
 impl Kind {
-    pub const ALL: [Kind; 7] = [
+    pub const ALL: [Kind; 8] = [
         Kind::Terrain,
         Kind::GridTile,
         Kind::PngTile,
@@ -72,6 +74,7 @@ impl Kind {
         Kind::Preview,
         Kind::Elevation,
         Kind::Rendered,
+        Kind::Contours,
     ];
 
     pub fn label(self) -> &'static str {
@@ -83,6 +86,7 @@ impl Kind {
             Kind::Preview => "preview",
             Kind::Elevation => "elevation",
             Kind::Rendered => "rendered",
+            Kind::Contours => "contours",
         }
     }
 }

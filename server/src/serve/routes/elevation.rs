@@ -87,6 +87,7 @@ impl CachedTiles<'_> {
             Failure::Corrupt(t, _) => format!("{t} fails its checksum"),
             Failure::Undecodable(t, e) => format!("{t} does not decode: {e}"),
             Failure::Unavailable(r) => r.to_string(),
+            Failure::TooDense(why) => why.clone(),
             other => format!("{other:?}"),
         }
     }

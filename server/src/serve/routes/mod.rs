@@ -4,6 +4,7 @@ pub mod base_url;
 pub mod bootstrap;
 pub mod cesium;
 pub mod cesium_tiles3d;
+pub mod contours;
 pub mod coverage;
 pub mod datasets;
 pub mod elevation;

@@ -17,7 +17,7 @@ use crate::serve::AppState;
 use crate::serve::compute::{Kind as ComputeKind, Ticket};
 use crate::serve::dataset::Dataset;
 use crate::serve::web_cache::{Look, MadeKey, WebTiles};
-use crate::web::encoding::ImageFormat;
+use crate::web::encoding::{ImageFormat, TileFormat};
 use crate::web::footprint::Footprint;
 use crate::web::render::ground::{self, Radii};
 use crate::web::render::hillshade::{Hillshade, Method};
@@ -216,10 +216,13 @@ pub fn make(
     if !fp.meets(key.tile) {
         return Ok(Bytes::new());
     }
+    let TileFormat::Image(format) = key.format else {
+        unreachable!("rendered tiles are images")
+    };
     let px = key.px as usize;
     let working = (u64::from(key.px) + 2).pow(2) * RENDERED_BYTES_PER_PIXEL;
     let encode = |rgba: &[u8]| {
-        key.format
+        format
             .encode(rgba, key.px)
             .map(Bytes::from)
             .map_err(web_grid::Failure::EncodeImage)
@@ -243,7 +246,7 @@ pub fn make(
     let encoded = if matches!(layer, Layer::Hillshade(_)) {
         // Grey: two bytes a pixel instead of four.
         let la: Vec<u8> = rgba.chunks_exact(4).flat_map(|p| [p[0], p[3]]).collect();
-        key.format
+        format
             .encode_grey_alpha(&la, key.px)
             .map(Bytes::from)
             .map_err(web_grid::Failure::EncodeImage)
@@ -293,7 +296,7 @@ pub async fn tile(
         tile,
         px,
         look: Look::Rendered(xxhash_rust::xxh3::xxh3_128(style.canonical.as_bytes())),
-        format,
+        format: TileFormat::Image(format),
         variant,
         pin,
     };

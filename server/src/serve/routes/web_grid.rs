@@ -17,7 +17,7 @@ use crate::serve::compute::{Kind, Made, Reservation, Stop, Ticket};
 use crate::serve::dataset::{Dataset, DatasetUnavailable, RecordError};
 use crate::serve::web_cache::{EmptyTiles, Look, MadeKey, WebTiles, dataset_key};
 use crate::serve::{AppState, TilesServed};
-use crate::web::encoding::{Encoding, ImageEncodeError, ImageFormat, NoData, rgba};
+use crate::web::encoding::{Encoding, ImageEncodeError, ImageFormat, NoData, TileFormat, rgba};
 use crate::web::footprint::Footprint;
 use crate::web::resample::{self, SourceTile};
 use crate::web::tile_matrix::{MAX_ZOOM, TileMatrixSet, WebTile};
@@ -115,6 +115,11 @@ pub enum Failure {
     EncodeImage(ImageEncodeError),
     /// A quantized-mesh tile could not be encoded (serve/routes/cesium.rs).
     EncodeMesh(quantized_mesh::EncodeError),
+    /// A contour tile could not be encoded (serve/routes/contours.rs).
+    EncodeVector(mvt::Error),
+    /// A contour tile would hold more lines than a tile may (web/contour/): the
+    /// asker's fault, named in the reason.
+    TooDense(String),
     /// Its requesters are gone, or no memory came free in time (serve/compute/).
     Stopped(Stop),
 }
@@ -220,8 +225,9 @@ pub fn make(
     let px2 = u64::from(key.px).pow(2);
     let fill = ds.pyramid.metadata().min_height;
     let fill = round.map_or(fill, |q| (fill / q).round() * q);
-    let Look::Heights(encoding, nodata) = key.look else {
-        unreachable!("height tiles are made with a height look")
+    let (Look::Heights(encoding, nodata), TileFormat::Image(format)) = (key.look, key.format)
+    else {
+        unreachable!("height tiles are made with a height look, as images")
     };
     let encode = |heights: &[f64], data: &[bool]| {
         let rounded: Vec<f64>;
@@ -232,7 +238,7 @@ pub fn make(
             heights
         };
         let pixels = rgba(heights, data, encoding, nodata, fill);
-        key.format
+        format
             .encode(&pixels, key.px)
             .map(Bytes::from)
             .map_err(Failure::EncodeImage)
@@ -325,7 +331,7 @@ pub async fn tile(
         tile,
         px,
         look: Look::Heights(enc, nodata),
-        format,
+        format: TileFormat::Image(format),
         variant,
         pin,
     };
@@ -346,7 +352,7 @@ pub struct Asked {
     pub tile: WebTile,
     pub px: u32,
     pub look: Look,
-    pub format: ImageFormat,
+    pub format: TileFormat,
     /// What the tile depends on besides the dataset (the ETag's and the flight's key).
     pub variant: String,
     /// Whether the URL pins the content (`?v=`).
@@ -415,7 +421,7 @@ pub fn image_response(
     ds: &Dataset,
     tile: WebTile,
     made: &Made,
-    format: ImageFormat,
+    format: TileFormat,
     etag: &str,
     pin: bool,
 ) -> Response {
@@ -474,6 +480,8 @@ pub fn failure_error(state: &AppState, ds: &Dataset, tile: &str, f: Failure) -> 
         Failure::Stopped(s) => s.into_error(),
         Failure::EncodeImage(e) => encode_failed(ds, tile, &e),
         Failure::EncodeMesh(e) => encode_failed(ds, tile, &e),
+        Failure::EncodeVector(e) => encode_failed(ds, tile, &e),
+        Failure::TooDense(why) => ApiError::bad_request(why),
     }
 }
 
