@@ -17,7 +17,7 @@ mod gdal;
 #[allow(dead_code)] // each test binary uses some of the shared helpers
 mod serve_support;
 
-use gdal::{gdal_or_skip, path_str, run};
+use gdal::{gdal_or_skip, path_str, run, warp_tile};
 use geographiclib_rs::{Geodesic, InverseGeodesic};
 use serve_support::{Server, dem_pyramid};
 use std::path::Path;
@@ -133,55 +133,14 @@ struct Reference {
     clear: Vec<bool>,
 }
 
-/// The DEM warped onto `tile`'s pixels and their one-pixel border, as float32
-/// heights (−99999 for no data); with `ignore_nodata`, the voids' stored values
-/// are read as heights.
-fn warp(dem: &Path, tile: WebTile, out: &Path, ignore_nodata: bool) -> Vec<f32> {
-    let side = (PX + 2).to_string();
-    let c = tile.tms.cell_size(tile.z, PX);
-    let [x0, y0, x1, y1] = tile.bounds();
-    let te = [x0 - c, y0 - c, x1 + c, y1 + c].map(|v| format!("{v:.9}"));
-    let srs = format!("EPSG:{}", tile.tms.epsg());
-    let mut args = vec![
-        "-q",
-        "-overwrite",
-        "-t_srs",
-        &srs,
-        "-te",
-        &te[0],
-        &te[1],
-        &te[2],
-        &te[3],
-        "-ts",
-        &side,
-        &side,
-        "-r",
-        "bilinear",
-        "-et",
-        "0",
-        "-ot",
-        "Float32",
-        "-dstnodata",
-        "-99999",
-        "-of",
-        "ENVI",
-    ];
-    if ignore_nodata {
-        args.extend(["-srcnodata", "None"]);
-    }
-    args.extend([path_str(dem), path_str(out)]);
-    run("gdalwarp", &args);
-    f32s(&read(out))
-}
-
 fn reference(dem: &Path, tile: WebTile, p: &Product, dir: &Path) -> Reference {
     let side = PX + 2;
     let warped = dir.join("warped.img");
-    let heights = warp(dem, tile, &warped, false);
+    let heights = warp_tile(dem, tile, PX, 1, &warped, false);
     // Pixels whose bilinear stencil touches a void: GDAL's warp renormalizes over
     // the valid samples there, the server interpolates the build's fill (the
     // nearest valid heights); reading the voids' values as heights tells them apart.
-    let raw = warp(dem, tile, &dir.join("raw.img"), true);
+    let raw = warp_tile(dem, tile, PX, 1, &dir.join("raw.img"), true);
     let touched: Vec<bool> = heights
         .iter()
         .zip(&raw)

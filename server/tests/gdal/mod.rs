@@ -4,11 +4,13 @@
 
 #![allow(dead_code)] // each test binary uses its own subset
 
+pub mod dem;
 pub mod fusion;
 pub mod pieces;
 
 use std::path::Path;
 use std::process::Command;
+use tessera_server::web::tile_matrix::WebTile;
 
 /// Whether GDAL's tools are here; `SKIPPED` when not, a failure when `CI` is set.
 pub fn gdal_or_skip() -> bool {
@@ -87,4 +89,57 @@ pub fn transform(from: &str, to: &str, points: &[[f64; 2]]) -> Vec<[f64; 2]> {
 
 pub fn path_str(p: &Path) -> &str {
     p.to_str().unwrap()
+}
+
+/// The DEM warped onto `tile`'s `px × px` pixel centres and `border` more pixels on
+/// each side (bilinear, exact transforms), as float32 heights row-major from the
+/// north-west (−99999 for no data); with `ignore_nodata`, the voids' stored values
+/// are read as heights. `out` is the ENVI file written.
+pub fn warp_tile(
+    dem: &Path,
+    tile: WebTile,
+    px: u32,
+    border: u32,
+    out: &Path,
+    ignore_nodata: bool,
+) -> Vec<f32> {
+    let side = (px + 2 * border).to_string();
+    let c = tile.tms.cell_size(tile.z, px) * f64::from(border);
+    let [x0, y0, x1, y1] = tile.bounds();
+    let te = [x0 - c, y0 - c, x1 + c, y1 + c].map(|v| format!("{v:.9}"));
+    let srs = format!("EPSG:{}", tile.tms.epsg());
+    let mut args = vec![
+        "-q",
+        "-overwrite",
+        "-t_srs",
+        &srs,
+        "-te",
+        &te[0],
+        &te[1],
+        &te[2],
+        &te[3],
+        "-ts",
+        &side,
+        &side,
+        "-r",
+        "bilinear",
+        "-et",
+        "0",
+        "-ot",
+        "Float32",
+        "-dstnodata",
+        "-99999",
+        "-of",
+        "ENVI",
+    ];
+    if ignore_nodata {
+        args.extend(["-srcnodata", "None"]);
+    }
+    args.extend([path_str(dem), path_str(out)]);
+    run("gdalwarp", &args);
+    std::fs::read(out)
+        .unwrap()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+        .collect()
 }
