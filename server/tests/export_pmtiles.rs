@@ -327,6 +327,54 @@ fn a_hillshade_archive_is_the_servers_hillshade() {
     }
 }
 
+/// Contour lines: a vector archive whose tiles are the server's contour tiles, with
+/// the `vector_layers` a map reads.
+#[test]
+fn a_contour_archive_is_the_servers_contours() {
+    let Some(pyramid) = dem_pyramid("N46E008.tif", 256) else {
+        return;
+    };
+    let dir = tmpdir("export-contours");
+    let archive = dir.path().join("contours.pmtiles");
+    export(
+        &pyramid,
+        &archive,
+        &[
+            "--layer",
+            "contours",
+            "--option",
+            "interval=50",
+            "--minzoom",
+            "9",
+            "--maxzoom",
+            "11",
+        ],
+    );
+    let Some((doc, folder)) = read_back(&archive) else {
+        return;
+    };
+    assert_eq!(doc["header"]["tile_type"], "MVT", "{doc}");
+    // Vector tiles are stored gzipped, as PMTiles readers expect them.
+    assert_eq!(doc["header"]["tile_compression"], "GZIP", "{doc}");
+    let layers = &doc["metadata"]["vector_layers"];
+    assert_eq!(layers[0]["id"], "contours", "{doc}");
+    assert!(layers[0]["fields"]["ele"].is_string(), "{doc}");
+    let srv = Server::start(&[&pyramid], &[]);
+    let got = tiles(folder.path());
+    assert!(got.len() > 10, "{}", got.len());
+    for ((z, x, y), zipped) in got {
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&zipped[..]), &mut bytes)
+            .unwrap();
+        let r = srv
+            .get(&format!(
+                "/v1/datasets/N46E008/webmercator/contours/{z}/{x}/{y}.mvt?interval=50"
+            ))
+            .expect(200);
+        assert!(r.body == bytes, "{z}/{x}/{y} differs from the server's");
+    }
+}
+
 /// A flat DEM: its inner tiles are identical and stored once.
 #[test]
 fn identical_tiles_are_stored_once() {
@@ -429,6 +477,19 @@ fn bad_input_is_one_clear_line_and_no_archive() {
         &out,
     );
     assert_clean_failure(&run(&["--encoding", "rgb"]), "encoding", "terrarium", &out);
+    // A contour interval too fine for the first zoom names the zoom and the finest.
+    assert_clean_failure(
+        &run(&["--layer", "contours", "--option", "interval=1"]),
+        "interval",
+        "finest interval",
+        &out,
+    );
+    assert_clean_failure(
+        &run(&["--layer", "contours", "--option", "interval=-5"]),
+        "interval",
+        "positive",
+        &out,
+    );
     // Nothing else was left in the folder.
     let left: Vec<_> = std::fs::read_dir(dir.path())
         .unwrap()
