@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The browser tests (README.md here): MapLibre GL JS, then CesiumJS, a PMTiles archive from nginx,
+# The browser tests (README.md here): MapLibre GL JS, then CesiumJS, a PMTiles archive from nginx, contours,
 # then the server's built-in viewer, in headless Chromium against `tessera-server serve`. Called by `./run test` after
 # cargo test; runs alone too:
 #   tests/browser/run.sh          (TESSERA_SERVER=path/to/tessera-server, default target/debug/)
@@ -31,6 +31,8 @@ echo "== CesiumJS 3D Tiles terrain (cesium3dtiles.test.mjs, $(elapsed) s so far)
 node --test cesium3dtiles.test.mjs || rc=$?
 echo "== a PMTiles archive from nginx (pmtiles.test.mjs, $(elapsed) s so far)" >&2
 node --test pmtiles.test.mjs || rc=$?
+echo "== contour lines in MapLibre (contours.test.mjs, $(elapsed) s so far)" >&2
+node --test contours.test.mjs || rc=$?
 echo "== the built-in viewer (viewer.test.mjs, $(elapsed) s so far)" >&2
 node --test viewer.test.mjs || rc=$?
 echo "browser tests took $(elapsed) s, npm ci included (screenshots in out/browser/)" >&2
