@@ -58,7 +58,7 @@ fn served(srv: &Server, ds: &str, tile: WebTile, query: &str) -> Vec<Line> {
     );
     let r = srv.get(&url).expect(200);
     assert_eq!(r.must("content-type"), "application/vnd.mapbox-vector-tile");
-    let reader = mvt_reader::Reader::new(r.body.to_vec()).unwrap();
+    let reader = mvt_reader::Reader::new(r.body.clone()).unwrap();
     assert_eq!(reader.get_layer_names().unwrap(), ["contours"]);
     let meta = reader.get_layer_metadata().unwrap();
     assert_eq!(meta[0].extent, 4096);

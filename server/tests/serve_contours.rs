@@ -54,7 +54,10 @@ fn a_map_on_another_origin_gets_contour_tiles() {
     let doc = tj.json();
     assert_eq!(doc["vector_layers"][0]["id"], "contours", "{doc}");
     let fields = &doc["vector_layers"][0]["fields"];
-    assert!(fields["ele"].is_string() && fields["index"].is_string(), "{doc}");
+    assert!(
+        fields["ele"].is_string() && fields["index"].is_string(),
+        "{doc}"
+    );
     assert_eq!(doc["minzoom"], 0, "automatic intervals suit every zoom");
     assert_eq!(doc["maxzoom"], 11, "{doc}");
     // The Alps at 46.5° N: 13.2 m pixels at zoom 12, 26.3 m at 11 → 3 px is 79 m → 100 m.
@@ -77,8 +80,16 @@ fn a_map_on_another_origin_gets_contour_tiles() {
     assert!(lines.len() > 100, "{} lines", lines.len());
     let mut index_lines = 0;
     for (ele, index) in &lines {
-        assert_eq!(ele % interval, 0.0, "{ele} m is not a multiple of {interval} m");
-        assert_eq!(*index, ele % (5.0 * interval) == 0.0, "index flag of {ele} m");
+        assert_eq!(
+            ele % interval,
+            0.0,
+            "{ele} m is not a multiple of {interval} m"
+        );
+        assert_eq!(
+            *index,
+            ele % (5.0 * interval) == 0.0,
+            "index flag of {ele} m"
+        );
         index_lines += usize::from(*index);
         // Andermatt's tile spans the Urseren valley (1400 m) to the Gotthard peaks.
         assert!((1000.0..=3700.0).contains(ele), "{ele} m");
@@ -123,7 +134,11 @@ fn bad_and_hostile_intervals_are_refused_and_bounded() {
     let srv = Server::start(&[&pyramid], &[]);
     let base = "/v1/datasets/N46E008/webmercator/contours";
     for (query, names, says) in [
-        ("interval=0.001", "interval", "finer than the finest interval"),
+        (
+            "interval=0.001",
+            "interval",
+            "finer than the finest interval",
+        ),
         ("interval=0", "interval", "positive"),
         ("interval=-20", "interval", "positive"),
         ("interval=abc", "interval", "neither a number"),
@@ -133,19 +148,29 @@ fn bad_and_hostile_intervals_are_refused_and_bounded() {
         ("intervall=20", "\"intervall\"", "interval, index"),
         ("ramp=hypsometric", "\"ramp\"", "interval, index"),
     ] {
-        let r = srv.get(&format!("{base}/11/1072/724.mvt?{query}")).expect(400);
+        let r = srv
+            .get(&format!("{base}/11/1072/724.mvt?{query}"))
+            .expect(400);
         let why = r.json()["error"].as_str().unwrap().to_string();
         assert!(why.contains(names) && why.contains(says), "{query}: {why}");
     }
     // The example: a 0.01 m interval at zoom 2 (38 km pixels).
-    let r = srv.get(&format!("{base}/2/2/1.mvt?interval=0.01")).expect(400);
+    let r = srv
+        .get(&format!("{base}/2/2/1.mvt?interval=0.01"))
+        .expect(400);
     let why = r.json()["error"].as_str().unwrap().to_string();
-    assert!(why.contains("zoom 2") && why.contains("finest interval is 200 m"), "{why}");
-    srv.get(&format!("{base}/2/2/1.mvt?interval=200")).expect(200);
+    assert!(
+        why.contains("zoom 2") && why.contains("finest interval is 200 m"),
+        "{why}"
+    );
+    srv.get(&format!("{base}/2/2/1.mvt?interval=200"))
+        .expect(200);
     srv.get(&format!("{base}/11/1072/724.png")).expect(404);
     // 1 m in the Alps at zoom 11: millions of pieces. Refused after one count, with
     // an interval that draws the tile.
-    let r = srv.get(&format!("{base}/11/1072/724.mvt?interval=1")).expect(400);
+    let r = srv
+        .get(&format!("{base}/11/1072/724.mvt?interval=1"))
+        .expect(400);
     let why = r.json()["error"].as_str().unwrap().to_string();
     assert!(why.contains("line pieces"), "{why}");
     let coarser = why

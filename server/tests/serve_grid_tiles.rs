@@ -14,7 +14,6 @@ mod serve_support;
 use gdal::dem::Dem;
 use grid_support::{built, decode_rgba, terrarium, tilejson_bounds, xyz_tile};
 use serve_support::Server;
-use std::path::Path;
 use tessera_server::crs::Crs;
 use tessera_shared::testdata;
 

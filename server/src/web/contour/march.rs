@@ -114,7 +114,8 @@ impl<'a> Contouring<'a> {
         let w = self.grid.width;
         let s = (e / 2) as usize;
         let (r, c) = ((s / w) as f64, (s % w) as f64);
-        let other = if e % 2 == 0 { s + 1 } else { s + w };
+        let horizontal = e.is_multiple_of(2);
+        let other = if horizontal { s + 1 } else { s + w };
         let (h0, h1) = (self.grid.heights[s], self.grid.heights[other]);
         let level = k as f64 * self.interval;
         let t = if h1 == h0 {
@@ -122,7 +123,7 @@ impl<'a> Contouring<'a> {
         } else {
             ((level - h0) / (h1 - h0)).clamp(0.0, 1.0)
         };
-        if e % 2 == 0 { [c + t, r] } else { [c, r + t] }
+        if horizontal { [c + t, r] } else { [c, r + t] }
     }
 
     /// The pieces of every level in every cell, as edge pairs.
@@ -145,16 +146,15 @@ impl<'a> Contouring<'a> {
                 let above = q.map(|v| v >= k);
                 // Edge i joins corners i and i + 1.
                 let cut: Vec<usize> = (0..4).filter(|&i| above[i] != above[(i + 1) % 4]).collect();
-                match cut.as_slice() {
-                    [a, b] => out.push((k, edges[*a], edges[*b])),
-                    _ => {
-                        // A saddle: the corners on the centre's side connect through
-                        // it; each other corner is cut off by the two edges at it
-                        // (corner i lies between edges i - 1 and i).
-                        let centre_above = centre >= k;
-                        for i in (0..4).filter(|&i| above[i] != centre_above) {
-                            out.push((k, edges[(i + 3) % 4], edges[i]));
-                        }
+                if let [a, b] = cut.as_slice() {
+                    out.push((k, edges[*a], edges[*b]));
+                } else {
+                    // A saddle: the corners on the centre's side connect through it;
+                    // each other corner is cut off by the two edges at it (corner i
+                    // lies between edges i - 1 and i).
+                    let centre_above = centre >= k;
+                    for i in (0..4).filter(|&i| above[i] != centre_above) {
+                        out.push((k, edges[(i + 3) % 4], edges[i]));
                     }
                 }
             }
@@ -307,7 +307,7 @@ mod tests {
                 .iter()
                 .map(|l| {
                     let [a, b] = [l.points[0], l.points[1]];
-                    [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0]
+                    [f64::midpoint(a[0], b[0]), f64::midpoint(a[1], b[1])]
                 })
                 .collect();
             mids.sort_by(|a, b| a.partial_cmp(b).unwrap());
