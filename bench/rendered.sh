@@ -17,8 +17,13 @@
 #   tessera source-warm  a fresh server with --tile-cache-mib 1 after one unmeasured pass:
 #                        every tile rendered and PNG-encoded per request, wrk;
 #   titiler cold         a fresh TiTiler (nproc uvicorn workers), one pass;  titiler warm: wrk.
+# Contour rows (DECISIONS.md "Contour tiles"): Tessera's contour vector tiles (interval auto,
+# 512-sample grid) of the same zooms up to the contour TileJSON's maxzoom, cold, warm and
+# source-warm as above; no peer serves contour vector tiles from a DEM, so the rows stand beside
+# Tessera's own hillshade on the same ground.
 # Export rows: `export --pmtiles` of N46E008 as Terrarium 512-px WebP (zooms 0 to maxzoom),
-# exact and --precision auto, and as a 256-px hillshade PNG archive; tiles/s, MB/s and sizes.
+# exact and --precision auto, as a 256-px hillshade PNG archive and as contour lines (MVT);
+# tiles/s, MB/s and sizes.
 # Appends to $RESULTS/rendered.jsonl. RENDERED_SECONDS per wrk row (default 20; QUICK=1: 5).
 # BENCHMARKS.md's "Rendered terrain tiles and PMTiles export" is a hand section from these rows.
 SERVER_ONLY=1
@@ -37,12 +42,14 @@ row() {
     --argjson tiles "$ntiles" --argjson c "$conns" --argjson mean "$mean_bytes" --argjson rss "$6" \
     --argjson workers "$workers" --arg titiler "$titiler_version" --arg commit "$commit" \
     --arg measured "$(date -u +%Y-%m-%dT%H:%M:%SZ)" --argjson load "$(cut -d' ' -f1 /proc/loadavg)" \
-    '{section: "hillshade", server: $server, mode: $mode, run: $run, client: $client,
+    --arg section "$section" \
+    '{section: $section, server: $server, mode: $mode, run: $run, client: $client,
       measured: $measured, commit: $commit, loadavg_1m: $load, tiles: $tiles, connections: $c,
       mean_tile_bytes: $mean, rss_mib: $rss, titiler_workers: $workers,
       titiler_version: $titiler} + .' <<< "$5")"
 }
 
+section=hillshade
 name=srtm
 log "rendered: pyramid and COG"
 "$SERVER_BIN" build "$DEM/N46E008.tif" -o "$WORK/$name.tess" --quiet > /dev/null
@@ -102,6 +109,36 @@ for run in $(seq "$RUNS"); do
   stop "$TITILER_PID"
 done
 
+# Contour tiles: the zooms of the hillshade list up to the contour TileJSON's maxzoom.
+section=contours
+start_tessera "$WORK/$name.tess"
+cmax=$(curl -sf "$TESSERA_URL/v1/datasets/$name/webmercator/contours/tilejson.json" | jq .maxzoom)
+: > "$WORK/contours.list"
+total=0 ntiles=0
+while read -r z x y; do
+  [ "$z" -le "$cmax" ] || continue
+  p="/v1/datasets/$name/webmercator/contours/$z/$x/$y.mvt"
+  got=$(curl -s -o /dev/null -w '%{http_code} %{size_download}' "$TESSERA_URL$p")
+  [ "${got%% *}" = 200 ] || continue
+  total=$((total + ${got#* })) ntiles=$((ntiles + 1))
+  echo "$p" >> "$WORK/contours.list"
+done < "$WORK/$name.zxy"
+mean_bytes=$((total / ntiles))
+stop "$TESSERA_PID"
+log "rendered: $ntiles contour tiles at zooms 8-$cmax, mean $mean_bytes bytes"
+cache_mib=$(( total * 5 / 4 / 1048576 + 64 ))
+for run in $(seq "$RUNS"); do
+  log "rendered run $run of $RUNS: Tessera contours cold, warm, source-warm (${secs}s)"
+  start_tessera "$WORK/$name.tess" --tile-cache-mib "$cache_mib"
+  row tessera cold "$run" "curl -Z" "$(pass_json "$TESSERA_URL" "$WORK/contours.list")" "$(rss_mib "$TESSERA_PID")"
+  row tessera warm "$run" wrk "$(wrk_json "$TESSERA_URL" "$WORK/contours.list")" "$(rss_mib "$TESSERA_PID")"
+  stop "$TESSERA_PID"
+  start_tessera "$WORK/$name.tess" --tile-cache-mib 1
+  pass_json "$TESSERA_URL" "$WORK/contours.list" > /dev/null
+  row tessera source-warm "$run" wrk "$(wrk_json "$TESSERA_URL" "$WORK/contours.list")" "$(rss_mib "$TESSERA_PID")"
+  stop "$TESSERA_PID"
+done
+
 # export_row WHAT RUN ARGS...: one timed export (release build, all cores) as a record.
 export_row() {
   local what=$1 run=$2
@@ -127,5 +164,6 @@ for run in $(seq "$RUNS"); do
   export_row "terrarium png 256 exact" "$run"
   export_row "terrarium png 256 precision auto" "$run" --precision auto
   export_row "hillshade png 256" "$run" --layer hillshade
+  export_row "contours mvt (interval auto)" "$run" --layer contours
 done
 log "rendered: done ($RESULTS/rendered.jsonl)"
