@@ -2,6 +2,7 @@
 //! the 1-2-5 series so that lines keep a readable distance on screen; and the
 //! finest interval a zoom accepts.
 
+use crate::crs::Crs;
 use crate::web::tile_matrix::TileMatrixSet;
 
 /// An automatic interval is the smallest 1-2-5 step at least this many pixels'
@@ -99,9 +100,28 @@ pub fn ground_pixel(tms: TileMatrixSet, z: u8, px: u32, lat: f64) -> f64 {
     }
 }
 
+/// How much smaller than the Earth's a dataset's body makes a pixel's ground: the
+/// grids' metres are WGS 84's, and on another body the grid's longitudes and
+/// latitudes are the dataset's own (routes/rendered.rs), so its pixels shrink with its
+/// radius. 1 on the Earth.
+pub fn body_scale(crs: &Crs) -> f64 {
+    match crs.body_radii() {
+        Some((a, _)) if !crs.is_earth() => a / 6_378_137.0,
+        _ => 1.0,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_moons_pixels_are_smaller_by_its_radius() {
+        let moon = Crs::parse("+proj=longlat +R=1737400 +no_defs").unwrap();
+        assert!((body_scale(&moon) - 1_737_400.0 / 6_378_137.0).abs() < 1e-12);
+        assert_eq!(body_scale(&Crs::from_epsg(4326).unwrap()), 1.0);
+        assert_eq!(body_scale(&Crs::from_epsg(2056).unwrap()), 1.0);
+    }
 
     #[test]
     fn the_series_is_one_two_five() {
