@@ -35,7 +35,7 @@ for s in "${sections[@]}"; do
     # terrain writes terrain_mesh.jsonl and terrain_serve.jsonl, each replaced only by
     # the part that runs (TERRAIN_MESH=0 or TERRAIN_SERVE=0 keeps the other's).
     # elevation's and rendered's figures are hand sections of BENCHMARKS.md ("Elevation queries",
-    # "Rendered terrain tiles and PMTiles export"):
+    # "Rendered terrain tiles, contour tiles and PMTiles export"):
     # the script prints its tables.
     stream | policy | gonzalez | ingest | webtiles | rendered | terrain | elevation | upload | popping) "bench/$s.sh" ;;
     *) echo "unknown section '$s' (build select serve load stream policy gonzalez ingest webtiles rendered terrain elevation upload popping)" >&2; exit 2 ;;

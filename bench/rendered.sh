@@ -25,7 +25,7 @@
 # exact and --precision auto, as a 256-px hillshade PNG archive and as contour lines (MVT);
 # tiles/s, MB/s and sizes.
 # Appends to $RESULTS/rendered.jsonl. RENDERED_SECONDS per wrk row (default 20; QUICK=1: 5).
-# BENCHMARKS.md's "Rendered terrain tiles and PMTiles export" is a hand section from these rows.
+# BENCHMARKS.md's "Rendered terrain tiles, contour tiles and PMTiles export" is a hand section from these rows.
 SERVER_ONLY=1
 source "$(dirname "$0")/common.sh"
 secs=${RENDERED_SECONDS:-20}
@@ -47,6 +47,21 @@ row() {
       measured: $measured, commit: $commit, loadavg_1m: $load, tiles: $tiles, connections: $c,
       mean_tile_bytes: $mean, rss_mib: $rss, titiler_workers: $workers,
       titiler_version: $titiler} + .' <<< "$5")"
+}
+
+# tessera_rows RUN LIST: Tessera cold then warm on a fresh server caching every made tile, then
+# source-warm (--tile-cache-mib 1) after one unmeasured pass; $section names the rows.
+tessera_rows() {
+  log "rendered run $1 of $RUNS: Tessera $section cold, then warm (${secs}s)"
+  start_tessera "$WORK/$name.tess" --tile-cache-mib "$cache_mib"
+  row tessera cold "$1" "curl -Z" "$(pass_json "$TESSERA_URL" "$2")" "$(rss_mib "$TESSERA_PID")"
+  row tessera warm "$1" wrk "$(wrk_json "$TESSERA_URL" "$2")" "$(rss_mib "$TESSERA_PID")"
+  stop "$TESSERA_PID"
+  log "rendered run $1 of $RUNS: Tessera $section source-warm (--tile-cache-mib 1, ${secs}s)"
+  start_tessera "$WORK/$name.tess" --tile-cache-mib 1
+  pass_json "$TESSERA_URL" "$2" > /dev/null
+  row tessera source-warm "$1" wrk "$(wrk_json "$TESSERA_URL" "$2")" "$(rss_mib "$TESSERA_PID")"
+  stop "$TESSERA_PID"
 }
 
 section=hillshade
@@ -90,17 +105,7 @@ log "rendered: $ntiles hillshade tiles at zooms 8-$maxzoom, mean $mean_bytes byt
 cache_mib=$(( total * 5 / 4 / 1048576 + 64 ))
 
 for run in $(seq "$RUNS"); do
-  log "rendered run $run of $RUNS: Tessera cold, then warm (${secs}s)"
-  start_tessera "$WORK/$name.tess" --tile-cache-mib "$cache_mib"
-  row tessera cold "$run" "curl -Z" "$(pass_json "$TESSERA_URL" "$WORK/tessera.list")" "$(rss_mib "$TESSERA_PID")"
-  row tessera warm "$run" wrk "$(wrk_json "$TESSERA_URL" "$WORK/tessera.list")" "$(rss_mib "$TESSERA_PID")"
-  stop "$TESSERA_PID"
-
-  log "rendered run $run of $RUNS: Tessera source-warm (--tile-cache-mib 1, ${secs}s)"
-  start_tessera "$WORK/$name.tess" --tile-cache-mib 1
-  pass_json "$TESSERA_URL" "$WORK/tessera.list" > /dev/null
-  row tessera source-warm "$run" wrk "$(wrk_json "$TESSERA_URL" "$WORK/tessera.list")" "$(rss_mib "$TESSERA_PID")"
-  stop "$TESSERA_PID"
+  tessera_rows "$run" "$WORK/tessera.list"
 
   log "rendered run $run of $RUNS: TiTiler ($workers workers) cold, then ${secs}s"
   start_titiler
@@ -128,15 +133,7 @@ stop "$TESSERA_PID"
 log "rendered: $ntiles contour tiles at zooms 8-$cmax, mean $mean_bytes bytes"
 cache_mib=$(( total * 5 / 4 / 1048576 + 64 ))
 for run in $(seq "$RUNS"); do
-  log "rendered run $run of $RUNS: Tessera contours cold, warm, source-warm (${secs}s)"
-  start_tessera "$WORK/$name.tess" --tile-cache-mib "$cache_mib"
-  row tessera cold "$run" "curl -Z" "$(pass_json "$TESSERA_URL" "$WORK/contours.list")" "$(rss_mib "$TESSERA_PID")"
-  row tessera warm "$run" wrk "$(wrk_json "$TESSERA_URL" "$WORK/contours.list")" "$(rss_mib "$TESSERA_PID")"
-  stop "$TESSERA_PID"
-  start_tessera "$WORK/$name.tess" --tile-cache-mib 1
-  pass_json "$TESSERA_URL" "$WORK/contours.list" > /dev/null
-  row tessera source-warm "$run" wrk "$(wrk_json "$TESSERA_URL" "$WORK/contours.list")" "$(rss_mib "$TESSERA_PID")"
-  stop "$TESSERA_PID"
+  tessera_rows "$run" "$WORK/contours.list"
 done
 
 # export_row WHAT RUN ARGS...: one timed export (release build, all cores) as a record.

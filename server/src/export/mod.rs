@@ -108,7 +108,7 @@ pub struct Exported {
     pub tiles: u64,
     /// Distinct tile contents stored.
     pub unique: u64,
-    /// The tiles' bytes before deduplication.
+    /// The tiles' bytes before deduplication (and, for vector tiles, before gzip).
     pub tile_bytes: u64,
     /// The archive's size.
     pub archive_bytes: u64,
@@ -247,13 +247,18 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
     };
     let mb = exported.archive_bytes as f64 / 1e6;
     eprintln!(
-        "exported {} tiles ({} distinct) of {} at zooms {}-{maxzoom} to {}: {mb:.1} MB (tiles {:.1} MB before deduplication) in {:.1} s, {:.0} tiles/s, {:.1} MB/s",
+        "exported {} tiles ({} distinct) of {} at zooms {}-{maxzoom} to {}: {mb:.1} MB (tiles {:.1} MB before deduplication{}) in {:.1} s, {:.0} tiles/s, {:.1} MB/s",
         exported.tiles,
         exported.unique,
         ds.name,
         args.minzoom,
         out.display(),
         exported.tile_bytes as f64 / 1e6,
+        if matches!(format, TileFormat::Mvt) {
+            " and gzip"
+        } else {
+            ""
+        },
         exported.seconds,
         exported.tiles as f64 / exported.seconds,
         mb / exported.seconds

@@ -1,18 +1,9 @@
 // Drives MapLibre for contours.test.mjs: a vector source on the server's contour TileJSON and a
 // line layer on its `contours` source layer, index contours drawn thicker. Public API only.
 import * as maplibregl from '/maplibre/maplibre-gl.mjs';
+import { idle } from '/map-idle.js';
 
 let map;
-
-function idle() {
-  return new Promise((resolve, reject) => {
-    const timer = setTimeout(() => reject(new Error('map not idle after 90 s')), 90000);
-    const poll = setInterval(() => {
-      if (map.loaded() && map.areTilesLoaded() && !map.isMoving()) { clearTimeout(timer); clearInterval(poll); resolve(); }
-    }, 250);
-    map.triggerRepaint();
-  });
-}
 
 // The contours of TileJSON `url` centred on `center` at `zoom`; resolves to what MapLibre read
 // from the TileJSON.
@@ -34,7 +25,7 @@ async function open({ url, center, zoom }) {
     canvasContextAttributes: { preserveDrawingBuffer: true, antialias: false },
   });
   map.on('error', (e) => console.error(`maplibre error: ${e.error?.message ?? e.error ?? e}`));
-  await idle();
+  await idle(map);
   const source = map.getSource('contours');
   return { minzoom: source.minzoom, maxzoom: source.maxzoom, vectorLayerIds: source.vectorLayerIds ?? null };
 }

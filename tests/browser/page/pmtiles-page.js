@@ -2,22 +2,13 @@
 // Protocol, as its README tells MapLibre users), a raster-dem source on `pmtiles://URL`, 3D
 // terrain and a hillshade from it. Public API only.
 import * as maplibregl from '/maplibre/maplibre-gl.mjs';
+import { idle } from '/map-idle.js';
 
 /* global pmtiles */
 const protocol = new pmtiles.Protocol();
 maplibregl.addProtocol('pmtiles', protocol.tile);
 
 let map;
-
-function idle() {
-  return new Promise((resolve, reject) => {
-    const timer = setTimeout(() => reject(new Error('map not idle after 90 s')), 90000);
-    const poll = setInterval(() => {
-      if (map.loaded() && map.areTilesLoaded() && !map.isMoving()) { clearTimeout(timer); clearInterval(poll); resolve(); }
-    }, 250);
-    map.triggerRepaint();
-  });
-}
 
 // The archive at `url` as terrain (and a hillshade), centred on `center` at `zoom`; resolves to
 // what MapLibre read from the archive's header (through the protocol's TileJSON).
@@ -38,14 +29,14 @@ async function open({ url, center, zoom }) {
     canvasContextAttributes: { preserveDrawingBuffer: true, antialias: false },
   });
   map.on('error', (e) => console.error(`maplibre error: ${e.error?.message ?? e.error ?? e}`));
-  await idle();
+  await idle(map);
   const source = map.getSource('terrain');
   return { minzoom: source.minzoom, maxzoom: source.maxzoom, bounds: source.bounds ?? null };
 }
 
 async function jump(center, zoom) {
   map.jumpTo({ center, zoom });
-  await idle();
+  await idle(map);
 }
 
 // queryTerrainElevation after the elevation index has been rebuilt for the tiles loaded now

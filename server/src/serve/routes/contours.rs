@@ -57,8 +57,8 @@ impl Style {
     /// The levels a tile at zoom `z` draws, or a 400 naming `interval` when they are
     /// too fine there.
     pub fn levels(&self, fp: &Footprint, tms: TileMatrixSet, z: u8) -> ApiResult<Levels> {
-        let ground = interval::ground_pixel(tms, z, GRID, fp.centre()[1])
-            * interval::body_scale(fp.crs());
+        let ground =
+            interval::ground_pixel(tms, z, GRID, fp.centre()[1]) * interval::body_scale(fp.crs());
         let interval = self.interval.at(ground).map_err(|why| {
             ApiError::bad_request(format!("interval: at zoom {z} of {}, {why}", tms.id()))
         })?;
