@@ -196,3 +196,60 @@ fn bad_and_hostile_intervals_are_refused_and_bounded() {
     let text = srv.get("/metrics").expect(200).text();
     assert!(!text.contains("status=\"500\""), "a server error: {text}");
 }
+
+/// `unit=ft`: intervals and `ele` in international feet. The 1000-ft lines are the
+/// 304.8-m lines of the same heights, line for line.
+#[test]
+fn feet_lines_are_the_metre_lines_at_the_same_heights() {
+    let Some(pyramid) = dem_pyramid("N46E008.tif", 256) else {
+        return;
+    };
+    let srv = Server::start(&[&pyramid], &[]);
+    let base = "/v1/datasets/N46E008/webmercator/contours";
+    let doc = srv
+        .get(&format!("{base}/tilejson.json?unit=ft"))
+        .expect(200)
+        .json();
+    assert_eq!(doc["contour_unit"], "ft");
+    assert!(
+        doc["vector_layers"][0]["fields"]["ele"]
+            .as_str()
+            .unwrap()
+            .contains("feet")
+    );
+    // 26.3 m pixels at zoom 11 (46.5° N): 3 px is 259 ft, so 500 ft (100 m in metres).
+    assert_eq!(
+        doc["contour_intervals"]["11"].as_f64().unwrap(),
+        500.0,
+        "{doc}"
+    );
+    let feet = features(
+        &srv.get(&format!(
+            "{base}/11/1072/724.mvt?unit=ft&interval=1000&index=0"
+        ))
+        .expect(200)
+        .body,
+    );
+    let metres = features(
+        &srv.get(&format!("{base}/11/1072/724.mvt?interval=304.8&index=0"))
+            .expect(200)
+            .body,
+    );
+    assert!(feet.len() > 50, "{} lines", feet.len());
+    let mut a: Vec<i64> = feet
+        .iter()
+        .map(|(e, _)| {
+            assert_eq!(e % 1000.0, 0.0, "{e} ft");
+            (e * 0.3048 * 1000.0).round() as i64
+        })
+        .collect();
+    let mut b: Vec<i64> = metres
+        .iter()
+        .map(|(e, _)| (e * 1000.0).round() as i64)
+        .collect();
+    a.sort_unstable();
+    b.sort_unstable();
+    assert_eq!(a, b, "the same lines at the same heights");
+    srv.get(&format!("{base}/11/1072/724.mvt?unit=feet"))
+        .expect(400);
+}

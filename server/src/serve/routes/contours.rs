@@ -1,12 +1,12 @@
 //! Contour lines as Mapbox Vector Tiles on the standard grids (web/contour/,
 //! DECISIONS.md "Contour tiles"), with a TileJSON document naming their layer.
 //!
-//! - `GET /v1/datasets/{name}/{grid}/contours/{z}/{x}/{y}.mvt?interval=&index=`
-//! - `GET /v1/datasets/{name}/{grid}/contours/tilejson.json?interval=&index=`
+//! - `GET /v1/datasets/{name}/{grid}/contours/{z}/{x}/{y}.mvt?interval=&index=&unit=`
+//! - `GET /v1/datasets/{name}/{grid}/contours/tilejson.json?interval=&index=&unit=`
 //!
-//! `interval` is metres between lines, or `auto` (the default: one per zoom, see
-//! web/contour/interval.rs); `index` makes every n-th line (counted from 0 m) an
-//! index contour (default 5; 0 for none). A tile is traced on a grid of [`GRID`]
+//! `interval` is units between lines, or `auto` (the default: one per zoom, see
+//! web/contour/interval.rs); `index` makes every n-th line (counted from 0) an
+//! index contour (default 5; 0 for none); `unit` is `m` (default) or `ft`. A tile is traced on a grid of [`GRID`]
 //! samples across and [`BORDER`] more on each side, read from its neighbours.
 
 use super::web_grid::{self, Asked, grid, grid_tilejson, web_tile};
@@ -18,7 +18,7 @@ use crate::serve::dataset::Dataset;
 use crate::serve::web_cache::{Look, MadeKey, WebTiles};
 use crate::web::contour::interval::{self, Interval};
 use crate::web::contour::march::{self, Contouring, MAX_SEGMENTS};
-use crate::web::contour::vector_tile::{self, Levels};
+use crate::web::contour::vector_tile::{self, Levels, Unit};
 use crate::web::encoding::TileFormat;
 use crate::web::footprint::Footprint;
 use crate::web::resample;
@@ -41,7 +41,7 @@ pub const BORDER: u32 = resample::APRON as u32;
 const DEFAULT_INDEX: u32 = 5;
 
 /// The parameters contour routes take.
-const OPTIONS: [&str; 4] = ["interval", "index", "v", "key"];
+const OPTIONS: [&str; 5] = ["interval", "index", "unit", "v", "key"];
 
 /// Contours as asked for: the interval, the index lines, their canonical
 /// description (the cache key and ETag variant), and the query asking for them again.
@@ -49,6 +49,7 @@ const OPTIONS: [&str; 4] = ["interval", "index", "v", "key"];
 pub struct Style {
     pub interval: Interval,
     pub index: u32,
+    pub unit: Unit,
     pub canonical: String,
     pub query: String,
 }
@@ -57,14 +58,16 @@ impl Style {
     /// The levels a tile at zoom `z` draws, or a 400 naming `interval` when they are
     /// too fine there.
     pub fn levels(&self, fp: &Footprint, tms: TileMatrixSet, z: u8) -> ApiResult<Levels> {
-        let ground =
-            interval::ground_pixel(tms, z, GRID, fp.centre()[1]) * interval::body_scale(fp.crs());
-        let interval = self.interval.at(ground).map_err(|why| {
+        let ground = interval::ground_pixel(tms, z, GRID, fp.centre()[1])
+            * interval::body_scale(fp.crs())
+            * self.unit.per_metre();
+        let interval = self.interval.at(ground, self.unit.name()).map_err(|why| {
             ApiError::bad_request(format!("interval: at zoom {z} of {}, {why}", tms.id()))
         })?;
         Ok(Levels {
             interval,
             index: self.index,
+            unit: self.unit,
         })
     }
 }
@@ -99,10 +102,24 @@ pub fn style(query: &HashMap<String, String>, more: &[&str]) -> ApiResult<Style>
                 ))
             })
     })?;
-    let q = format!("interval={}&index={index}", interval.name());
+    let unit = query.get("unit").map_or(Ok(Unit::Metres), |v| {
+        Unit::parse(v).ok_or_else(|| {
+            ApiError::bad_request(format!(
+                "unit: unknown unit {}: the units are {}",
+                quoted(v),
+                Unit::ALLOWED
+            ))
+        })
+    })?;
+    let q = format!(
+        "interval={}&index={index}&unit={}",
+        interval.name(),
+        unit.name()
+    );
     Ok(Style {
         interval,
         index,
+        unit,
         canonical: format!("contours {q}"),
         query: q,
     })
@@ -140,8 +157,14 @@ pub fn make(
         return encode(&[]);
     };
     let (sources, memory) = web_grid::plan_sources(web, ds, &plan, working, ticket)?;
-    let sampled = plan.sample_bordered(&sources, BORDER);
+    let mut sampled = plan.sample_bordered(&sources, BORDER);
     drop(sources);
+    let per_metre = levels.unit.per_metre();
+    if per_metre != 1.0 {
+        for h in &mut sampled.heights {
+            *h *= per_metre;
+        }
+    }
     let grid = march::Grid {
         width: side as usize,
         height: side as usize,
@@ -154,8 +177,10 @@ pub fn make(
         let coarser =
             interval::nice_at_least(levels.interval * pieces as f64 / MAX_SEGMENTS as f64);
         return Err(web_grid::Failure::TooDense(format!(
-            "interval: {} m draws {pieces} line pieces in tile {}, more than the {MAX_SEGMENTS} a contour tile may hold; an interval of {coarser} m or more draws it",
-            levels.interval, key.tile
+            "interval: {} {unit} draws {pieces} line pieces in tile {}, more than the {MAX_SEGMENTS} a contour tile may hold; an interval of {coarser} {unit} or more draws it",
+            levels.interval,
+            key.tile,
+            unit = levels.unit.name()
         )));
     }
     ticket.check().map_err(web_grid::Failure::Stopped)?;
@@ -252,13 +277,14 @@ pub fn tilejson_doc(
     let fields = BTreeMap::from([
         (
             "ele".to_string(),
-            "Number: the line's elevation in metres".to_string(),
+            format!("Number: the line's elevation in {}", style.unit.word()),
         ),
         (
             "index".to_string(),
             format!(
-                "Boolean: whether it is an index contour (every {} line from 0 m)",
-                ordinal(style.index)
+                "Boolean: whether it is an index contour (every {} line from 0 {})",
+                ordinal(style.index),
+                style.unit.name()
             ),
         ),
     ]);
@@ -272,11 +298,13 @@ pub fn tilejson_doc(
         ds.name,
         match style.interval {
             Interval::Auto => "interval of each zoom".to_string(),
-            Interval::Fixed(v) => format!("{v} m"),
+            Interval::Fixed(v) => format!("{v} {}", style.unit.name()),
         },
         style.query.replace('&', ", ")
     ));
     doc.other.insert("format".into(), "pbf".into());
+    doc.other
+        .insert("contour_unit".into(), style.unit.name().into());
     doc.other.insert(
         "contour_intervals".into(),
         intervals
@@ -341,9 +369,19 @@ mod tests {
     #[test]
     fn styles_are_canonical_and_bad_options_are_named() {
         let s = style(&query(&[]), &[]).unwrap();
-        assert_eq!(s.query, "interval=auto&index=5");
-        let s = style(&query(&[("interval", "20"), ("index", "0")]), &[]).unwrap();
-        assert_eq!(s.query, "interval=20&index=0");
+        assert_eq!(s.query, "interval=auto&index=5&unit=m");
+        let s = style(
+            &query(&[("interval", "20"), ("index", "0"), ("unit", "ft")]),
+            &[],
+        )
+        .unwrap();
+        assert_eq!(s.query, "interval=20&index=0&unit=ft");
+        let e = style(&query(&[("unit", "feet")]), &[]).unwrap_err();
+        assert!(
+            e.message.starts_with("unit:") && e.message.contains("m, ft"),
+            "{}",
+            e.message
+        );
         let e = style(&query(&[("intervall", "20")]), &[]).unwrap_err();
         assert!(e.message.contains("\"intervall\""), "{}", e.message);
         let e = style(&query(&[("interval", "0")]), &[]).unwrap_err();

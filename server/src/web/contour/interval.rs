@@ -15,7 +15,8 @@ pub const AUTO_PIXELS: f64 = 3.0;
 /// 1 % a 45° slope already crosses 100 levels per pixel, ink and no map.
 pub const MIN_PIXEL_FRACTION: f64 = 0.01;
 
-/// The finest interval at any zoom, in metres: heights are not known better.
+/// The finest interval at any zoom, in the unit asked for (metres or feet): heights
+/// are not known better.
 pub const MIN_INTERVAL: f64 = 0.01;
 
 /// The interval asked for.
@@ -28,7 +29,7 @@ pub enum Interval {
 }
 
 impl Interval {
-    /// `auto` or a positive number of metres.
+    /// `auto` or a positive number of units.
     pub fn parse(raw: &str) -> Result<Self, String> {
         if raw == "auto" {
             return Ok(Self::Auto);
@@ -36,18 +37,18 @@ impl Interval {
         match raw.parse::<f64>() {
             Ok(v) if v.is_finite() && v >= MIN_INTERVAL => Ok(Self::Fixed(v)),
             Ok(v) if v.is_finite() => Err(format!(
-                "{raw:?} metres is finer than the finest interval, {MIN_INTERVAL} m{}",
+                "{raw:?} is finer than the finest interval, {MIN_INTERVAL}{}",
                 if v <= 0.0 {
                     " (it must be positive)"
                 } else {
                     ""
                 }
             )),
-            _ => Err(format!("{raw:?} is neither a number of metres nor auto")),
+            _ => Err(format!("{raw:?} is neither a number nor auto")),
         }
     }
 
-    /// How the interval reads in a query: `auto` or its metres.
+    /// How the interval reads in a query: `auto` or its number.
     pub fn name(self) -> String {
         match self {
             Self::Auto => "auto".into(),
@@ -55,16 +56,16 @@ impl Interval {
         }
     }
 
-    /// The interval in metres where a pixel is `ground` metres across, or why that is
-    /// too fine there (naming the finest allowed).
-    pub fn at(self, ground: f64) -> Result<f64, String> {
+    /// The interval where a pixel is `ground` across (both in the unit named `unit`), or
+    /// why that is too fine there (naming the finest allowed).
+    pub fn at(self, ground: f64, unit: &str) -> Result<f64, String> {
         match self {
             Self::Auto => Ok(nice_at_least(ground * AUTO_PIXELS).max(MIN_INTERVAL)),
             Self::Fixed(v) => {
                 let finest = ground * MIN_PIXEL_FRACTION;
                 if v < finest {
                     Err(format!(
-                        "{v} m is finer than this zoom can draw: its pixels are {ground:.1} m across, and the finest interval is {} m ({} % of a pixel)",
+                        "{v} {unit} is finer than this zoom can draw: its pixels are {ground:.1} {unit} across, and the finest interval is {} {unit} ({} % of a pixel)",
                         nice_at_least(finest),
                         MIN_PIXEL_FRACTION * 100.0
                     ))
@@ -138,7 +139,7 @@ mod tests {
     fn automatic_intervals_halve_per_zoom_or_so_and_are_readable() {
         let at = |z| {
             let g = ground_pixel(TileMatrixSet::WebMercatorQuad, z, 512, 46.5);
-            Interval::Auto.at(g).unwrap()
+            Interval::Auto.at(g, "m").unwrap()
         };
         // The Alps at 512-pixel tiles: 13.2 m pixels at zoom 12.
         assert_eq!(at(12), 50.0);
@@ -157,9 +158,9 @@ mod tests {
     #[test]
     fn absurd_intervals_are_refused_with_the_finest_allowed() {
         let g = ground_pixel(TileMatrixSet::WebMercatorQuad, 2, 512, 0.0);
-        let why = Interval::Fixed(0.01).at(g).unwrap_err();
+        let why = Interval::Fixed(0.01).at(g, "m").unwrap_err();
         assert!(why.contains("finest interval is 200 m"), "{why}");
-        assert_eq!(Interval::Fixed(200.0).at(g), Ok(200.0));
+        assert_eq!(Interval::Fixed(200.0).at(g, "m"), Ok(200.0));
         assert!(Interval::parse("0.001").unwrap_err().contains("finer"));
         assert!(Interval::parse("-5").unwrap_err().contains("positive"));
         assert!(Interval::parse("NaN").is_err());

@@ -1,6 +1,6 @@
 //! A contour tile as a Mapbox Vector Tile (specification 2.1): one layer,
-//! [`LAYER`], with one LineString feature per line, carrying its elevation (`ele`,
-//! metres) and whether it is an index contour (`index`). Encoded with the `mvt`
+//! [`LAYER`], with one LineString feature per line, carrying its elevation (`ele`, in
+//! the levels' [`Unit`]) and whether it is an index contour (`index`). Encoded with the `mvt`
 //! crate.
 //!
 //! Lines are traced on the tile's grid and its border (the tile's buffer: the
@@ -23,16 +23,60 @@ pub const LAYER: &str = "contours";
 /// same on screen and a ground distance halving per zoom.
 pub const TOLERANCE: f64 = 4.0;
 
-/// Which lines a tile holds: every `interval` metres, and every `index`-th of them
-/// (counted from 0 m; 0 for none) an index contour.
+/// Which lines a tile holds: every `interval` units of `unit`, and every `index`-th
+/// of them (counted from 0; 0 for none) an index contour.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Levels {
     pub interval: f64,
     pub index: u32,
+    pub unit: Unit,
+}
+
+/// The unit of the levels and of `ele`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Unit {
+    Metres,
+    /// International feet (0.3048 m), as US topographic maps are drawn.
+    Feet,
+}
+
+impl Unit {
+    /// How the query names it.
+    pub const ALLOWED: &str = "m, ft";
+
+    pub fn parse(raw: &str) -> Option<Self> {
+        match raw {
+            "m" => Some(Self::Metres),
+            "ft" => Some(Self::Feet),
+            _ => None,
+        }
+    }
+
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Metres => "m",
+            Self::Feet => "ft",
+        }
+    }
+
+    pub const fn word(self) -> &'static str {
+        match self {
+            Self::Metres => "metres",
+            Self::Feet => "feet",
+        }
+    }
+
+    /// This unit's measure of one metre.
+    pub const fn per_metre(self) -> f64 {
+        match self {
+            Self::Metres => 1.0,
+            Self::Feet => 1.0 / 0.3048,
+        }
+    }
 }
 
 impl Levels {
-    /// Level `k`'s elevation in metres, free of the product's binary noise (3 ×
+    /// Level `k`'s elevation in the unit, free of the product's binary noise (3 ×
     /// 0.1 m is 0.3 m).
     pub fn elevation(self, k: i64) -> f64 {
         let e = k as f64 * self.interval;
@@ -97,6 +141,7 @@ mod tests {
         let l = Levels {
             interval: 0.1,
             index: 5,
+            unit: Unit::Metres,
         };
         assert_eq!(l.elevation(3), 0.3);
         assert_eq!(l.elevation(-12), -1.2);
@@ -104,6 +149,7 @@ mod tests {
         let none = Levels {
             interval: 10.0,
             index: 0,
+            unit: Unit::Feet,
         };
         assert!(!none.is_index(0));
     }
@@ -113,6 +159,7 @@ mod tests {
         let levels = Levels {
             interval: 10.0,
             index: 5,
+            unit: Unit::Metres,
         };
         // A 512-sample tile with a 2-sample border: sample 2 is the tile's first
         // pixel centre (4 units in), 8 units per sample.
