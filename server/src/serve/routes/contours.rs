@@ -6,8 +6,9 @@
 //!
 //! `interval` is units between lines, or `auto` (the default: one per zoom, see
 //! web/contour/interval.rs); `index` makes every n-th line (counted from 0) an
-//! index contour (default 5; 0 for none); `unit` is `m` (default) or `ft`. A tile is traced on a grid of [`GRID`]
-//! samples across and [`BORDER`] more on each side, read from its neighbours.
+//! index contour (default 5; 0 for none); `unit` is `m` (default) or `ft`. A tile
+//! is traced on a grid of [`GRID`] samples across and [`BORDER`] more on each side,
+//! read from its neighbours.
 
 use super::web_grid::{self, Asked, grid, grid_tilejson, web_tile};
 use super::{Params, Segments, dataset, pinned};
