@@ -1,11 +1,12 @@
 //! `tessera-server export`: a dataset's standard-grid tiles — heights (Terrarium,
 //! Terrain-RGB), a rendered layer (hillshade, colour relief, slope) or contour lines
-//! (vector tiles) — written into
-//! one PMTiles v3 archive for serverless web maps (DECISIONS.md "PMTiles export").
+//! (vector tiles) — written into one PMTiles v3 archive for serverless web maps
+//! (DECISIONS.md "PMTiles export").
 //!
 //! Each tile is made by the very code that serves it (`routes::web_grid::make`,
-//! `routes::rendered::make`, `routes::contours::make`), so an archive's tile is byte for byte the server's tile
-//! of the same z/x/y (or, with `--precision auto`, its heights rounded: [`precision`]).
+//! `routes::rendered::make`, `routes::contours::make`), so an archive's tile is byte
+//! for byte the server's tile of the same z/x/y (or, with `--precision auto`, its
+//! heights rounded: [`precision`]; vector tiles are stored gzipped).
 //! Tiles are made in parallel under the server's compute admission (slots and a
 //! memory budget), read through a bounded cache of decoded pyramid tiles, and written
 //! in PMTiles tile-id order (a clustered archive) as they come, with identical tiles
@@ -197,9 +198,9 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
                 }
                 Shows::Contours(style)
             } else {
-                let kind = Kind::parse(layer).ok_or_else(|| {
-                anyhow!("--layer {layer}: the layers are hillshade, color-relief, slope and contours")
-            })?;
+                const LAYERS: &str = "hillshade, color-relief, slope and contours";
+                let kind = Kind::parse(layer)
+                    .ok_or_else(|| anyhow!("--layer {layer}: the layers are {LAYERS}"))?;
                 let ramps =
                     crate::serve::config::ramps(&args.ramp, std::collections::BTreeMap::default())?;
                 let style = rendered::style(&ramps, &ds, kind, &query, &[])
