@@ -8,7 +8,7 @@
 mod serve_support;
 
 use mvt_reader::feature::Value;
-use serve_support::{Server, dem_pyramid};
+use serve_support::{Server, compute, dem_pyramid, parse_metrics};
 use std::io::Read;
 
 /// Each feature's `ele` and `index`.
@@ -192,9 +192,38 @@ fn bad_and_hostile_intervals_are_refused_and_bounded() {
         }
     });
     srv.get(&format!("{base}/11/1072/724.mvt")).expect(200);
-    // Refusals are counted as the caller's errors, not the server's.
-    let text = srv.get("/metrics").expect(200).text();
-    assert!(!text.contains("status=\"500\""), "a server error: {text}");
+    // Every refusal is counted as the caller's error, none as the server's; the dense
+    // ones went through compute admission like any tile.
+    let samples = parse_metrics(&srv.get("/metrics").expect(200).text());
+    let requests = |route: &str, status: &str| -> f64 {
+        samples
+            .iter()
+            .filter(|s| {
+                s.name == "tessera_http_requests_total"
+                    && s.labels.get("route").is_some_and(|r| r == route)
+                    && s.labels.get("status").is_some_and(|v| v == status)
+            })
+            .map(|s| s.value)
+            .sum()
+    };
+    let route = "/v1/datasets/{name}/{grid}/contours/{z}/{x}/{y}";
+    // 9 bad parameters, zoom 2, the dense tile and the crowd of 16.
+    assert_eq!(requests(route, "400"), 27.0);
+    assert!(
+        samples
+            .iter()
+            .all(|s| s.name != "tessera_http_requests_total"
+                || !s.labels.get("status").is_some_and(|v| v.starts_with('5'))),
+        "a server error"
+    );
+    assert!(
+        compute(
+            &samples,
+            "tessera_compute_total",
+            "contours",
+            Some("started")
+        ) >= 17.0
+    );
 }
 
 /// `unit=ft`: intervals and `ele` in international feet. The 1000-ft lines are the

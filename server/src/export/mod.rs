@@ -189,7 +189,7 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<Exported> {
             }
             if contour_lines {
                 let style =
-                    contours::style(&query, &[]).map_err(|e| anyhow!("--option: {}", e.message))?;
+                    contours::style(&query).map_err(|e| anyhow!("--option: {}", e.message))?;
                 // Every zoom's interval is known before a tile is made.
                 for z in args.minzoom..=maxzoom {
                     style.levels(&fp, tms, z).map_err(|e| {

@@ -74,19 +74,12 @@ impl Style {
 }
 
 /// The contours the query asks for, or 400 naming the parameter.
-pub fn style(query: &HashMap<String, String>, more: &[&str]) -> ApiResult<Style> {
-    let mut keys: Vec<&String> = query.keys().collect();
-    keys.sort();
-    if let Some(k) = keys
-        .into_iter()
-        .find(|k| !(OPTIONS.contains(&k.as_str()) || more.contains(&k.as_str())))
-    {
-        let mut allowed = OPTIONS.to_vec();
-        allowed.extend(more);
+pub fn style(query: &HashMap<String, String>) -> ApiResult<Style> {
+    if let Some(k) = web_grid::unknown_parameter(query, &OPTIONS) {
         return Err(ApiError::bad_request(format!(
             "unknown parameter {} for contours: they take {}",
             quoted(k),
-            allowed.join(", ")
+            OPTIONS.join(", ")
         )));
     }
     let interval = query.get("interval").map_or(Ok(Interval::Auto), |v| {
@@ -208,7 +201,7 @@ pub async fn tile(
     };
     let ds = dataset(&state, &name)?;
     let tms = grid(&grid_name)?;
-    let style = style(&query, &[])?;
+    let style = style(&query)?;
     let tile = web_tile(tms, &z, &x, y)?;
     let fp = web_grid::footprint(&state, &ds)?;
     let levels = style.levels(&fp, tms, tile.z)?;
@@ -343,7 +336,7 @@ pub async fn tilejson(
 ) -> ApiResult<Response> {
     let ds = dataset(&state, &name)?;
     let tms = grid(&grid_name)?;
-    let style = style(&query, &[])?;
+    let style = style(&query)?;
     let variant = format!("contours tilejson {} {}", tms.path(), style.canonical);
     web_grid::tilejson_response(
         &state,
@@ -369,25 +362,26 @@ mod tests {
 
     #[test]
     fn styles_are_canonical_and_bad_options_are_named() {
-        let s = style(&query(&[]), &[]).unwrap();
+        let s = style(&query(&[])).unwrap();
         assert_eq!(s.query, "interval=auto&index=5&unit=m");
-        let s = style(
-            &query(&[("interval", "20"), ("index", "0"), ("unit", "ft")]),
-            &[],
-        )
+        let s = style(&query(&[
+            ("interval", "20"),
+            ("index", "0"),
+            ("unit", "ft"),
+        ]))
         .unwrap();
         assert_eq!(s.query, "interval=20&index=0&unit=ft");
-        let e = style(&query(&[("unit", "feet")]), &[]).unwrap_err();
+        let e = style(&query(&[("unit", "feet")])).unwrap_err();
         assert!(
             e.message.starts_with("unit:") && e.message.contains("m, ft"),
             "{}",
             e.message
         );
-        let e = style(&query(&[("intervall", "20")]), &[]).unwrap_err();
+        let e = style(&query(&[("intervall", "20")])).unwrap_err();
         assert!(e.message.contains("\"intervall\""), "{}", e.message);
-        let e = style(&query(&[("interval", "0")]), &[]).unwrap_err();
+        let e = style(&query(&[("interval", "0")])).unwrap_err();
         assert!(e.message.starts_with("interval:"), "{}", e.message);
-        let e = style(&query(&[("index", "-1")]), &[]).unwrap_err();
+        let e = style(&query(&[("index", "-1")])).unwrap_err();
         assert!(e.message.starts_with("index:"), "{}", e.message);
     }
 

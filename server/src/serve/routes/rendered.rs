@@ -97,14 +97,9 @@ pub fn style(
     query: &HashMap<String, String>,
     more: &[&str],
 ) -> ApiResult<Style> {
-    let own = options(kind);
-    let mut keys: Vec<&String> = query.keys().collect();
-    keys.sort();
-    if let Some(k) = keys.into_iter().find(|k| {
-        !(own.contains(&k.as_str()) || COMMON.contains(&k.as_str()) || more.contains(&k.as_str()))
-    }) {
-        let mut allowed: Vec<&str> = own.to_vec();
-        allowed.extend(COMMON.iter().chain(more));
+    let mut allowed: Vec<&str> = options(kind).to_vec();
+    allowed.extend(COMMON.iter().chain(more));
+    if let Some(k) = web_grid::unknown_parameter(query, &allowed) {
         return Err(ApiError::bad_request(format!(
             "unknown parameter {} for the {} layer: it takes {}",
             quoted(k),

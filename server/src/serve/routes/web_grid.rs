@@ -297,6 +297,18 @@ pub fn plan_sources(
     Ok((sources, memory))
 }
 
+/// The first parameter of `query` (in name order, so the answer is stable) that is not
+/// in `allowed`: strict routes refuse it with a 400 naming it, since a misspelt
+/// option must not silently draw the default.
+pub fn unknown_parameter<'q>(
+    query: &'q HashMap<String, String>,
+    allowed: &[&str],
+) -> Option<&'q String> {
+    let mut keys: Vec<&String> = query.keys().collect();
+    keys.sort();
+    keys.into_iter().find(|k| !allowed.contains(&k.as_str()))
+}
+
 /// `GET /v1/datasets/{name}/{grid}/{z}/{x}/{y}.{png,webp}?encoding=&size=`.
 pub async fn tile(
     State(state): State<Arc<AppState>>,
