@@ -117,7 +117,7 @@ fn budget_held(
 }
 
 #[test]
-fn identical_requests_for_a_grid_tile_or_a_bootstrap_are_made_once() {
+fn identical_requests_for_a_grid_tile_a_rendered_or_contour_tile_or_a_bootstrap_are_made_once() {
     let Some(p) = dem_pyramid("N46E008.tif", 256) else {
         return;
     };
@@ -126,6 +126,14 @@ fn identical_requests_for_a_grid_tile_or_a_bootstrap_are_made_once() {
         (
             "/v1/datasets/N46E008/webmercator/9/268/181.png",
             "grid_tile",
+        ),
+        (
+            "/v1/datasets/N46E008/webmercator/hillshade/11/1072/724.png",
+            "rendered",
+        ),
+        (
+            "/v1/datasets/N46E008/webmercator/contours/11/1072/724.mvt",
+            "contours",
         ),
         ("/v1/datasets/N46E008/bootstrap?focus=0.5,0.5", "bootstrap"),
     ] {

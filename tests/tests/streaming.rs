@@ -195,9 +195,13 @@ fn load_generator_batches_in_range_mode_only() {
         assert!(r.tiles > 20 && r.bytes > 0, "{r:?}");
         assert!(r.latency_ms_p50 > 0.0 && r.latency_ms_p50 <= r.latency_ms_max);
     }
-    assert_eq!(
-        single.responses, single.tiles,
-        "single mode: one tile per response"
+    // Single mode: one tile per request, and every response answered in full carried
+    // its tile. A tile is counted when it decodes and its response when the body ends,
+    // so a response cut off when the run stops may have counted its tile only: tiles
+    // may exceed full responses, never requests.
+    assert!(
+        single.responses <= single.tiles && single.tiles <= single.requests,
+        "single mode: one tile per response: {single:?}"
     );
     assert!(
         ranges.responses * 2 < ranges.tiles,
